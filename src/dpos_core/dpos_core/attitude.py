@@ -1,0 +1,172 @@
+"""Attitude representations: Hamilton quaternions, direction cosine matrices, rotation vectors,
+and the attitude error between two attitudes.
+
+Conventions
+-----------
+* Quaternions are scalar-first ``[w, x, y, z]`` (Hamilton product).  ``q_nb`` rotates a vector
+  from frame ``b`` to frame ``n``: ``v_n = q_nb * v_b * conj(q_nb)``; its DCM is ``C_nb``
+  (``v_n = C_nb @ v_b``, the papers' ``C_b^n``).
+* A rotation vector ``phi`` has the rotation axis as direction and the angle [rad] as norm;
+  ``rotvec_to_dcm(phi) = expm([phi x])``.
+* Every function broadcasts over leading axes (shape ``(..., 4)``, ``(..., 3)``, ``(..., 3, 3)``).
+
+Euler angles live in :mod:`dpos_core.frames`, which owns the body/world axis conventions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+_SMALL_ANGLE_RAD = 1e-6
+
+
+def skew(v: ArrayLike) -> FloatArray:
+    """Cross-product matrix ``[v x]``, shape ``(..., 3, 3)``."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros_like(v[..., 0])
+    return np.stack(
+        [
+            np.stack([z, -v[..., 2], v[..., 1]], axis=-1),
+            np.stack([v[..., 2], z, -v[..., 0]], axis=-1),
+            np.stack([-v[..., 1], v[..., 0], z], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def quat_mul(p: ArrayLike, q: ArrayLike) -> FloatArray:
+    """Hamilton product ``p * q``, shape ``(..., 4)``."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: ArrayLike) -> FloatArray:
+    """Conjugate (inverse of a unit quaternion), shape ``(..., 4)``."""
+    q = np.asarray(q, dtype=float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_normalize(q: ArrayLike) -> FloatArray:
+    """Unit quaternion with non-negative scalar part, shape ``(..., 4)``."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_to_dcm(q: ArrayLike) -> FloatArray:
+    """Unit quaternion ``q_nb`` -> DCM ``C_nb``, shape ``(..., 3, 3)``."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def dcm_to_quat(C: ArrayLike) -> FloatArray:
+    """DCM ``C_nb`` -> unit quaternion ``q_nb`` (Shepperd's method, robust for all angles).
+
+    Each candidate row equals ``4 q_i * q``; the one with the largest pivot ``q_i`` is used.
+    """
+    C = np.asarray(C, dtype=float)
+    m00, m01, m02 = C[..., 0, 0], C[..., 0, 1], C[..., 0, 2]
+    m10, m11, m12 = C[..., 1, 0], C[..., 1, 1], C[..., 1, 2]
+    m20, m21, m22 = C[..., 2, 0], C[..., 2, 1], C[..., 2, 2]
+    tr = m00 + m11 + m22
+    cands = np.stack(
+        [
+            np.stack([1.0 + tr, m21 - m12, m02 - m20, m10 - m01], axis=-1),
+            np.stack([m21 - m12, 1.0 + m00 - m11 - m22, m01 + m10, m02 + m20], axis=-1),
+            np.stack([m02 - m20, m01 + m10, 1.0 - m00 + m11 - m22, m12 + m21], axis=-1),
+            np.stack([m10 - m01, m02 + m20, m12 + m21, 1.0 - m00 - m11 + m22], axis=-1),
+        ],
+        axis=-2,
+    )
+    k = np.argmax(np.stack([tr, m00, m11, m22], axis=-1), axis=-1)
+    q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
+    return quat_normalize(q)
+
+
+def rotvec_to_quat(phi: ArrayLike) -> FloatArray:
+    """Rotation vector -> unit quaternion, shape ``(..., 4)`` (series below 1e-6 rad)."""
+    phi = np.asarray(phi, dtype=float)
+    a2 = np.sum(phi * phi, axis=-1)
+    a = np.sqrt(a2)
+    small = a < _SMALL_ANGLE_RAD
+    safe = np.where(small, 1.0, a)
+    w = np.where(small, 1.0 - a2 / 8.0, np.cos(0.5 * safe))
+    s = np.where(small, 0.5 - a2 / 48.0, np.sin(0.5 * safe) / safe)
+    return np.concatenate([w[..., None], s[..., None] * phi], axis=-1)
+
+
+def quat_to_rotvec(q: ArrayLike) -> FloatArray:
+    """Unit quaternion -> rotation vector with angle in ``[0, pi]``, shape ``(..., 3)``."""
+    q = quat_normalize(q)
+    v = q[..., 1:]
+    sn = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(sn, q[..., 0])
+    small = sn < 1e-12
+    scale = np.where(small, 2.0 / np.where(small, q[..., 0], 1.0), angle / np.where(small, 1.0, sn))
+    return scale[..., None] * v
+
+
+def rotvec_to_dcm(phi: ArrayLike) -> FloatArray:
+    """Rotation vector -> DCM ``expm([phi x])``, shape ``(..., 3, 3)``."""
+    return quat_to_dcm(rotvec_to_quat(phi))
+
+
+def dcm_to_rotvec(C: ArrayLike) -> FloatArray:
+    """DCM -> rotation vector (``logm``), shape ``(..., 3)``; valid up to pi."""
+    return quat_to_rotvec(dcm_to_quat(C))
+
+
+def orthonormalize(C: ArrayLike) -> FloatArray:
+    """Nearest rotation matrix (polar decomposition via SVD), shape ``(..., 3, 3)``."""
+    u, _, vt = np.linalg.svd(np.asarray(C, dtype=float))
+    d = np.sign(np.linalg.det(u @ vt))
+    u[..., :, 2] *= d[..., None]
+    return u @ vt
+
+
+def attitude_error(C_nb_est: ArrayLike, C_nb_true: ArrayLike) -> FloatArray:
+    """Attitude error ``phi^n`` (rotation vector, world frame) of an estimate, shape ``(..., 3)``.
+
+    Defined exactly (no small-angle assumption) by ``C_nb_est = expm(-[phi x]) @ C_nb_true``,
+    the misalignment ("phi-angle") convention of the seeds' error models (seed 000 eq. 11:
+    ``C_n^{n'} = I - [phi x]`` to first order).  Valid for any angle below pi and
+    free of Euler-angle singularities and heading wrap.  The estimate is corrected by
+    ``C_nb_true = expm([phi x]) @ C_nb_est``.
+    """
+    C_est = np.asarray(C_nb_est, dtype=float)
+    C_true = np.asarray(C_nb_true, dtype=float)
+    return dcm_to_rotvec(C_true @ np.swapaxes(C_est, -1, -2))
+
+
+def apply_attitude_correction(C_nb_est: ArrayLike, phi_n_rad: ArrayLike) -> FloatArray:
+    """Inverse of :func:`attitude_error`: ``expm([phi x]) @ C_nb_est``."""
+    return rotvec_to_dcm(phi_n_rad) @ np.asarray(C_nb_est, dtype=float)
+
+
+def wrap_angle(angle_rad: ArrayLike) -> FloatArray:
+    """Wrap to ``(-pi, pi]``."""
+    a = np.asarray(angle_rad, dtype=float)
+    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(w == -np.pi, np.pi, w)

@@ -1,0 +1,175 @@
+"""WGS-84 Earth model: geodetic <-> ECEF <-> local ENU, radii of curvature, normal gravity,
+Earth rate and transport rate in the local-level (ENU) navigation frame.
+
+Conventions
+-----------
+* Geodetic coordinates are ``(lat_rad, lon_rad, h_m)`` on the WGS-84 ellipsoid.
+* ``n`` is the local-level East-North-Up frame at the current position; ``enu`` (the ROS world
+  frame of design.md) is the Cartesian ENU frame tangent to the ellipsoid at a fixed *datum*.
+* All functions accept scalars or arrays and broadcast over leading axes; vectors are in the
+  last axis (shape ``(..., 3)``).
+
+Formulas: NIMA TR8350.2 (WGS-84 constants, Somigliana normal gravity and its second-order height
+expansion, eq. 4-1 and 4-3), Groves, *Principles of GNSS, Inertial, and Multisensor Integrated
+Navigation Systems*, 2nd ed. (radii eq. 2.105-2.106, transport rate eq. 5.44), and Bowring's
+iteration for ECEF -> geodetic (Bowring 1976), iterated to machine precision.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+# WGS-84 defining and derived constants (NIMA TR8350.2, 3rd ed.)
+A_M: float = 6378137.0  #: semi-major axis [m]
+F: float = 1.0 / 298.257223563  #: flattening
+B_M: float = A_M * (1.0 - F)  #: semi-minor axis [m]
+E2: float = F * (2.0 - F)  #: first eccentricity squared
+EP2: float = E2 / (1.0 - E2)  #: second eccentricity squared
+OMEGA_IE_RADPS: float = 7.292115e-5  #: Earth rotation rate [rad/s]
+GM_M3PS2: float = 3.986004418e14  #: geocentric gravitational constant [m^3/s^2]
+GAMMA_E_MPS2: float = 9.7803253359  #: normal gravity at the equator [m/s^2]
+GAMMA_P_MPS2: float = 9.8321849378  #: normal gravity at the poles [m/s^2]
+K_SOMIGLIANA: float = (B_M * GAMMA_P_MPS2) / (A_M * GAMMA_E_MPS2) - 1.0
+M_GRAV: float = OMEGA_IE_RADPS**2 * A_M**2 * B_M / GM_M3PS2
+
+FloatArray = NDArray[np.float64]
+
+
+def radii_of_curvature(lat_rad: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Meridian ``R_M`` and transverse (prime-vertical) ``R_N`` radii of curvature [m].
+
+    Groves eq. 2.105-2.106: ``R_M = a (1-e^2) / (1 - e^2 sin^2 L)^(3/2)``,
+    ``R_N = a / sqrt(1 - e^2 sin^2 L)``.
+    """
+    s = np.sin(np.asarray(lat_rad, dtype=float))
+    w = 1.0 - E2 * s * s
+    r_n = A_M / np.sqrt(w)
+    r_m = r_n * (1.0 - E2) / w
+    return r_m, r_n
+
+
+def geodetic_to_ecef(lat_rad: ArrayLike, lon_rad: ArrayLike, h_m: ArrayLike) -> FloatArray:
+    """Geodetic -> ECEF position, shape ``(..., 3)`` [m]."""
+    lat = np.asarray(lat_rad, dtype=float)
+    lon = np.asarray(lon_rad, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    _, r_n = radii_of_curvature(lat)
+    cl = np.cos(lat)
+    x = (r_n + h) * cl * np.cos(lon)
+    y = (r_n + h) * cl * np.sin(lon)
+    z = (r_n * (1.0 - E2) + h) * np.sin(lat)
+    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+
+def ecef_to_geodetic(p_e_m: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """ECEF position ``(..., 3)`` -> ``(lat_rad, lon_rad, h_m)``.
+
+    Bowring's parametric-latitude iteration; four passes reach machine precision for any
+    point outside a few km of the Earth's centre (the error shrinks by ~e^4 per pass).  The
+    height uses the form that stays well conditioned at the poles.
+    """
+    p_e = np.asarray(p_e_m, dtype=float)
+    x, y, z = p_e[..., 0], p_e[..., 1], p_e[..., 2]
+    p = np.hypot(x, y)
+    lon = np.arctan2(y, x)
+    beta = np.arctan2(z, (1.0 - F) * p)
+    lat = beta
+    for _ in range(4):
+        sb, cb = np.sin(beta), np.cos(beta)
+        lat = np.arctan2(z + EP2 * B_M * sb**3, p - E2 * A_M * cb**3)
+        beta = np.arctan2((1.0 - F) * np.sin(lat), np.cos(lat))
+    sl, cl = np.sin(lat), np.cos(lat)
+    h = p * cl + z * sl - A_M * np.sqrt(1.0 - E2 * sl * sl)
+    return lat, lon, h
+
+
+def C_en(lat_rad: ArrayLike, lon_rad: ArrayLike) -> FloatArray:
+    """DCM from the local ENU frame at (lat, lon) to ECEF, shape ``(..., 3, 3)``.
+
+    Columns are the East, North and Up unit vectors expressed in ECEF.
+    """
+    lat = np.asarray(lat_rad, dtype=float)
+    lon = np.asarray(lon_rad, dtype=float)
+    sl, cl = np.sin(lat), np.cos(lat)
+    so, co = np.sin(lon), np.cos(lon)
+    zero = np.zeros_like(sl * so)
+    east = np.stack(np.broadcast_arrays(-so, co, zero), axis=-1)
+    north = np.stack(np.broadcast_arrays(-sl * co, -sl * so, cl), axis=-1)
+    up = np.stack(np.broadcast_arrays(cl * co, cl * so, sl), axis=-1)
+    return np.stack([east, north, up], axis=-1)
+
+
+def ecef_to_enu(p_e_m: ArrayLike, datum_llh: ArrayLike) -> FloatArray:
+    """ECEF position ``(..., 3)`` -> Cartesian ENU ``(..., 3)`` at the datum ``(lat_rad, lon_rad, h_m)``."""
+    lat0, lon0, h0 = (float(v) for v in np.asarray(datum_llh, dtype=float))
+    p0 = geodetic_to_ecef(lat0, lon0, h0)
+    return (np.asarray(p_e_m, dtype=float) - p0) @ C_en(lat0, lon0)
+
+
+def enu_to_ecef(p_enu_m: ArrayLike, datum_llh: ArrayLike) -> FloatArray:
+    """Cartesian ENU ``(..., 3)`` at the datum -> ECEF ``(..., 3)``."""
+    lat0, lon0, h0 = (float(v) for v in np.asarray(datum_llh, dtype=float))
+    p0 = geodetic_to_ecef(lat0, lon0, h0)
+    return p0 + np.asarray(p_enu_m, dtype=float) @ C_en(lat0, lon0).T
+
+
+def geodetic_to_enu(lat_rad: ArrayLike, lon_rad: ArrayLike, h_m: ArrayLike, datum_llh: ArrayLike) -> FloatArray:
+    """Geodetic -> Cartesian ENU at the datum, shape ``(..., 3)`` [m]."""
+    return ecef_to_enu(geodetic_to_ecef(lat_rad, lon_rad, h_m), datum_llh)
+
+
+def enu_to_geodetic(p_enu_m: ArrayLike, datum_llh: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Cartesian ENU at the datum -> ``(lat_rad, lon_rad, h_m)``."""
+    return ecef_to_geodetic(enu_to_ecef(p_enu_m, datum_llh))
+
+
+def normal_gravity(lat_rad: ArrayLike, h_m: ArrayLike) -> FloatArray:
+    """Magnitude of WGS-84 normal gravity (gravitation + centrifugal) at height ``h_m`` [m/s^2].
+
+    Somigliana's closed formula on the ellipsoid with the second-order height expansion of
+    NIMA TR8350.2 eq. 4-3.  The small north component of the normal-gravity vector above the
+    ellipsoid (< 1e-5 m/s^2 at 1 km) is neglected consistently by the simulator and the
+    mechanization: both use ``g_n = [0, 0, -normal_gravity]``.
+    """
+    lat = np.asarray(lat_rad, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    s2 = np.sin(lat) ** 2
+    g0 = GAMMA_E_MPS2 * (1.0 + K_SOMIGLIANA * s2) / np.sqrt(1.0 - E2 * s2)
+    return g0 * (1.0 - 2.0 / A_M * (1.0 + F + M_GRAV - 2.0 * F * s2) * h + 3.0 / A_M**2 * h * h)
+
+
+def gravity_n(lat_rad: ArrayLike, h_m: ArrayLike) -> FloatArray:
+    """Normal-gravity vector in the local ENU frame, shape ``(..., 3)`` [m/s^2]."""
+    g = normal_gravity(lat_rad, h_m)
+    z = np.zeros_like(g)
+    return np.stack([z, z, -g], axis=-1)
+
+
+def earth_rate_n(lat_rad: ArrayLike) -> FloatArray:
+    """Earth rotation rate ``omega_ie^n`` in the local ENU frame, shape ``(..., 3)`` [rad/s]."""
+    lat = np.asarray(lat_rad, dtype=float)
+    z = np.zeros_like(lat)
+    return np.stack([z, OMEGA_IE_RADPS * np.cos(lat), OMEGA_IE_RADPS * np.sin(lat)], axis=-1)
+
+
+def transport_rate_n(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -> FloatArray:
+    """Transport rate ``omega_en^n`` of the ENU frame over the ellipsoid, shape ``(..., 3)`` [rad/s].
+
+    ``[-v_N / (R_M + h), v_E / (R_N + h), v_E tan(L) / (R_N + h)]`` (Groves eq. 5.44 in ENU).
+    """
+    lat = np.asarray(lat_rad, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    v = np.asarray(vel_n_mps, dtype=float)
+    r_m, r_n = radii_of_curvature(lat)
+    ve, vn = v[..., 0], v[..., 1]
+    return np.stack([-vn / (r_m + h), ve / (r_n + h), ve * np.tan(lat) / (r_n + h)], axis=-1)
+
+
+def llh_rate(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -> FloatArray:
+    """Time derivative of ``(lat, lon, h)`` for an ENU velocity, shape ``(..., 3)`` [rad/s, rad/s, m/s]."""
+    lat = np.asarray(lat_rad, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    v = np.asarray(vel_n_mps, dtype=float)
+    r_m, r_n = radii_of_curvature(lat)
+    return np.stack([v[..., 1] / (r_m + h), v[..., 0] / ((r_n + h) * np.cos(lat)), v[..., 2]], axis=-1)
