@@ -74,7 +74,7 @@ def _analytic_run(fs: float, duration_s: float, mode: str = "increments", **kw: 
 
 @pytest.mark.parametrize("mode", ["increments", "rates"])
 def test_perfect_imu_on_coordinated_turn_with_climbs(mode: str) -> None:
-    """100 m/s, 30 deg bank (turn rate 5.66 deg/s, 5.4 full circles), +-150 m sinusoidal climbs
+    """100 m/s, 30 deg bank (turn rate 0.0566 rad/s = 3.24 deg/s, 5.4 full circles), +-150 m sinusoidal climbs
     (period 120 s, pitch up to +-4.5 deg), 600 s at 200 Hz, closed-form truth.
 
     Position: the trapezoidal position update has a local error of T^3/12 |jerk| with
