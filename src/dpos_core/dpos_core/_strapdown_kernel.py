@@ -207,3 +207,56 @@ def integrate(
     prev[0], prev[1], prev[2] = pax, pay, paz
     prev[3], prev[4], prev[5] = pbx, pby, pbz
     prev[6] = 1.0 if has_prev else 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def rk4_llh(v_nodes: np.ndarray, v_mid: np.ndarray, h: float, llh0: np.ndarray) -> np.ndarray:
+    """RK4 of ``d(lat, lon, h)/dt`` for a known ENU velocity at the grid nodes and mid-points.
+
+    ``v_nodes`` (N+1, 3), ``v_mid`` (N, 3) -> llh (N+1, 3).  Used by the flight simulator.
+    """
+    n = v_mid.shape[0]
+    out = np.empty((n + 1, 3))
+    out[0, 0], out[0, 1], out[0, 2] = llh0[0], llh0[1], llh0[2]
+    for k in range(n):
+        lat, lon, hh = out[k, 0], out[k, 1], out[k, 2]
+        acc_lat = 0.0
+        acc_lon = 0.0
+        acc_h = 0.0
+        dl, dn, dh = 0.0, 0.0, 0.0
+        for stage in range(4):
+            if stage == 0:
+                ve, vn, vu = v_nodes[k, 0], v_nodes[k, 1], v_nodes[k, 2]
+                la, ha, wgt = lat, hh, 1.0
+            elif stage == 3:
+                ve, vn, vu = v_nodes[k + 1, 0], v_nodes[k + 1, 1], v_nodes[k + 1, 2]
+                la, ha, wgt = lat + h * dl, hh + h * dh, 1.0
+            else:
+                ve, vn, vu = v_mid[k, 0], v_mid[k, 1], v_mid[k, 2]
+                la, ha, wgt = lat + 0.5 * h * dl, hh + 0.5 * h * dh, 2.0
+            rm, rn = _radii(la)
+            dl = vn / (rm + ha)
+            dn = ve / ((rn + ha) * math.cos(la))
+            dh = vu
+            acc_lat += wgt * dl
+            acc_lon += wgt * dn
+            acc_h += wgt * dh
+        out[k + 1, 0] = lat + h / 6.0 * acc_lat
+        out[k + 1, 1] = lon + h / 6.0 * acc_lon
+        out[k + 1, 2] = hh + h / 6.0 * acc_h
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def linear_recursion(Phi: np.ndarray, L: np.ndarray, x0: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``x_{k+1} = Phi x_k + L w_k`` for a small state: Phi, L (n, n), x0 (n,), w (N, n) -> x (N+1, n)."""
+    n_steps, n = w.shape
+    out = np.empty((n_steps + 1, n))
+    out[0] = x0
+    for k in range(n_steps):
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += Phi[i, j] * out[k, j] + L[i, j] * w[k, j]
+            out[k + 1, i] = acc
+    return out

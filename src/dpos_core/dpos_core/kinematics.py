@@ -94,3 +94,40 @@ def integrate_increments(
     dtheta = np.einsum("nk,k,nkj->nj", np.broadcast_to(half[:, None], nodes.shape), w, om)
     dvel = np.einsum("nk,k,nkj->nj", np.broadcast_to(half[:, None], nodes.shape), w, f)
     return dtheta, dvel
+
+
+Motion = Callable[[FloatArray], tuple[FloatArray, FloatArray, FloatArray, FloatArray]]
+
+
+def increments_from_motion(motion: Motion, t_edges_s: ArrayLike, n_points: int = 4) -> tuple[FloatArray, FloatArray]:
+    """Ideal angle and velocity increments of a body from its ECEF motion, without accelerations.
+
+    ``motion(t) -> (p_e (M,3), v_e (M,3), C_eb (M,3,3), omega_eb_b (M,3))``.  The velocity
+    increment ``int C_be (a_e + 2 W x v_e - g_e) dt`` is integrated by parts,
+    ``int C_be a_e dt = [C_be v_e] + int omega_eb^b x (C_be v_e) dt`` (using
+    ``d/dt C_be = -[omega_eb^b x] C_be``), so only positions, velocities, attitudes and rates are
+    needed: bodies on a flexing lever arm need no angular or flexure acceleration.
+
+    Returns:
+        ``(dtheta_rad (N, 3), dvel_mps (N, 3))`` over the N intervals of ``t_edges_s`` (N+1,).
+    """
+    t = np.asarray(t_edges_s, dtype=float)
+    x, w = np.polynomial.legendre.leggauss(n_points)
+    half = 0.5 * (t[1:] - t[:-1])
+    nodes = (0.5 * (t[1:] + t[:-1]))[:, None] + half[:, None] * x[None, :]
+    shape = nodes.shape
+    p_e, v_e, C_eb, w_eb = motion(nodes.reshape(-1))
+    C_be = np.swapaxes(C_eb, -1, -2)
+    lat, lon, h = ecef_to_geodetic(p_e)
+    g_e = -normal_gravity(lat, h)[:, None] * C_en(lat, lon)[:, :, 2]
+    v_b = np.einsum("mij,mj->mi", C_be, v_e)
+    w_ib = w_eb + np.einsum("mij,j->mi", C_be, OMEGA_IE_E)
+    integrand_v = np.cross(w_eb, v_b) + np.einsum("mij,mj->mi", C_be, 2.0 * np.cross(OMEGA_IE_E, v_e) - g_e)
+    weights = half[:, None] * w[None, :]
+    dtheta = np.einsum("nk,nkj->nj", weights, w_ib.reshape(shape + (3,)))
+    dvel = np.einsum("nk,nkj->nj", weights, integrand_v.reshape(shape + (3,)))
+    p0, v0, C0, _ = motion(t)
+    vb_edges = np.einsum("mji,mj->mi", C0, v0)
+    # C_be v_e at the end of each interval minus at its start (the bracket of the by-parts formula)
+    dvel += vb_edges[1:] - vb_edges[:-1]
+    return dtheta, dvel

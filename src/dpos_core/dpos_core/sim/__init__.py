@@ -1,0 +1,1 @@
+"""Flight and sensor simulator: truth trajectories, wing flexure, sensor error models, scenarios."""

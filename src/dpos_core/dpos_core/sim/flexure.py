@@ -1,0 +1,145 @@
+"""Wing flexure: a second-order Gauss-Markov process per axis (seed 000 eq. 13).
+
+``theta_ddot + 2 beta theta_dot + beta^2 theta = eta`` with ``beta = 2.146 / tau`` and white
+``eta`` of spectral density ``q = 4 beta^3 sigma^2``, whose stationary variance is ``sigma^2`` for the
+angle and ``beta^2 sigma^2`` for its rate.  The state ``[theta, theta_dot]`` is discretized exactly
+(``Phi = expm(F T)``, ``Q`` by Van Loan's method), started from the stationary distribution, and
+interpolated between the grid nodes with cubic Hermite polynomials that use ``theta_dot`` as the
+slope, so the flexure rate seen by a gyro is the derivative of the flexure angle.
+
+Along the wing the flexure of one wing side is one modal process scaled by the span:
+``theta(s, t) = (|s| / s_ref)^p q(t)``, so the variance at the reference span is the configured one
+and grows with the span (seed 004: variance growing along the wing); left and right wings have
+independent realisations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import expm
+
+from .._strapdown_kernel import linear_recursion
+
+FloatArray = NDArray[np.float64]
+DEG = np.pi / 180.0
+
+
+@dataclass(frozen=True)
+class FlexureModel:
+    """Flexure statistics per body axis (x, y, z of the sub-IMU frame).
+
+    Attributes:
+        tau_s: correlation times (3,) [s].
+        variance_deg2: angle variances (3,) at the reference span [deg^2].
+        reference_span_m: span at which the variances apply.
+        span_exponent: the angle's standard deviation scales as ``(|span| / reference)^exponent``.
+    """
+
+    tau_s: tuple[float, float, float]
+    variance_deg2: tuple[float, float, float]
+    reference_span_m: float = 5.0
+    span_exponent: float = 1.0
+
+    def __post_init__(self) -> None:
+        if len(self.tau_s) != 3 or len(self.variance_deg2) != 3:
+            raise ValueError("flexure tau_s and variance_deg2 need 3 values (x, y, z)")
+        if any(not np.isfinite(t) or t <= 0 for t in self.tau_s):
+            raise ValueError(f"flexure tau_s must be > 0, got {self.tau_s}")
+        if any(not np.isfinite(v) or v < 0 for v in self.variance_deg2):
+            raise ValueError(f"flexure variance_deg2 must be >= 0, got {self.variance_deg2}")
+        if self.reference_span_m <= 0:
+            raise ValueError(f"flexure reference_span_m must be > 0, got {self.reference_span_m}")
+
+    @property
+    def beta(self) -> FloatArray:
+        """``2.146 / tau`` (3,) [1/s]."""
+        return 2.146 / np.asarray(self.tau_s, dtype=float)
+
+    @property
+    def sigma_rad(self) -> FloatArray:
+        """Angle standard deviation at the reference span (3,) [rad]."""
+        return np.sqrt(np.asarray(self.variance_deg2, dtype=float)) * DEG
+
+    @property
+    def q(self) -> FloatArray:
+        """Driving-noise spectral density ``4 beta^3 sigma^2`` (3,) [rad^2/s^3]."""
+        return 4.0 * self.beta**3 * self.sigma_rad**2
+
+    def span_scale(self, span_m: float) -> float:
+        return float((abs(span_m) / self.reference_span_m) ** self.span_exponent)
+
+    def discrete(self, dt_s: float) -> tuple[FloatArray, FloatArray]:
+        """Exact transition ``Phi`` (3, 2, 2) and process noise ``Q`` (3, 2, 2) over ``dt_s`` per axis."""
+        Phi = np.empty((3, 2, 2))
+        Q = np.empty((3, 2, 2))
+        for i, (b, q) in enumerate(zip(self.beta, self.q)):
+            F = np.array([[0.0, 1.0], [-b * b, -2.0 * b]])
+            G = np.array([[0.0], [1.0]])
+            M = np.zeros((4, 4))  # Van Loan (1978)
+            M[:2, :2] = -F
+            M[:2, 2:] = G @ G.T * q
+            M[2:, 2:] = F.T
+            E = expm(M * dt_s)
+            Phi[i] = E[2:, 2:].T
+            Qi = Phi[i] @ E[:2, 2:]
+            Q[i] = 0.5 * (Qi + Qi.T)
+        return Phi, Q
+
+    def stationary_cov(self) -> FloatArray:
+        """Stationary covariance of ``[theta, theta_dot]`` per axis (3, 2, 2)."""
+        s2 = self.sigma_rad**2
+        return np.stack([np.diag([v, b * b * v]) for v, b in zip(s2, self.beta)])
+
+
+@dataclass(frozen=True)
+class FlexureRealization:
+    """One sampled realisation of the modal flexure process of a wing side.
+
+    Attributes:
+        model: the statistics.
+        t0_s, dt_s: grid start and step.
+        theta: (N, 3) modal angle at the reference span [rad]; theta_dot: (N, 3) [rad/s].
+    """
+
+    model: FlexureModel
+    t0_s: float
+    dt_s: float
+    theta: FloatArray
+    theta_dot: FloatArray
+
+    @classmethod
+    def sample(cls, model: FlexureModel, duration_s: float, dt_s: float, rng: np.random.Generator, t0_s: float = 0.0) -> "FlexureRealization":
+        n = int(np.ceil(duration_s / dt_s)) + 2
+        Phi, Q = model.discrete(dt_s)
+        P0 = model.stationary_cov()
+        theta = np.empty((n, 3))
+        theta_dot = np.empty((n, 3))
+        w = rng.standard_normal((n - 1, 3, 2))
+        x0n = rng.standard_normal((3, 2))
+        for i in range(3):
+            if model.sigma_rad[i] == 0.0:
+                theta[:, i] = theta_dot[:, i] = 0.0
+                continue
+            L = np.linalg.cholesky(Q[i])
+            x0 = np.linalg.cholesky(P0[i]) @ x0n[i]
+            x = linear_recursion(np.ascontiguousarray(Phi[i]), L, x0, np.ascontiguousarray(w[:, i, :]))
+            theta[:, i], theta_dot[:, i] = x[:, 0], x[:, 1]
+        return cls(model, t0_s, dt_s, theta, theta_dot)
+
+    def at(self, t_s: ArrayLike, span_m: float | None = None) -> tuple[FloatArray, FloatArray]:
+        """Angle and rate (M, 3) at times t, scaled to the span (cubic Hermite between nodes)."""
+        t = np.asarray(t_s, dtype=float).reshape(-1)
+        u = (t - self.t0_s) / self.dt_s
+        k = np.clip(np.floor(u).astype(int), 0, self.theta.shape[0] - 2)
+        s = (u - k)[:, None]
+        h = self.dt_s
+        y0, y1 = self.theta[k], self.theta[k + 1]
+        d0, d1 = self.theta_dot[k], self.theta_dot[k + 1]
+        s2, s3 = s * s, s * s * s
+        th = (2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * h * d0 + (-2 * s3 + 3 * s2) * y1 + (s3 - s2) * h * d1
+        thd = ((6 * s2 - 6 * s) * y0 + (3 * s2 - 4 * s + 1) * h * d0 + (-6 * s2 + 6 * s) * y1 + (3 * s2 - 2 * s) * h * d1) / h
+        scale = 1.0 if span_m is None else self.model.span_scale(span_m)
+        return scale * th, scale * thd
