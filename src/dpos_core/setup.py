@@ -1,0 +1,29 @@
+"""ament_python package dpos_core (also installable with pip; see setup.cfg)."""
+
+from setuptools import find_packages, setup
+
+package_name = 'dpos_core'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    # Data read with importlib.resources (e.g. sim/scenarios/*.yaml, sim/aircraft/*.yaml).
+    package_data={package_name: ['**/*.yaml']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['numpy', 'scipy', 'numba', 'pyyaml'],
+    python_requires='>=3.10',
+    zip_safe=False,
+    maintainer='dpos developers',
+    maintainer_email='maintainers@dpos.invalid',
+    description='Pure navigation and estimation algorithms of the distributed POS (numpy/scipy/numba; no ROS imports).',
+    license='MIT',
+    entry_points={
+        'console_scripts': [
+            'dpos-demo = dpos_core.demo:main',
+        ],
+    },
+)

@@ -1,0 +1,59 @@
+"""QoS profiles of the dpos topics (docs/design.md, "Topics" / QoS).
+
+- Sensor and navigation streams (``/master/imu``, ``/sub_imu/*/imu``, ``/gnss/*``,
+  ``/master/nav``, ``/ifa/*`` corrections, ``/antenna/*/odom``, ``/truth/*``, ``/session/end``):
+  RELIABLE, KEEP_LAST with a deep queue, VOLATILE. Nothing the transfer-alignment node needs
+  may be dropped under the rated load; 5000 samples are 50 s of a 100 Hz IMU or 25 s at 200 Hz.
+- Datum and status (``/dpos/datum``, ``/ifa/status``, ``/transfer_align/status``):
+  TRANSIENT_LOCAL + RELIABLE, so that a late joiner gets the last message.
+
+Publishers and subscribers of one topic must use the same profile (a VOLATILE subscriber
+matches a TRANSIENT_LOCAL publisher, but only a TRANSIENT_LOCAL subscriber gets the latched
+message).
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+
+#: Queue depth of the sensor and navigation streams (>= 1000 required by the design).
+STREAM_DEPTH = 5000
+
+#: Sensor streams: IMU, GNSS fix/velocity, truth.
+SENSOR_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=STREAM_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: Navigation streams: /master/nav, /ifa/correction, /ifa/imu_bias, /antenna/*/odom, /session/end.
+NAV_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=STREAM_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: Latched datum (/dpos/datum): the last message is kept for late joiners.
+DATUM_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+#: Status (/ifa/status, /transfer_align/status): latched, a short history.
+STATUS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+__all__ = ["STREAM_DEPTH", "SENSOR_QOS", "NAV_QOS", "DATUM_QOS", "STATUS_QOS"]

@@ -1,0 +1,26 @@
+"""ament_python package dpos_ros (also installable with pip; see setup.cfg)."""
+
+from setuptools import find_packages, setup
+
+package_name = 'dpos_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    python_requires='>=3.10',
+    zip_safe=False,
+    maintainer='dpos developers',
+    maintainer_email='maintainers@dpos.invalid',
+    description='Shared ROS 2 glue of dpos: QoS profiles, parameter handling, node entry points.',
+    license='MIT',
+    entry_points={
+        'console_scripts': [
+        ],
+    },
+)

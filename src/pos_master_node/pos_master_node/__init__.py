@@ -1,0 +1,1 @@
+"""pos_master_node: the main POS (master IMU + GNSS devices, mechanization, IFA feedback)."""

@@ -1,0 +1,1 @@
+"""pos_sub_node: one sub-IMU device per node instance."""

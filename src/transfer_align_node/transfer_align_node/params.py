@@ -1,0 +1,43 @@
+"""Configuration of transfer_align_node (ROS parameters, docs/design.md "Nodes")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from dpos_ros.params import aircraft_config_param, datum_param, param
+
+METHODS = ("ups", "urtss", "ukf", "cdkf", "cdvf", "pf", "rpf", "mcmc_rpf")
+
+
+def _check_sub_imus(names: tuple[str, ...]) -> str | None:
+    if any(not n.strip() for n in names):
+        return "names must not be empty"
+    if len(set(names)) != len(names):
+        return "names must be unique"
+    return None
+
+
+@dataclass(frozen=True)
+class TransferAlignConfig:
+    """Validated parameters of transfer_align_node.
+
+    Attributes:
+        datum: [lat_deg, lon_deg, h_m] of the ``enu`` frame origin.
+        aircraft_config: aircraft YAML path, '' = built-in default.
+        method: smoother / filter: ``ups`` (default), ``urtss``, ``ukf``, ``cdkf``, ``cdvf``,
+            ``pf``, ``rpf``, ``mcmc_rpf``.
+        particles: number of particles of the particle methods (>= 1).
+        filter_rate_hz: measurement update rate of the filter (> 0).
+        output_dir: session products go to ``output_dir/<session id>/``.
+        output_rate_hz: rate of /antenna/<name>/odom and the CSVs; 0 = the sub-IMU rate.
+        sub_imus: names of the sub-IMUs to process; empty = all.
+    """
+
+    datum: tuple[float, float, float] = datum_param()
+    aircraft_config: str = aircraft_config_param()
+    method: str = param("ups", "transfer-alignment smoother / filter", choices=METHODS)
+    particles: int = param(100, "number of particles (particle methods)", minimum=1)
+    filter_rate_hz: float = param(1.0, "filter measurement update rate [Hz]", minimum=0.0, exclusive_minimum=True)
+    output_dir: str = param("out", "directory of the session products", non_empty=True)
+    output_rate_hz: float = param(0.0, "output rate [Hz], 0 = the sub-IMU rate", minimum=0.0)
+    sub_imus: tuple[str, ...] = param((), "sub-IMUs to process ([] = all)", check=_check_sub_imus)

@@ -1,0 +1,68 @@
+"""Session-wide test setup: a dedicated ROS 2 domain, an rclpy Context and an executor.
+
+The ROS environment is set at import time, before any test imports rclpy, and exported in
+os.environ so that node subprocesses inherit it:
+
+- ROS_DOMAIN_ID: one per test session (1..100, from the pid; never 0, the default domain),
+  so concurrent sessions on one machine do not see each other's nodes. Set
+  DPOS_TEST_ROS_DOMAIN_ID to force a value.
+- RMW_IMPLEMENTATION=rmw_fastrtps_cpp (the middleware of the wheels).
+- ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set: discovery stays on this machine.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+
+def _pick_domain_id() -> int:
+    forced = os.environ.get("DPOS_TEST_ROS_DOMAIN_ID")
+    if forced:
+        return int(forced)
+    return os.getpid() % 100 + 1
+
+
+ROS_DOMAIN_ID = _pick_domain_id()
+os.environ["ROS_DOMAIN_ID"] = str(ROS_DOMAIN_ID)
+os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+@pytest.fixture(scope="session")
+def ros_domain_id() -> int:
+    """The ROS_DOMAIN_ID of this test session (also in os.environ)."""
+    return ROS_DOMAIN_ID
+
+
+@pytest.fixture
+def ros_context(ros_domain_id: int) -> Iterator[Any]:
+    """An initialised rclpy Context on the session's domain, shut down after the test.
+
+    rclpy's signal handlers are not installed, so Ctrl-C still reaches pytest.
+    """
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture
+def ros_executor(ros_context: Any) -> Iterator[Any]:
+    """A SingleThreadedExecutor on ``ros_context``; shut down after the test."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=ros_context)
+    try:
+        yield executor
+    finally:
+        executor.shutdown(timeout_sec=5.0)

@@ -1,0 +1,144 @@
+"""dpos_ros.params (config dataclasses <-> parameters) and dpos_ros.qos."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+
+from dpos_ros import qos
+from dpos_ros.params import (
+    ParameterError,
+    config_from_values,
+    declare_config,
+    packaged_params_file,
+    param,
+    read_params_file,
+)
+
+pytestmark = pytest.mark.ros
+
+CONFIGS = {
+    "pos_master_node": ("pos_master_node.params", "PosMasterConfig"),
+    "pos_sub_node": ("pos_sub_node.params", "PosSubConfig"),
+    "ifa_node": ("ifa_node.params", "IfaConfig"),
+    "transfer_align_node": ("transfer_align_node.params", "TransferAlignConfig"),
+}
+
+
+def _config_class(package: str) -> type:
+    module, name = CONFIGS[package]
+    return getattr(importlib.import_module(module), name)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Example:
+    """A config for the tests of the machinery."""
+
+    rate: float = param(1.0, "rate", minimum=0.0)
+    count: int = param(3, "count", minimum=1)
+    mode: str = param("a", "mode", choices=("a", "b"))
+    flag: bool = param(False, "flag")
+    vec: tuple[float, float] = param((1.0, 2.0), "vector", length=2)
+    names: tuple[str, ...] = param((), "names")
+    label: str = param("x", "label", non_empty=True)
+    positive: float = param(1.0, "positive", minimum=0.0, exclusive_minimum=True)
+
+
+def test_defaults_and_coercion():
+    assert config_from_values(_Example, {}) == _Example()
+    cfg = config_from_values(_Example, {"rate": 0, "vec": [3, 4], "names": ["p", "q"]})
+    assert cfg.rate == 0.0 and isinstance(cfg.rate, float)
+    assert cfg.vec == (3.0, 4.0) and cfg.names == ("p", "q")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.rate = 2.0  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"rate": -1.0}, "'rate' = -1.0: must be >= 0.0"),
+        ({"positive": 0.0}, "'positive' = 0.0: must be > 0.0"),
+        ({"count": 0}, "'count' = 0: must be >= 1"),
+        ({"count": 2.5}, "'count' = 2.5: expected an integer"),
+        ({"flag": 1}, "'flag' = 1: expected a bool"),
+        ({"rate": "fast"}, "'rate' = 'fast': expected a double"),
+        ({"rate": float("nan")}, "'rate' = nan: must be finite"),
+        ({"mode": "c"}, "'mode' = 'c': must be one of a, b"),
+        ({"vec": [1.0]}, "'vec' = [1.0]: expected 2 elements"),
+        ({"label": " "}, "'label' = ' ': must not be empty"),
+        ({"nope": 1}, "'nope' = 1: unknown parameter"),
+    ],
+)
+def test_invalid_values_name_parameter_and_value(values, message):
+    with pytest.raises(ParameterError) as info:
+        config_from_values(_Example, values)
+    assert message in str(info.value)
+    assert info.value.name == next(iter(values))
+
+
+def test_declare_config_on_node(ros_context):
+    from rclpy.node import Node
+
+    node = Node(
+        "params_test",
+        context=ros_context,
+        parameter_overrides=[Parameter("rate", value=0), Parameter("names", value=["a", "b"])],
+    )
+    try:
+        cfg = declare_config(node, _Example)
+        assert cfg == _Example(rate=0.0, names=("a", "b"))
+        assert node.get_parameter("count").value == 3
+        assert node.describe_parameter("count").read_only
+    finally:
+        node.destroy_node()
+
+
+def test_declare_config_reports_wrong_type(ros_context):
+    from rclpy.node import Node
+
+    node = Node("params_type_test", context=ros_context, parameter_overrides=[Parameter("count", value="many")])
+    try:
+        with pytest.raises(ParameterError, match="'count' = 'many': wrong type, expected INTEGER"):
+            declare_config(node, _Example)
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize("package", sorted(CONFIGS))
+def test_packaged_params_file_matches_defaults(package):
+    path = packaged_params_file(package)
+    values = read_params_file(path, package)
+    assert values, f"{path} has no '{package}: ros__parameters:' section"
+    cls = _config_class(package)
+    if package == "pos_sub_node":
+        assert "name" not in values  # required, set per instance
+        values["name"] = "sub_r"
+        expected = cls(name="sub_r")
+    else:
+        expected = cls()
+    assert config_from_values(cls, values) == expected
+
+
+@pytest.mark.parametrize("package", sorted(CONFIGS))
+def test_config_classes_have_common_parameters(package):
+    cls = _config_class(package)
+    names = {f.name for f in dataclasses.fields(cls)}
+    assert {"datum", "aircraft_config"} <= names
+    assert cls.__doc__
+
+
+def test_stream_qos_is_reliable_and_deep():
+    for profile in (qos.SENSOR_QOS, qos.NAV_QOS):
+        assert profile.reliability == ReliabilityPolicy.RELIABLE
+        assert profile.history == HistoryPolicy.KEEP_LAST and profile.depth >= 1000
+        assert profile.durability == DurabilityPolicy.VOLATILE
+
+
+def test_latched_qos_is_transient_local():
+    for profile in (qos.DATUM_QOS, qos.STATUS_QOS):
+        assert profile.reliability == ReliabilityPolicy.RELIABLE
+        assert profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
