@@ -1,0 +1,231 @@
+"""A simulated session: every sensor stream and every truth of a scenario, for one seed.
+
+Each component (master IMU, each sub-IMU, GNSS, reference navigation, each wing's flexure) draws
+from its own random stream, keyed by the seed and the component's name, and is generated on
+demand.  So the bag writer, the master device node and every sub-IMU device node compute
+bit-identical samples for the same scenario and seed, whatever else they generate.
+
+Sampling: an IMU sample stamped ``t_k = k / f`` (k = 1..N) carries the mean angular rate and
+specific force over ``(t_{k-1}, t_k]`` (increment / T, as a high-grade IMU outputs); navigation
+and truth samples are instantaneous at their stamps; GNSS fixes at ``i / f_gnss`` (i >= 1).
+Times are scenario seconds from the start; ``scenario.start_time_s`` is the stamp epoch.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import earth
+from ..attitude import dcm_to_quat, quat_to_dcm
+from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..kinematics import Motion, increments_from_motion, nav_from_ecef
+from .bodies import flexed_body_motion, mount_dcm, rigid_offset_motion
+from .flexure import FlexureRealization
+from .flight import Flight
+from .scenario import Scenario
+from .sensors import DEG
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ImuSeries:
+    """IMU samples: t_s (N,), omega_radps (N, 3), f_mps2 (N, 3) in the IMU's FLU axes."""
+
+    t_s: FloatArray
+    omega_radps: FloatArray
+    f_mps2: FloatArray
+
+
+@dataclass(frozen=True)
+class NavSeries:
+    """Navigation samples: t_s (N,), llh (N, 3) [rad, rad, m], vel_n_mps (N, 3) local ENU,
+    q_nb (N, 4) body FLU -> local ENU; 1-sigma attitude [rad] (heading, pitch, roll), velocity
+    [m/s] and position [m] (ENU) of the series (zeros for truth)."""
+
+    t_s: FloatArray
+    llh: FloatArray
+    vel_n_mps: FloatArray
+    q_nb: FloatArray
+    att_sigma_rad: FloatArray
+    vel_sigma_mps: FloatArray
+    pos_sigma_m: FloatArray
+
+    @property
+    def C_nb(self) -> FloatArray:
+        return quat_to_dcm(self.q_nb)
+
+
+@dataclass(frozen=True)
+class GnssSeries:
+    """GNSS fixes at the antenna: t_s (N,), llh (N, 3), pos_sigma_m (N, 3) ENU, vel_n_mps (N, 3), vel_sigma_mps (N, 3)."""
+
+    t_s: FloatArray
+    llh: FloatArray
+    pos_sigma_m: FloatArray
+    vel_n_mps: FloatArray
+    vel_sigma_mps: FloatArray
+
+
+class SimulatedSession:
+    """Lazily generated streams of one scenario and seed (see module docstring)."""
+
+    def __init__(self, scenario: Scenario, seed: int, duration_s: float | None = None) -> None:
+        if duration_s is not None and duration_s > scenario.duration_s:
+            raise ValueError(f"duration {duration_s} s exceeds the scenario's {scenario.duration_s} s")
+        self.scenario = scenario.with_duration(duration_s)
+        self.seed = int(seed)
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {seed}")
+        self._flexure: dict[int, FlexureRealization] = {}
+
+    # ------------------------------------------------------------------ basics
+    @property
+    def duration_s(self) -> float:
+        return self.scenario.duration_s
+
+    @property
+    def datum_llh(self) -> FloatArray:
+        return self.scenario.datum_llh
+
+    @cached_property
+    def flight(self) -> Flight:
+        return self.scenario.flight()
+
+    def rng(self, component: str) -> np.random.Generator:
+        """Independent random stream of a component (stable across processes and versions)."""
+        return np.random.default_rng(np.random.SeedSequence([self.seed, zlib.crc32(component.encode())]))
+
+    def sample_times(self, rate_hz: float, include_start: bool = False) -> FloatArray:
+        n = int(np.floor(self.duration_s * rate_hz + 1e-9))
+        k = np.arange(0 if include_start else 1, n + 1)
+        return k / rate_hz
+
+    # ------------------------------------------------------------------ bodies
+    def flexure(self, side: int) -> FlexureRealization:
+        """Flexure of the right (+1) or left (-1) wing.
+
+        Sampled on the sub-IMU sample grid: within every IMU interval the interpolated flexure is
+        then one smooth cubic, so the quadrature of the increments stays exact (a grid node inside
+        an interval, where the white-noise-driven theta_ddot jumps, costs ~1e-7 rad per sample).
+        """
+        if side not in self._flexure:
+            self._flexure[side] = FlexureRealization.sample(
+                self.scenario.aircraft.flexure, self.duration_s, 1.0 / self.scenario.rates.sub_imu_hz,
+                self.rng("flexure/right" if side > 0 else "flexure/left"),
+            )
+        return self._flexure[side]
+
+    def _flex_at(self, span_m: float):
+        if span_m == 0.0 or not np.any(np.asarray(self.scenario.aircraft.flexure.variance_deg2) > 0):
+            return None
+        fr = self.flexure(1 if span_m > 0 else -1)
+        return lambda t: fr.at(t, span_m)
+
+    def motion(self, body: str) -> Motion:
+        """``master``, ``gnss``, ``sub_imu/<name>`` or ``antenna/<name>``."""
+        ac = self.scenario.aircraft
+        if body == "master":
+            return self.flight.ecef_motion
+        if body == "gnss":
+            return rigid_offset_motion(self.flight.ecef_motion, ac.gnss_lever_arm_m)
+        kind, _, name = body.partition("/")
+        if kind == "sub_imu":
+            s = ac.sub_imu(name)
+            return flexed_body_motion(self.flight.ecef_motion, s.lever_arm_m, mount_dcm(s.mount_rpy_deg, s.rho_deg), self._flex_at(s.span_m))
+        if kind == "antenna":
+            for a in ac.antennas:
+                if a.name == name:
+                    if a.sub_imu is not None:
+                        return rigid_offset_motion(self.motion(f"sub_imu/{a.sub_imu}"), a.lever_arm_m)
+                    # no IMU: a wing section at the antenna's span, flexing with the wing, no mount error
+                    return flexed_body_motion(self.flight.ecef_motion, a.lever_arm_m, np.eye(3), self._flex_at(a.span_m))
+            raise KeyError(f"no antenna {name!r} in aircraft {ac.name!r}")
+        raise KeyError(f"unknown body {body!r}")
+
+    def bodies(self) -> list[str]:
+        ac = self.scenario.aircraft
+        return ["master"] + [f"sub_imu/{s.name}" for s in ac.sub_imus] + [f"antenna/{a.name}" for a in ac.antennas]
+
+    # ------------------------------------------------------------------ truth
+    def truth(self, body: str, t_s: FloatArray | None = None) -> NavSeries:
+        """Truth navigation of a body at times t (default: its sensor rate)."""
+        if t_s is None:
+            t_s = self.sample_times(self._rate(body), include_start=True)
+        t = np.asarray(t_s, dtype=float)
+        p, v, C, _ = self.motion(body)(t)
+        llh, vel, C_nb = nav_from_ecef(p, v, C)
+        z = np.zeros(3)
+        return NavSeries(t, llh, vel, dcm_to_quat(C_nb), z, z, z)
+
+    # ------------------------------------------------------------------ sensors
+    def _rate(self, body: str) -> float:
+        r = self.scenario.rates
+        return r.master_imu_hz if body in ("master", "gnss") else r.sub_imu_hz
+
+    def ideal_imu(self, body: str) -> ImuSeries:
+        """Error-free IMU output of a body (``master`` or ``sub_imu/<name>``) at its rate."""
+        t = self.sample_times(self._rate(body), include_start=True)
+        dth, dv = increments_from_motion(self.motion(body), t)
+        T = np.diff(t)[:, None]
+        return ImuSeries(t[1:], dth / T, dv / T)
+
+    def _imu(self, body: str, rate_hz: float, model, component: str) -> ImuSeries:
+        t = self.sample_times(rate_hz, include_start=True)
+        dth, dv = increments_from_motion(self.motion(body), t)
+        rng = self.rng(component)
+        biases = model.draw_biases(rng)
+        om, f = model.measure(dth, dv, np.diff(t), biases, rng)
+        return ImuSeries(t[1:], om, f)
+
+    def master_imu(self) -> ImuSeries:
+        return self._imu("master", self.scenario.rates.master_imu_hz, self.scenario.master_imu, "imu/master")
+
+    def sub_imu(self, name: str) -> ImuSeries:
+        s = self.scenario.aircraft.sub_imu(name)
+        return self._imu(f"sub_imu/{name}", self.scenario.rates.sub_imu_hz, s.imu, f"imu/{name}")
+
+    def imu_biases(self, name: str) -> tuple[FloatArray, FloatArray]:
+        """The constant gyro [rad/s] and accelerometer [m/s^2] biases drawn for an IMU (truth)."""
+        model = self.scenario.master_imu if name == "master" else self.scenario.aircraft.sub_imu(name).imu
+        return model.draw_biases(self.rng(f"imu/{name}"))
+
+    def master_nav_reference(self) -> NavSeries:
+        """Main-system navigation = truth + white noise (``alignment: reference``, seed 000)."""
+        nz = self.scenario.master_nav_noise
+        tr = self.truth("master", self.sample_times(self.scenario.rates.master_nav_hz, include_start=True))
+        rng = self.rng("nav/master")
+        n = tr.t_s.shape[0]
+        att_sig = np.array([nz.heading_deg, nz.pitch_deg, nz.roll_deg]) * DEG
+        hpr = hpr_from_C_nb(tr.C_nb) + rng.normal(0.0, 1.0, (n, 3)) * att_sig
+        vel_sig = np.full(3, nz.vel_mps)
+        vel = tr.vel_n_mps + rng.normal(0.0, 1.0, (n, 3)) * vel_sig
+        pos_sig = np.full(3, nz.pos_m)
+        llh = tr.llh + _enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
+        q = dcm_to_quat(C_nb_from_hpr(hpr[:, 0], hpr[:, 1], hpr[:, 2]))
+        return NavSeries(tr.t_s, llh, vel, q, att_sig, vel_sig, pos_sig)
+
+    def gnss(self) -> GnssSeries:
+        g = self.scenario.gnss
+        t = self.sample_times(g.rate_hz)
+        scale, ok = g.scale_at(t)
+        tr = self.truth("gnss", t)
+        rng = self.rng("gnss")
+        n = t.shape[0]
+        pos_sig = scale[:, None] * np.asarray(g.pos_sigma_m)
+        vel_sig = scale[:, None] * np.asarray(g.vel_sigma_mps)
+        llh = tr.llh + _enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
+        vel = tr.vel_n_mps + rng.normal(0.0, 1.0, (n, 3)) * vel_sig
+        return GnssSeries(t[ok], llh[ok], pos_sig[ok], vel[ok], vel_sig[ok])
+
+
+def _enu_to_dllh(d_enu_m: FloatArray, llh: FloatArray) -> FloatArray:
+    """Small ENU displacements (N, 3) -> (dlat, dlon, dh) at positions llh (N, 3)."""
+    r_m, r_n = earth.radii_of_curvature(llh[:, 0])
+    h = llh[:, 2]
+    return np.stack([d_enu_m[:, 1] / (r_m + h), d_enu_m[:, 0] / ((r_n + h) * np.cos(llh[:, 0])), d_enu_m[:, 2]], axis=-1)
