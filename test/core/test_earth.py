@@ -89,3 +89,24 @@ def test_earth_and_transport_rate_match_frame_rotation() -> None:
     w_ie = earth.earth_rate_n(lat0)
     assert np.linalg.norm(w_ie) == pytest.approx(earth.OMEGA_IE_RADPS)
     np.testing.assert_allclose(C0 @ w_ie, [0.0, 0.0, earth.OMEGA_IE_RADPS], atol=1e-20)
+
+
+def test_nav_to_datum_round_trip_and_identity_at_the_datum(rng: np.random.Generator) -> None:
+    from dpos_core.attitude import rotvec_to_dcm
+
+    datum = np.array([np.deg2rad(40.0), np.deg2rad(116.0), 500.0])
+    n = 200
+    llh = datum + np.stack([rng.normal(0, 0.01, n), rng.normal(0, 0.01, n), rng.normal(0, 300, n)], 1)
+    vel = rng.normal(0, 100, (n, 3))
+    C = rotvec_to_dcm(rng.normal(0, 1, (n, 3)))
+    p, v, Cw = earth.nav_to_datum(llh, vel, C, datum)
+    llh2, vel2, C2 = earth.datum_to_nav(p, v, Cw, datum)
+    np.testing.assert_allclose(llh2[:, :2], llh[:, :2], atol=1e-13)
+    np.testing.assert_allclose(llh2[:, 2], llh[:, 2], atol=1e-7)
+    np.testing.assert_allclose(vel2, vel, atol=1e-10)
+    np.testing.assert_allclose(C2, C, atol=1e-12)
+    # at the datum the two frames coincide; 60 km east the local vertical is tilted by ~0.54 deg about North
+    np.testing.assert_allclose(earth.C_datum_n(datum[0], datum[1], datum), np.eye(3), atol=1e-15)
+    _, r_n = earth.radii_of_curvature(datum[0])
+    R = earth.C_datum_n(datum[0], datum[1] + 60e3 / (r_n * np.cos(datum[0])), datum)
+    assert np.rad2deg(np.arccos(R[2, 2])) == pytest.approx(np.rad2deg(60e3 / r_n), rel=0.01)

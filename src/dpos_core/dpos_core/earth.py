@@ -173,3 +173,40 @@ def llh_rate(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -> FloatA
     v = np.asarray(vel_n_mps, dtype=float)
     r_m, r_n = radii_of_curvature(lat)
     return np.stack([v[..., 1] / (r_m + h), v[..., 0] / ((r_n + h) * np.cos(lat)), v[..., 2]], axis=-1)
+
+
+def C_datum_n(lat_rad: ArrayLike, lon_rad: ArrayLike, datum_llh: ArrayLike) -> FloatArray:
+    """Rotation from the local ENU frame at (lat, lon) to the datum's Cartesian ENU frame ``enu``,
+    shape ``(..., 3, 3)``: ``C_en(datum)^T C_en(lat, lon)``."""
+    lat0, lon0 = (float(v) for v in np.asarray(datum_llh, dtype=float)[:2])
+    return C_en(lat0, lon0).T @ C_en(lat_rad, lon_rad)
+
+
+def nav_to_datum(
+    llh: ArrayLike, vel_n_mps: ArrayLike, C_nb: ArrayLike, datum_llh: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Local-level navigation -> the ROS world frame ``enu`` at the datum.
+
+    Args:
+        llh (N, 3), vel_n_mps (N, 3) local ENU, C_nb (N, 3, 3) body -> local ENU.
+
+    Returns:
+        ``(p_enu_m (N, 3), vel_enu_mps (N, 3), C_enu_b (N, 3, 3))``.
+    """
+    llh = np.asarray(llh, dtype=float)
+    R = C_datum_n(llh[..., 0], llh[..., 1], datum_llh)
+    p = geodetic_to_enu(llh[..., 0], llh[..., 1], llh[..., 2], datum_llh)
+    return p, np.einsum("...ij,...j->...i", R, np.asarray(vel_n_mps, dtype=float)), R @ np.asarray(C_nb, dtype=float)
+
+
+def datum_to_nav(
+    p_enu_m: ArrayLike, vel_enu_mps: ArrayLike, C_enu_b: ArrayLike, datum_llh: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Inverse of :func:`nav_to_datum`: ``(llh (N, 3), vel_n_mps (N, 3), C_nb (N, 3, 3))``."""
+    lat, lon, h = enu_to_geodetic(p_enu_m, datum_llh)
+    R_T = np.swapaxes(C_datum_n(lat, lon, datum_llh), -1, -2)
+    return (
+        np.stack([lat, lon, h], axis=-1),
+        np.einsum("...ij,...j->...i", R_T, np.asarray(vel_enu_mps, dtype=float)),
+        R_T @ np.asarray(C_enu_b, dtype=float),
+    )

@@ -46,7 +46,8 @@ class ImuSeries:
 class NavSeries:
     """Navigation samples: t_s (N,), llh (N, 3) [rad, rad, m], vel_n_mps (N, 3) local ENU,
     q_nb (N, 4) body FLU -> local ENU; 1-sigma attitude [rad] (heading, pitch, roll), velocity
-    [m/s] and position [m] (ENU) of the series (zeros for truth)."""
+    [m/s] and position [m] (ENU) of the series (zeros for truth); the body rate w.r.t. the Earth
+    (N, 3) when known."""
 
     t_s: FloatArray
     llh: FloatArray
@@ -55,6 +56,7 @@ class NavSeries:
     att_sigma_rad: FloatArray
     vel_sigma_mps: FloatArray
     pos_sigma_m: FloatArray
+    omega_eb_b_radps: FloatArray | None = None  #: (N, 3) body rate w.r.t. the Earth, when known
 
     @property
     def C_nb(self) -> FloatArray:
@@ -158,10 +160,10 @@ class SimulatedSession:
         if t_s is None:
             t_s = self.sample_times(self._rate(body), include_start=True)
         t = np.asarray(t_s, dtype=float)
-        p, v, C, _ = self.motion(body)(t)
+        p, v, C, w = self.motion(body)(t)
         llh, vel, C_nb = nav_from_ecef(p, v, C)
         z = np.zeros(3)
-        return NavSeries(t, llh, vel, dcm_to_quat(C_nb), z, z, z)
+        return NavSeries(t, llh, vel, dcm_to_quat(C_nb), z, z, z, w)
 
     # ------------------------------------------------------------------ sensors
     def _rate(self, body: str) -> float:
@@ -208,7 +210,7 @@ class SimulatedSession:
         pos_sig = np.full(3, nz.pos_m)
         llh = tr.llh + _enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
         q = dcm_to_quat(C_nb_from_hpr(hpr[:, 0], hpr[:, 1], hpr[:, 2]))
-        return NavSeries(tr.t_s, llh, vel, q, att_sig, vel_sig, pos_sig)
+        return NavSeries(tr.t_s, llh, vel, q, att_sig, vel_sig, pos_sig, tr.omega_eb_b_radps)
 
     def gnss(self) -> GnssSeries:
         g = self.scenario.gnss

@@ -1,0 +1,122 @@
+"""Vectorized CDR (XCDR1, little endian) encoding and decoding of the high-rate streams.
+
+``sensor_msgs/Imu`` and ``nav_msgs/Odometry`` carry a header (stamp + frame strings) followed by
+a block of float64 values with no gaps, so for fixed frame names every message has the same
+layout: a constant prefix, the stamp, the strings, padding, then ``N`` doubles.  Encoding a whole
+series is then a few numpy copies instead of one Python message object per sample, and the bag
+writer and the live devices emit the very same bytes.  ``test/ros/test_cdr.py`` checks that the
+bytes equal ``rclpy.serialization.serialize_message`` of the same content (except alignment
+padding, which Fast CDR leaves uninitialized and we write as zeros).
+
+Alignment in CDR is relative to the payload after the 4-byte encapsulation header.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+CDR_LE_HEADER = b"\x00\x01\x00\x00"
+
+#: doubles after the header: orientation xyzw (4) + cov (9) + angular velocity (3) + cov (9) + linear acceleration (3) + cov (9)
+IMU_DOUBLES = 37
+#: pose position (3) + orientation xyzw (4) + cov (36) + twist linear (3) + angular (3) + cov (36)
+ODOM_DOUBLES = 85
+
+
+def _align(payload: bytearray, n: int, pads: list[int]) -> None:
+    while len(payload) % n:
+        pads.append(4 + len(payload))
+        payload.append(0)
+
+
+def _string(payload: bytearray, s: str, pads: list[int]) -> None:
+    """Append a CDR string (uint32 length incl. NUL, bytes, NUL) at 4-byte alignment."""
+    _align(payload, 4, pads)
+    b = s.encode("utf-8") + b"\x00"
+    payload += len(b).to_bytes(4, "little") + b
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Layout of a message kind for given frame names: stamp at payload offset 0, doubles at ``offset``."""
+
+    prefix: bytes  # payload bytes after the stamp up to the doubles (strings + padding)
+    n_doubles: int
+    padding: tuple[int, ...] = ()  # offsets (in the serialized message) of alignment padding bytes
+
+    @property
+    def offset(self) -> int:
+        return 8 + len(self.prefix)
+
+    @property
+    def size(self) -> int:
+        return 4 + self.offset + 8 * self.n_doubles
+
+
+def layout(kind: str, frame_id: str, child_frame_id: str = "") -> Layout:
+    """``kind``: ``imu`` or ``odometry``."""
+    payload = bytearray(8)  # stamp sec, nanosec
+    pads: list[int] = []
+    _string(payload, frame_id, pads)
+    if kind == "odometry":
+        _string(payload, child_frame_id, pads)
+        n = ODOM_DOUBLES
+    elif kind == "imu":
+        n = IMU_DOUBLES
+    else:
+        raise ValueError(f"unknown CDR layout {kind!r}")
+    _align(payload, 8, pads)
+    return Layout(bytes(payload[8:]), n, tuple(pads))
+
+
+def split_stamp(t_ns: NDArray[np.int64]) -> tuple[NDArray[np.int32], NDArray[np.uint32]]:
+    t = np.asarray(t_ns, dtype=np.int64)
+    sec = np.floor_divide(t, 1_000_000_000)
+    return sec.astype(np.int32), (t - sec * 1_000_000_000).astype(np.uint32)
+
+
+def encode(lay: Layout, t_ns: NDArray[np.int64], values: FloatArray) -> NDArray[np.uint8]:
+    """Rows of serialized messages (N, size) from stamps (N,) and the double block (N, n_doubles)."""
+    v = np.ascontiguousarray(values, dtype="<f8")
+    n = v.shape[0]
+    if v.shape != (n, lay.n_doubles):
+        raise ValueError(f"expected values of shape (N, {lay.n_doubles}), got {v.shape}")
+    out = np.empty((n, lay.size), dtype=np.uint8)
+    out[:, :4] = np.frombuffer(CDR_LE_HEADER, dtype=np.uint8)
+    sec, nsec = split_stamp(t_ns)
+    out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+    out[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
+    out[:, 12 : 4 + lay.offset] = np.frombuffer(lay.prefix, dtype=np.uint8)
+    out[:, 4 + lay.offset :] = v.view(np.uint8).reshape(n, 8 * lay.n_doubles)
+    return out
+
+
+def decode(lay: Layout, rows: NDArray[np.uint8]) -> tuple[NDArray[np.int64], FloatArray]:
+    """Inverse of :func:`encode` for rows of this layout: ``(t_ns (N,), values (N, n_doubles))``."""
+    r = np.ascontiguousarray(rows, dtype=np.uint8)
+    if r.ndim != 2 or r.shape[1] != lay.size:
+        raise ValueError(f"expected serialized rows of {lay.size} bytes, got shape {r.shape}")
+    keep = np.ones(lay.offset - 8, dtype=bool)
+    keep[[p - 12 for p in lay.padding]] = False  # padding bytes may hold anything
+    if not np.all(r[:, 12 : 4 + lay.offset][:, keep] == np.frombuffer(lay.prefix, dtype=np.uint8)[keep]):
+        raise ValueError("serialized messages do not have the expected frame names")
+    sec = r[:, 4:8].copy().view("<i4")[:, 0].astype(np.int64)
+    nsec = r[:, 8:12].copy().view("<u4")[:, 0].astype(np.int64)
+    vals = r[:, 4 + lay.offset :].copy().view("<f8")
+    return sec * 1_000_000_000 + nsec, vals
+
+
+def frame_ids(data: bytes, kind: str) -> tuple[str, str]:
+    """Frame names of one serialized message (``child`` is '' for Imu)."""
+    n = int.from_bytes(data[12:16], "little")
+    frame = data[16 : 16 + n - 1].decode("utf-8")
+    if kind != "odometry":
+        return frame, ""
+    o = 16 + n
+    o += (-(o - 4)) % 4
+    m = int.from_bytes(data[o : o + 4], "little")
+    return frame, data[o + 4 : o + 4 + m - 1].decode("utf-8")

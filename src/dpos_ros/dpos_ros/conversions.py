@@ -1,0 +1,237 @@
+"""The one place that knows message fields, frames and units (design.md "Frames, units, time").
+
+* World frame ``enu``: Cartesian ENU at the session datum; bodies are FLU (``master_imu``,
+  ``sub_imu_<name>``, ``antenna_<name>``).  The core works in the local-level ENU frame with
+  geodetic positions; :func:`dpos_core.earth.nav_to_datum` maps between the two.
+* Quaternions: the core is scalar-first ``[w, x, y, z]``; messages are ``x, y, z, w``.
+* Stamps: ``t_ns = start_time_ns + round(t_s * 1e9)``; ``header.stamp`` is the sampling time.
+* ``sensor_msgs/Imu``: angular velocity and specific force in the IMU's FLU axes (the mean over the
+  sample interval ending at the stamp); no orientation (``orientation_covariance[0] = -1``).
+* ``nav_msgs/Odometry``: pose of the child frame in ``enu`` with a 6x6 covariance (x, y, z, then
+  rotations about the ``enu`` axes); twist in the child (body) frame: velocity over the Earth and
+  body rate w.r.t. the Earth, with covariance.
+* ``/gnss/fix``: ``NavSatFix`` in degrees / ellipsoidal height, ENU position covariance [m^2];
+  ``/gnss/vel``: ENU velocity at the antenna (local-level axes), frame ``gnss``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_core import earth
+from dpos_core.attitude import dcm_to_quat, quat_to_dcm
+
+from . import cdr
+
+FloatArray = NDArray[np.float64]
+
+WORLD_FRAME = "enu"
+MASTER_FRAME = "master_imu"
+GNSS_FRAME = "gnss"
+
+
+def sub_imu_frame(name: str) -> str:
+    return f"sub_imu_{name}"
+
+
+def antenna_frame(name: str) -> str:
+    return f"antenna_{name}"
+
+
+def stamps_ns(start_time_s: float, t_s: FloatArray) -> NDArray[np.int64]:
+    """Absolute stamps [ns] of scenario times (exact integer arithmetic for the epoch)."""
+    start_ns = int(round(start_time_s * 1e9))
+    return start_ns + np.round(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
+
+
+def quat_xyzw(q_wxyz: FloatArray) -> FloatArray:
+    q = np.asarray(q_wxyz, dtype=float)
+    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
+
+
+def quat_wxyz(q_xyzw: FloatArray) -> FloatArray:
+    q = np.asarray(q_xyzw, dtype=float)
+    return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
+
+
+# ------------------------------------------------------------------------------ Imu
+
+
+def imu_values(omega_radps: FloatArray, f_mps2: FloatArray, gyro_sigma_radps: float, accel_sigma_mps2: float) -> FloatArray:
+    """Double block (N, 37) of ``sensor_msgs/Imu`` without orientation."""
+    n = omega_radps.shape[0]
+    v = np.zeros((n, cdr.IMU_DOUBLES))
+    v[:, 3] = 1.0  # identity orientation (ignored: covariance[0] = -1)
+    v[:, 4] = -1.0
+    v[:, 13:16] = omega_radps
+    v[:, [16, 20, 24]] = gyro_sigma_radps**2
+    v[:, 25:28] = f_mps2
+    v[:, [28, 32, 36]] = accel_sigma_mps2**2
+    return v
+
+
+@dataclass(frozen=True)
+class ImuBlock:
+    """Decoded Imu samples: t_ns (N,), omega_radps (N, 3), f_mps2 (N, 3), variances (N, 3) each."""
+
+    t_ns: NDArray[np.int64]
+    omega_radps: FloatArray
+    f_mps2: FloatArray
+    gyro_var: FloatArray
+    accel_var: FloatArray
+
+
+def imu_from_values(t_ns: NDArray[np.int64], v: FloatArray) -> ImuBlock:
+    return ImuBlock(t_ns, v[:, 13:16].copy(), v[:, 25:28].copy(), v[:, [16, 20, 24]].copy(), v[:, [28, 32, 36]].copy())
+
+
+def imu_rows(frame_id: str, t_ns: NDArray[np.int64], omega: FloatArray, f: FloatArray, gyro_sigma: float, accel_sigma: float) -> NDArray[np.uint8]:
+    return cdr.encode(cdr.layout("imu", frame_id), t_ns, imu_values(omega, f, gyro_sigma, accel_sigma))
+
+
+# ------------------------------------------------------------------------------ Odometry
+
+
+def hpr_sigma_to_rotation_cov(C_nb: FloatArray, sigma_hpr_rad: FloatArray) -> FloatArray:
+    """Covariance (N, 3, 3) of the attitude error as a rotation about local ENU axes from
+    independent heading / pitch / roll errors: the heading axis is -Up, the pitch axis the
+    horizontal axis turned by the heading, the roll axis the body's forward axis."""
+    from dpos_core.frames import hpr_from_C_nb
+
+    hpr = hpr_from_C_nb(C_nb)
+    h, p = hpr[..., 0], hpr[..., 1]
+    z = np.zeros_like(h)
+    a_h = np.stack([z, z, -np.ones_like(h)], -1)
+    a_p = np.stack([np.cos(h), -np.sin(h), z], -1)
+    a_r = np.stack([np.sin(h) * np.cos(p), np.cos(h) * np.cos(p), np.sin(p)], -1)
+    M = np.stack([a_h, a_p, a_r], -1)
+    return M @ ((np.asarray(sigma_hpr_rad, dtype=float) ** 2)[:, None] * np.swapaxes(M, -1, -2))  # M D M^T
+
+
+def odometry_values(
+    llh: FloatArray,
+    vel_n_mps: FloatArray,
+    q_nb: FloatArray,
+    datum_llh: FloatArray,
+    omega_b_radps: FloatArray | None = None,
+    pos_sigma_m: FloatArray | None = None,
+    att_sigma_hpr_rad: FloatArray | None = None,
+    vel_sigma_mps: FloatArray | None = None,
+    omega_sigma_radps: float = 0.0,
+) -> FloatArray:
+    """Double block (N, 85) of ``nav_msgs/Odometry`` (pose in ``enu``, twist in the body)."""
+    n = llh.shape[0]
+    C_nb = quat_to_dcm(q_nb)
+    p, v_w, C_wb = earth.nav_to_datum(llh, vel_n_mps, C_nb, datum_llh)
+    R = earth.C_datum_n(llh[:, 0], llh[:, 1], datum_llh)
+    out = np.zeros((n, cdr.ODOM_DOUBLES))
+    out[:, 0:3] = p
+    out[:, 3:7] = quat_xyzw(dcm_to_quat(C_wb))
+    pose_cov = np.zeros((n, 6, 6))
+    if pos_sigma_m is not None:
+        pose_cov[:, :3, :3] = R @ ((np.asarray(pos_sigma_m, dtype=float) ** 2)[:, None] * np.swapaxes(R, 1, 2))
+    if att_sigma_hpr_rad is not None:
+        pose_cov[:, 3:, 3:] = R @ hpr_sigma_to_rotation_cov(C_nb, att_sigma_hpr_rad) @ np.swapaxes(R, 1, 2)
+    out[:, 7:43] = pose_cov.reshape(n, 36)
+    out[:, 43:46] = np.einsum("nji,nj->ni", C_wb, v_w)
+    if omega_b_radps is not None:
+        out[:, 46:49] = omega_b_radps
+    twist_cov = np.zeros((n, 6, 6))
+    if vel_sigma_mps is not None:
+        C_bn = np.swapaxes(C_nb, 1, 2)
+        twist_cov[:, :3, :3] = C_bn @ ((np.asarray(vel_sigma_mps, dtype=float) ** 2)[:, None] * C_nb)
+    twist_cov[:, 3:, 3:] = np.eye(3) * omega_sigma_radps**2
+    out[:, 49:85] = twist_cov.reshape(n, 36)
+    return out
+
+
+@dataclass(frozen=True)
+class OdometryBlock:
+    """Decoded Odometry samples back in the core's terms.
+
+    t_ns (N,), llh (N, 3), vel_n_mps (N, 3) local ENU, q_nb (N, 4) body -> local ENU, omega_b_radps (N, 3),
+    pose_cov (N, 6, 6) and twist_cov (N, 6, 6) as on the wire.
+    """
+
+    t_ns: NDArray[np.int64]
+    llh: FloatArray
+    vel_n_mps: FloatArray
+    q_nb: FloatArray
+    omega_b_radps: FloatArray
+    pose_cov: FloatArray
+    twist_cov: FloatArray
+
+
+def odometry_from_values(t_ns: NDArray[np.int64], v: FloatArray, datum_llh: FloatArray) -> OdometryBlock:
+    n = v.shape[0]
+    C_wb = quat_to_dcm(quat_wxyz(v[:, 3:7]))
+    v_w = np.einsum("nij,nj->ni", C_wb, v[:, 43:46])
+    llh, vel_n, C_nb = earth.datum_to_nav(v[:, 0:3], v_w, C_wb, datum_llh)
+    return OdometryBlock(t_ns, llh, vel_n, dcm_to_quat(C_nb), v[:, 46:49].copy(),
+                         v[:, 7:43].reshape(n, 6, 6).copy(), v[:, 49:85].reshape(n, 6, 6).copy())
+
+
+def odometry_rows(frame_id: str, child_frame_id: str, t_ns: NDArray[np.int64], values: FloatArray) -> NDArray[np.uint8]:
+    return cdr.encode(cdr.layout("odometry", frame_id, child_frame_id), t_ns, values)
+
+
+# ------------------------------------------------------------------------------ low-rate messages (rclpy)
+
+
+def _stamp(msg_header, t_ns: int, frame_id: str) -> None:
+    msg_header.stamp.sec = int(t_ns // 1_000_000_000)
+    msg_header.stamp.nanosec = int(t_ns % 1_000_000_000)
+    msg_header.frame_id = frame_id
+
+
+def navsatfix_msg(t_ns: int, frame_id: str, llh: FloatArray, pos_sigma_m: FloatArray | None, *, fix: bool = True):
+    """``sensor_msgs/NavSatFix`` (degrees, ellipsoidal height, diagonal ENU covariance)."""
+    from sensor_msgs.msg import NavSatFix, NavSatStatus
+
+    m = NavSatFix()
+    _stamp(m.header, t_ns, frame_id)
+    m.status.status = NavSatStatus.STATUS_GBAS_FIX if fix else NavSatStatus.STATUS_NO_FIX
+    m.status.service = NavSatStatus.SERVICE_GPS
+    m.latitude = float(np.rad2deg(llh[0]))
+    m.longitude = float(np.rad2deg(llh[1]))
+    m.altitude = float(llh[2])
+    if pos_sigma_m is None:
+        m.position_covariance_type = NavSatFix.COVARIANCE_TYPE_UNKNOWN
+    else:
+        m.position_covariance = [float(x) for x in np.diag(np.asarray(pos_sigma_m, dtype=float) ** 2).reshape(9)]
+        m.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+    return m
+
+
+def gnss_vel_msg(t_ns: int, vel_n_mps: FloatArray, vel_sigma_mps: FloatArray):
+    """``geometry_msgs/TwistWithCovarianceStamped``: ENU velocity at the antenna."""
+    from geometry_msgs.msg import TwistWithCovarianceStamped
+
+    m = TwistWithCovarianceStamped()
+    _stamp(m.header, t_ns, GNSS_FRAME)
+    m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z = (float(x) for x in vel_n_mps)
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = np.diag(np.asarray(vel_sigma_mps, dtype=float) ** 2)
+    cov[3:, 3:] = -1.0 * np.eye(3)  # angular part unknown
+    m.twist.covariance = [float(x) for x in cov.reshape(36)]
+    return m
+
+
+def datum_msg(t_ns: int, datum_llh: FloatArray):
+    """``/dpos/datum``: the session datum as a NavSatFix (frame ``enu``, no covariance)."""
+    return navsatfix_msg(t_ns, WORLD_FRAME, datum_llh, None)
+
+
+def datum_from_msg(msg) -> FloatArray:
+    return np.array([np.deg2rad(msg.latitude), np.deg2rad(msg.longitude), msg.altitude])
+
+
+def session_end_msg(t_ns: int, session_id: str):
+    from std_msgs.msg import Header
+
+    m = Header()
+    _stamp(m, t_ns, session_id)
+    return m
