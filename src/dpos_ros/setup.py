@@ -21,6 +21,7 @@ setup(
     license='MIT',
     entry_points={
         'console_scripts': [
+            'dpos-sim = dpos_ros.cli.sim:main',
         ],
     },
 )

@@ -1,0 +1,1 @@
+"""Command-line tools of dpos (console scripts installed into the venv)."""
