@@ -57,10 +57,10 @@ def session_id(session: SimulatedSession) -> str:
     return f"{session.scenario.name}_seed{session.seed}"
 
 
-def _odometry_stream(topic: str, child: str, series: NavSeries, session: SimulatedSession, *, with_cov: bool) -> TopicStream:
+def _odometry_stream(topic: str, child: str, series: NavSeries, session: SimulatedSession, datum_llh: NDArray[np.float64], *, with_cov: bool) -> TopicStream:
     t_ns = cv.stamps_ns(session.scenario.start_time_s, series.t_s)
     vals = cv.odometry_values(
-        series.llh, series.vel_n_mps, series.q_nb, session.datum_llh, series.omega_eb_b_radps,
+        series.llh, series.vel_n_mps, series.q_nb, datum_llh, series.omega_eb_b_radps,
         pos_sigma_m=series.pos_sigma_m if with_cov else None,
         att_sigma_hpr_rad=series.att_sigma_rad if with_cov else None,
         vel_sigma_mps=series.vel_sigma_mps if with_cov else None,
@@ -80,15 +80,22 @@ def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) ->
     return TopicStream(topic, IMU, t_ns, rows=rows)
 
 
-def device_streams(session: SimulatedSession, device: str, *, truth: bool = True) -> list[TopicStream]:
-    """Streams of one device: ``master`` or ``sub_imu/<name>`` (see module docstring)."""
+def device_streams(
+    session: SimulatedSession, device: str, *, truth: bool = True, datum_llh: NDArray[np.float64] | None = None
+) -> list[TopicStream]:
+    """Streams of one device: ``master`` or ``sub_imu/<name>`` (see module docstring).
+
+    ``datum_llh`` ([lat_rad, lon_rad, h_m]) is the origin of the ``enu`` frame of the poses; by
+    default the scenario's start point.  All devices of a session must use the same datum.
+    """
+    datum = session.datum_llh if datum_llh is None else np.asarray(datum_llh, dtype=float)
     sc = session.scenario
     ac = sc.aircraft
     t0 = sc.start_time_s
     out: list[TopicStream] = []
     if device == "master":
         t_start = cv.stamps_ns(t0, np.array([0.0]))
-        out.append(TopicStream("/dpos/datum", NAVSATFIX, t_start, blobs=(serialize_message(cv.datum_msg(int(t_start[0]), session.datum_llh)),), qos="datum"))
+        out.append(TopicStream("/dpos/datum", NAVSATFIX, t_start, blobs=(serialize_message(cv.datum_msg(int(t_start[0]), datum)),), qos="datum"))
         out.append(_imu_stream("/master/imu", cv.MASTER_FRAME, session, "master"))
         g = session.gnss()
         g_ns = cv.stamps_ns(t0, g.t_s)
@@ -96,12 +103,12 @@ def device_streams(session: SimulatedSession, device: str, *, truth: bool = True
             serialize_message(cv.navsatfix_msg(int(t), cv.GNSS_FRAME, g.llh[i], g.pos_sigma_m[i])) for i, t in enumerate(g_ns))))
         out.append(TopicStream("/gnss/vel", TWIST_COV, g_ns, blobs=tuple(
             serialize_message(cv.gnss_vel_msg(int(t), g.vel_n_mps[i], g.vel_sigma_mps[i])) for i, t in enumerate(g_ns))))
-        out.append(_odometry_stream("/master/nav", cv.MASTER_FRAME, session.master_nav_reference(), session, with_cov=True))
+        out.append(_odometry_stream("/master/nav", cv.MASTER_FRAME, session.master_nav_reference(), session, datum, with_cov=True))
         if truth:
-            out.append(_odometry_stream("/truth/master", cv.MASTER_FRAME, session.truth("master"), session, with_cov=False))
+            out.append(_odometry_stream("/truth/master", cv.MASTER_FRAME, session.truth("master"), session, datum, with_cov=False))
             for a in ac.antennas:
                 if a.sub_imu is None:
-                    out.append(_odometry_stream(f"/truth/antenna/{a.name}", cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, with_cov=False))
+                    out.append(_odometry_stream(f"/truth/antenna/{a.name}", cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, datum, with_cov=False))
         t_end = cv.stamps_ns(t0, np.array([session.duration_s]))
         out.append(TopicStream("/session/end", HEADER, t_end, blobs=(serialize_message(cv.session_end_msg(int(t_end[0]), session_id(session))),), qos="nav"))
         return out
@@ -111,18 +118,18 @@ def device_streams(session: SimulatedSession, device: str, *, truth: bool = True
     ac.sub_imu(name)  # KeyError naming the configured sub-IMUs
     out.append(_imu_stream(f"/sub_imu/{name}/imu", cv.sub_imu_frame(name), session, name))
     if truth:
-        out.append(_odometry_stream(f"/truth/sub_imu/{name}", cv.sub_imu_frame(name), session.truth(f"sub_imu/{name}"), session, with_cov=False))
+        out.append(_odometry_stream(f"/truth/sub_imu/{name}", cv.sub_imu_frame(name), session.truth(f"sub_imu/{name}"), session, datum, with_cov=False))
         for a in ac.antennas:
             if a.sub_imu == name:
-                out.append(_odometry_stream(f"/truth/antenna/{a.name}", cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, with_cov=False))
+                out.append(_odometry_stream(f"/truth/antenna/{a.name}", cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, datum, with_cov=False))
     return out
 
 
-def session_streams(session: SimulatedSession, *, truth: bool = True) -> list[TopicStream]:
+def session_streams(session: SimulatedSession, *, truth: bool = True, datum_llh: NDArray[np.float64] | None = None) -> list[TopicStream]:
     """Every topic of the session: the master device and every sub-IMU."""
-    out = device_streams(session, "master", truth=truth)
+    out = device_streams(session, "master", truth=truth, datum_llh=datum_llh)
     for s in session.scenario.aircraft.sub_imus:
-        out += device_streams(session, f"sub_imu/{s.name}", truth=truth)
+        out += device_streams(session, f"sub_imu/{s.name}", truth=truth, datum_llh=datum_llh)
     return out
 
 

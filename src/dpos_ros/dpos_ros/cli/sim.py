@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from dpos_core.sim.scenario import ConfigError, builtin_scenarios, load_scenario
 from dpos_core.sim.session import SimulatedSession
 
@@ -30,6 +32,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, help="cut the flight to this many seconds")
     ap.add_argument("--out", type=Path, required=True, help="new rosbag2 directory to write")
     ap.add_argument("--no-truth", action="store_true", help="leave out the /truth/* topics")
+    ap.add_argument("--datum", type=float, nargs=3, metavar=("LAT_DEG", "LON_DEG", "H_M"),
+                    help="origin of the enu frame (default: the scenario's start point)")
     args = ap.parse_args(argv)
     if args.seed < 0:
         ap.error("--seed must be >= 0")
@@ -46,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     print(f"dpos-sim: {scenario.name} ({scenario.source}), aircraft {scenario.aircraft.name}, seed {args.seed}, "
           f"{session.duration_s:.0f} s -> {args.out}")
-    streams = session_streams(session, truth=not args.no_truth)
+    datum = None if args.datum is None else np.array([np.deg2rad(args.datum[0]), np.deg2rad(args.datum[1]), args.datum[2]])
+    streams = session_streams(session, truth=not args.no_truth, datum_llh=datum)
     t_gen = time.perf_counter() - t0
     n = write_streams(args.out, streams, progress=Progress("writing"))
     elapsed = time.perf_counter() - t0
