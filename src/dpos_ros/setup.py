@@ -22,6 +22,7 @@ setup(
     entry_points={
         'console_scripts': [
             'dpos-sim = dpos_ros.cli.sim:main',
+            'dpos-plot-scenario = dpos_ros.cli.plot_scenario:main',
         ],
     },
 )

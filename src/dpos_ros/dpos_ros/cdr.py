@@ -120,3 +120,17 @@ def frame_ids(data: bytes, kind: str) -> tuple[str, str]:
     o += (-(o - 4)) % 4
     m = int.from_bytes(data[o : o + 4], "little")
     return frame, data[o + 4 : o + 4 + m - 1].decode("utf-8")
+
+
+_TYPESTORE = None
+
+
+def canonical(raw: bytes, msgtype: str) -> bytes:
+    """Re-serialize CDR with zeroed alignment padding (rosbags' serializer), so that messages
+    serialized by rclpy (Fast CDR leaves padding uninitialized) are reproducible byte for byte."""
+    global _TYPESTORE
+    if _TYPESTORE is None:
+        from rosbags.typesys import Stores, get_typestore
+
+        _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+    return bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.deserialize_cdr(raw, msgtype), msgtype))

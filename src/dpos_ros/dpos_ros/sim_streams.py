@@ -21,6 +21,7 @@ from rclpy.serialization import serialize_message
 
 from dpos_core.sim.session import NavSeries, SimulatedSession
 
+from . import cdr
 from . import conversions as cv
 
 IMU = "sensor_msgs/msg/Imu"
@@ -44,6 +45,10 @@ class TopicStream:
     rows: NDArray[np.uint8] | None = None
     blobs: tuple[bytes, ...] | None = None
     qos: str = "sensor"
+
+    def __post_init__(self) -> None:
+        if self.blobs is not None:  # reproducible bytes (see cdr.canonical)
+            object.__setattr__(self, "blobs", tuple(cdr.canonical(b, self.msgtype) for b in self.blobs))
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
