@@ -1,0 +1,67 @@
+"""Deterministic point sets for Gaussian filters.
+
+* :class:`UnscentedPoints`: the scaled unscented transform (seed 000 eq. 2-3; Julier 2002,
+  van der Merwe 2004): ``2n + 1`` points ``x +- sqrt((n + lambda) P)_j`` with
+  ``lambda = alpha^2 (n + kappa) - n``, mean weights ``W0m = lambda / (n + lambda)``,
+  ``W0c = W0m + 1 - alpha^2 + beta``, ``Wj = 1 / (2 (n + lambda))``.
+* :class:`CentralDifferencePoints`: Stirling's interpolation (Norgaard, Poulsen, Ravn 2000;
+  seed 001 eq. 2-14): points ``x +- h s_j`` of a square root ``S``, step ``h = sqrt(3)`` for a
+  Gaussian prior; mean weights ``(h^2 - n)/h^2`` and ``1/(2 h^2)``.  Used by CDKF and DD2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .linalg import chol
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class UnscentedPoints:
+    alpha: float = 1e-1
+    beta: float = 2.0
+    kappa: float = 0.0
+
+    def lam(self, n: int) -> float:
+        return self.alpha**2 * (n + self.kappa) - n
+
+    def weights(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """Mean and covariance weights, each (2n + 1,)."""
+        lam = self.lam(n)
+        wm = np.full(2 * n + 1, 0.5 / (n + lam))
+        wc = wm.copy()
+        wm[0] = lam / (n + lam)
+        wc[0] = wm[0] + 1.0 - self.alpha**2 + self.beta
+        return wm, wc
+
+    def points(self, x: FloatArray, P: FloatArray | None = None, *, S: FloatArray | None = None) -> FloatArray:
+        """Sigma points (..., 2n + 1, n) of mean x (..., n) and covariance P (or square root S)."""
+        n = x.shape[-1]
+        if S is None:
+            S = chol(P)
+        d = np.sqrt(n + self.lam(n)) * np.swapaxes(S, -1, -2)  # rows = scaled columns of S
+        return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
+
+
+@dataclass(frozen=True)
+class CentralDifferencePoints:
+    h: float = np.sqrt(3.0)
+
+    def weights(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """Mean weights (2n + 1,) and, for the first-order covariance of CDKF, the same."""
+        h2 = self.h**2
+        wm = np.full(2 * n + 1, 0.5 / h2)
+        wm[0] = (h2 - n) / h2
+        return wm, wm
+
+    def points(self, x: FloatArray, P: FloatArray | None = None, *, S: FloatArray | None = None) -> FloatArray:
+        n = x.shape[-1]
+        if S is None:
+            S = chol(P)
+        d = self.h * np.swapaxes(S, -1, -2)
+        return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
