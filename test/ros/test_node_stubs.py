@@ -106,7 +106,7 @@ def test_node_in_process_has_default_config(script, ros_context, ros_executor):
     try:
         assert node.get_name() == script
         assert node.config == expected
-        assert list(node.get_parameter("datum").value) == [40.0, 116.0, 500.0]
+        assert node.config.datum == ()  # [] = the session's own datum
         ros_executor.add_node(node)
         ros_executor.spin_once(timeout_sec=0.1)
     finally:

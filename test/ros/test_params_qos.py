@@ -142,3 +142,45 @@ def test_latched_qos_is_transient_local():
     for profile in (qos.DATUM_QOS, qos.STATUS_QOS):
         assert profile.reliability == ReliabilityPolicy.RELIABLE
         assert profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+
+
+def test_datum_parameter_empty_means_session_datum():
+    from dpos_ros.params import datum_llh_rad
+    from pos_master_node.params import PosMasterConfig
+
+    assert PosMasterConfig().datum == ()
+    assert datum_llh_rad(()) is None
+    cfg = config_from_values(PosMasterConfig, {"datum": [40, 116, 500]})
+    assert cfg.datum == (40.0, 116.0, 500.0)
+    lat, lon, h = datum_llh_rad(cfg.datum)
+    assert lat == pytest.approx(0.6981317007977318) and lon == pytest.approx(2.0245819323134224) and h == 500.0
+
+
+@pytest.mark.parametrize(
+    ("datum", "message"),
+    [
+        ([40.0, 116.0], "expected [] (the session's own datum) or [lat_deg, lon_deg, h_m]"),
+        ([91.0, 116.0, 0.0], "latitude must be in [-90, 90] deg"),
+        ([40.0, -181.0, 0.0], "longitude must be in [-180, 180] deg"),
+    ],
+)
+def test_datum_parameter_is_validated(datum, message):
+    from pos_master_node.params import PosMasterConfig
+
+    with pytest.raises(ParameterError, match="'datum'") as info:
+        config_from_values(PosMasterConfig, {"datum": datum})
+    assert message in str(info.value)
+
+
+@pytest.mark.parametrize("override", [[], [40.0, 116.0, 500.0], [40, 116, 500]])
+def test_datum_parameter_on_node(ros_context, override):
+    from rclpy.node import Node
+
+    from pos_sub_node.params import PosSubConfig
+
+    node = Node("datum_test", context=ros_context,
+                parameter_overrides=[Parameter("name", value="sub_r"), Parameter("datum", value=override)])
+    try:
+        assert declare_config(node, PosSubConfig).datum == tuple(float(x) for x in override)
+    finally:
+        node.destroy_node()

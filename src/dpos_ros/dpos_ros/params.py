@@ -41,9 +41,13 @@ __all__ = [
     "packaged_params_file",
     "read_params_file",
     "datum_param",
+    "datum_llh_rad",
     "aircraft_config_param",
     "DEVICES",
     "scenario_param",
+    "duration_param",
+    "min_subscribers_param",
+    "wait_subscribers_param",
 ]
 
 C = TypeVar("C")
@@ -104,6 +108,10 @@ def param(
 
 
 def _check_datum(datum: tuple[float, ...]) -> str | None:
+    if len(datum) == 0:
+        return None
+    if len(datum) != 3:
+        return "expected [] (the session's own datum) or [lat_deg, lon_deg, h_m]"
     lat, lon, _ = datum
     if not -90.0 <= lat <= 90.0:
         return "latitude must be in [-90, 90] deg"
@@ -113,13 +121,26 @@ def _check_datum(datum: tuple[float, ...]) -> str | None:
 
 
 def datum_param() -> Any:
-    """The ``datum`` parameter every node has: [lat_deg, lon_deg, h_m] of the ``enu`` origin."""
+    """The ``datum`` parameter every node has: [lat_deg, lon_deg, h_m] of the ``enu`` origin.
+
+    ``[]`` (the default) means the session's own datum: for a simulated device the scenario's
+    start point, for the other nodes the datum that pos_master_node publishes on /dpos/datum.
+    Use :func:`datum_llh_rad` to turn the value into [lat_rad, lon_rad, h_m].
+    """
     return param(
-        (40.0, 116.0, 500.0),
-        "session datum [lat_deg, lon_deg, h_m] (WGS-84) of the enu frame",
-        length=3,
+        (),
+        "session datum [lat_deg, lon_deg, h_m] (WGS-84) of the enu frame; [] = the session's own "
+        "(simulation: the scenario's start point)",
         check=_check_datum,
     )
+
+
+def datum_llh_rad(datum: tuple[float, ...]) -> list[float] | None:
+    """[lat_rad, lon_rad, h_m] of a validated ``datum`` parameter; None for ``[]``."""
+    if len(datum) == 0:
+        return None
+    lat, lon, h = datum
+    return [math.radians(lat), math.radians(lon), float(h)]
 
 
 def aircraft_config_param() -> Any:
@@ -309,8 +330,11 @@ def declare_config(node: Any, cls: type[C]) -> C:
         if not dynamic:
             descriptor.type = ptype.value
         default = list(f.default) if is_array else f.default
-        # An empty array default has no inferable type: declare it typed and uninitialised.
-        initial = ptype if (is_array and not default) else default
+        # An empty array default has no inferable type: declare it typed and uninitialised
+        # (dynamically typed doubles: untyped and unset, so that [] and integer arrays pass).
+        initial = default
+        if is_array and not default:
+            initial = None if dynamic else ptype
         try:
             parameter = node.declare_parameter(f.name, initial, descriptor)
         except InvalidParameterTypeException as exc:
@@ -344,6 +368,30 @@ def _check_scenario(value: str) -> str | None:
     if value.endswith((".yaml", ".yml")):
         return None if pathlib.Path(value).is_file() else f"scenario file not found: {value}"
     return f"not a built-in scenario {known} nor a .yaml file"
+
+
+def duration_param() -> Any:
+    """The ``duration`` parameter of the simulated devices: seconds of the scenario, 0 = all of it."""
+    return param(0.0, "simulated session length [s] (device: sim); 0 = the whole scenario", minimum=0.0)
+
+
+def min_subscribers_param() -> Any:
+    """The ``min_subscribers`` parameter of the simulated devices (see dpos_ros.sim_device)."""
+    return param(
+        0,
+        "device: sim waits until every published topic but the latched datum has this many "
+        "matched subscriptions (at most wait_subscribers_s) before it starts",
+        minimum=0,
+    )
+
+
+def wait_subscribers_param() -> Any:
+    """The ``wait_subscribers_s`` parameter of the simulated devices (see dpos_ros.sim_device)."""
+    return param(
+        30.0,
+        "longest wait [s] for min_subscribers before the simulated device starts anyway",
+        minimum=0.0,
+    )
 
 
 def scenario_param(description: str = "simulator scenario (device: sim): built-in name or YAML path") -> Any:

@@ -5,7 +5,16 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from dpos_ros.params import DEVICES, aircraft_config_param, datum_param, param, scenario_param
+from dpos_ros.params import (
+    DEVICES,
+    aircraft_config_param,
+    datum_param,
+    duration_param,
+    min_subscribers_param,
+    param,
+    scenario_param,
+    wait_subscribers_param,
+)
 
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
@@ -21,22 +30,30 @@ class PosSubConfig:
     """Validated parameters of pos_sub_node.
 
     Attributes:
-        datum: [lat_deg, lon_deg, h_m] of the ``enu`` frame origin.
-        aircraft_config: aircraft YAML path, '' = built-in default.
-        name: sub-IMU name (required): topic /sub_imu/<name>/imu, frame sub_imu_<name>;
-            mount and lever arm come from the aircraft configuration.
-        device: sensor data source: ``sim`` or ``ros``.
+        datum: [lat_deg, lon_deg, h_m] of the ``enu`` frame origin (of the /truth/* poses);
+            ``[]`` = the scenario's start point. Must match pos_master_node's.
+        aircraft_config: aircraft configuration, built-in name or YAML path; '' = the scenario's own.
+        name: sub-IMU name (required), one of the aircraft's sub-IMUs: topic /sub_imu/<name>/imu,
+            frame sub_imu_<name>; mount and lever arm come from the aircraft configuration.
+        device: sensor data source: ``sim`` or ``ros`` (not implemented yet).
         scenario: simulator scenario; must match pos_master_node's.
         seed: simulator random seed; must match pos_master_node's (one flight).
+        duration: simulated session length [s], 0 = the whole scenario; must match pos_master_node's.
         rate_factor: simulation speed, 1.0 = real time, 0 = as fast as possible.
         publish_truth: publish /truth/* for this sub-IMU (simulated devices only).
+        min_subscribers: the simulated device starts publishing when every topic has this many
+            matched subscriptions (0 = at once) ...
+        wait_subscribers_s: ... or after this many seconds.
     """
 
-    datum: tuple[float, float, float] = datum_param()
+    datum: tuple[float, ...] = datum_param()
     aircraft_config: str = aircraft_config_param()
     name: str = param("", "sub-IMU name (required)", non_empty=True, check=_check_name)
     device: str = param("sim", "sensor data source", choices=DEVICES)
     scenario: str = scenario_param()
-    seed: int = param(1, "simulator random seed (same seed in every node = one flight)")
+    seed: int = param(1, "simulator random seed (same seed in every node = one flight)", minimum=0)
+    duration: float = duration_param()
     rate_factor: float = param(1.0, "simulation speed: 1.0 = real time, 0 = as fast as possible", minimum=0.0)
     publish_truth: bool = param(True, "publish /truth/* (simulated devices only)")
+    min_subscribers: int = min_subscribers_param()
+    wait_subscribers_s: float = wait_subscribers_param()
