@@ -1,4 +1,8 @@
-"""The four node stubs: start, log their plan, stop cleanly; reject bad parameters."""
+"""The four nodes: start, log their plan, stop cleanly; reject bad parameters.
+
+ifa_node and transfer_align_node are still stubs ("would ..."); the device nodes run their
+simulated device ("-> publishing ...", see test_sim_device.py for what they publish).
+"""
 
 from __future__ import annotations
 
@@ -23,6 +27,14 @@ NODES = {
 }
 
 # console script -> (bad parameter, bad value as shown in the error)
+# console script -> a text of the line that logs the node's plan
+PLAN = {
+    "pos_master_node": "-> publishing ",
+    "pos_sub_node": "-> publishing ",
+    "ifa_node": "would ",
+    "transfer_align_node": "would ",
+}
+
 BAD_PARAMETERS = {
     "pos_master_node": ("rate_factor:=-1.0", "rate_factor", "-1.0"),
     "pos_sub_node": ("name:=''", "name", "''"),
@@ -39,7 +51,7 @@ def _assert_clean_exit(node, rc: int) -> None:
 @pytest.mark.parametrize("script", sorted(NODES))
 def test_node_starts_logs_plan_and_stops_on_sigint(script, start_node):
     node = start_node(script, "--ros-args", *NODES[script])
-    line = node.wait_for_line("would ", START_TIMEOUT_S)
+    line = node.wait_for_line(PLAN[script], START_TIMEOUT_S)
     assert f"{script}:" in line and "[INFO]" in line
     node.send_signal(signal.SIGINT)
     _assert_clean_exit(node, node.wait(STOP_TIMEOUT_S))
@@ -49,7 +61,7 @@ def test_node_starts_logs_plan_and_stops_on_sigint(script, start_node):
 def test_node_starts_with_packaged_params_file_and_stops_on_sigterm(script, start_node):
     params = packaged_params_file(script)
     node = start_node(script, "--ros-args", "--params-file", str(params), *NODES[script])
-    node.wait_for_line("would ", START_TIMEOUT_S)
+    node.wait_for_line(PLAN[script], START_TIMEOUT_S)
     node.send_signal(signal.SIGTERM)
     _assert_clean_exit(node, node.wait(STOP_TIMEOUT_S))
 
@@ -59,7 +71,7 @@ def test_master_log_line_shows_overrides(start_node):
         "pos_master_node", "--ros-args", "-p", "scenario:=paper_wing", "-p", "seed:=7",
         "-p", "rate_factor:=0", "-p", "alignment:=reference",
     )
-    line = node.wait_for_line("would publish", START_TIMEOUT_S)
+    line = node.wait_for_line("-> publishing", START_TIMEOUT_S)
     for expected in ("device=sim", "scenario=paper_wing", "seed=7", "rate_factor=0.0", "alignment=reference",
                      "/master/imu", "/master/nav", "/dpos/datum"):
         assert expected in line, line
@@ -76,7 +88,7 @@ def test_bad_parameter_exits_nonzero_naming_it(script, start_node):
     assert rc != 0, node.output
     error = node.wait_for_line("[ERROR]", 1.0)
     assert f"'{name}'" in error and shown in error, error
-    assert "would " not in node.output
+    assert PLAN[script] not in node.output
     assert "Traceback" not in node.output, node.output
 
 
