@@ -109,7 +109,9 @@ def test_odometry_round_trip_and_frames() -> None:
     np.testing.assert_allclose(np.trace(blk.pose_cov[:, :3, :3], axis1=1, axis2=2), 0.05**2 * 2 + 0.1**2, rtol=1e-9)
     np.testing.assert_allclose(np.trace(blk.pose_cov[:, 3:, 3:], axis1=1, axis2=2), np.deg2rad(0.005) ** 2 + 2 * np.deg2rad(0.0025) ** 2, rtol=1e-9)
     # a level body at the datum heading north: heading error = rotation about -Up
-    C = cv.hpr_sigma_to_rotation_cov(np.eye(3)[None] @ np.array([[[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]]), np.array([0.1, 0.0, 0.0]))
+    from dpos_core.frames import hpr_sigma_to_rotation_cov
+
+    C = hpr_sigma_to_rotation_cov(np.eye(3)[None] @ np.array([[[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]]), np.array([0.1, 0.0, 0.0]))
     np.testing.assert_allclose(C[0], np.diag([0.0, 0.0, 0.01]), atol=1e-15)
 
 

@@ -126,3 +126,20 @@ def heading_from_yaw(yaw_rad: ArrayLike) -> FloatArray:
 def hpr_error(hpr_est_rad: ArrayLike, hpr_true_rad: ArrayLike) -> FloatArray:
     """Element-wise Euler-angle error ``est - true``, each wrapped to ``(-pi, pi]`` (reports)."""
     return wrap_angle(np.asarray(hpr_est_rad, dtype=float) - np.asarray(hpr_true_rad, dtype=float))
+
+
+def hpr_sigma_to_rotation_cov(C_nb: ArrayLike, sigma_hpr_rad: ArrayLike) -> FloatArray:
+    """Covariance (..., 3, 3) of an attitude error expressed as a rotation about the world (ENU)
+    axes, from independent heading / pitch / roll errors of an FLU body.
+
+    The heading axis is -Up, the pitch axis the horizontal axis turned by the heading
+    ``[cos h, -sin h, 0]``, the roll axis the body's forward axis; ``M diag(sigma^2) M^T``.
+    """
+    hpr = hpr_from_C_nb(C_nb)
+    h, p = hpr[..., 0], hpr[..., 1]
+    z = np.zeros_like(h)
+    a_h = np.stack([z, z, -np.ones_like(h)], -1)
+    a_p = np.stack([np.cos(h), -np.sin(h), z], -1)
+    a_r = np.stack([np.sin(h) * np.cos(p), np.cos(h) * np.cos(p), np.sin(p)], -1)
+    M = np.stack([a_h, a_p, a_r], -1)
+    return M @ ((np.asarray(sigma_hpr_rad, dtype=float) ** 2)[:, None] * np.swapaxes(M, -1, -2))

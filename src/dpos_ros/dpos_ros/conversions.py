@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
+from dpos_core.frames import hpr_sigma_to_rotation_cov
 
 from . import cdr
 
@@ -93,22 +94,6 @@ def imu_rows(frame_id: str, t_ns: NDArray[np.int64], omega: FloatArray, f: Float
 
 
 # ------------------------------------------------------------------------------ Odometry
-
-
-def hpr_sigma_to_rotation_cov(C_nb: FloatArray, sigma_hpr_rad: FloatArray) -> FloatArray:
-    """Covariance (N, 3, 3) of the attitude error as a rotation about local ENU axes from
-    independent heading / pitch / roll errors: the heading axis is -Up, the pitch axis the
-    horizontal axis turned by the heading, the roll axis the body's forward axis."""
-    from dpos_core.frames import hpr_from_C_nb
-
-    hpr = hpr_from_C_nb(C_nb)
-    h, p = hpr[..., 0], hpr[..., 1]
-    z = np.zeros_like(h)
-    a_h = np.stack([z, z, -np.ones_like(h)], -1)
-    a_p = np.stack([np.cos(h), -np.sin(h), z], -1)
-    a_r = np.stack([np.sin(h) * np.cos(p), np.cos(h) * np.cos(p), np.sin(p)], -1)
-    M = np.stack([a_h, a_p, a_r], -1)
-    return M @ ((np.asarray(sigma_hpr_rad, dtype=float) ** 2)[:, None] * np.swapaxes(M, -1, -2))  # M D M^T
 
 
 def odometry_values(

@@ -43,7 +43,7 @@ class GaussianTrack:
     """Forward pass of a Gaussian filter.
 
     x_f (K, n), P_f (K, n, n): filtered, after the feedback shift; x_p, P_p, C (K-1, ...):
-    predictions and cross-covariances; corrections (K, n) applied (zeros when none);
+    predictions (shifted like the filtered state of their epoch) and cross-covariances; corrections (K, n) applied (zeros when none);
     nu (K, p) innovations and S (K, p, p) their covariances (NaN where no measurement).
     """
 
@@ -80,6 +80,8 @@ def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArra
         if c is not None:
             corr[k] = c
             x = model.shift(k, x, c)
+            if k > 0:  # keep x_{k|k-1} in the same (corrected) coordinates as x_{k|k} for the smoother
+                x_p[k - 1] = model.shift(k, x_p[k - 1], c)
         x_f[k], P_f[k] = x, P
     p = next((v.shape[0] for v in nus if v is not None), 0)
     nu = np.array([v if v is not None else np.full(p, np.nan) for v in nus])

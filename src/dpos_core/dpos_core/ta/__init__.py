@@ -1,0 +1,1 @@
+"""Transfer alignment of the sub-IMUs against the main POS (seed 000)."""

@@ -1,0 +1,391 @@
+"""The 24-state nonlinear transfer-alignment model of a sub-IMU (seed 000 sec. 3, eq. 11-20).
+
+State (errors = computed - true, as in the seed; position in local ENU metres instead of
+``dL, dlambda, dh`` for conditioning)::
+
+    0:3   phi    attitude error, rotation vector in local ENU: C_est = expm(-[phi x]) C_true
+    3:6   dv     velocity error, local ENU [m/s]
+    6:9   dp     position error, local ENU [m]
+    9:12  eps    gyro bias, sub-IMU axes [rad/s]             (random constant)
+    12:15 nabla  accelerometer bias, sub-IMU axes [m/s^2]    (random constant)
+    15:18 rho    rigid misalignment, sub-IMU axes [rad]       (constant)
+    18:21 theta  wing flexure, sub-IMU axes [rad]             (2nd-order Markov, eq. 13)
+    21:24 theta_dot
+
+Continuous dynamics (the seed's eq. 11 with the exact attitude error ``E = expm([phi x])``
+instead of the Euler-angle matrix of eq. 12, valid for any angle):
+
+    phi_dot = J_r(phi)^-1 ((I - E^T) w_in + E^T dw_in - C_est eps)
+    dv_dot  = (I - E) f^n + E C_est nabla - (2 w_ie + w_en) x dv - (2 dw_ie + dw_en) x v + dg
+    dp_dot  = dv;   eps, nabla, rho constant;   theta_ddot + 2 beta theta_dot + beta^2 theta = eta
+
+Discretization at the filter epochs: the sub-IMU strapdown integrates the nominal trajectory at
+the IMU rate; over each filter interval the error dynamics use the interval integrals of the
+nominal (``int f^n dt``, ``int C_est dt``) and its mid-interval rates, with the errors held at
+their start value (they change by < 1e-4 of themselves per second once the first update has
+taken out the large initial misalignment); position by the trapezoid rule; the flexure block is
+discretized exactly (Van Loan).  Process noise: gyro/accelerometer white noise integrated over
+the interval, and the exact flexure noise.
+
+Measurement (eq. 16-20, formed from the two attitudes instead of subtracted Euler angles):
+
+    z_att = log( C_m C_0 C_est^T )  = log( expm(-[A theta]) expm(-[A rho]) expm([phi]) ) + v
+    z_vel = v_est - v_m - C_m (w_m x r0) = dv + C_m (w_m x (k [C_0 theta] x r0) + k [C_0 theta_dot] x r0) + v
+
+with ``A = C_m C_0`` (master attitude times the nominal mount), lever arm ``r0``, and the wing's
+bending lever-arm factor ``k`` (the flexure turns the lever arm, design.md "Aircraft configuration").
+The closed loop: after each epoch's update the estimated navigation errors are removed from the
+strapdown and the error states shifted by the applied correction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import earth
+from ..attitude import quat_conj, quat_mul, quat_to_dcm, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat, skew
+from ..frames import hpr_sigma_to_rotation_cov
+from ..sim.bodies import K_BEND
+from ..sim.flexure import FlexureModel
+from ..sim.sensors import ImuErrorModel
+from ..strapdown import NavState, NavTrajectory, Strapdown
+
+FloatArray = NDArray[np.float64]
+DEG = np.pi / 180.0
+
+N_STATES = 24
+PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
+NAV = slice(0, 9)
+
+
+@dataclass(frozen=True)
+class ImuData:
+    """Sub-IMU samples: t_s (N,), omega_radps (N, 3), f_mps2 (N, 3), the mean over (t_{k-1}, t_k]."""
+
+    t_s: FloatArray
+    omega_radps: FloatArray
+    f_mps2: FloatArray
+
+
+@dataclass(frozen=True)
+class MasterNav:
+    """Main-system navigation: t_s (M,), llh (M, 3), vel_n_mps (M, 3), C_nb (M, 3, 3), omega_b_radps (M, 3)
+    (body rate w.r.t. the Earth, master axes), att_sigma_hpr_rad (M, 3), vel_sigma_mps (M, 3)."""
+
+    t_s: FloatArray
+    llh: FloatArray
+    vel_n_mps: FloatArray
+    C_nb: FloatArray
+    omega_b_radps: FloatArray
+    att_sigma_hpr_rad: FloatArray
+    vel_sigma_mps: FloatArray
+
+
+@dataclass(frozen=True)
+class Installation:
+    """Where and how the sub-IMU sits: lever arm r0 (3,) in master axes, nominal mount C_0 (3, 3)
+    (sub-IMU axes -> master axes), flexure statistics at its span, sensor errors, bending factor."""
+
+    lever_arm_m: FloatArray
+    C_b_s0: FloatArray
+    flexure: FlexureModel
+    imu: ImuErrorModel
+    k_bend: float = K_BEND
+
+
+@dataclass(frozen=True)
+class TAConfig:
+    """Filter settings (seed 000 sec. 4.1.3 defaults)."""
+
+    filter_rate_hz: float = 1.0
+    attitude_sigma_deg: float = 40.0  #: prior 1 sigma of each attitude-error axis
+    velocity_sigma_mps: float = 0.1
+    position_sigma_m: float = 0.1
+    rho_sigma_deg: float = 1.0
+    bias_sigma_scale: float = 1.0  #: prior bias sigma = scale x the IMU's configured constant bias
+    att_noise_floor_deg: float = 1e-4
+    vel_noise_floor_mps: float = 1e-4
+
+    def __post_init__(self) -> None:
+        if not self.filter_rate_hz > 0:
+            raise ValueError(f"filter_rate_hz must be > 0, got {self.filter_rate_hz}")
+
+
+@dataclass
+class _Interval:
+    T: float
+    w_in: FloatArray  # (3,) mid-interval w_ie + w_en of the nominal
+    w_ie: FloatArray
+    w_en: FloatArray
+    F_n: FloatArray  # (3,) int f^n dt
+    C_int: FloatArray  # (3, 3) int C_est dt
+    v: FloatArray  # (3,) mid-interval velocity
+    lat: float
+    h: float
+    g: float
+
+
+@dataclass
+class _Epoch:
+    y: FloatArray | None
+    R: FloatArray
+    A: FloatArray  # C_m C_0
+    C_m: FloatArray
+    w_m: FloatArray
+
+
+def right_jacobian_inv(phi: FloatArray) -> FloatArray:
+    """``J_r(phi)^-1 = I + 1/2 [phi x] + (1/a^2 - (1 + cos a) / (2 a sin a)) [phi x]^2`` (..., 3, 3)."""
+    a2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    a = np.sqrt(a2)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    c = np.where(small, 1.0 / 12.0 + a2 / 720.0, 1.0 / safe**2 - (1.0 + np.cos(safe)) / (2.0 * safe * np.sin(safe)))
+    K = skew(phi)
+    return np.eye(3) + 0.5 * K + c * (K @ K)
+
+
+def compose_rotvec(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``log(expm([a x]) expm([b x]))`` (..., 3)."""
+    return quat_to_rotvec(quat_mul(rotvec_to_quat(a), rotvec_to_quat(b)))
+
+
+@dataclass
+class TransferAlignmentModel:
+    """The state-space model (see module docstring), driving the sub-IMU strapdown.
+
+    One forward filter run drives it epoch by epoch (``y``/``h`` at epoch k, then ``feedback(k)``
+    integrates the nominal to the next epoch); afterwards ``f(k)`` and the stored nominal are
+    available for the backward pass and the output.
+    """
+
+    imu: ImuData
+    master: MasterNav
+    install: Installation
+    cfg: TAConfig
+    initial: NavState
+    n: int = N_STATES
+    epochs_s: FloatArray = field(init=False)
+    n_epochs: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        t_imu = self.imu.t_s
+        if t_imu.ndim != 1 or t_imu.size < 2 or np.any(np.diff(t_imu) <= 0):
+            raise ValueError("sub-IMU stamps must be strictly increasing")
+        if not np.all(np.isfinite(self.imu.omega_radps)) or not np.all(np.isfinite(self.imu.f_mps2)):
+            raise ValueError("sub-IMU samples contain NaN or infinite values")
+        if np.any(np.diff(self.master.t_s) <= 0):
+            raise ValueError("master navigation stamps must be strictly increasing")
+        t0 = self.initial.t_s
+        t_end = min(t_imu[-1], self.master.t_s[-1])
+        step = 1.0 / self.cfg.filter_rate_hz
+        grid = t0 + step * np.arange(int(np.floor((t_end - t0) / step + 1e-9)) + 1)
+        # epochs on sub-IMU sample times (the nominal exists there exactly)
+        idx = np.clip(np.searchsorted(t_imu, grid - 1e-9), 0, t_imu.size - 1)
+        self._epoch_idx = np.unique(np.concatenate([[-1], idx[1:]]))  # -1 = the initial state
+        self.epochs_s = np.concatenate([[t0], t_imu[self._epoch_idx[1:]]])
+        self.n_epochs = int(self.epochs_s.size)
+        self.strapdown = Strapdown(self.initial)
+        self._intervals: list[_Interval] = []
+        self._epochs: list[_Epoch | None] = [None] * self.n_epochs
+        self._chunks: list[NavTrajectory] = []
+        self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
+        fm = self.install.flexure
+        self._Phi_th, self._Q_th = (None, None)
+        self._flex = fm
+        self._build_epoch(0)
+
+    # ------------------------------------------------------------------ nominal / epochs
+    def _master_at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+        m = self.master
+        j = int(np.searchsorted(m.t_s, t))
+        if j < m.t_s.size and abs(m.t_s[j] - t) < 1e-6:
+            return m.llh[j], m.vel_n_mps[j], m.C_nb[j], m.omega_b_radps[j], m.att_sigma_hpr_rad[j], m.vel_sigma_mps[j]
+        if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > 0.5:
+            return None  # outside the master data or inside a gap: no measurement
+        a = (t - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
+        from ..attitude import dcm_to_rotvec
+
+        C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
+        lerp = lambda u, v: (1 - a) * u + a * v  # noqa: E731
+        return (lerp(m.llh[j - 1], m.llh[j]), lerp(m.vel_n_mps[j - 1], m.vel_n_mps[j]), C,
+                lerp(m.omega_b_radps[j - 1], m.omega_b_radps[j]), m.att_sigma_hpr_rad[j], m.vel_sigma_mps[j])
+
+    def _build_epoch(self, k: int) -> None:
+        nom = self._nominal_at[k]
+        ms = self._master_at(float(self.epochs_s[k]))
+        ins = self.install
+        if ms is None:
+            self._epochs[k] = _Epoch(None, np.eye(6), np.eye(3), np.eye(3), np.zeros(3))
+            return
+        llh_m, v_m, C_m, w_m, sig_att, sig_v = ms
+        A = C_m @ ins.C_b_s0
+        C_est = nom.C_nb
+        from ..attitude import dcm_to_rotvec
+
+        z_att = dcm_to_rotvec(A @ C_est.T)
+        z_vel = nom.vel_n_mps - v_m - C_m @ np.cross(w_m, ins.lever_arm_m)
+        R = np.zeros((6, 6))
+        R[:3, :3] = hpr_sigma_to_rotation_cov(C_m, np.maximum(sig_att, self.cfg.att_noise_floor_deg * DEG))
+        R[3:, 3:] = np.diag(np.maximum(sig_v, self.cfg.vel_noise_floor_mps) ** 2)
+        self._epochs[k] = _Epoch(np.concatenate([z_att, z_vel]), R, A, C_m, w_m)
+
+    def _propagate(self, k: int) -> None:
+        """Integrate the (corrected) nominal from epoch k to k + 1 and store the interval data."""
+        i0 = self._epoch_idx[k] + 1
+        i1 = self._epoch_idx[k + 1] + 1
+        t = self.imu.t_s[i0:i1]
+        dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
+        om, f = self.imu.omega_radps[i0:i1], self.imu.f_mps2[i0:i1]
+        start = self.strapdown.state
+        chunk = self.strapdown.run_increments(t, om * dt, f * dt)
+        self._chunks.append(chunk)
+        C = np.concatenate([start.C_nb[None], chunk.C_nb])
+        C_mid = 0.5 * (C[1:] + C[:-1])
+        F_n = np.einsum("kij,kj->i", C_mid, f * dt)
+        C_int = np.einsum("kij,k->ij", C_mid, dt[:, 0])
+        T = float(self.epochs_s[k + 1] - self.epochs_s[k])
+        v = 0.5 * (start.vel_n_mps + chunk.vel_n_mps[-1])
+        lat = 0.5 * (start.llh[0] + chunk.llh[-1, 0])
+        h = 0.5 * (start.llh[2] + chunk.llh[-1, 2])
+        w_ie = earth.earth_rate_n(lat)
+        w_en = earth.transport_rate_n(lat, h, v)
+        self._intervals.append(_Interval(T, w_ie + w_en, w_ie, w_en, F_n, C_int, v, lat, h, float(earth.normal_gravity(lat, h))))
+        self._nominal_at.append(self.strapdown.state)
+        self._build_epoch(k + 1)
+
+    # ------------------------------------------------------------------ StateSpaceModel
+    def f(self, k: int, x: FloatArray) -> FloatArray:
+        it = self._intervals[k]
+        T = it.T
+        phi, dv, dp = x[..., PHI], x[..., DV], x[..., DP]
+        eps, nab = x[..., EPS], x[..., NAB]
+        E = rotvec_to_dcm(phi)
+        Et = np.swapaxes(E, -1, -2)
+        r_m, r_n = (float(r) for r in earth.radii_of_curvature(it.lat))
+        Rm, Rn = r_m + it.h, r_n + it.h
+        sl, cl = np.sin(it.lat), np.cos(it.lat)
+        ve, vn = it.v[0], it.v[1]
+        dL = dp[..., 1] / Rm
+        dh = dp[..., 2]
+        om = earth.OMEGA_IE_RADPS
+        dw_ie = np.stack([np.zeros_like(dL), -om * sl * dL, om * cl * dL], -1)
+        dw_en = np.stack([
+            -dv[..., 1] / Rm + vn * dh / Rm**2,
+            dv[..., 0] / Rn - ve * dh / Rn**2,
+            dv[..., 0] * sl / cl / Rn + ve / (cl * cl) * dL / Rn - ve * sl / cl * dh / Rn**2,
+        ], -1)
+        dw_in = dw_ie + dw_en
+        w_in = it.w_in
+        rate = (w_in - np.einsum("...ij,j->...i", Et, w_in)) + np.einsum("...ij,...j->...i", Et, dw_in)
+        phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - eps @ it.C_int.T)
+        I_E = np.eye(3) - E
+        cor = np.cross(2.0 * it.w_ie + it.w_en, dv) + np.cross(2.0 * dw_ie + dw_en, it.v)
+        dg = np.stack([np.zeros_like(dh), np.zeros_like(dh), 2.0 * it.g / (r_m + it.h) * dh], -1)
+        dv_new = (dv + np.einsum("...ij,j->...i", I_E, it.F_n)
+                  + np.einsum("...ij,...j->...i", E, nab @ it.C_int.T) - (cor - dg) * T)
+        dp_new = dp + 0.5 * (dv + dv_new) * T
+        out = x.copy()
+        out[..., PHI], out[..., DV], out[..., DP] = phi_new, dv_new, dp_new
+        Phi = self._flex_phi(T)
+        th, thd = x[..., TH], x[..., THD]
+        out[..., TH] = Phi[:, 0, 0] * th + Phi[:, 0, 1] * thd
+        out[..., THD] = Phi[:, 1, 0] * th + Phi[:, 1, 1] * thd
+        return out
+
+    def _flex_phi(self, T: float) -> FloatArray:
+        cache = self.__dict__.setdefault("_flex_cache", {})
+        key = round(T, 9)
+        if key not in cache:
+            cache[key] = self._flex.discrete(T)
+        return cache[key][0]
+
+    def Q(self, k: int) -> FloatArray:
+        T = self._intervals[k].T
+        imu = self.install.imu
+        dt = float(np.median(np.diff(self.imu.t_s)))
+        from ..sim.sensors import DEG_PER_H, UG_MPS2
+
+        qg = (imu.gyro_noise_deg_h * DEG_PER_H) ** 2 * dt * T
+        qa = (imu.accel_noise_ug * UG_MPS2) ** 2 * dt * T
+        Q = np.zeros((N_STATES, N_STATES))
+        Q[PHI, PHI] = np.eye(3) * qg
+        Q[DV, DV] = np.eye(3) * qa
+        Q[DP, DP] = np.eye(3) * qa * T * T / 3.0
+        Q[DV, DP] = Q[DP, DV] = np.eye(3) * qa * T / 2.0
+        Qth = self.__dict__.setdefault("_flex_cache", {}).get(round(T, 9)) or self._flex.discrete(T)
+        Qf = Qth[1]
+        for i in range(3):
+            ii = [18 + i, 21 + i]
+            Q[np.ix_(ii, ii)] = Qf[i]
+        return Q
+
+    def y(self, k: int) -> FloatArray | None:
+        return self._epochs[k].y
+
+    def R(self, k: int) -> FloatArray:
+        return self._epochs[k].R
+
+    def h(self, k: int, x: FloatArray) -> FloatArray:
+        ep = self._epochs[k]
+        A, C_m, w_m = ep.A, ep.C_m, ep.w_m
+        ins = self.install
+        q = quat_mul(quat_conj(rotvec_to_quat(x[..., TH] @ A.T)),
+                     quat_mul(quat_conj(rotvec_to_quat(x[..., RHO] @ A.T)), rotvec_to_quat(x[..., PHI])))
+        z_att = quat_to_rotvec(q)
+        C0 = ins.C_b_s0
+        r_flex = ins.k_bend * np.cross(x[..., TH] @ C0.T, ins.lever_arm_m)
+        r_dot = ins.k_bend * np.cross(x[..., THD] @ C0.T, ins.lever_arm_m)
+        z_vel = x[..., DV] + (np.cross(w_m, r_flex) + r_dot) @ C_m.T
+        return np.concatenate([z_att, z_vel], axis=-1)
+
+    def residual(self, a: FloatArray, b: FloatArray) -> FloatArray:
+        return a - b
+
+    def feedback(self, k: int, mean: FloatArray) -> FloatArray:
+        c = np.zeros(N_STATES)
+        c[NAV] = mean[..., NAV]
+        nom = self.strapdown.state
+        r_m, r_n = earth.radii_of_curvature(nom.llh[0])
+        dllh = np.array([c[7] / (r_m + nom.llh[2]), c[6] / ((r_n + nom.llh[2]) * np.cos(nom.llh[0])), c[8]])
+        self.strapdown.correct(phi_n_rad=c[PHI], dvel_n_mps=c[DV], dllh=dllh)
+        if k + 1 < self.n_epochs:
+            self._propagate(k)
+        return c
+
+    def shift(self, k: int, x: FloatArray, c: FloatArray) -> FloatArray:
+        out = np.array(x, dtype=float, copy=True)
+        out[..., PHI] = compose_rotvec(x[..., PHI], -c[PHI])
+        out[..., DV] = x[..., DV] - c[DV]
+        out[..., DP] = x[..., DP] - c[DP]
+        return out
+
+    # ------------------------------------------------------------------ priors and output
+    def prior(self) -> tuple[FloatArray, FloatArray]:
+        """Prior mean (zeros) and covariance (24, 24) from the configuration."""
+        from ..sim.sensors import DEG_PER_H, UG_MPS2
+
+        cfg, ins = self.cfg, self.install
+        d = np.zeros(N_STATES)
+        d[PHI] = (cfg.attitude_sigma_deg * DEG) ** 2
+        d[DV] = cfg.velocity_sigma_mps**2
+        d[DP] = cfg.position_sigma_m**2
+        d[EPS] = (max(ins.imu.gyro_bias_deg_h, 1e-6) * cfg.bias_sigma_scale * DEG_PER_H) ** 2
+        d[NAB] = (max(ins.imu.accel_bias_ug, 1e-3) * cfg.bias_sigma_scale * UG_MPS2) ** 2
+        d[RHO] = (cfg.rho_sigma_deg * DEG) ** 2
+        P = np.diag(d)
+        Pf = self._flex.stationary_cov()
+        for i in range(3):
+            ii = [18 + i, 21 + i]
+            P[np.ix_(ii, ii)] = Pf[i] + np.diag([1e-16, 1e-16])
+        return np.zeros(N_STATES), P
+
+    def nominal_chunks(self) -> list[NavTrajectory]:
+        return self._chunks
+
+    def nominal_at_epochs(self) -> list[NavState]:
+        """The nominal at each epoch before its correction (index k)."""
+        return self._nominal_at

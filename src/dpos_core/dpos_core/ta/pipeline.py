@@ -1,0 +1,129 @@
+"""Transfer alignment of one sub-IMU over a recorded session: forward filter, backward smoother,
+and the smoothed trajectory at the IMU rate.
+
+Methods: ``ukf`` (forward only), ``urtss`` (UKF + unscented RTS smoother), ``upf`` (forward
+only), ``ups`` (UPF + FFBSm reweighting, seed 000).
+
+Output at the IMU rate: the error estimates at the filter epochs are applied to the stored
+nominal trajectory, linearly interpolated between epochs.  Within the interval after epoch k
+the nominal was integrated from the state corrected at k, so its start error is the estimate at
+k and its end error is the estimate at k + 1 before that epoch's correction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import earth
+from ..attitude import dcm_to_quat, quat_to_dcm, rotvec_to_dcm
+from ..filters.points import UnscentedPoints
+from ..filters.runners import ffbsm, run_sigma_point_filter, run_upf, smooth_gaussian, weighted_moments
+from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..strapdown import NavState
+from .model import DP, DV, PHI, Installation, ImuData, MasterNav, TAConfig, TransferAlignmentModel, compose_rotvec
+
+FloatArray = NDArray[np.float64]
+DEG = np.pi / 180.0
+METHODS = ("ukf", "urtss", "upf", "ups")
+
+
+@dataclass
+class TAResult:
+    """Smoothed (or filtered) sub-IMU trajectory at the IMU rate and the epoch estimates.
+
+    t_s (N,), llh (N, 3), vel_n_mps (N, 3), q_nb (N, 4); sigma (N, 9): 1-sigma of
+    [phi (3, rad), dv (3, m/s), dp (3, m, ENU)]; epochs_s (K,), x (K, 24), P (K, 24, 24): the
+    state estimates at the epochs (after their correction); method; particles; ess (K,) for PF.
+    """
+
+    method: str
+    t_s: FloatArray
+    llh: FloatArray
+    vel_n_mps: FloatArray
+    q_nb: FloatArray
+    sigma: FloatArray
+    epochs_s: FloatArray
+    x: FloatArray
+    P: FloatArray
+    ess: FloatArray | None = None
+
+    @property
+    def C_nb(self) -> FloatArray:
+        return quat_to_dcm(self.q_nb)
+
+
+def initial_from_master(master: MasterNav, install: Installation, attitude_error_hpr_deg=(0.0, 0.0, 0.0)) -> NavState:
+    """Sub-IMU start state at the first master epoch: master position + lever arm, master velocity
+    + lever-arm velocity, master attitude x nominal mount, optionally rotated by an initial
+    attitude error (aviation heading/pitch/roll offsets, as in seed 000's 40 deg test)."""
+    C_m = master.C_nb[0]
+    r = install.lever_arm_m
+    C_s = C_m @ install.C_b_s0
+    if np.any(np.asarray(attitude_error_hpr_deg) != 0.0):
+        hpr = hpr_from_C_nb(C_s) + np.asarray(attitude_error_hpr_deg, dtype=float) * DEG
+        C_s = C_nb_from_hpr(*hpr)
+    p_e = earth.geodetic_to_ecef(*master.llh[0]) + earth.C_en(master.llh[0, 0], master.llh[0, 1]) @ (C_m @ r)
+    lat, lon, h = earth.ecef_to_geodetic(p_e)
+    v = master.vel_n_mps[0] + C_m @ np.cross(master.omega_b_radps[0], r)
+    return NavState(master.t_s[0], dcm_to_quat(C_s), v, [float(lat), float(lon), float(h)])
+
+
+def run(
+    imu: ImuData,
+    master: MasterNav,
+    install: Installation,
+    cfg: TAConfig = TAConfig(),
+    method: str = "ups",
+    particles: int = 100,
+    seed: int = 0,
+    initial: NavState | None = None,
+    points: UnscentedPoints = UnscentedPoints(alpha=0.1),
+) -> TAResult:
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
+    if initial is None:
+        initial = initial_from_master(master, install)
+    model = TransferAlignmentModel(imu, master, install, cfg, initial)
+    x0, P0 = model.prior()
+    ess = None
+    if method in ("ukf", "urtss"):
+        tr = run_sigma_point_filter(model, x0, P0, points)
+        corr = tr.corrections
+        if method == "urtss":
+            x, P = smooth_gaussian(tr)
+        else:
+            x, P = tr.x_f, tr.P_f
+    else:
+        tr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points)
+        corr = tr.corrections
+        ess = tr.ess
+        lw = ffbsm(model, tr) if method == "ups" else tr.logw
+        x, P = weighted_moments(tr.particles, lw)
+    out = _apply(model, x, P, corr)
+    return TAResult(method, *out, model.epochs_s, x, P, ess)
+
+
+def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray):
+    """The trajectory at the IMU rate from the epoch errors (module docstring)."""
+    chunks = model.nominal_chunks()
+    ts, llhs, vels, qs, sigs = [], [], [], [], []
+    for k, ch in enumerate(chunks):
+        e0 = x[k]
+        e1 = x[k + 1].copy()
+        e1[PHI] = compose_rotvec(x[k + 1, PHI], corr[k + 1, PHI])  # undo the shift of epoch k+1
+        e1[DV] = x[k + 1, DV] + corr[k + 1, DV]
+        e1[DP] = x[k + 1, DP] + corr[k + 1, DP]
+        t0, t1 = model.epochs_s[k], model.epochs_s[k + 1]
+        a = ((ch.t_s - t0) / (t1 - t0))[:, None]
+        err = (1.0 - a) * e0[None, :9] + a * e1[None, :9]
+        s = np.sqrt(np.maximum((1.0 - a) * np.diagonal(P[k])[None, :9] + a * np.diagonal(P[k + 1])[None, :9], 0.0))
+        C = rotvec_to_dcm(err[:, PHI]) @ ch.C_nb
+        v = ch.vel_n_mps - err[:, DV]
+        r_m, r_n = earth.radii_of_curvature(ch.llh[:, 0])
+        h = ch.llh[:, 2]
+        dllh = np.stack([err[:, 7] / (r_m + h), err[:, 6] / ((r_n + h) * np.cos(ch.llh[:, 0])), err[:, 8]], -1)
+        ts.append(ch.t_s), llhs.append(ch.llh - dllh), vels.append(v), qs.append(dcm_to_quat(C)), sigs.append(s)
+    return (np.concatenate(ts), np.concatenate(llhs), np.concatenate(vels), np.concatenate(qs), np.concatenate(sigs))
