@@ -11,6 +11,9 @@ Keys (in order):
   pyins_samples_per_s          the same flight through python-ins (pyins) increments + numba
                                integrator, when python-ins is installed (requirements-bench.txt)
   strapdown_speedup_vs_pyins   ratio of the two, measured side by side
+  sim_paper_su_time_ratio      simulating paper_su (1300 s, one sub-IMU, every topic) / data duration
+  urtss_paper_su_time_ratio    UKF + URTSS of one sub-IMU over paper_su (40 deg initial errors) / duration
+  ups_paper_su_time_ratio      UPF (100 particles) + FFBSm of one sub-IMU over paper_su / duration
 """
 
 from __future__ import annotations
@@ -93,7 +96,43 @@ def bench_strapdown(results: dict, repeats: int) -> None:
           f"(dpos is {el_pyins / elapsed:.1f}x faster, same run)")
 
 
-BENCHES: dict[str, Callable[[dict, int], None]] = {"strapdown": bench_strapdown}
+def bench_sim(results: dict, repeats: int) -> None:
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+
+    def run() -> None:
+        ss = SimulatedSession(load_scenario("paper_su"), 1)
+        ss.master_imu(), ss.sub_imu("sub_r"), ss.gnss(), ss.master_nav_reference()
+        for b in ss.bodies():
+            ss.truth(b)
+
+    el = _best_of(run, 1)
+    results["sim_paper_su_time_ratio"] = el / 1300.0
+    print(f"simulator: paper_su 1300 s in {el:.2f} s (ratio {el / 1300.0:.4f})")
+
+
+def bench_transfer_alignment(results: dict, repeats: int) -> None:
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+    from dpos_core.ta import from_sim, pipeline
+    from dpos_core.ta.model import TAConfig
+
+    ss = SimulatedSession(load_scenario("paper_su"), 1)
+    imu, master, ins = from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
+    init = pipeline.initial_from_master(master, ins, (40.0, 40.0, 40.0))
+    cfg = TAConfig(attitude_sigma_deg=40.0)
+    dur = float(imu.t_s[-1] - imu.t_s[0])
+    for method, key in (("urtss", "urtss_paper_su_time_ratio"), ("ups", "ups_paper_su_time_ratio")):
+        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, particles=100, initial=init), 1)
+        results[key] = el / dur
+        print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
+
+
+BENCHES: dict[str, Callable[[dict, int], None]] = {
+    "strapdown": bench_strapdown,
+    "sim": bench_sim,
+    "transfer_alignment": bench_transfer_alignment,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
