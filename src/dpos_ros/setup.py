@@ -23,6 +23,7 @@ setup(
         'console_scripts': [
             'dpos-sim = dpos_ros.cli.sim:main',
             'dpos-plot-scenario = dpos_ros.cli.plot_scenario:main',
+            'dpos-process = dpos_ros.cli.process:main',
         ],
     },
 )

@@ -20,6 +20,9 @@ def test_sample_bag_is_small_and_current() -> None:
     raw = bag.read_raw(SAMPLE)
     streams = session_streams(SimulatedSession(load_scenario("paper_su", aircraft="paper_su_pair"), 1, 45.0))
     assert set(raw) == {s.topic for s in streams}
+    meta = bag.custom_data(SAMPLE)
+    assert meta["dpos.session_id"] == "paper_su_seed1" and meta["dpos.scenario"] == "paper_su"
+    assert "sub_l" in meta["dpos.aircraft_yaml"]
     for s in streams:
         mt, t_log, blobs = raw[s.topic]
         assert mt == s.msgtype and len(blobs) == len(s), s.topic

@@ -25,8 +25,15 @@ def typestore():
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def write_streams(path: Path, streams: list[TopicStream], progress: Callable[[int, int], None] | None = None) -> int:
-    """Write the streams to a new rosbag2 directory ``path``; returns the message count."""
+def write_streams(
+    path: Path,
+    streams: list[TopicStream],
+    progress: Callable[[int, int], None] | None = None,
+    custom_data: dict[str, str] | None = None,
+) -> int:
+    """Write the streams to a new rosbag2 directory ``path``; returns the message count.
+
+    ``custom_data`` goes into the rosbag2 metadata (``dpos.*`` keys describe the session)."""
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
@@ -35,6 +42,8 @@ def write_streams(path: Path, streams: list[TopicStream], progress: Callable[[in
     n = len(t)
     w = Writer(path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
     w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    for key, value in (custom_data or {}).items():
+        w.set_custom_data(key, value)
     w.open()
     try:
         conns = [w.add_connection(s.topic, s.msgtype, typestore=ts) for s in streams]
@@ -80,3 +89,14 @@ def rows(blobs: list[bytes]) -> np.ndarray:
     if any(len(b) != size for b in blobs):
         raise ValueError("messages of different sizes: frame names change within the topic")
     return np.frombuffer(b"".join(blobs), dtype=np.uint8).reshape(len(blobs), size)
+
+
+def custom_data(path: Path) -> dict[str, str]:
+    """The rosbag2 metadata's ``custom_data`` (empty for bags without it)."""
+    import yaml
+
+    meta = Path(path) / "metadata.yaml"
+    if not meta.is_file():
+        return {}
+    info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+    return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}

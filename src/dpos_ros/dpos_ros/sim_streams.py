@@ -148,3 +148,21 @@ def merged_order(streams: list[TopicStream]) -> tuple[NDArray[np.int64], NDArray
     end = np.array([s.topic == "/session/end" for s in streams])[si]
     order = np.lexsort((si, end, t))
     return t[order], si[order], mi[order]
+
+
+def session_custom_data(session: SimulatedSession, aircraft_text: str) -> dict[str, str]:
+    """``dpos.*`` metadata of a simulated recording: what dpos-process needs besides the topics."""
+    import json
+
+    sc = session.scenario
+    fl = session.flight
+    return {
+        "dpos.session_id": session_id(session),
+        "dpos.scenario": sc.name,
+        "dpos.seed": str(session.seed),
+        "dpos.start_time_s": repr(sc.start_time_s),
+        "dpos.aircraft_yaml": aircraft_text,
+        # imaging segments still inside a shortened flight (a cut one keeps its name)
+        "dpos.imaging_segments": json.dumps({n: list(fl.segment_bounds(n)) for n in sc.imaging_segments if n in {s.name for s in sc.segments}}),
+        "dpos.transfer_alignment": json.dumps(sc.transfer_alignment),
+    }

@@ -181,13 +181,23 @@ def _locate(kind: str, name_or_path: str | Path) -> tuple[Path | Any, str]:
 
 def _read(kind: str, name_or_path: str | Path) -> tuple[dict, str]:
     res, label = _locate(kind, name_or_path)
+    return _parse(res.read_text(encoding="utf-8"), label)
+
+
+def _parse(text: str, label: str) -> tuple[dict, str]:
     try:
-        data = yaml.safe_load(res.read_text(encoding="utf-8"))
+        data = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{label}: invalid YAML: {e}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{label}: expected a mapping at the top level")
     return data, label
+
+
+def config_text(kind: str, name_or_path: str | Path) -> str:
+    """The YAML text of a built-in or user ``scenarios``/``aircraft`` file (to embed in recordings)."""
+    res, _ = _locate(kind, name_or_path)
+    return res.read_text(encoding="utf-8")
 
 
 def _build(cls: type, data: Any, where: str) -> Any:
@@ -227,9 +237,9 @@ def _vec3(v: Any, where: str) -> tuple[float, float, float]:
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
-def load_aircraft(name_or_path: str | Path) -> AircraftConfig:
-    """Load a built-in aircraft configuration by name, or a YAML file by path."""
-    d, label = _read("aircraft", name_or_path)
+def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> AircraftConfig:
+    """Load a built-in aircraft configuration by name, or a YAML file by path (or its ``text``)."""
+    d, label = _parse(text, f"aircraft {name_or_path}") if text is not None else _read("aircraft", name_or_path)
     allowed = {"name", "gnss_lever_arm_m", "flexure", "sub_imus", "antennas", "description"}
     if set(d) - allowed:
         raise ConfigError(f"{label}: unknown key(s) {sorted(set(d) - allowed)}")

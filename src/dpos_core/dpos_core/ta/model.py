@@ -31,6 +31,11 @@ Measurement (eq. 16-20, formed from the two attitudes instead of subtracted Eule
 
     z_att = log( C_m C_0 C_est^T )  = log( expm(-[A theta]) expm(-[A rho]) expm([phi]) ) + v
     z_vel = v_est - v_m - C_m (w_m x r0) = dv + C_m (w_m x (k [C_0 theta] x r0) + k [C_0 theta_dot] x r0) + v
+    z_pos = p_est - p_m - C_m r0         = dp + C_m (k [C_0 theta] x r0) + v     (optional, ENU metres)
+
+Seed 000 matches attitude and velocity only; the position match (seeds 002 and 004 use the
+master's position through the lever arm too) is on by default (``TAConfig.use_position``) and
+bounds the position and baseline errors by the main system's position accuracy.
 
 with ``A = C_m C_0`` (master attitude times the nominal mount), lever arm ``r0``, and the wing's
 bending lever-arm factor ``k`` (the flexure turns the lever arm, design.md "Aircraft configuration").
@@ -47,7 +52,6 @@ from numpy.typing import NDArray
 
 from .. import earth
 from ..attitude import quat_conj, quat_mul, quat_to_dcm, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat, skew
-from ..frames import hpr_sigma_to_rotation_cov
 from ..sim.bodies import K_BEND
 from ..sim.flexure import FlexureModel
 from ..sim.sensors import ImuErrorModel
@@ -73,15 +77,18 @@ class ImuData:
 @dataclass(frozen=True)
 class MasterNav:
     """Main-system navigation: t_s (M,), llh (M, 3), vel_n_mps (M, 3), C_nb (M, 3, 3), omega_b_radps (M, 3)
-    (body rate w.r.t. the Earth, master axes), att_sigma_hpr_rad (M, 3), vel_sigma_mps (M, 3)."""
+    (body rate w.r.t. the Earth, master axes); att_cov (M, 3, 3): covariance of its attitude error
+    as a rotation about the local ENU axes [rad^2]; vel_cov (M, 3, 3) local ENU [m^2/s^2];
+    pos_cov (M, 3, 3) local ENU [m^2]."""
 
     t_s: FloatArray
     llh: FloatArray
     vel_n_mps: FloatArray
     C_nb: FloatArray
     omega_b_radps: FloatArray
-    att_sigma_hpr_rad: FloatArray
-    vel_sigma_mps: FloatArray
+    att_cov: FloatArray
+    vel_cov: FloatArray
+    pos_cov: FloatArray  #: (M, 3, 3) local ENU [m^2]
 
 
 @dataclass(frozen=True)
@@ -94,6 +101,21 @@ class Installation:
     flexure: FlexureModel
     imu: ImuErrorModel
     k_bend: float = K_BEND
+
+    @classmethod
+    def from_aircraft(cls, aircraft, name: str) -> "Installation":
+        """Sub-IMU ``name`` as the aircraft configuration describes it: the flexure scaled to its
+        span; the rigid misalignment rho is what the filter estimates, so only the nominal mount
+        enters."""
+        from dataclasses import replace
+
+        from ..sim.bodies import mount_dcm
+
+        s = aircraft.sub_imu(name)
+        scale = aircraft.flexure.span_scale(s.span_m)
+        flex = replace(aircraft.flexure, variance_deg2=tuple(v * scale**2 for v in aircraft.flexure.variance_deg2),
+                       reference_span_m=1.0, span_exponent=0.0)
+        return cls(np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)), flex, s.imu)
 
 
 @dataclass(frozen=True)
@@ -108,6 +130,8 @@ class TAConfig:
     bias_sigma_scale: float = 1.0  #: prior bias sigma = scale x the IMU's configured constant bias
     att_noise_floor_deg: float = 1e-4
     vel_noise_floor_mps: float = 1e-4
+    use_position: bool = True  #: match the lever-arm-compensated master position too
+    pos_noise_floor_m: float = 0.01  #: floor of the master position noise (lever-arm survey, antenna phase)
 
     def __post_init__(self) -> None:
         if not self.filter_rate_hz > 0:
@@ -203,7 +227,7 @@ class TransferAlignmentModel:
         m = self.master
         j = int(np.searchsorted(m.t_s, t))
         if j < m.t_s.size and abs(m.t_s[j] - t) < 1e-6:
-            return m.llh[j], m.vel_n_mps[j], m.C_nb[j], m.omega_b_radps[j], m.att_sigma_hpr_rad[j], m.vel_sigma_mps[j]
+            return m.llh[j], m.vel_n_mps[j], m.C_nb[j], m.omega_b_radps[j], m.att_cov[j], m.vel_cov[j], m.pos_cov[j]
         if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > 0.5:
             return None  # outside the master data or inside a gap: no measurement
         a = (t - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
@@ -212,26 +236,35 @@ class TransferAlignmentModel:
         C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
         lerp = lambda u, v: (1 - a) * u + a * v  # noqa: E731
         return (lerp(m.llh[j - 1], m.llh[j]), lerp(m.vel_n_mps[j - 1], m.vel_n_mps[j]), C,
-                lerp(m.omega_b_radps[j - 1], m.omega_b_radps[j]), m.att_sigma_hpr_rad[j], m.vel_sigma_mps[j])
+                lerp(m.omega_b_radps[j - 1], m.omega_b_radps[j]), m.att_cov[j], m.vel_cov[j], m.pos_cov[j])
 
     def _build_epoch(self, k: int) -> None:
         nom = self._nominal_at[k]
         ms = self._master_at(float(self.epochs_s[k]))
         ins = self.install
+        p = 9 if self.cfg.use_position else 6
         if ms is None:
-            self._epochs[k] = _Epoch(None, np.eye(6), np.eye(3), np.eye(3), np.zeros(3))
+            self._epochs[k] = _Epoch(None, np.eye(p), np.eye(3), np.eye(3), np.zeros(3))
             return
-        llh_m, v_m, C_m, w_m, sig_att, sig_v = ms
+        llh_m, v_m, C_m, w_m, cov_att, cov_v, cov_p = ms
         A = C_m @ ins.C_b_s0
         C_est = nom.C_nb
         from ..attitude import dcm_to_rotvec
 
         z_att = dcm_to_rotvec(A @ C_est.T)
         z_vel = nom.vel_n_mps - v_m - C_m @ np.cross(w_m, ins.lever_arm_m)
-        R = np.zeros((6, 6))
-        R[:3, :3] = hpr_sigma_to_rotation_cov(C_m, np.maximum(sig_att, self.cfg.att_noise_floor_deg * DEG))
-        R[3:, 3:] = np.diag(np.maximum(sig_v, self.cfg.vel_noise_floor_mps) ** 2)
-        self._epochs[k] = _Epoch(np.concatenate([z_att, z_vel]), R, A, C_m, w_m)
+        R = np.zeros((p, p))
+        R[:3, :3] = cov_att + np.eye(3) * (self.cfg.att_noise_floor_deg * DEG) ** 2
+        R[3:6, 3:6] = cov_v + np.eye(3) * self.cfg.vel_noise_floor_mps**2
+        z = [z_att, z_vel]
+        if self.cfg.use_position:
+            # p_est - p_m - C_m r0 in local ENU metres at the sub-IMU
+            pe_s = earth.geodetic_to_ecef(*nom.llh)
+            pe_m = earth.geodetic_to_ecef(*llh_m)
+            C_en_s = earth.C_en(nom.llh[0], nom.llh[1])
+            z.append(C_en_s.T @ (pe_s - pe_m) - C_m @ ins.lever_arm_m)
+            R[6:, 6:] = cov_p + np.eye(3) * self.cfg.pos_noise_floor_m**2
+        self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m)
 
     def _propagate(self, k: int) -> None:
         """Integrate the (corrected) nominal from epoch k to k + 1 and store the interval data."""
@@ -340,7 +373,10 @@ class TransferAlignmentModel:
         r_flex = ins.k_bend * np.cross(x[..., TH] @ C0.T, ins.lever_arm_m)
         r_dot = ins.k_bend * np.cross(x[..., THD] @ C0.T, ins.lever_arm_m)
         z_vel = x[..., DV] + (np.cross(w_m, r_flex) + r_dot) @ C_m.T
-        return np.concatenate([z_att, z_vel], axis=-1)
+        if not self.cfg.use_position:
+            return np.concatenate([z_att, z_vel], axis=-1)
+        z_pos = x[..., DP] + r_flex @ C_m.T
+        return np.concatenate([z_att, z_vel, z_pos], axis=-1)
 
     def residual(self, a: FloatArray, b: FloatArray) -> FloatArray:
         return a - b

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core.sim.scenario import ConfigError, builtin_scenarios, load_scenario
+from dpos_core.sim.scenario import ConfigError, builtin_scenarios, config_text, load_scenario
 from dpos_core.sim.session import SimulatedSession
 
 from ..bag import write_streams
-from ..sim_streams import session_id, session_streams
+from ..sim_streams import session_custom_data, session_id, session_streams
 from .progress import Progress
 
 
@@ -53,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     datum = None if args.datum is None else np.array([np.deg2rad(args.datum[0]), np.deg2rad(args.datum[1]), args.datum[2]])
     streams = session_streams(session, truth=not args.no_truth, datum_llh=datum)
     t_gen = time.perf_counter() - t0
-    n = write_streams(args.out, streams, progress=Progress("writing"))
+    ac_text = config_text("aircraft", args.aircraft if args.aircraft else _scenario_aircraft(args.scenario))
+    n = write_streams(args.out, streams, progress=Progress("writing"), custom_data=session_custom_data(session, ac_text))
     elapsed = time.perf_counter() - t0
     size = sum(f.stat().st_size for f in args.out.iterdir())
     print(f"session {session_id(session)}: {n} messages on {len(streams)} topics, {size / 1e6:.1f} MB")
@@ -62,6 +63,18 @@ def main(argv: list[str] | None = None) -> int:
     print(f"simulated in {t_gen:.1f} s, total {elapsed:.1f} s "
           f"(processing time / data duration = {elapsed / session.duration_s:.4f})")
     return 0
+
+
+def _scenario_aircraft(scenario: str) -> str:
+    import yaml
+
+    d = yaml.safe_load(config_text("scenarios", scenario))
+    ref = str(d.get("aircraft", d.get("name")))
+    p = Path(scenario)
+    # a user's scenario file may name its aircraft file relative to itself
+    if p.suffix in (".yaml", ".yml") and (p.parent / ref).is_file():
+        return str(p.parent / ref)
+    return ref
 
 
 if __name__ == "__main__":

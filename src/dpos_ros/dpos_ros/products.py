@@ -1,0 +1,274 @@
+"""Transfer alignment of a recorded session and its products (design.md "Session products").
+
+``output_dir/<session id>/``:
+  ``antennas/``            rosbag2 (MCAP) with ``/antenna/<name>/odom`` (pose in ``enu``, twist in the
+                           antenna frame, covariances from the smoother)
+  ``<antenna>.csv``        time, lat, lon, h, vE, vN, vU, heading, pitch, roll and their 1-sigma
+  ``metrics.json``         when truth is in the recording: RMSE/STD (seed 000 eq. 21) per antenna
+  ``report.md`` + PNGs     the seeds' table layout and error plots
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_core import earth
+from dpos_core.attitude import dcm_to_quat
+from dpos_core.frames import hpr_from_C_nb
+from dpos_core.sim.scenario import AircraftConfig
+from dpos_core.ta import metrics as M
+from dpos_core.ta import pipeline
+from dpos_core.ta.metrics import Trajectory
+from dpos_core.ta.model import Installation, TAConfig
+
+from . import conversions as cv
+from .session_io import RecordedSession
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class AntennaSolution:
+    """An antenna's smoothed trajectory (``traj``) with 1-sigma (N, 9): attitude (rad, rotation
+    about local ENU), velocity (m/s, ENU), position (m, ENU); or a status saying why there is none."""
+
+    name: str
+    sub_imu: str | None
+    status: str
+    traj: Trajectory | None = None
+    sigma: FloatArray | None = None
+
+
+def solve(
+    sess: RecordedSession,
+    aircraft: AircraftConfig,
+    method: str = "ups",
+    particles: int = 100,
+    seed: int = 0,
+    initial_attitude_error_deg: float = 0.0,
+) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
+    """Transfer-align every sub-IMU of the aircraft found in the recording; carry the solutions to
+    their antennas.  Returns the antennas and the timing (processing and data seconds)."""
+    cfg = TAConfig(attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
+    results = {}
+    t0 = time.perf_counter()
+    for s in aircraft.sub_imus:
+        if s.name not in sess.sub_imus:
+            sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
+            continue
+        ins = Installation.from_aircraft(aircraft, s.name)
+        e = initial_attitude_error_deg
+        init = pipeline.initial_from_master(sess.master, ins, (e, e, e))
+        results[s.name] = pipeline.run(sess.sub_imus[s.name], sess.master, ins, cfg, method, particles, seed, initial=init)
+    for name in sess.sub_imus:
+        if name not in {s.name for s in aircraft.sub_imus}:
+            sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
+    timing = {"processing_s": time.perf_counter() - t0,
+              "data_s": float(sess.master.t_s[-1] - sess.master.t_s[0]) * max(1, len(results))}
+    out: dict[str, AntennaSolution] = {}
+    for a in aircraft.antennas:
+        if a.sub_imu is None:
+            out[a.name] = AntennaSolution(a.name, None, "not estimated: no IMU (the least-squares wing fit of seed 004 is not implemented yet)")
+            continue
+        r = results.get(a.sub_imu)
+        if r is None:
+            out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: sub-IMU {a.sub_imu} has no data")
+            continue
+        imu = sess.sub_imus[a.sub_imu]
+        omega = np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int)
+        w_b = imu.omega_radps[np.clip(omega, 0, imu.t_s.size - 1)] - np.einsum("nji,nj->ni", r.C_nb, earth.earth_rate_n(r.llh[:, 0]))
+        l_a = np.asarray(a.lever_arm_m, dtype=float)
+        d_n = r.C_nb @ l_a
+        p_e = earth.geodetic_to_ecef(r.llh[:, 0], r.llh[:, 1], r.llh[:, 2]) + np.einsum("nij,nj->ni", earth.C_en(r.llh[:, 0], r.llh[:, 1]), d_n)
+        lat, lon, h = earth.ecef_to_geodetic(p_e)
+        v = r.vel_n_mps + np.einsum("nij,nj->ni", r.C_nb, np.cross(w_b, l_a))
+        out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", Trajectory(r.t_s, np.stack([lat, lon, h], -1), v, r.C_nb), r.sigma)
+    return out, timing
+
+
+def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution]) -> dict[str, dict]:
+    """RMSE/STD per antenna over the imaging segments (whole session when none), when truth exists."""
+    segs = sess.imaging_segments() or {"session": (float(sess.master.t_s[0]), float(sess.master.t_s[-1]))}
+    tm = sess.truth.get("master")
+    out = {}
+    for name, a in antennas.items():
+        tr = sess.truth.get(f"antenna/{name}")
+        if a.traj is None or tr is None:
+            continue
+        t = a.traj.t_s
+        idx = np.searchsorted(tr.t_s, t)
+        ok = (idx < tr.t_s.size) & (np.abs(tr.t_s[np.clip(idx, 0, tr.t_s.size - 1)] - t) < 1e-6)
+        i = idx[ok]
+        est = Trajectory(t[ok], a.traj.llh[ok], a.traj.vel_n_mps[ok], a.traj.C_nb[ok])
+        tru = Trajectory(tr.t_s[i], tr.llh[i], tr.vel_n_mps[i], tr.C_nb[i])
+        m_est = m_true = None
+        if tm is not None:
+            m_est = _interp_llh(sess.master.t_s, sess.master.llh, est.t_s)
+            m_true = _interp_llh(tm.t_s, tm.llh, est.t_s)
+        err = M.errors(est, tru, m_est, m_true)
+        out[name] = {**M.segment_stats(err, est.t_s, segs), "errors": err, "t_s": est.t_s}
+    return out
+
+
+def _interp_llh(t: FloatArray, llh: FloatArray, tq: FloatArray) -> FloatArray:
+    return np.stack([np.interp(tq, t, llh[:, i]) for i in range(3)], -1)
+
+
+def write(
+    out_root: Path,
+    sess: RecordedSession,
+    antennas: dict[str, AntennaSolution],
+    method: str,
+    timing: dict[str, float],
+    evaluation: dict[str, dict] | None = None,
+) -> Path:
+    """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory."""
+    from .bag import write_streams
+    from .sim_streams import ODOMETRY, TopicStream
+
+    out = Path(out_root) / sess.session_id
+    out.mkdir(parents=True, exist_ok=True)
+    streams = []
+    for name, a in antennas.items():
+        if a.traj is None:
+            continue
+        tr, s = a.traj, a.sigma
+        t_ns = sess.t0_ns + np.round(tr.t_s * 1e9).astype(np.int64)
+        q = dcm_to_quat(tr.C_nb)
+        n = tr.t_s.size
+        vals = cv.odometry_values(tr.llh, tr.vel_n_mps, q, sess.datum_llh, None, pos_sigma_m=None, vel_sigma_mps=None)
+        # covariances from the smoother (diagonal in local ENU), rotated to the wire frames
+        Rw = earth.C_datum_n(tr.llh[:, 0], tr.llh[:, 1], sess.datum_llh)
+        pose = np.zeros((n, 6, 6))
+        pose[:, :3, :3] = Rw @ (s[:, 6:9, None] ** 2 * np.swapaxes(Rw, 1, 2))
+        pose[:, 3:, 3:] = Rw @ (s[:, 0:3, None] ** 2 * np.swapaxes(Rw, 1, 2))
+        twist = np.zeros((n, 6, 6))
+        C_bn = np.swapaxes(tr.C_nb, 1, 2)
+        twist[:, :3, :3] = C_bn @ (s[:, 3:6, None] ** 2 * tr.C_nb)
+        twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
+        vals[:, 7:43] = pose.reshape(n, 36)
+        vals[:, 49:85] = twist.reshape(n, 36)
+        streams.append(TopicStream(f"/antenna/{name}/odom", ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals)))
+        _write_csv(out / f"{name}.csv", t_ns, tr, s)
+    bag_dir = out / "antennas"
+    if streams:
+        if bag_dir.exists():
+            import shutil
+
+            shutil.rmtree(bag_dir)
+        write_streams(bag_dir, streams, custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
+    status = {name: a.status for name, a in antennas.items()}
+    (out / "status.json").write_text(json.dumps({"session_id": sess.session_id, "method": method, "antennas": status,
+                                                 "warnings": sess.warnings, "timing": timing}, indent=2) + "\n")
+    if evaluation:
+        metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+        (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
+        plot_errors(out, evaluation, method)
+    return out
+
+
+def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: Trajectory, s: FloatArray) -> None:
+    hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
+    cols = np.column_stack([
+        t_ns * 1e-9, np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
+        s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]),
+    ])
+    header = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading_deg,pitch_deg,roll_deg,"
+              "sigma_north_m,sigma_east_m,sigma_h_m,sigma_vel_e_mps,sigma_vel_n_mps,sigma_vel_u_mps,"
+              "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg")
+    fmt = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.6f"] * 3 + ["%.4e"] * 9
+    np.savetxt(path, cols, delimiter=",", header=header, comments="", fmt=fmt)
+
+
+def metrics_json(sess: RecordedSession | None, per_method: dict[str, tuple[dict, dict]], runs: int, scenario: str | None = None) -> dict:
+    """design.md's metrics.json: per method the mean over antennas (and runs) and per antenna."""
+    segs = list((sess.imaging_segments() if sess else {}).keys()) or ["session"]
+    out = {"scenario": scenario or (sess.custom.get("dpos.scenario", "") if sess else ""), "runs": runs, "segments": segs, "methods": {}}
+    for method, (ev, timing) in per_method.items():
+        ants = {name: {"rmse": e["rmse"], "std": e["std"]} for name, e in ev.items()}
+        out["methods"][method] = {"mean": M.average(list(ants.values())) if ants else {}, "antennas": ants, "timing": timing}
+    return out
+
+
+PAPER_TABLE1 = {  # seed 000 Table 1: (URTSS RMSE, STD), (UPS RMSE, STD)
+    "heading_deg": ((3.7874, 1.2914), (0.4959, 0.0217)), "pitch_deg": ((0.5166, 0.1218), (0.0766, 0.0781)),
+    "roll_deg": ((0.8238, 0.0371), (0.0569, 0.0568)), "vel_e_mps": ((0.0264, 0.0245), (0.0133, 0.0134)),
+    "vel_n_mps": ((0.0403, 0.0414), (0.0225, 0.0148)), "vel_u_mps": ((0.0125, 0.0124), (0.0224, 0.0211)),
+    "lat_m": ((2.1444, 0.0990), (1.0077, 0.0529)), "lon_m": ((1.7280, 0.0878), (0.0510, 0.0495)),
+    "h_m": ((0.1078, 0.0987), (0.1294, 0.0126)), "baseline_m": ((0.7039, 0.0532), (0.0014, 0.0008)),
+}
+ROWS = [("Attitude error", "Heading (°)", "heading_deg"), ("", "Pitch (°)", "pitch_deg"), ("", "Roll (°)", "roll_deg"),
+        ("Velocity error", "East (m/s)", "vel_e_mps"), ("", "North (m/s)", "vel_n_mps"), ("", "Up (m/s)", "vel_u_mps"),
+        ("Position error", "Latitude (m)", "lat_m"), ("", "Longitude (m)", "lon_m"), ("", "Height (m)", "h_m"),
+        ("Baseline error", "(m)", "baseline_m")]
+
+
+def report_md(metrics: dict, title: str, paper: bool | None = None) -> str:
+    """Seed 000 Table 1 layout: means of RMSE and STD over the imaging segments (and runs)."""
+    methods = list(metrics["methods"])
+    paper = metrics.get("scenario") == "paper_su" if paper is None else paper
+    head = ["Parameter", ""] + [f"{m.upper()} {c}" for m in methods for c in ("RMSE", "STD")]
+    if paper:
+        head += ["paper URTSS RMSE", "paper URTSS STD", "paper UPS RMSE", "paper UPS STD"]
+    lines = [f"# {title}", "", f"Scenario `{metrics['scenario']}`, {metrics['runs']} run(s), segments {', '.join(metrics['segments'])}; "
+             "means of RMSE and STD (seed 000 eq. 21) over the segments, the runs and the antennas.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for group, label, key in ROWS:
+        row = [group, label]
+        for m in methods:
+            mean = metrics["methods"][m].get("mean", {})
+            row += [_fmt(mean.get("rmse", {}).get(key)), _fmt(mean.get("std", {}).get(key))]
+        if paper:
+            (ur, us), (pr, ps) = PAPER_TABLE1[key]
+            row += [f"{ur:.4f}", f"{us:.4f}", f"{pr:.4f}", f"{ps:.4f}"]
+        lines.append("| " + " | ".join(row) + " |")
+    lines.append("")
+    for m in methods:
+        t = metrics["methods"][m].get("timing", {})
+        if t.get("data_s"):
+            lines.append(f"- {m}: processing {t['processing_s']:.1f} s for {t['data_s']:.0f} s of sub-IMU data "
+                         f"(processing time / data duration = {t['processing_s'] / t['data_s']:.4f})")
+    return "\n".join(lines) + "\n"
+
+
+def _fmt(v) -> str:
+    return "—" if v is None or not np.isfinite(v) else f"{v:.4f}" if abs(v) >= 1e-3 else f"{v:.2e}"
+
+
+def plot_errors(out: Path, evaluation: dict[str, dict], method: str) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    for name, ev in evaluation.items():
+        e, t = ev["errors"], ev["t_s"]
+        fig, axs = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, constrained_layout=True)
+        for k, lab in (("heading_deg", "heading"), ("pitch_deg", "pitch"), ("roll_deg", "roll")):
+            axs[0].plot(t, e[k], lw=0.7, label=lab)
+        axs[0].set(ylabel="attitude error [deg]")
+        for k, lab in (("vel_e_mps", "east"), ("vel_n_mps", "north"), ("vel_u_mps", "up")):
+            axs[1].plot(t, e[k], lw=0.7, label=lab)
+        axs[1].set(ylabel="velocity error [m/s]")
+        for k, lab in (("lat_m", "latitude"), ("lon_m", "longitude"), ("h_m", "height")):
+            axs[2].plot(t, e[k], lw=0.7, label=lab)
+        if "baseline_m" in e:
+            axs[2].plot(t, e["baseline_m"], lw=0.7, label="baseline")
+        axs[2].set(ylabel="position error [m]", xlabel="t [s]")
+        for a in axs:
+            a.grid(alpha=0.3)
+            a.legend(loc="upper right", fontsize=8)
+        axs[0].set_title(f"antenna {name}: {method.upper()} errors against truth")
+        p = out / f"errors_{name}.png"
+        fig.savefig(p, dpi=80)
+        plt.close(fig)
+        files.append(p)
+    return files

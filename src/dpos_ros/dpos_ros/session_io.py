@@ -1,0 +1,146 @@
+"""Reading a recorded session (rosbag2) into the transfer alignment's inputs.
+
+Every problem with the data is reported, and no good sample is dropped: out-of-order messages are
+sorted, exact duplicates removed, samples with NaN removed, gaps (stamp steps over 1.5 x the
+median) counted; each as a warning naming the topic.  A missing ``/master/nav`` is an error.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_core import earth
+from dpos_core.attitude import quat_to_dcm
+from dpos_core.ta.metrics import Trajectory
+from dpos_core.ta.model import ImuData, MasterNav
+
+from . import bag, cdr
+from . import conversions as cv
+
+FloatArray = NDArray[np.float64]
+
+
+class SessionError(ValueError):
+    """The recording cannot be processed (the message says why)."""
+
+
+@dataclass
+class RecordedSession:
+    """Inputs of a session, times in seconds since ``t0_ns``.
+
+    sub_imus: {name: ImuData}; truth: {"master" | "sub_imu/<name>" | "antenna/<name>": Trajectory};
+    custom: the recording's dpos.* metadata; warnings: what was wrong with the data.
+    """
+
+    path: Path
+    session_id: str
+    t0_ns: int
+    datum_llh: FloatArray
+    master: MasterNav
+    sub_imus: dict[str, ImuData]
+    truth: dict[str, Trajectory]
+    custom: dict[str, str]
+    end_s: float | None
+    warnings: list[str] = field(default_factory=list)
+
+    def imaging_segments(self) -> dict[str, tuple[float, float]]:
+        segs = json.loads(self.custom.get("dpos.imaging_segments", "{}") or "{}")
+        start = float(self.custom.get("dpos.start_time_s", self.t0_ns * 1e-9))
+        off = start - self.t0_ns * 1e-9
+        return {k: (v[0] + off, v[1] + off) for k, v in segs.items()}
+
+
+def _clean(topic: str, t_ns: NDArray[np.int64], vals: FloatArray, warnings: list[str]) -> tuple[NDArray[np.int64], FloatArray]:
+    """Sort, drop duplicates and NaN rows, count gaps; warn about each."""
+    if t_ns.size == 0:
+        return t_ns, vals
+    if np.any(np.diff(t_ns) < 0):
+        n_bad = int(np.sum(np.diff(t_ns) < 0))
+        warnings.append(f"{topic}: {n_bad} message(s) out of stamp order; sorted")
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, vals = t_ns[order], vals[order]
+    dup = np.concatenate([[False], np.diff(t_ns) == 0])
+    if dup.any():
+        same = np.all(vals[1:][dup[1:]] == vals[:-1][dup[1:]], axis=1)
+        warnings.append(f"{topic}: {int(dup.sum())} duplicate stamp(s) ({int(same.sum())} identical messages) removed; the first of each kept")
+        t_ns, vals = t_ns[~dup], vals[~dup]
+    bad = ~np.all(np.isfinite(vals), axis=1)
+    if bad.any():
+        warnings.append(f"{topic}: {int(bad.sum())} sample(s) with NaN/inf removed (first at stamp {int(t_ns[bad][0])} ns)")
+        t_ns, vals = t_ns[~bad], vals[~bad]
+    if t_ns.size > 2:
+        d = np.diff(t_ns)
+        med = np.median(d)
+        gaps = d > 1.5 * med
+        if gaps.any():
+            warnings.append(f"{topic}: {int(gaps.sum())} gap(s) in the stamps, longest {d.max() * 1e-9:.3f} s (nominal step {med * 1e-9:.4f} s)")
+    return t_ns, vals
+
+
+def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str) -> tuple[NDArray[np.int64], FloatArray]:
+    if not blobs:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, cdr.IMU_DOUBLES if kind == "imu" else cdr.ODOM_DOUBLES))
+    frame, child = cdr.frame_ids(blobs[0], kind)
+    try:
+        return cdr.decode(cdr.layout(kind, frame, child), bag.rows(blobs))
+    except ValueError as e:
+        raise SessionError(f"{topic} ({msgtype}): {e}") from None
+
+
+def read_session(path: Path) -> RecordedSession:
+    """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring)."""
+    path = Path(path)
+    if not (path / "metadata.yaml").is_file() and not any(path.glob("*.mcap")):
+        raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+    try:
+        raw = bag.read_raw(path)
+    except Exception as e:  # rosbags raises its own errors for truncated or broken files
+        raise SessionError(f"{path}: cannot read the recording: {e}") from None
+    custom = bag.custom_data(path)
+    warnings: list[str] = []
+    if "/master/nav" not in raw or not raw["/master/nav"][2]:
+        raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
+    # datum: the latched /dpos/datum, else the first master position
+    if "/dpos/datum" in raw and raw["/dpos/datum"][2]:
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import NavSatFix
+
+        datum = cv.datum_from_msg(deserialize_message(raw["/dpos/datum"][2][0], NavSatFix))
+    else:
+        raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
+    t_nav, v_nav = _decode_rows("/master/nav", raw["/master/nav"][0], raw["/master/nav"][2], "odometry")
+    t_nav, v_nav = _clean("/master/nav", t_nav, v_nav, warnings)
+    t0_ns = int(round(float(custom["dpos.start_time_s"]) * 1e9)) if "dpos.start_time_s" in custom else int(t_nav[0])
+    od = cv.odometry_from_values(t_nav, v_nav, datum)
+    # covariances: the message's are in the enu (datum) frame; the model wants local ENU
+    R = earth.C_datum_n(od.llh[:, 0], od.llh[:, 1], datum)
+    Rt = np.swapaxes(R, 1, 2)
+    att_cov = Rt @ od.pose_cov[:, 3:, 3:] @ R
+    C_nb = quat_to_dcm(od.q_nb)
+    vel_cov = C_nb @ od.twist_cov[:, :3, :3] @ np.swapaxes(C_nb, 1, 2)
+    pos_cov = Rt @ od.pose_cov[:, :3, :3] @ R
+    ts = lambda t: (t - t0_ns) * 1e-9  # noqa: E731
+    master = MasterNav(ts(t_nav), od.llh, od.vel_n_mps, C_nb, od.omega_b_radps, att_cov, vel_cov, pos_cov)
+
+    subs: dict[str, ImuData] = {}
+    truth: dict[str, Trajectory] = {}
+    for topic, (msgtype, _, blobs) in sorted(raw.items()):
+        parts = topic.strip("/").split("/")
+        if len(parts) == 3 and parts[0] == "sub_imu" and parts[2] == "imu":
+            t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "imu"), warnings)
+            blk = cv.imu_from_values(t, v)
+            subs[parts[1]] = ImuData(ts(t), blk.omega_radps, blk.f_mps2)
+        elif parts[0] == "truth" and msgtype == "nav_msgs/msg/Odometry":
+            t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "odometry"), warnings)
+            o = cv.odometry_from_values(t, v, datum)
+            truth["/".join(parts[1:])] = Trajectory(ts(t), o.llh, o.vel_n_mps, quat_to_dcm(o.q_nb))
+    end_s = None
+    if "/session/end" in raw and raw["/session/end"][1]:
+        end_s = ts(max(raw["/session/end"][1]))
+    sid = custom.get("dpos.session_id") or path.name
+    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings)
