@@ -24,6 +24,7 @@ setup(
             'dpos-sim = dpos_ros.cli.sim:main',
             'dpos-plot-scenario = dpos_ros.cli.plot_scenario:main',
             'dpos-process = dpos_ros.cli.process:main',
+            'dpos-eval = dpos_ros.cli.evaluate:main',
         ],
     },
 )

@@ -52,6 +52,7 @@ def solve(
     particles: int = 100,
     seed: int = 0,
     initial_attitude_error_deg: float = 0.0,
+    oracle_truth: dict | None = None,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording; carry the solutions to
     their antennas.  Returns the antennas and the timing (processing and data seconds)."""
@@ -65,7 +66,8 @@ def solve(
         ins = Installation.from_aircraft(aircraft, s.name)
         e = initial_attitude_error_deg
         init = pipeline.initial_from_master(sess.master, ins, (e, e, e))
-        results[s.name] = pipeline.run(sess.sub_imus[s.name], sess.master, ins, cfg, method, particles, seed, initial=init)
+        results[s.name] = pipeline.run(sess.sub_imus[s.name], sess.master, ins, cfg, method, particles, seed, initial=init,
+                                       oracle_truth=None if oracle_truth is None else oracle_truth[s.name])
     for name in sess.sub_imus:
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")

@@ -101,7 +101,16 @@ def read_session(path: Path) -> RecordedSession:
         raw = bag.read_raw(path)
     except Exception as e:  # rosbags raises its own errors for truncated or broken files
         raise SessionError(f"{path}: cannot read the recording: {e}") from None
-    custom = bag.custom_data(path)
+    return session_from_raw(raw, bag.custom_data(path), path)
+
+
+def session_from_streams(streams, custom: dict[str, str], name: str = "memory") -> RecordedSession:
+    """The same reader over in-memory streams (dpos-eval simulates without writing a bag)."""
+    raw = {s.topic: (s.msgtype, [int(t) for t in s.t_ns], [s.message(i) for i in range(len(s))]) for s in streams}
+    return session_from_raw(raw, custom, Path(name))
+
+
+def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedSession:
     warnings: list[str] = []
     if "/master/nav" not in raw or not raw["/master/nav"][2]:
         raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")

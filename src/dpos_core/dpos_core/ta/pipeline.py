@@ -28,6 +28,7 @@ from .model import DP, DV, PHI, Installation, ImuData, MasterNav, TAConfig, Tran
 FloatArray = NDArray[np.float64]
 DEG = np.pi / 180.0
 METHODS = ("ukf", "urtss", "upf", "ups")
+ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
 
 
 @dataclass
@@ -81,14 +82,26 @@ def run(
     seed: int = 0,
     initial: NavState | None = None,
     points: UnscentedPoints = UnscentedPoints(alpha=0.1),
+    oracle_truth=None,
 ) -> TAResult:
-    if method not in METHODS:
+    """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` with ``oracle_truth =
+    (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`)."""
+    if method not in METHODS + (ORACLE,):
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
         initial = initial_from_master(master, install)
     model = TransferAlignmentModel(imu, master, install, cfg, initial)
     x0, P0 = model.prior()
     ess = None
+    if method == ORACLE:
+        from .oracle import LinearizedAboutTruth
+
+        if oracle_truth is None:
+            raise ValueError("the oracle needs the truth (evaluation of simulations only)")
+        lin = LinearizedAboutTruth(model, *oracle_truth)
+        tr = run_sigma_point_filter(lin, x0, P0, points)
+        x, P = smooth_gaussian(tr)
+        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None)
     if method in ("ukf", "urtss"):
         tr = run_sigma_point_filter(model, x0, P0, points)
         corr = tr.corrections
