@@ -66,12 +66,20 @@ class Recorder:
         return {t: (len(self.received[t]), len(s)) for t, s in self.expected.items()}
 
 
-def _spin_until(executor: Any, condition, timeout: float, what: str) -> None:
+def _spin_until(executor: Any, condition, timeout: float, what) -> None:
+    """Spin until ``condition()``; ``what`` (a string or a callable giving one) describes it on timeout."""
     deadline = time.monotonic() + timeout
     while not condition():
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}")
         executor.spin_once(timeout_sec=0.05)
+
+
+def _output(proc: Any) -> str:
+    """Everything a NodeProcess printed so far."""
+    while not proc._queue.empty() and proc._drain(0.0):
+        pass
+    return proc.output
 
 
 def _assert_same_messages(received: dict[str, list[bytes]], streams: list[TopicStream]) -> None:
@@ -112,7 +120,7 @@ def _run_master_in_process(ros_context, ros_executor, overrides: list[Parameter]
     others = [t for t in recorder.expected if t != "/dpos/datum"]
     _spin_until(
         ros_executor, lambda: master.device.finished.is_set() and recorder.complete(others),
-        IN_PROCESS_TIMEOUT_S, f"the master streams (counts {recorder.counts()})",
+        IN_PROCESS_TIMEOUT_S, lambda: f"the master streams (counts {recorder.counts()})",
     )
     assert master.device.error is None
     return recorder, master, sub_node
@@ -192,7 +200,9 @@ def test_graph_of_processes_equals_the_bag(ros_context, ros_executor, start_node
         _spin_until(
             ros_executor,
             lambda: recorder.received["/session/end"] and recorder.complete(sub_topics) and recorder.complete(),
-            GRAPH_TIMEOUT_S, f"/session/end and every stream (counts {recorder.counts()})",
+            GRAPH_TIMEOUT_S,
+            lambda: f"/session/end and every stream (counts {recorder.counts()}); outputs:\n"
+            + "\n".join(_output(p) for p in procs),
         )
         wall_s = time.monotonic() - t0
         for proc in procs:
@@ -258,3 +268,34 @@ def test_bad_device_parameters_exit_nonzero_naming_the_problem(script, args, exp
         assert text in error, error
     assert "Traceback" not in proc.output, proc.output
     assert "-> publishing" not in proc.output
+
+
+def test_writer_depths_share_the_flow_window():
+    """Writer depths: the window shared by message count, >= 1, <= the stream, divisors preferred."""
+    from dpos_ros.sim_device import FLOW_WINDOW, writer_depths
+
+    streams = device_streams(_session(10.0), "master", truth=True)
+    depths = dict(zip((s.topic for s in streams), writer_depths(streams)))
+    lengths = {s.topic: len(s) for s in streams}
+    assert depths["/dpos/datum"] == 1  # DATUM_QOS
+    assert depths["/session/end"] == 1
+    for topic, d in depths.items():
+        assert 1 <= d <= lengths[topic]
+        if lengths[topic] >= 100:
+            assert lengths[topic] % d == 0, (topic, d, lengths[topic])
+    assert sum(d for t, d in depths.items() if t != "/dpos/datum") <= 1.5 * FLOW_WINDOW + len(depths)
+
+
+def test_device_fastdds_profile_respects_the_users_configuration(tmp_path, monkeypatch):
+    from dpos_ros.sim_device import HEARTBEAT_PERIOD_MS, use_device_fastdds_profile
+
+    monkeypatch.chdir(tmp_path)
+    env = {"RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"}
+    path = use_device_fastdds_profile(env)
+    assert path and env["FASTRTPS_DEFAULT_PROFILES_FILE"] == path == env["FASTDDS_DEFAULT_PROFILES_FILE"]
+    text = open(path).read()
+    assert f"<nanosec>{HEARTBEAT_PERIOD_MS * 1_000_000}</nanosec>" in text and "heartbeatPeriod" in text
+    assert use_device_fastdds_profile({"FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"}) is None
+    assert use_device_fastdds_profile({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}) is None
+    (tmp_path / "DEFAULT_FASTRTPS_PROFILES.xml").write_text("<profiles/>")
+    assert use_device_fastdds_profile({}) is None

@@ -27,16 +27,49 @@ Why a dedicated publishing thread and not an executor timer
     so the node is up and answering at once.
 
 Flow control (never overrun the KEEP_LAST history)
-    Per publisher, after at most ``batch`` messages (``depth // 4`` of its QoS, 1250 with the
-    default depth 5000) the thread waits until every matched reliable subscription has
-    acknowledged them before it publishes more on that topic; with ``rate_factor`` 1 the wait
-    returns at once, with 0 it is what "as fast as subscribers keep up" means. Before
-    ``/session/end`` every topic is waited for, so that a subscriber receives the end of the
-    session after the last sample of every topic. An acknowledgement means the sample is in the
-    subscriber's DDS history (depth 5000, i.e. four batches of headroom), not that its callback
-    has run: a subscriber that stops taking samples for longer than that still loses the oldest.
-    A wait is not bounded (a subscriber that disappears no longer counts), but is logged every
-    ``ACK_WARN_S`` seconds and ends at :meth:`SimDevice.stop`.
+    A reliable KEEP_LAST writer overwrites its oldest sample when its history is full, whether or
+    not the subscribers have acknowledged it. So before a message would make a topic's unacknowledged
+    count exceed its writer depth, the thread waits (``Publisher.wait_for_all_acked``) until every
+    matched reliable subscription has acknowledged that topic: nothing unacknowledged is ever
+    overwritten, in any mode; with ``rate_factor`` 0 this is what "as fast as subscribers keep up"
+    means. Before ``/session/end`` every topic is waited for, so that a subscriber receives the end
+    of the session after the last sample of every topic.
+
+    The writers use the stream's QoS (``dpos_ros.qos``: RELIABLE, VOLATILE) with a shallower depth
+    (:func:`writer_depths`): ``FLOW_WINDOW`` = 100 messages shared among the topics in proportion to
+    their message counts (>= 1 each, preferably a divisor of the count). Two Fast DDS behaviours
+    set this (both measured here):
+
+    - readers acknowledge only on a writer heartbeat. Fast DDS piggybacks one on every sample sent
+      while the writer's history is full, otherwise only every ~200 kB (send-buffer size) or every
+      3 s (heartbeat period); a VOLATILE writer drops samples from its history once they are
+      acknowledged. So the device waits exactly when a topic's history is full (``depth``
+      unacknowledged samples), and the acknowledgement takes milliseconds. With the design depth
+      of 5000 each wait took up to 3 s (a 150 s master session, 45k messages, at rate 0 to a
+      Python recorder in another process: ~60 s; now ~6 s). A last batch
+      shorter than the depth may wait up to 3 s once at the end, hence depths that divide the
+      message count where possible;
+    - the shared-memory transport drops samples beyond its port queue (512 by default), and a
+      dropped last sample is repaired only after the next periodic heartbeat (3 s). At most ~100-150
+      unacknowledged messages per device keep three devices and a recorder below it.
+
+    The subscribers' QoS (depth 5000) is the design's deep queue: unchanged; DDS matching does not
+    depend on depths.
+
+    Safety net: the device processes (console scripts) call :func:`use_device_fastdds_profile`
+    before ``rclpy.init``: a Fast DDS XML default profile with a writer heartbeat period of
+    ``HEARTBEAT_PERIOD_MS`` (20 ms instead of 3 s), so that a repair or a last short batch costs
+    milliseconds, not seconds. (Measured: with three devices blasting into one recorder, a device
+    otherwise stalled 3 s at a third of its waits.) Heartbeats are only sent while samples are
+    unacknowledged, so an idle writer costs nothing. It is not applied when the user configures
+    Fast DDS (``FASTRTPS_DEFAULT_PROFILES_FILE`` / ``FASTDDS_DEFAULT_PROFILES_FILE``, or a
+    ``DEFAULT_FASTRTPS_PROFILES.xml`` in the working directory) or uses another RMW.
+
+    An acknowledgement means the sample is in the subscriber's DDS history, not that its callback
+    has run: a KEEP_LAST subscriber that falls behind by more than its depth still loses the oldest
+    samples (a KEEP_ALL subscriber throttles the device instead). A wait is not bounded (a
+    subscriber that disappears no longer counts), but is logged every ``ACK_WARN_S`` seconds and
+    ends at :meth:`SimDevice.stop`.
 
 Waiting for subscribers
     With ``min_subscribers > 0`` publishing starts only when every topic but the latched datum has
@@ -53,9 +86,13 @@ Progress is logged every ~10 % and at the end: ``published N messages on M topic
 from __future__ import annotations
 
 import importlib
+import math
+import os
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -65,12 +102,17 @@ from rclpy.qos import QoSProfile
 from . import qos as dpos_qos
 from .sim_streams import TopicStream, merged_order
 
-__all__ = ["SimDevice", "message_class", "qos_profile", "load_sim_session", "END_TOPIC"]
+__all__ = ["SimDevice", "message_class", "qos_profile", "writer_depths", "writer_qos", "load_sim_session",
+           "use_device_fastdds_profile", "END_TOPIC"]
 
 #: The topic that ends a session; everything else is acknowledged before it is published.
 END_TOPIC = "/session/end"
 #: Longest sleep of the publishing thread between two checks of the stop flag [s].
 POLL_S = 0.05
+#: Unacknowledged messages per device over all topics (see "Flow control").
+FLOW_WINDOW = 100
+#: Writer heartbeat period of the device processes' Fast DDS profile [ms].
+HEARTBEAT_PERIOD_MS = 20
 #: A flow-control wait is logged after this many seconds, and again every as many.
 ACK_WARN_S = 10.0
 
@@ -82,12 +124,88 @@ _QOS = {
 }
 
 
+_PROFILE_XML = """<?xml version="1.0" encoding="UTF-8" ?>
+<!-- written by dpos_ros.sim_device.use_device_fastdds_profile: writer heartbeat period of the
+     simulated device nodes (flow control waits for acknowledgements, which follow heartbeats) -->
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <data_writer profile_name="dpos_sim_device_writer" is_default_profile="true">
+    <times>
+      <heartbeatPeriod>
+        <sec>0</sec>
+        <nanosec>{nanosec}</nanosec>
+      </heartbeatPeriod>
+    </times>
+  </data_writer>
+</profiles>
+"""
+_PROFILE_ENV = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+
+
+def use_device_fastdds_profile(environ: MutableMapping[str, str] | None = None) -> str | None:
+    """Point Fast DDS at the device writer profile (see "Flow control"); call before ``rclpy.init``.
+
+    Returns the profile path, or None when not applied (another RMW, or the user configures Fast
+    DDS). The file is written to the temporary directory (no package data needed).
+    """
+    env = os.environ if environ is None else environ
+    if not env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps"):
+        return None
+    if any(env.get(k) for k in _PROFILE_ENV) or Path("DEFAULT_FASTRTPS_PROFILES.xml").exists():
+        return None
+    text = _PROFILE_XML.format(nanosec=HEARTBEAT_PERIOD_MS * 1_000_000)
+    path = Path(tempfile.gettempdir()) / f"dpos_sim_device_fastdds_{os.getuid()}_{HEARTBEAT_PERIOD_MS}ms.xml"
+    if not path.is_file() or path.read_text() != text:
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    for k in _PROFILE_ENV:
+        env[k] = str(path)
+    return str(path)
+
+
 def qos_profile(kind: str) -> QoSProfile:
     """The QoS profile of a stream's ``qos`` kind (``sensor``, ``nav``, ``datum``, ``status``)."""
     try:
         return _QOS[kind]
     except KeyError:
         raise ValueError(f"unknown stream QoS kind {kind!r}; known: {sorted(_QOS)}") from None
+
+
+def _depth_for(n: int, target: float) -> int:
+    """A depth near ``target`` that divides ``n`` when one lies in [target/4, 3 target/2], else round(target)."""
+    if n <= max(1.0, target):
+        return max(1, n)
+    lo, hi = max(1, math.ceil(target / 4)), max(1, math.floor(1.5 * target))
+    best = None
+    for d in range(1, math.isqrt(n) + 1):
+        if n % d == 0:
+            for c in (d, n // d):
+                if lo <= c <= hi and (best is None or abs(c - target) < abs(best - target)):
+                    best = c
+    return best if best is not None else max(1, round(target))
+
+
+def writer_depths(streams: Sequence[TopicStream], window: int = FLOW_WINDOW) -> list[int]:
+    """History depth of the device's writer of each stream (see "Flow control").
+
+    Latched streams keep their profile's depth. The others share ``window`` in proportion to their
+    message counts, each at least 1 and at most its own length, preferably a divisor of it (so that
+    the last batch fills the history too and its acknowledgement is prompt).
+    """
+    total = sum(len(s) for s in streams if s.qos not in ("datum", "status")) or 1
+    out = []
+    for s in streams:
+        if s.qos in ("datum", "status"):
+            out.append(qos_profile(s.qos).depth)
+        else:
+            out.append(_depth_for(len(s), window * len(s) / total))
+    return out
+
+
+def writer_qos(stream: TopicStream, depth: int) -> QoSProfile:
+    """The stream's QoS profile with the device writer's ``depth``."""
+    p = qos_profile(stream.qos)
+    return QoSProfile(history=p.history, depth=depth, reliability=p.reliability, durability=p.durability)
 
 
 def message_class(msgtype: str) -> type:
@@ -221,9 +339,9 @@ class SimDevice:
             return
         self.streams = streams
         self.topics = len(streams)
-        profiles = [qos_profile(s.qos) for s in streams]
+        depth = writer_depths(streams)
         self.publishers = [
-            self._node.create_publisher(message_class(s.msgtype), s.topic, p) for s, p in zip(streams, profiles)
+            self._node.create_publisher(message_class(s.msgtype), s.topic, writer_qos(s, d)) for s, d in zip(streams, depth)
         ]
         self.started.set()
         t0_wall = time.monotonic()
@@ -240,7 +358,6 @@ class SimDevice:
         keep = ~np.isin(si_all, latched)
         t_all, si_all, mi_all = t_all[keep], si_all[keep], mi_all[keep]
         n = len(t_all)
-        batch = [max(1, p.depth // 4) for p in profiles]
         unacked = [0] * len(streams)
         end_index = {i for i, s in enumerate(streams) if s.topic == END_TOPIC}
         rate = self.rate_factor
@@ -264,13 +381,14 @@ class SimDevice:
                         wait_s = min((due - now_rel) / rate * 1e-9, POLL_S)
                         if self._stop.wait(wait_s):
                             return
-            if i in end_index and not self._wait_acked(range(len(streams)), unacked):
+            if i in end_index:
+                if not self._wait_acked(range(len(streams)), unacked):
+                    return
+            elif unacked[i] >= depth[i] and not self._wait_acked([i], unacked):
                 return
             self.publishers[i].publish(streams[i].message(int(mi_all[k])))
             self.published += 1
             unacked[i] += 1
-            if unacked[i] >= batch[i] and not self._wait_acked([i], unacked):
-                return
             tenth = (k + 1) * 10 // n
             if tenth >= next_report and k + 1 < n:
                 self._log.info(

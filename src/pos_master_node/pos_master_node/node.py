@@ -20,7 +20,7 @@ from rclpy.node import Node
 
 from dpos_ros.node_main import run_node
 from dpos_ros.params import ParameterError, datum_llh_rad, declare_config, format_config
-from dpos_ros.sim_device import SimDevice, load_sim_session
+from dpos_ros.sim_device import SimDevice, load_sim_session, use_device_fastdds_profile
 from pos_master_node.params import PosMasterConfig
 
 NODE_NAME = "pos_master_node"
@@ -100,4 +100,5 @@ class PosMasterNode(Node):
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``pos_master_node``."""
+    use_device_fastdds_profile()  # prompt acknowledgements for the device's flow control
     return run_node(PosMasterNode, NODE_NAME, argv)
