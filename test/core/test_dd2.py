@@ -1,0 +1,151 @@
+"""DD2 / ADD2 / AEKF pieces (dpos_core.filters.dd2, seed 001 eq. 2-23)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dpos_core.filters.dd2 import (
+    InnovationWindow,
+    aekf_predict,
+    aekf_update,
+    add2_update,
+    dd2_predict,
+    dd2_update,
+    guard_innovation_cov,
+)
+from dpos_core.filters.gaussian import kf_predict, kf_update
+from dpos_core.filters.linalg import chol
+from dpos_core.filters.model import LinearGaussianModel
+
+
+def _random_lg(rng: np.random.Generator, n: int = 5, p: int = 3, K: int = 25) -> LinearGaussianModel:
+    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    A = rng.standard_normal((n, n))
+    Q = 0.05 * A @ A.T + 0.01 * np.eye(n)
+    H = rng.standard_normal((p, n))
+    B = rng.standard_normal((p, p))
+    R = 0.2 * B @ B.T + 0.1 * np.eye(p)
+    ys = rng.standard_normal((K, p))
+    return LinearGaussianModel(F, Q, H, R, ys)
+
+
+def test_dd2_equals_kalman_filter_on_linear_gaussian_model() -> None:
+    rng = np.random.default_rng(3)
+    m = _random_lg(rng)
+    x0 = rng.standard_normal(m.n)
+    A = rng.standard_normal((m.n, m.n))
+    P0 = A @ A.T + np.eye(m.n)
+    xk, Pk = x0.copy(), P0.copy()
+    xd, Sd = x0.copy(), chol(P0)
+    for k in range(m.n_epochs):
+        if k > 0:
+            pr = kf_predict(xk, Pk, m.F, m.Q(k - 1))
+            pd = dd2_predict(xd, Sd, lambda X: m.f(k - 1, X), chol(m.Q(k - 1)))
+            np.testing.assert_allclose(pd.C, pr.C, atol=1e-9, rtol=0)
+            xk, Pk, xd, Sd = pr.x, pr.P, pd.x, pd.S
+            np.testing.assert_allclose(xd, xk, atol=1e-9, rtol=0)
+            np.testing.assert_allclose(Sd @ Sd.T, Pk, atol=1e-9, rtol=0)
+        up = kf_update(xk, Pk, m.y(k), m.H, m.R(k))
+        ud = dd2_update(xd, Sd, m.y(k), lambda X: m.h(k, X), chol(m.R(k)))
+        xk, Pk, xd, Sd = up.x, up.P, ud.x, ud.S
+        np.testing.assert_allclose(ud.nu, up.nu, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(ud.S_y @ ud.S_y.T, up.S, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(ud.K, up.K, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(xd, xk, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(Sd @ Sd.T, Pk, atol=1e-9, rtol=0)
+        assert np.allclose(np.triu(Sd, 1), 0.0)
+
+
+def test_dd2_is_batched_over_leading_axes() -> None:
+    rng = np.random.default_rng(4)
+    n, p, B = 4, 2, 3
+    f = lambda X: np.sin(X) + 0.1 * X[..., ::-1] ** 2  # noqa: E731
+    h = lambda X: np.stack([X[..., 0] * X[..., 1], np.cos(X[..., 2]) + X[..., 3]], -1)  # noqa: E731
+    xs = rng.standard_normal((B, n))
+    Ss = np.stack([chol(a @ a.T + np.eye(n)) for a in rng.standard_normal((B, n, n))]) * 0.3
+    SQ, SR = 0.1 * np.eye(n), 0.2 * np.eye(p)
+    y = rng.standard_normal((B, p))
+    pb = dd2_predict(xs, Ss, f, SQ)
+    ub = dd2_update(pb.x, pb.S, y, h, SR)
+    for b in range(B):
+        p1 = dd2_predict(xs[b], Ss[b], f, SQ)
+        u1 = dd2_update(p1.x, p1.S, y[b], h, SR)
+        np.testing.assert_allclose(pb.S[b] @ pb.S[b].T, p1.S @ p1.S.T, atol=1e-12)
+        np.testing.assert_allclose(ub.x[b], u1.x, atol=1e-12)
+        np.testing.assert_allclose(ub.S[b] @ ub.S[b].T, u1.S @ u1.S.T, atol=1e-12)
+
+
+def test_dd2_second_order_mean_of_a_quadratic() -> None:
+    """Stirling interpolation with h^2 = 3 is exact for the mean of a quadratic of a Gaussian."""
+    x = np.array([0.3, -0.2])
+    P = np.array([[0.5, 0.1], [0.1, 0.2]])
+    f = lambda X: (X[..., :1] ** 2 + X[..., 1:] * X[..., :1])  # noqa: E731
+    pr = dd2_predict(x, chol(P), f, 1e-9 * np.eye(1))
+    exact = x[0] ** 2 + P[0, 0] + x[0] * x[1] + P[0, 1]
+    assert pr.x[0] == pytest.approx(exact, abs=1e-12)
+
+
+def test_window_estimate_is_the_sample_covariance_of_the_last_N_innovations() -> None:
+    rng = np.random.default_rng(5)
+    Z = rng.standard_normal((27, 4)) * np.array([1.0, 2.0, 0.5, 3.0]) + 0.3
+    w, wc = InnovationWindow(10), InnovationWindow(10, centered=True)
+    for k, z in enumerate(Z):
+        w.push(z)
+        wc.push(z)
+        last = Z[max(0, k - 9): k + 1]
+        np.testing.assert_allclose(w.cov(), last.T @ last / last.shape[0], atol=1e-13)
+        if last.shape[0] > 1:
+            np.testing.assert_allclose(wc.cov(), np.cov(last.T, bias=True), atol=1e-13)
+    assert len(w) == 10 and w.full
+
+
+def test_guard_keeps_gain_covariance_above_state_part_and_pd() -> None:
+    rng = np.random.default_rng(6)
+    p = 4
+    R = np.diag([2.0, 2.0, 1e-3, 1e-3])
+    A = rng.standard_normal((p, p))
+    P_state = A @ A.T
+    # a tiny window (innovations smaller than the state part alone): rank-deficient D
+    z = 1e-3 * rng.standard_normal((2, p))
+    D = z.T @ z / 2
+    R_eff, P_gain = guard_innovation_cov(D, P_state, R, r_floor=0.05)
+    assert np.all(np.linalg.eigvalsh(P_gain - P_state) > 0)
+    np.testing.assert_allclose(R_eff, 0.05 * R, rtol=1e-9, atol=1e-15)
+    # a large window estimate passes through unchanged
+    D2 = P_state + 9.0 * R
+    R_eff2, P_gain2 = guard_innovation_cov(D2, P_state, R)
+    np.testing.assert_allclose(R_eff2, 9.0 * R, rtol=1e-9)
+    np.testing.assert_allclose(P_gain2, D2, rtol=1e-9)
+
+
+def test_add2_adapts_to_inflated_measurement_noise_and_aekf_matches_kf_before_adaptation() -> None:
+    rng = np.random.default_rng(7)
+    n, p = 2, 1
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    Q = np.diag([1e-4, 1e-4])
+    H = np.array([[1.0, 0.0]])
+    R = np.array([[1.0]])
+    f = lambda X: X @ F.T  # noqa: E731
+    h = lambda X: X @ H.T  # noqa: E731
+    x_true = np.zeros(n)
+    x, S = np.zeros(n), np.eye(n)
+    xa, Pa = np.zeros(n), np.eye(n)
+    w, wa = InnovationWindow(10), InnovationWindow(10)
+    R_effs = []
+    for k in range(200):
+        x_true = F @ x_true
+        y = H @ x_true + 10.0 * rng.standard_normal(p)  # true noise 100 x the nominal R
+        pr = dd2_predict(x, S, f, chol(Q))
+        up, R_eff = add2_update(pr.x, pr.S, y, h, chol(R), w)
+        x, S = up.x, up.S
+        R_effs.append(R_eff[0, 0])
+        xa, Pa, _ = aekf_predict(xa, Pa, f, Q)
+        if k == 0:  # window not full: AEKF is the EKF = KF here
+            ref = kf_update(xa, Pa, y, H, R)
+        xa, Pa, nu, S_nu, K, R_used = aekf_update(xa, Pa, y, h, R, wa)
+        if k == 0:
+            np.testing.assert_allclose(xa, ref.x, atol=1e-9)
+            np.testing.assert_allclose(Pa, ref.P, atol=1e-9)
+    assert 20.0 < np.median(R_effs[20:]) < 400.0
+    assert np.all(np.isfinite(S))
