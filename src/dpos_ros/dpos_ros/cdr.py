@@ -126,11 +126,15 @@ _TYPESTORE = None
 
 
 def canonical(raw: bytes, msgtype: str) -> bytes:
-    """Re-serialize CDR with zeroed alignment padding (rosbags' serializer), so that messages
-    serialized by rclpy (Fast CDR leaves padding uninitialized) are reproducible byte for byte."""
+    """Re-serialize CDR with zeroed alignment padding (rosbags' serializer) and pad the payload to a
+    multiple of 4 bytes, so that messages serialized by rclpy (Fast CDR leaves padding
+    uninitialized) are reproducible byte for byte."""
     global _TYPESTORE
     if _TYPESTORE is None:
         from rosbags.typesys import Stores, get_typestore
 
         _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-    return bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.deserialize_cdr(raw, msgtype), msgtype))
+    out = bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.deserialize_cdr(raw, msgtype), msgtype))
+    # Fast DDS pads serialized payloads to a multiple of 4 bytes on the wire: do the same, so a
+    # recording of the live graph and a dpos-sim bag carry identical bytes
+    return out + b"\x00" * (-len(out) % 4)

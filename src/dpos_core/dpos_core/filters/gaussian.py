@@ -68,11 +68,12 @@ def ut_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, points=Unscen
     wm, wc = points.weights(n)
     X = points.points(x, P)
     Y = f(X)
-    xp = np.einsum("m,...mn->...n", wm, Y)
+    xp = wm @ Y
     dY = Y - xp[..., None, :]
     dX = X - x[..., None, :]
-    Pp = np.einsum("m,...mi,...mj->...ij", wc, dY, dY) + Q
-    C = np.einsum("m,...mi,...mj->...ij", wc, dX, dY)
+    dYw = np.swapaxes(dY * wc[:, None], -1, -2)  # weighted outer products as batched matmuls
+    Pp = dYw @ dY + Q
+    C = np.swapaxes(dX * wc[:, None], -1, -2) @ dY
     return Prediction(xp, symmetrize(Pp), C)
 
 
@@ -92,12 +93,13 @@ def ut_update(
     wm, wc = points.weights(n)
     X = points.points(x, P)
     Z = h(X)
-    zp = np.einsum("m,...mp->...p", wm, Z)
+    zp = wm @ Z
     res = residual or (lambda a, b: a - b)
     dZ = res(Z, zp[..., None, :])
     dX = X - x[..., None, :]
-    S = symmetrize(np.einsum("m,...mi,...mj->...ij", wc, dZ, dZ) + R)
-    Pxz = np.einsum("m,...mi,...mj->...ij", wc, dX, dZ)
+    dZw = np.swapaxes(dZ * wc[:, None], -1, -2)
+    S = symmetrize(dZw @ dZ + R)
+    Pxz = np.swapaxes(dX * wc[:, None], -1, -2) @ dZ
     K = gain(Pxz, S)
     nu = res(y, zp)
     xn = x + np.einsum("...ij,...j->...i", K, nu)
