@@ -8,6 +8,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    package_data={package_name: ['graphs/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -25,6 +26,7 @@ setup(
             'dpos-plot-scenario = dpos_ros.cli.plot_scenario:main',
             'dpos-process = dpos_ros.cli.process:main',
             'dpos-eval = dpos_ros.cli.evaluate:main',
+            'dpos-graph = dpos_ros.cli.graph:main',
         ],
     },
 )
