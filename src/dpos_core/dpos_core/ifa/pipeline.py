@@ -1,0 +1,342 @@
+"""In-flight alignment of the main POS against GNSS (seed 001): ADD2, DD2 or AEKF on the
+large-heading-error model of :mod:`.model`, the master strapdown in closed loop at the IMU rate.
+
+* :class:`InFlightAligner` is the online engine (the node's core): :meth:`~InFlightAligner.propagate`
+  IMU samples, :meth:`~InFlightAligner.update` with a GNSS fix.  A fix that cannot be used
+  (non-finite values, zero covariance, duplicate or out-of-order stamp, stamp not at the
+  navigation time) raises ``ValueError`` before anything changes.
+* :func:`run` drives it over recorded series; unusable fixes are skipped with a warning and listed
+  in the result.
+
+Alignment decision (not a timer): at each epoch the heading 1-sigma of the filter and the
+innovation consistency over the last N epochs are checked.  The normalized innovation squared
+``NIS_k = nu_k^T P_y,k^-1 nu_k`` uses the filter's *model* innovation covariance (nominal R), so
+it detects GNSS noise the model does not explain; its window mean over N epochs is
+``chi^2(N p) / N`` when consistent.  The alignment is declared (and latched) at the first epoch
+with ``sigma_heading < cfg.aligned_heading_sigma_deg`` and window-mean NIS below the
+``cfg.nis_quantile`` quantile (window full).  Status per epoch: 0 ALIGNING, 1 ALIGNED,
+2 DEGRADED (aligned, but the current window is inconsistent).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2
+
+from ..attitude import dcm_to_quat, quat_to_dcm
+from ..filters.dd2 import (
+    InnovationWindow,
+    aekf_predict,
+    aekf_update,
+    add2_update,
+    dd2_predict,
+    dd2_update,
+    divided_differences,
+)
+from ..filters.linalg import chol, householder_tria, solve_spd, symmetrize
+from ..strapdown import NavState, NavTrajectory
+from .model import GnssFix, IfaConfig, IfaModel, check_fix
+
+FloatArray = NDArray[np.float64]
+DEG = np.pi / 180.0
+METHODS = ("add2", "dd2", "aekf")
+ALIGNING, ALIGNED, DEGRADED = 0, 1, 2
+
+
+@dataclass
+class EpochRecord:
+    t_s: float
+    x: FloatArray  # estimate before feedback (n,)
+    P: FloatArray  # covariance (n, n)
+    correction: FloatArray
+    nu: FloatArray
+    nis: float
+    nis_window: float
+    R_diag: FloatArray  # diagonal of the R the gain used
+    status: int
+
+
+class InFlightAligner:
+    """Online in-flight alignment (module docstring).
+
+    Args:
+        initial: navigation state at the start (t_s, attitude with the heading error, ...).
+        lever_arm_m: IMU -> GNSS antenna in IMU (FLU) axes (3,).
+        cfg: :class:`~.model.IfaConfig`.
+        method: ``add2``, ``dd2`` or ``aekf``.
+        imu_dt_s: IMU sample interval (process noise per sample, stamp tolerance).
+    """
+
+    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaConfig = IfaConfig(),
+                 method: str = "add2", imu_dt_s: float = 0.01) -> None:
+        if method not in METHODS:
+            raise ValueError(f"unknown IFA method {method!r}; choose one of {METHODS}")
+        self.method = method
+        self.cfg = cfg
+        self.model = IfaModel(initial, lever_arm_m, cfg, imu_dt_s)
+        x0, P0 = self.model.prior()
+        self.x = x0
+        self.S = chol(P0)  # square-root form (DD2 / ADD2)
+        self.P = P0  # covariance form (AEKF)
+        self.window = InnovationWindow(cfg.window)  # adaptation (ADD2 / AEKF)
+        self.nis_hist: list[float] = []
+        self.last_fix_t: float | None = None
+        self.status = ALIGNING
+        self.aligned_t_s: float | None = None
+        self.records: list[EpochRecord] = []
+        self._nis_limit = float(chi2.ppf(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window)
+
+    # ------------------------------------------------------------------ accessors
+    @property
+    def cov(self) -> FloatArray:
+        return self.P if self.method == "aekf" else symmetrize(self.S @ self.S.T)
+
+    @property
+    def attitude_sigma_rad(self) -> FloatArray:
+        """1-sigma of the attitude error about E, N, U (3,) [rad] (U ~ heading)."""
+        return np.sqrt(np.diag(self.cov)[self.model.phi_index])
+
+    @property
+    def nav(self) -> NavState:
+        return self.model.strapdown.state
+
+    @property
+    def aligned(self) -> bool:
+        return self.status != ALIGNING
+
+    def bias_estimates(self) -> tuple[FloatArray, FloatArray]:
+        """Total gyro [rad/s] and accelerometer [m/s^2] bias estimates (compensation + state)."""
+        ie, ia = self.model.bias_index
+        X = self.x
+        return self.model.gyro_bias_comp + X[ie], self.model.accel_bias_comp + X[ia]
+
+    # ------------------------------------------------------------------ online API
+    def propagate(self, t_s: ArrayLike, omega_radps: ArrayLike, f_mps2: ArrayLike) -> None:
+        """Integrate IMU samples (strictly after the navigation time)."""
+        self.model.propagate(np.asarray(t_s, dtype=float), np.asarray(omega_radps, dtype=float),
+                             np.asarray(f_mps2, dtype=float))
+
+    def check(self, fix: GnssFix) -> None:
+        """Raise ``ValueError`` if ``fix`` cannot be used now (nothing changes)."""
+        check_fix(fix, self.last_fix_t)
+        t_nav = self.model.t_s
+        if abs(fix.t_s - t_nav) > 0.5 * self.model.imu_dt_s + 1e-9:
+            raise ValueError(f"GNSS fix at t={fix.t_s} but the navigation is at t={t_nav}: "
+                             "propagate the IMU to the fix first")
+
+    def update(self, fix: GnssFix) -> EpochRecord:
+        """One filter epoch at a GNSS fix: time update since the last epoch, measurement update
+        (method), closed-loop feedback, alignment decision.  Raises ``ValueError`` (state
+        untouched) for an unusable fix; a numerical failure restores the previous state too."""
+        self.check(fix)
+        saved = (self.x.copy(), self.S.copy(), self.P.copy(), self.window.copy(), list(self.nis_hist))
+        try:
+            return self._epoch(fix)
+        except (np.linalg.LinAlgError, FloatingPointError) as e:
+            self.x, self.S, self.P, self.window, self.nis_hist = saved
+            raise ValueError(f"GNSS fix at t={fix.t_s} rejected: filter update failed ({e})") from e
+
+    # ------------------------------------------------------------------ one epoch
+    def _epoch(self, fix: GnssFix) -> EpochRecord:
+        m, cfg = self.model, self.cfg
+        lin = m.interval()
+        x, S, P = self.x, self.S, self.P
+        if lin is not None:
+            f = lambda X: m.f(lin, X)  # noqa: E731
+            Q = m.Q(lin)
+            if self.method == "aekf":
+                x, P, _ = aekf_predict(x, P, f, Q)
+            else:
+                pr = dd2_predict(x, S, f, chol(Q + 1e-30 * np.eye(m.n)))
+                x, S = pr.x, pr.S
+        y, h, R = m.measurement(fix)
+        SR = chol(R)
+        window = self.window.copy()
+        if self.method == "aekf":
+            x, P, nu, _, _, R_used = aekf_update(x, P, y, h, R, window, r_floor=cfg.r_floor, diagonal=cfg.adapt_diagonal, debias=cfg.adapt_debias, r_ceiling=cfg.r_ceiling)
+            # model innovation covariance for the NIS: nominal R
+            Hs = _jac(h, x, P)
+            Py_model = symmetrize(Hs @ P @ Hs.T + R)  # approx (posterior P; only for the statistic)
+        elif self.method == "add2":
+            fac = divided_differences(x, S, h)
+            Py_model = symmetrize(fac.S1 @ fac.S1.T + fac.S2 @ fac.S2.T + R)
+            up, R_used = add2_update(x, S, y, h, SR, window, r_floor=cfg.r_floor, diagonal=cfg.adapt_diagonal, debias=cfg.adapt_debias,
+                                      r_ceiling=cfg.r_ceiling)
+            x, S, nu = up.x, up.S, up.nu
+        else:
+            up = dd2_update(x, S, y, h, SR)
+            x, S, nu = up.x, up.S, up.nu
+            Py_model = symmetrize(up.S_y @ up.S_y.T)
+            R_used = R
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
+            raise FloatingPointError("non-finite state after the update")
+        nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
+        self.nis_hist = (self.nis_hist + [nis])[-cfg.window:]
+        nis_w = float(np.mean(self.nis_hist))
+        x_hat = x.copy()
+        P_hat = symmetrize(P) if self.method == "aekf" else symmetrize(S @ S.T)
+        # alignment decision
+        sig_h = float(np.sqrt(P_hat[m.phi_index][:, m.phi_index][2, 2]))
+        consistent = len(self.nis_hist) >= cfg.window and nis_w < self._nis_limit
+        if self.status == ALIGNING and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
+            self.status = ALIGNED
+            self.aligned_t_s = fix.t_s
+            m.feed_biases = True
+        elif self.status != ALIGNING:
+            self.status = ALIGNED if consistent else DEGRADED
+        # closed loop (eq. 24 reset): feedback, then re-express the state and its covariance
+        c = m.feedback(x, fix)
+        shift = lambda X: m.shift(X, c)  # noqa: E731
+        if self.method == "aekf":
+            Hs = _jac(shift, x, P)
+            P = symmetrize(Hs @ P @ Hs.T)
+            x = shift(x[None])[0]
+        else:
+            fac = divided_differences(x, S, shift)
+            x = fac.y
+            S = householder_tria(np.concatenate([fac.S1, fac.S2], axis=-1))
+        m.start_interval()
+        self.x, self.S, self.P, self.window = x, S, P, window
+        self.last_fix_t = fix.t_s
+        rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status)
+        self.records.append(rec)
+        return rec
+
+
+def _jac(fn, x: FloatArray, P: FloatArray) -> FloatArray:
+    from ..filters.dd2 import numerical_jacobian
+
+    return numerical_jacobian(fn, x, 1e-6 * np.maximum(np.sqrt(np.diag(P)), 1e-12))
+
+
+# ---------------------------------------------------------------------------------- batch
+
+
+@dataclass
+class IfaResult:
+    """Alignment over a recording.
+
+    Navigation at the IMU rate: t_s (N,), llh (N, 3), vel_n_mps (N, 3), q_nb (N, 4) (the closed-loop
+    strapdown; the sample at each epoch is the corrected state).  Epochs (K filter updates):
+    epochs_s (K,), x (K, n) estimates before feedback, att_sigma_rad (K, 3) 1-sigma of the
+    attitude error about E, N, U, heading_sigma_deg (K,), nis (K,), nis_window (K,),
+    R_diag (K, p), status (K,).  aligned / aligned_t_s: the decision; gyro_bias_radps (3,),
+    accel_bias_mps2 (3,): final bias estimates; rejected: [(t_s, reason)]; runtime_s.
+    """
+
+    method: str
+    t_s: FloatArray
+    llh: FloatArray
+    vel_n_mps: FloatArray
+    q_nb: FloatArray
+    epochs_s: FloatArray
+    x: FloatArray
+    att_sigma_rad: FloatArray
+    nis: FloatArray
+    nis_window: FloatArray
+    R_diag: FloatArray
+    status: NDArray[np.int_]
+    aligned: bool
+    aligned_t_s: float | None
+    gyro_bias_radps: FloatArray
+    accel_bias_mps2: FloatArray
+    final: NavState
+    rejected: list[tuple[float, str]] = field(default_factory=list)
+    runtime_s: float = 0.0
+
+    @property
+    def heading_sigma_deg(self) -> FloatArray:
+        return self.att_sigma_rad[:, 2] / DEG
+
+    @property
+    def C_nb(self) -> FloatArray:
+        return quat_to_dcm(self.q_nb)
+
+
+def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: str = "add2",
+        initial: NavState | None = None) -> IfaResult:
+    """Align the main POS over recorded series.
+
+    Args:
+        imu: ImuSeries-like (t_s (N,), omega_radps (N, 3), f_mps2 (N, 3)), mean rates over
+            ``(t_{i-1}, t_i]``, strictly increasing stamps.
+        gnss: GnssSeries-like (t_s (M,), llh (M, 3), pos_sigma_m (M, 3), vel_n_mps (M, 3),
+            vel_sigma_mps (M, 3)) at the antenna.
+        lever_arm: IMU -> antenna (3,) in IMU axes.
+        method: ``add2`` (default), ``dd2`` or ``aekf``.
+        initial: the navigation state at the start (required: position, velocity and an attitude
+            whose heading may be far off).
+    """
+    if initial is None:
+        raise ValueError("run() needs the initial navigation state")
+    t_imu = np.asarray(imu.t_s, dtype=float)
+    if t_imu.ndim != 1 or t_imu.size < 2 or not np.all(np.isfinite(t_imu)) or np.any(np.diff(t_imu) <= 0):
+        raise ValueError("IMU stamps must be finite and strictly increasing")
+    om, fb = np.asarray(imu.omega_radps, dtype=float), np.asarray(imu.f_mps2, dtype=float)
+    if not (np.all(np.isfinite(om)) and np.all(np.isfinite(fb))):
+        raise ValueError("IMU samples contain non-finite values")
+    dt = float(np.median(np.diff(t_imu)))
+    t0 = time.perf_counter()
+    al = InFlightAligner(initial, lever_arm, cfg, method, dt)
+    first = int(np.searchsorted(t_imu, initial.t_s + 1e-9))  # samples after the initial state
+    i = first
+    rejected: list[tuple[float, str]] = []
+    g_t = np.asarray(gnss.t_s, dtype=float)
+    for j in range(g_t.size):
+        fix = GnssFix(float(g_t[j]), np.asarray(gnss.llh[j], dtype=float), np.asarray(gnss.pos_sigma_m[j], dtype=float),
+                      np.asarray(gnss.vel_n_mps[j], dtype=float), np.asarray(gnss.vel_sigma_mps[j], dtype=float))
+        try:
+            check_fix(fix, al.last_fix_t)
+            if fix.t_s > t_imu[-1] + 0.5 * dt or fix.t_s < al.model.t_s - 0.5 * dt:
+                raise ValueError(f"GNSS fix at t={fix.t_s} is outside the IMU data still to come")
+        except ValueError as e:
+            rejected.append((fix.t_s, str(e)))
+            warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
+            continue
+        i1 = int(np.searchsorted(t_imu, fix.t_s + 0.5 * dt, side="right"))
+        if i1 > i:
+            al.propagate(t_imu[i:i1], om[i:i1], fb[i:i1])
+            i = i1
+        try:
+            al.update(fix)
+        except ValueError as e:
+            rejected.append((fix.t_s, str(e)))
+            warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
+            continue
+        # the epoch sample of the output is the corrected state
+        ch = al.model.chunks[-1] if al.model.chunks else None
+        if ch is not None and abs(ch.t_s[-1] - al.model.t_s) < 1e-12:
+            s = al.nav
+            ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
+    if i < t_imu.size:
+        al.propagate(t_imu[i:], om[i:], fb[i:])
+    runtime = time.perf_counter() - t0
+    chunks = [NavTrajectory(np.array([initial.t_s]), initial.q_nb[None], initial.vel_n_mps[None], initial.llh[None])]
+    nav = NavTrajectory.concatenate(chunks + al.model.chunks)
+    recs = al.records
+    n, p = al.model.n, al.model.p
+    gb, ab = al.bias_estimates()
+    return IfaResult(
+        method, nav.t_s, nav.llh, nav.vel_n_mps, nav.q_nb,
+        np.array([r.t_s for r in recs]), np.array([r.x for r in recs]).reshape(-1, n),
+        np.array([np.sqrt(np.diag(r.P)[al.model.phi_index]) for r in recs]).reshape(-1, 3),
+        np.array([r.nis for r in recs]), np.array([r.nis_window for r in recs]),
+        np.array([r.R_diag for r in recs]).reshape(-1, p), np.array([r.status for r in recs], dtype=int),
+        al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime,
+    )
+
+
+def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray:
+    """Heading, pitch, roll errors (est - true, wrapped) [deg] (N, 3) of the result's navigation
+    against truth attitudes (N, 4) at the same stamps."""
+    from ..frames import hpr_error, hpr_from_C_nb
+
+    return hpr_error(hpr_from_C_nb(result.C_nb), hpr_from_C_nb(quat_to_dcm(truth_q_nb))) / DEG
+
+
+__all__ = ["METHODS", "InFlightAligner", "IfaResult", "run", "attitude_errors_deg", "dcm_to_quat"]

@@ -1,0 +1,196 @@
+"""In-flight alignment of the main POS (dpos_core.ifa, seed 001) on simulated paper_ifa sessions."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dpos_core.attitude import dcm_to_quat
+from dpos_core.filters.linalg import chol
+from dpos_core.frames import C_nb_from_hpr, hpr_from_C_nb
+from dpos_core.ifa.model import GnssFix, IfaConfig, IfaModel
+from dpos_core.ifa.pipeline import InFlightAligner, attitude_errors_deg, run
+from dpos_core.sim.scenario import load_scenario
+from dpos_core.sim.session import GnssSeries, SimulatedSession
+from dpos_core.strapdown import NavState
+
+DEG = np.pi / 180.0
+
+
+def _initial(ss: SimulatedSession, heading_err_deg: float) -> NavState:
+    """Truth at t0 with a heading error and small level errors (0.2 deg pitch, -0.2 deg roll)."""
+    tr = ss.truth("master", np.array([0.0]))
+    hpr = hpr_from_C_nb(tr.C_nb[0]) + np.array([heading_err_deg, 0.2, -0.2]) * DEG
+    return NavState(0.0, dcm_to_quat(C_nb_from_hpr(*hpr)), tr.vel_n_mps[0], tr.llh[0])
+
+
+_CACHE: dict[int, tuple] = {}
+
+
+def _session(seed: int):
+    if seed not in _CACHE:
+        ss = SimulatedSession(load_scenario("paper_ifa"), seed)
+        imu, gnss = ss.master_imu(), ss.gnss()
+        truth = ss.truth("master", np.concatenate([[0.0], imu.t_s]))
+        _CACHE[seed] = (ss, imu, gnss, truth)
+    return _CACHE[seed]
+
+
+def _final_errors(seed: int, heading_err_deg: float, method: str, cfg: IfaConfig = IfaConfig()):
+    ss, imu, gnss, truth = _session(seed)
+    res = run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, cfg, method, _initial(ss, heading_err_deg))
+    assert np.allclose(res.t_s, truth.t_s)
+    return attitude_errors_deg(res, truth.q_nb)[-1], res
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("heading_err_deg", [30.0, 90.0])
+def test_add2_aligns_from_a_large_heading_error(heading_err_deg: float) -> None:
+    """seed 1, 400 s: measured final |heading| errors 0.0013 deg (30) and 0.009 deg (90)."""
+    err, res = _final_errors(1, heading_err_deg, "add2")
+    assert abs(err[0]) < 0.05, err
+    assert np.all(np.abs(err[1:]) < 0.02), err
+    assert res.aligned and res.aligned_t_s is not None and res.aligned_t_s > 20.0  # not before the first turn
+    assert res.heading_sigma_deg[-1] < 0.05
+    assert res.x.shape == (res.epochs_s.size, 15) and res.att_sigma_rad.shape == (res.epochs_s.size, 3)
+    assert not res.rejected
+
+
+@pytest.mark.slow
+def test_dd2_aligns_from_180_deg_and_the_decision_flags_failures() -> None:
+    """DD2 (nominal R) converges from 180 deg on seed 1; ADD2 / AEKF do not there (see report),
+    and then the alignment is not declared."""
+    err, res = _final_errors(1, 180.0, "dd2")
+    assert abs(err[0]) < 0.05 and res.aligned
+    for method in ("add2", "aekf"):
+        err, res = _final_errors(1, 180.0, method)
+        if abs(err[0]) > 0.2:
+            assert not res.aligned
+
+
+@pytest.mark.slow
+def test_add2_vs_aekf_final_attitude_on_paper_ifa() -> None:
+    """Final |heading| error of ADD2 and AEKF from a 30 deg heading error, seeds 1-3 (see the
+    report for the numbers): both align; ADD2 is not worse than AEKF on the mean over seeds."""
+    e_add2, e_aekf = [], []
+    for seed in (1, 2, 3):
+        ea, ra = _final_errors(seed, 30.0, "add2")
+        ek, rk = _final_errors(seed, 30.0, "aekf")
+        e_add2.append(abs(ea[0]))
+        e_aekf.append(abs(ek[0]))
+        assert abs(ea[0]) < 0.05 and abs(ek[0]) < 0.1
+    assert np.mean(e_add2) <= np.mean(e_aekf) + 0.01
+
+
+def _short():
+    ss = SimulatedSession(load_scenario("paper_ifa"), 5, duration_s=12.0)
+    return ss, ss.master_imu(), ss.gnss()
+
+
+def _fix(g: GnssSeries, j: int, **kw) -> GnssFix:
+    f = GnssFix(float(g.t_s[j]), g.llh[j].copy(), g.pos_sigma_m[j].copy(), g.vel_n_mps[j].copy(), g.vel_sigma_mps[j].copy())
+    return replace(f, **kw)
+
+
+def _snapshot(al: InFlightAligner):
+    s = al.nav
+    return (al.x.copy(), al.S.copy(), al.P.copy(), len(al.records), al.last_fix_t, s.q_nb.copy(), s.llh.copy(),
+            s.vel_n_mps.copy(), len(al.window), al.model.t_s)
+
+
+def _same(a, b) -> bool:
+    return all(np.array_equal(u, v) if isinstance(u, np.ndarray) else u == v for u, v in zip(a, b))
+
+
+@pytest.mark.parametrize("method", ["add2", "dd2", "aekf"])
+def test_bad_gnss_fix_is_rejected_and_leaves_the_filter_untouched(method: str) -> None:
+    ss, imu, g = _short()
+    al = InFlightAligner(_initial(ss, 30.0), ss.scenario.aircraft.gnss_lever_arm_m, IfaConfig(), method)
+    i = 0
+    for j in range(3):  # three good epochs
+        i1 = int(np.searchsorted(imu.t_s, g.t_s[j] + 1e-6))
+        al.propagate(imu.t_s[i:i1], imu.omega_radps[i:i1], imu.f_mps2[i:i1])
+        i = i1
+        al.update(_fix(g, j))
+    before = _snapshot(al)
+    nan_llh = g.llh[2].copy()
+    nan_llh[0] = np.nan
+    bad = {
+        "duplicate": _fix(g, 2),
+        "out-of-order": _fix(g, 1),
+        "not finite": _fix(g, 2, t_s=float(g.t_s[2]) + 1e-3, llh=nan_llh),
+        "zero or negative covariance": _fix(g, 2, t_s=float(g.t_s[2]) + 1e-3, pos_sigma_m=np.zeros(3)),
+        "navigation is at": _fix(g, 3),  # IMU not propagated to the fix yet
+    }
+    for reason, fix in bad.items():
+        with pytest.raises(ValueError, match=reason):
+            al.update(fix)
+        assert _same(_snapshot(al), before), reason
+    # NaN stamp
+    with pytest.raises(ValueError, match="stamp"):
+        al.update(_fix(g, 2, t_s=float("nan")))
+    assert _same(_snapshot(al), before)
+    # and the next good fix is accepted
+    i1 = int(np.searchsorted(imu.t_s, g.t_s[3] + 1e-6))
+    al.propagate(imu.t_s[i:i1], imu.omega_radps[i:i1], imu.f_mps2[i:i1])
+    al.update(_fix(g, 3))
+    assert len(al.records) == 4
+
+
+def test_run_skips_bad_fixes_with_a_warning() -> None:
+    ss, imu, g = _short()
+    init = _initial(ss, 30.0)
+    lever = ss.scenario.aircraft.gnss_lever_arm_m
+    ref = run(imu, g, lever, IfaConfig(), "add2", init)
+    # corrupt: a NaN velocity at index 4, a duplicate of fix 6 and an out-of-order copy of fix 2 after it
+    idx = [0, 1, 2, 3, 4, 5, 6, 6, 2, 7, 8, 9, 10, 11]
+    t = g.t_s[idx].copy()
+    vel = g.vel_n_mps[idx].copy()
+    vel[4, 1] = np.nan
+    bad = GnssSeries(t, g.llh[idx], g.pos_sigma_m[idx], vel, g.vel_sigma_mps[idx])
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        res = run(imu, bad, lever, IfaConfig(), "add2", init)
+    assert len(w) == 3 and all("skipping GNSS fix" in str(x.message) for x in w)
+    assert [r[0] for r in res.rejected] == [g.t_s[4], g.t_s[6], g.t_s[2]]
+    assert "not finite" in res.rejected[0][1] and "duplicate" in res.rejected[1][1] and "out-of-order" in res.rejected[2][1]
+    keep = [k for k in range(ref.epochs_s.size) if ref.epochs_s[k] != g.t_s[4]]
+    assert np.array_equal(res.epochs_s, np.delete(ref.epochs_s, 4))
+    np.testing.assert_allclose(res.x[:4], ref.x[:4], atol=0)  # identical until the skipped epoch
+    assert len(keep) == res.epochs_s.size
+
+
+def test_model_shift_inverts_feedback_and_13_state_variant() -> None:
+    ss, imu, g = _short()
+    for vertical in (True, False):
+        cfg = IfaConfig(vertical=vertical)
+        m = IfaModel(_initial(ss, 90.0), ss.scenario.aircraft.gnss_lever_arm_m, cfg)
+        x0, P0 = m.prior()
+        assert x0.shape == (cfg.n,) and np.all(np.linalg.eigvalsh(P0) > 0)
+        rng = np.random.default_rng(0)
+        x = rng.standard_normal(cfg.n) * np.sqrt(np.diag(P0))
+        # shifting a state by itself gives zero (navigation part; biases too)
+        np.testing.assert_allclose(m.shift(x[None], x)[0], 0.0, atol=1e-12)
+        i1 = int(np.searchsorted(imu.t_s, 1.0 + 1e-6))
+        m.propagate(imu.t_s[:i1], imu.omega_radps[:i1], imu.f_mps2[:i1])
+        lin = m.interval()
+        X = np.stack([x, 0 * x])
+        out = m.f(lin, X)
+        assert out.shape == X.shape and np.all(np.isfinite(out))
+        y, h, R = m.measurement(_fix(g, 0))
+        assert y.shape == (cfg.p,) and h(X).shape == (2, cfg.p) and R.shape == (cfg.p, cfg.p)
+        chol(R)
+
+
+def test_13_state_model_runs_and_aligns_roughly() -> None:
+    ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=120.0)
+    imu, g = ss.master_imu(), ss.gnss()
+    res = run(imu, g, ss.scenario.aircraft.gnss_lever_arm_m, IfaConfig(vertical=False), "dd2", _initial(ss, 30.0))
+    truth = ss.truth("master", res.t_s)
+    err = attitude_errors_deg(res, truth.q_nb)[-1]
+    assert res.x.shape[1] == 13
+    assert abs(err[0]) < 0.5, err
+    assert abs(res.llh[-1, 2] - truth.llh[-1, 2]) < 10.0
