@@ -149,3 +149,20 @@ def test_add2_adapts_to_inflated_measurement_noise_and_aekf_matches_kf_before_ad
             np.testing.assert_allclose(Pa, ref.P, atol=1e-9)
     assert 20.0 < np.median(R_effs[20:]) < 400.0
     assert np.all(np.isfinite(S))
+
+
+def test_debiased_noise_estimate_and_ceiling() -> None:
+    rng = np.random.default_rng(8)
+    w = InnovationWindow(4)
+    Ps = [np.diag([k + 1.0, 0.5]) for k in range(6)]
+    Z = rng.standard_normal((6, 2))
+    for z, P in zip(Z, Ps):
+        w.push(z, P)
+    last = Z[-4:]
+    ref = (last.T @ last - sum(Ps[-4:])) / 4
+    np.testing.assert_allclose(w.noise_cov(), ref, atol=1e-13)
+    R = np.eye(2)
+    R_eff = guard_innovation_cov(1e6 * np.eye(2), np.zeros((2, 2)), R, r_floor=1.0, r_ceiling=100.0)[0]
+    np.testing.assert_allclose(R_eff, 100.0 * R, rtol=1e-9)
+    R_d = guard_innovation_cov(np.array([[4.0, 3.0], [3.0, 0.5]]), np.zeros((2, 2)), R, r_floor=1.0, diagonal=True)[0]
+    np.testing.assert_allclose(R_d, np.diag([4.0, 1.0]))

@@ -45,6 +45,13 @@ nominal ``S_y S_y^T`` is used.  The posterior factor is the Joseph form of eq. 1
 in place of ``R`` (``S+ = tria([S - K S_y1, K chol(R_eff), K S_y2])``), the covariance of the
 estimate for that gain if ``R_eff`` is the true noise covariance.
 
+Options of the adaptation (both ADD2 and AEKF): ``diagonal`` adapts only the variances (a
+10-sample window's cross-correlations are mostly sampling noise); ``debias`` estimates the noise
+as ``1/N sum (z_i z_i^T - P_yx,i)`` with each innovation's own state part
+(:meth:`InnovationWindow.noise_cov`) instead of ``D_k - P_yx,k``; ``r_ceiling`` caps ``R_eff``
+at ``r_ceiling R`` so that state errors the filter does not know about cannot inflate R without
+bound (which would freeze the gain).
+
 AEKF (Mohamed & Schwarz 1999, innovation-based adaptive estimation; seed 001's baseline): the
 EKF whose measurement noise is ``R_hat = C_v - H P^- H^T`` from the same windowed innovation
 covariance ``C_v``, guarded the same way.  Jacobians are central differences of ``f`` and

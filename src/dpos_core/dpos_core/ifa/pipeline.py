@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
-from ..attitude import dcm_to_quat, quat_to_dcm
+from ..attitude import quat_to_dcm
 from ..filters.dd2 import (
     InnovationWindow,
     aekf_predict,
@@ -158,10 +158,10 @@ class InFlightAligner:
         SR = chol(R)
         window = self.window.copy()
         if self.method == "aekf":
-            x, P, nu, _, _, R_used = aekf_update(x, P, y, h, R, window, r_floor=cfg.r_floor, diagonal=cfg.adapt_diagonal, debias=cfg.adapt_debias, r_ceiling=cfg.r_ceiling)
-            # model innovation covariance for the NIS: nominal R
             Hs = _jac(h, x, P)
-            Py_model = symmetrize(Hs @ P @ Hs.T + R)  # approx (posterior P; only for the statistic)
+            Py_model = symmetrize(Hs @ P @ Hs.T + R)  # model innovation covariance (nominal R) for the NIS
+            x, P, nu, _, _, R_used = aekf_update(x, P, y, h, R, window, r_floor=cfg.r_floor, diagonal=cfg.adapt_diagonal,
+                                                 debias=cfg.adapt_debias, r_ceiling=cfg.r_ceiling)
         elif self.method == "add2":
             fac = divided_differences(x, S, h)
             Py_model = symmetrize(fac.S1 @ fac.S1.T + fac.S2 @ fac.S2.T + R)
@@ -339,4 +339,4 @@ def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray
     return hpr_error(hpr_from_C_nb(result.C_nb), hpr_from_C_nb(quat_to_dcm(truth_q_nb))) / DEG
 
 
-__all__ = ["METHODS", "InFlightAligner", "IfaResult", "run", "attitude_errors_deg", "dcm_to_quat"]
+__all__ = ["METHODS", "InFlightAligner", "IfaResult", "run", "attitude_errors_deg"]
