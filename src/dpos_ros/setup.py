@@ -26,6 +26,8 @@ setup(
             'dpos-plot-scenario = dpos_ros.cli.plot_scenario:main',
             'dpos-process = dpos_ros.cli.process:main',
             'dpos-eval = dpos_ros.cli.evaluate:main',
+            'dpos-record = dpos_ros.cli.record:main',
+            'dpos-play = dpos_ros.cli.play:main',
             'dpos-graph = dpos_ros.cli.graph:main',
         ],
     },
