@@ -72,3 +72,16 @@ def test_bad_imu_input_is_rejected(su300) -> None:
         TransferAlignmentModel(ImuData(t, imu.omega_radps, imu.f_mps2), master, ins, TAConfig(), init)
     with pytest.raises(ValueError, match="unknown method"):
         pipeline.run(imu, master, ins, TAConfig(), "bogus", initial=init)
+
+
+def test_sub_imu_data_before_the_first_master_epoch_is_skipped(su300) -> None:
+    """A recorder that joined late, or topics that start at different times: the sub-IMU samples
+    before the first master epoch are left out, the rest is aligned."""
+    from dpos_core.ta.model import MasterNav
+
+    ss, imu, master, ins = su300
+    k = 1000  # master navigation starts 10 s after the sub-IMU
+    late = MasterNav(*(getattr(master, f)[k:] for f in ("t_s", "llh", "vel_n_mps", "C_nb", "omega_b_radps", "att_cov", "vel_cov", "pos_cov")))
+    r = pipeline.run(imu, late, ins, TAConfig(attitude_sigma_deg=2.0), "ukf")
+    assert r.t_s[0] > late.t_s[0] and r.t_s[-1] == pytest.approx(imu.t_s[-1])
+    assert r.t_s.size == np.count_nonzero(imu.t_s > late.t_s[0])

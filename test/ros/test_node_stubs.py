@@ -1,6 +1,6 @@
 """The four nodes: start, log their plan, stop cleanly; reject bad parameters.
 
-ifa_node and transfer_align_node are still stubs ("would ..."); the device nodes run their
+ifa_node is still a stub ("would ..."); transfer_align_node logs what it buffers; the device nodes run their
 simulated device ("-> publishing ...", see test_sim_device.py for what they publish).
 """
 
@@ -32,7 +32,7 @@ PLAN = {
     "pos_master_node": "-> publishing ",
     "pos_sub_node": "-> publishing ",
     "ifa_node": "would ",
-    "transfer_align_node": "would ",
+    "transfer_align_node": "buffering /master/nav",
 }
 
 BAD_PARAMETERS = {

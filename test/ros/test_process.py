@@ -90,4 +90,4 @@ def test_bad_recordings(tmp_path: Path) -> None:
     r = subprocess.run([str(EXE / "dpos-process"), str(b2), "--out", str(tmp_path / "o2")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "no /master/nav" in r.stderr
     r = subprocess.run([str(EXE / "dpos-process"), str(tmp_path / "missing"), "--out", str(tmp_path / "o3")], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and "not a rosbag2 directory" in r.stderr
+    assert r.returncode == 2 and "not a rosbag2 directory" in r.stderr and "nor a dpos spill" in r.stderr

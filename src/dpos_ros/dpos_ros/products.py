@@ -53,12 +53,19 @@ def solve(
     seed: int = 0,
     initial_attitude_error_deg: float = 0.0,
     oracle_truth: dict | None = None,
+    only: list[str] | None = None,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
-    """Transfer-align every sub-IMU of the aircraft found in the recording; carry the solutions to
-    their antennas.  Returns the antennas and the timing (processing and data seconds)."""
+    """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
+    with their antennas); carry the solutions to their antennas.  Returns the antennas and the
+    timing (processing and data seconds)."""
     cfg = TAConfig(attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
     results = {}
     t0 = time.perf_counter()
+    if only is not None:
+        from dataclasses import replace
+
+        aircraft = replace(aircraft, sub_imus=tuple(s for s in aircraft.sub_imus if s.name in only),
+                           antennas=tuple(a for a in aircraft.antennas if a.sub_imu in only))
     for s in aircraft.sub_imus:
         if s.name not in sess.sub_imus:
             sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
@@ -68,7 +75,7 @@ def solve(
         init = pipeline.initial_from_master(sess.master, ins, (e, e, e))
         results[s.name] = pipeline.run(sess.sub_imus[s.name], sess.master, ins, cfg, method, particles, seed, initial=init,
                                        oracle_truth=None if oracle_truth is None else oracle_truth[s.name])
-    for name in sess.sub_imus:
+    for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
     timing = {"processing_s": time.perf_counter() - t0,
@@ -132,32 +139,14 @@ def write(
 ) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory."""
     from .bag import write_streams
-    from .sim_streams import ODOMETRY, TopicStream
 
     out = Path(out_root) / sess.session_id
     out.mkdir(parents=True, exist_ok=True)
-    streams = []
-    for name, a in antennas.items():
-        if a.traj is None:
-            continue
-        tr, s = a.traj, a.sigma
-        t_ns = sess.t0_ns + np.round(tr.t_s * 1e9).astype(np.int64)
-        q = dcm_to_quat(tr.C_nb)
-        n = tr.t_s.size
-        vals = cv.odometry_values(tr.llh, tr.vel_n_mps, q, sess.datum_llh, None, pos_sigma_m=None, vel_sigma_mps=None)
-        # covariances from the smoother (diagonal in local ENU), rotated to the wire frames
-        Rw = earth.C_datum_n(tr.llh[:, 0], tr.llh[:, 1], sess.datum_llh)
-        pose = np.zeros((n, 6, 6))
-        pose[:, :3, :3] = Rw @ (s[:, 6:9, None] ** 2 * np.swapaxes(Rw, 1, 2))
-        pose[:, 3:, 3:] = Rw @ (s[:, 0:3, None] ** 2 * np.swapaxes(Rw, 1, 2))
-        twist = np.zeros((n, 6, 6))
-        C_bn = np.swapaxes(tr.C_nb, 1, 2)
-        twist[:, :3, :3] = C_bn @ (s[:, 3:6, None] ** 2 * tr.C_nb)
-        twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
-        vals[:, 7:43] = pose.reshape(n, 36)
-        vals[:, 49:85] = twist.reshape(n, 36)
-        streams.append(TopicStream(f"/antenna/{name}/odom", ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals)))
-        _write_csv(out / f"{name}.csv", t_ns, tr, s)
+    streams = antenna_streams(sess, antennas)
+    for st in streams:
+        name = st.topic.split("/")[2]
+        a = antennas[name]
+        _write_csv(out / f"{name}.csv", st.t_ns, a.traj, a.sigma)
     bag_dir = out / "antennas"
     if streams:
         if bag_dir.exists():
@@ -174,6 +163,34 @@ def write(
         (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
         plot_errors(out, evaluation, method)
     return out
+
+
+def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
+    """``/antenna/<name>/odom`` TopicStreams (pose in ``enu`` with the smoother's covariance; twist
+    in the antenna frame with the velocity covariance; angular rate not estimated)."""
+    from .sim_streams import ODOMETRY, TopicStream
+
+    streams = []
+    for name, a in antennas.items():
+        if a.traj is None:
+            continue
+        tr, s = a.traj, a.sigma
+        t_ns = sess.t0_ns + np.round(tr.t_s * 1e9).astype(np.int64)
+        q = dcm_to_quat(tr.C_nb)
+        n = tr.t_s.size
+        vals = cv.odometry_values(tr.llh, tr.vel_n_mps, q, sess.datum_llh, None)
+        Rw = earth.C_datum_n(tr.llh[:, 0], tr.llh[:, 1], sess.datum_llh)
+        pose = np.zeros((n, 6, 6))
+        pose[:, :3, :3] = Rw @ (s[:, 6:9, None] ** 2 * np.swapaxes(Rw, 1, 2))
+        pose[:, 3:, 3:] = Rw @ (s[:, 0:3, None] ** 2 * np.swapaxes(Rw, 1, 2))
+        twist = np.zeros((n, 6, 6))
+        C_bn = np.swapaxes(tr.C_nb, 1, 2)
+        twist[:, :3, :3] = C_bn @ (s[:, 3:6, None] ** 2 * tr.C_nb)
+        twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
+        vals[:, 7:43] = pose.reshape(n, 36)
+        vals[:, 49:85] = twist.reshape(n, 36)
+        streams.append(TopicStream(f"/antenna/{name}/odom", ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav"))
+    return streams
 
 
 def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: Trajectory, s: FloatArray) -> None:

@@ -95,8 +95,19 @@ def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str) -> tup
 def read_session(path: Path) -> RecordedSession:
     """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring)."""
     path = Path(path)
+    from .spill import is_spill, read_spill
+
+    if is_spill(path):  # the crash-safe spill of transfer_align_node
+        try:
+            raw, custom, sid, warns = read_spill(path)
+        except (ValueError, OSError) as e:
+            raise SessionError(f"{path}: cannot read the spill: {e}") from None
+        custom.setdefault("dpos.session_id", sid)
+        sess = session_from_raw(raw, custom, path)
+        sess.warnings[:0] = warns
+        return sess
     if not (path / "metadata.yaml").is_file() and not any(path.glob("*.mcap")):
-        raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+        raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml) nor a dpos spill (no spill.json)")
     try:
         raw = bag.read_raw(path)
     except Exception as e:  # rosbags raises its own errors for truncated or broken files

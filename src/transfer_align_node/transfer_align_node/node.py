@@ -1,37 +1,337 @@
-"""transfer_align_node — stub: declares and validates its parameters, logs its plan, spins."""
+"""transfer_align_node — buffers the session, runs the transfer alignment when it ends, publishes
+and writes a smoothed pose for every antenna (design.md "Nodes").
+
+Buffering
+    Every message of ``/master/nav``, ``/dpos/datum``, each configured ``/sub_imu/<name>/imu`` and,
+    when present, the ``/truth/*`` topics of the aircraft is appended to a crash-safe spill
+    (:mod:`dpos_ros.spill`) as it arrives: memory stays bounded, a killed process loses nothing,
+    and ``dpos-process <spill dir>`` gives the same products.  Stamps, gaps and counts per topic
+    are reported on ``/transfer_align/status`` (DiagnosticArray, latched, 1 Hz).
+
+Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
+    Waits, at most ``finalize_timeout_s``, until every stream has reached the end stamp and
+    reports what is missing; then runs the smoother for each sub-IMU in worker processes (in
+    parallel on the available cores) while the executor keeps serving callbacks and the status
+    reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
+    session products under ``output_dir/<session id>/``; then starts a new session.
+"""
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import os
+import threading
+import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+from std_srvs.srv import Trigger
 
 from dpos_ros.node_main import run_node
 from dpos_ros.params import ParameterError, declare_config, format_config
+from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
 from transfer_align_node.params import TransferAlignConfig
 
 NODE_NAME = "transfer_align_node"
 
 
-class TransferAlignNode(Node):
-    """Transfer-alignment node (stub until its issue lands)."""
+def _stamp_ns(data: bytes) -> int:
+    """header.stamp of a serialized message (every buffered type starts with a std_msgs/Header)."""
+    sec = int.from_bytes(data[4:8], "little", signed=True)
+    nsec = int.from_bytes(data[8:12], "little")
+    return sec * 1_000_000_000 + nsec
 
+
+def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float):
+    """One sub-IMU in a worker process: read the spill, align, return the antenna solutions."""
+    from dpos_core.sim.scenario import load_aircraft
+    from dpos_ros.products import solve
+    from dpos_ros.session_io import read_session
+
+    sess = read_session(Path(spill_dir))
+    aircraft = load_aircraft("session", text=aircraft_yaml)
+    ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub])
+    return ants, timing, sess.warnings
+
+
+class _Stream:
+    __slots__ = ("count", "last_ns", "min_dt", "gaps")
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.last_ns: int | None = None
+        self.min_dt: int | None = None
+        self.gaps = 0
+
+    def add(self, t: int) -> None:
+        if self.last_ns is not None:
+            dt = t - self.last_ns
+            if dt > 0:
+                if self.min_dt is None or dt < self.min_dt:
+                    self.min_dt = dt
+                elif dt > 2 * self.min_dt:
+                    self.gaps += 1
+        self.count += 1
+        self.last_ns = t if self.last_ns is None else max(self.last_ns, t)
+
+
+class TransferAlignNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         try:
             self.config: TransferAlignConfig = declare_config(self, TransferAlignConfig)
+            self._setup()
         except ParameterError:
             self.destroy_node()
             raise
+
+    # ------------------------------------------------------------------ setup
+    def _setup(self) -> None:
+        from dpos_core.sim.scenario import ConfigError, config_text, load_aircraft
+        from dpos_core.ta.pipeline import METHODS
+
         cfg = self.config
-        subs = ", ".join(f"/sub_imu/{n}/imu" for n in cfg.sub_imus) or "/sub_imu/*/imu"
+        if cfg.method not in METHODS:
+            raise ParameterError("method", cfg.method, f"not implemented yet; available: {list(METHODS)}")
+        ref = cfg.aircraft_config or "paper_su"
+        try:
+            self.aircraft_yaml = config_text("aircraft", ref)
+            self.aircraft = load_aircraft(ref, text=self.aircraft_yaml)
+        except ConfigError as e:
+            raise ParameterError("aircraft_config", cfg.aircraft_config, str(e)) from None
+        known = [s.name for s in self.aircraft.sub_imus]
+        unknown = [n for n in cfg.sub_imus if n not in known]
+        if unknown:
+            raise ParameterError("sub_imus", list(cfg.sub_imus), f"{unknown} not in aircraft {self.aircraft.name!r} (has {known})")
+        self.sub_names = list(cfg.sub_imus) or known
+        self.output_dir = Path(cfg.output_dir)
+        self._lock = threading.Lock()
+        self._spill = None
+        self._spill_dir: Path | None = None
+        self._streams: dict[str, _Stream] = {}
+        self._end: tuple[int, str] | None = None
+        self._finalizing = False
+        self._finalize_thread: threading.Thread | None = None
+        self._progress = "waiting for data"
+        self._sessions_done = 0
+        self._device = None
+        topics = {"/master/nav": ("nav_msgs/msg/Odometry", NAV_QOS), "/dpos/datum": ("sensor_msgs/msg/NavSatFix", DATUM_QOS),
+                  "/truth/master": ("nav_msgs/msg/Odometry", NAV_QOS)}
+        for n in self.sub_names:
+            topics[f"/sub_imu/{n}/imu"] = ("sensor_msgs/msg/Imu", SENSOR_QOS)
+            topics[f"/truth/sub_imu/{n}"] = ("nav_msgs/msg/Odometry", NAV_QOS)
+        for a in self.aircraft.antennas:
+            if a.sub_imu is None or a.sub_imu in self.sub_names:
+                topics[f"/truth/antenna/{a.name}"] = ("nav_msgs/msg/Odometry", NAV_QOS)
+        from nav_msgs.msg import Odometry
+        from sensor_msgs.msg import Imu, NavSatFix
+        from std_msgs.msg import Header
+
+        types = {"nav_msgs/msg/Odometry": Odometry, "sensor_msgs/msg/Imu": Imu, "sensor_msgs/msg/NavSatFix": NavSatFix}
+        self._subs = [self.create_subscription(types[mt], topic, self._make_cb(topic, mt), qos, raw=True)
+                      for topic, (mt, qos) in topics.items()]
+        self._subs.append(self.create_subscription(Header, "/session/end", self._on_end, NAV_QOS))
+        self.create_service(Trigger, "~/finalize", self._on_finalize)
+        self._status_pub = self.create_publisher(DiagnosticArray, "/transfer_align/status", STATUS_QOS)
+        self.create_timer(1.0, self._publish_status)
         self.get_logger().info(
-            f"{NODE_NAME}: "
-            f"{format_config(cfg, ('method', 'particles', 'filter_rate_hz', 'output_dir', 'output_rate_hz', 'sub_imus'))}"
-            f" -> would subscribe /master/nav, {subs}, /session/end, serve /{NODE_NAME}/finalize"
-            " and publish /antenna/<name>/odom, /transfer_align/status (stub: not implemented yet)"
-        )
+            f"{NODE_NAME}: {format_config(cfg, ('method', 'particles', 'output_dir', 'sub_imus'))} aircraft={self.aircraft.name} "
+            f"sub-IMUs {self.sub_names}: buffering /master/nav, {', '.join(f'/sub_imu/{n}/imu' for n in self.sub_names)}; "
+            f"finalize on /session/end or /{NODE_NAME}/finalize")
+
+    # ------------------------------------------------------------------ buffering
+    def _make_cb(self, topic: str, msgtype: str):
+        def cb(data: bytes) -> None:
+            t = _stamp_ns(data)
+            with self._lock:
+                sp = self._ensure_spill()
+                sp.write(topic, msgtype, t, bytes(data))
+                self._streams.setdefault(topic, _Stream()).add(t)
+        return cb
+
+    def _ensure_spill(self):
+        from dpos_ros.spill import SpillWriter
+
+        if self._spill is None:
+            sid = time.strftime("session_%Y%m%d_%H%M%S")
+            self._spill_dir = self.output_dir / "spill" / f"{sid}_{os.getpid()}"
+            self._spill = SpillWriter(self._spill_dir, sid, {"dpos.session_id": sid, "dpos.aircraft_yaml": self.aircraft_yaml})
+            self.get_logger().info(f"new session: spilling to {self._spill_dir}")
+        return self._spill
+
+    def _on_end(self, msg) -> None:
+        t = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
+        self.get_logger().info(f"/session/end: session {msg.frame_id!r}, last sample at {t} ns")
+        self._start_finalize(t, msg.frame_id)
+
+    def _on_finalize(self, _req, resp):
+        with self._lock:
+            has_data = self._spill is not None
+            last = max((s.last_ns for s in self._streams.values() if s.last_ns is not None), default=None)
+        if not has_data or last is None:
+            resp.success = False
+            resp.message = "no data buffered: nothing to finalize"
+            return resp
+        started = self._start_finalize(last, "")
+        resp.success = started
+        resp.message = f"finalizing session up to {last} ns" if started else "a session is already being finalized"
+        return resp
+
+    def _start_finalize(self, end_ns: int, session_id: str) -> bool:
+        with self._lock:
+            if self._finalizing:
+                return False
+            self._finalizing = True
+            self._end = (end_ns, session_id)
+        self._finalize_thread = threading.Thread(target=self._finalize, name="finalize", daemon=True)
+        self._finalize_thread.start()
+        return True
+
+    # ------------------------------------------------------------------ finalizing
+    def _finalize(self) -> None:
+        log = self.get_logger()
+        cfg = self.config
+        end_ns, sid = self._end
+        try:
+            needed = ["/master/nav"] + [f"/sub_imu/{n}/imu" for n in self.sub_names]
+            deadline = time.monotonic() + cfg.finalize_timeout_s
+            while True:
+                with self._lock:
+                    behind = [t for t in needed if self._streams.get(t) is None or self._streams[t].last_ns < end_ns - 20_000_000]
+                if not behind or time.monotonic() > deadline:
+                    break
+                self._progress = f"waiting for data up to the end: {behind}"
+                time.sleep(0.1)
+            with self._lock:
+                sp, spill_dir = self._spill, self._spill_dir
+                missing = [t for t in needed if t not in self._streams]
+                if sp is not None and sid:
+                    sp.session_id = sid
+                    sp.set_custom("dpos.session_id", sid)
+                if sp is not None and "/dpos/datum" not in self._streams and cfg.datum:
+                    self._spill_datum(sp)
+                self._spill = None  # new messages start the next session
+                self._spill_dir = None
+                streams = self._streams
+                self._streams = {}
+            if behind:
+                log.warning(f"finalize: after {cfg.finalize_timeout_s:g} s still short of the end stamp: {behind}")
+            if missing:
+                log.warning(f"finalize: no data at all on {missing}")
+            if sp is None:
+                log.error("finalize: nothing buffered")
+                return
+            sp.close()
+            self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()})
+        except Exception as e:  # noqa: BLE001 - reported, the node stays up for the next session
+            log.error(f"finalize failed: {type(e).__name__}: {e}")
+            self._progress = f"failed: {e}"
+        finally:
+            with self._lock:
+                self._finalizing = False
+
+    def _spill_datum(self, sp) -> None:
+        import numpy as np
+        from rclpy.serialization import serialize_message
+
+        from dpos_ros import conversions as cv
+
+        lat, lon, h = self.config.datum
+        msg = cv.datum_msg(0, np.array([np.deg2rad(lat), np.deg2rad(lon), h]))
+        sp.write("/dpos/datum", "sensor_msgs/msg/NavSatFix", 0, serialize_message(msg))
+        self.get_logger().warning("no /dpos/datum received: using the datum parameter")
+
+    def _process(self, spill_dir: Path, counts: dict) -> None:
+        from dpos_ros.products import AntennaSolution, antenna_streams, evaluate, write
+        from dpos_ros.session_io import read_session
+        from dpos_ros.sim_device import SimDevice
+
+        cfg = self.config
+        log = self.get_logger()
+        t0 = time.perf_counter()
+        n_workers = min(len(self.sub_names), cfg.workers or (os.cpu_count() or 1))
+        self._progress = f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {n_workers} worker(s)"
+        log.info(self._progress)
+        antennas: dict[str, AntennaSolution] = {}
+        timing = {"processing_s": 0.0, "data_s": 0.0}
+        warnings: list[str] = []
+        import multiprocessing as mp
+
+        with cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn")) as ex:
+            futs = {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
+                              cfg.initial_attitude_error_deg): n for n in self.sub_names}
+            done = 0
+            for f in cf.as_completed(futs):
+                ants, tm, warns = f.result()
+                antennas.update(ants)
+                timing["processing_s"] = time.perf_counter() - t0
+                timing["data_s"] += tm["data_s"]
+                warnings += [w for w in warns if w not in warnings]
+                done += 1
+                self._progress = f"processed {done}/{len(futs)} sub-IMU(s)"
+                log.info(f"{self._progress} ({futs[f]})")
+        for a in self.aircraft.antennas:
+            if a.name not in antennas and (a.sub_imu is None or a.sub_imu in self.sub_names):
+                antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of seed 004 is not implemented yet)")
+        sess = read_session(spill_dir)
+        sess.warnings[:0] = warnings
+        streams = antenna_streams(sess, antennas)
+        self._progress = f"publishing {sum(len(s) for s in streams)} antenna poses"
+        if self._device is not None:
+            self._device.stop()
+        self._device = SimDevice(self, streams, 0.0).start()
+        self._device.finished.wait()
+        out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
+        self._sessions_done += 1
+        for name, a in antennas.items():
+            log.info(f"antenna {name}: {a.status}")
+        self._progress = f"session {sess.session_id} done: products in {out}; ready for the next session"
+        log.info(f"{self._progress} (processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data)")
+
+    # ------------------------------------------------------------------ status
+    def _publish_status(self) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        st = DiagnosticStatus()
+        st.name = f"{NODE_NAME}: session"
+        st.hardware_id = self.get_name()
+        with self._lock:
+            streams = {k: (v.count, v.gaps, v.last_ns) for k, v in self._streams.items()}
+            finalizing = self._finalizing
+        st.level = DiagnosticStatus.OK
+        st.message = self._progress if (finalizing or not streams) else f"buffering {sum(c for c, _, _ in streams.values())} messages"
+        st.values = [KeyValue(key="state", value="finalizing" if finalizing else ("buffering" if streams else "idle")),
+                     KeyValue(key="sessions_done", value=str(self._sessions_done))]
+        for topic, (c, g, last) in sorted(streams.items()):
+            st.values.append(KeyValue(key=f"{topic}/count", value=str(c)))
+            st.values.append(KeyValue(key=f"{topic}/gaps", value=str(g)))
+            if g:
+                st.level = max(st.level, DiagnosticStatus.WARN)
+        arr.status = [st]
+        self._status_pub.publish(arr)
+
+    def destroy_node(self) -> None:
+        # shutdown finalizes a session that has data and was not finalized yet
+        try:
+            lock = getattr(self, "_lock", None)
+            if lock is None:  # construction failed (bad parameter): nothing to finalize
+                return
+            with lock:
+                pending = self._spill is not None and not self._finalizing
+                last = max((s.last_ns for s in self._streams.values() if s.last_ns is not None), default=None)
+            if pending and last is not None:
+                self.get_logger().info("shutdown: finalizing the buffered session")
+                self._start_finalize(last, "")
+            t = getattr(self, "_finalize_thread", None)
+            if t is not None and t.is_alive():
+                t.join()
+            if getattr(self, "_device", None) is not None:
+                self._device.stop()
+        finally:
+            super().destroy_node()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

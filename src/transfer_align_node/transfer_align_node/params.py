@@ -31,6 +31,10 @@ class TransferAlignConfig:
         output_dir: session products go to ``output_dir/<session id>/``.
         output_rate_hz: rate of /antenna/<name>/odom and the CSVs; 0 = the sub-IMU rate.
         sub_imus: names of the sub-IMUs to process; empty = all.
+        finalize_timeout_s: how long finalizing waits for data up to the end stamp.
+        workers: worker processes for the smoother, 0 = one per core.
+        seed: random seed of the particle methods.
+        initial_attitude_error_deg: prior 1-sigma of the sub-IMU attitude errors (0 = 1 deg).
     """
 
     datum: tuple[float, float, float] = datum_param()
@@ -41,3 +45,7 @@ class TransferAlignConfig:
     output_dir: str = param("out", "directory of the session products", non_empty=True)
     output_rate_hz: float = param(0.0, "output rate [Hz], 0 = the sub-IMU rate", minimum=0.0)
     sub_imus: tuple[str, ...] = param((), "sub-IMUs to process ([] = all)", check=_check_sub_imus)
+    finalize_timeout_s: float = param(10.0, "bounded wait for data up to the end stamp [s]", minimum=0.0)
+    workers: int = param(0, "smoother worker processes (0 = one per core)", minimum=0)
+    seed: int = param(0, "random seed of the particle methods", minimum=0)
+    initial_attitude_error_deg: float = param(0.0, "prior 1-sigma of the sub-IMU attitude errors [deg]", minimum=0.0)

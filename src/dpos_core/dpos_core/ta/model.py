@@ -201,6 +201,12 @@ class TransferAlignmentModel:
             raise ValueError("sub-IMU stamps must be strictly increasing")
         if not np.all(np.isfinite(self.imu.omega_radps)) or not np.all(np.isfinite(self.imu.f_mps2)):
             raise ValueError("sub-IMU samples contain NaN or infinite values")
+        after = t_imu > self.initial.t_s + 1e-9  # samples before the first master epoch cannot be aligned
+        if not after.all():
+            self.imu = ImuData(t_imu[after], self.imu.omega_radps[after], self.imu.f_mps2[after])
+            t_imu = self.imu.t_s
+            if t_imu.size < 2:
+                raise ValueError("the sub-IMU data ends before the main-system navigation starts")
         if np.any(np.diff(self.master.t_s) <= 0):
             raise ValueError("master navigation stamps must be strictly increasing")
         t0 = self.initial.t_s
