@@ -23,7 +23,7 @@ setup(
     license='MIT',
     entry_points={
         'console_scripts': [
-            'dpos-demo = dpos_core.demo:main',
+            'dpos-strapdown-demo = dpos_core.demo:main',
         ],
     },
 )

@@ -1,4 +1,4 @@
-"""``dpos-demo``: strapdown demonstration on a closed-form flight (until the simulator lands).
+"""``dpos-strapdown-demo``: strapdown demonstration on a closed-form flight.
 
 Integrates a 30-deg-bank climbing turn (100 m/s, 600 s, 200 Hz) twice: with a perfect IMU, which
 must return the truth, and with the sub-IMU error model of seed 000 sec. 4.1.2 (gyro 0.01 deg/h
@@ -33,7 +33,7 @@ def _errors(out: NavTrajectory, llh: np.ndarray, vel: np.ndarray, C: np.ndarray)
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="dpos-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="dpos-strapdown-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=600.0, help="flight duration [s] (default 600)")
     ap.add_argument("--rate", type=float, default=200.0, help="IMU rate [Hz] (default 200)")
     ap.add_argument("--seed", type=int, default=1)

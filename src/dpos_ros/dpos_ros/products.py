@@ -236,7 +236,8 @@ def report_md(metrics: dict, title: str, paper: bool | None = None) -> str:
     head = ["Parameter", ""] + [f"{m.upper()} {c}" for m in methods for c in ("RMSE", "STD")]
     if paper:
         head += ["paper URTSS RMSE", "paper URTSS STD", "paper UPS RMSE", "paper UPS STD"]
-    lines = [f"# {title}", "", f"Scenario `{metrics['scenario']}`, {metrics['runs']} run(s), segments {', '.join(metrics['segments'])}; "
+    what = f"Scenario `{metrics['scenario']}`" if metrics.get("scenario") else "Live session"
+    lines = [f"# {title}", "", f"{what}, {metrics['runs']} run(s), segments {', '.join(metrics['segments'])}; "
              "means of RMSE and STD (seed 000 eq. 21) over the segments, the runs and the antennas.", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for group, label, key in ROWS:

@@ -57,6 +57,14 @@ def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, par
     return ants, timing, sess.warnings
 
 
+def _keep_all(qos):
+    from rclpy.qos import HistoryPolicy, QoSProfile
+
+    if qos.durability.name == "TRANSIENT_LOCAL":
+        return qos
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=qos.reliability, durability=qos.durability)
+
+
 class _Stream:
     __slots__ = ("count", "last_ns", "min_dt", "gaps")
 
@@ -131,7 +139,9 @@ class TransferAlignNode(Node):
         from std_msgs.msg import Header
 
         types = {"nav_msgs/msg/Odometry": Odometry, "sensor_msgs/msg/Imu": Imu, "sensor_msgs/msg/NavSatFix": NavSatFix}
-        self._subs = [self.create_subscription(types[mt], topic, self._make_cb(topic, mt), qos, raw=True)
+        # KEEP_ALL (design.md allows it): a reader that falls behind makes reliable writers wait
+        # instead of losing the oldest samples, as a deep KEEP_LAST queue would
+        self._subs = [self.create_subscription(types[mt], topic, self._make_cb(topic, mt), _keep_all(qos), raw=True)
                       for topic, (mt, qos) in topics.items()]
         self._subs.append(self.create_subscription(Header, "/session/end", self._on_end, NAV_QOS))
         self.create_service(Trigger, "~/finalize", self._on_finalize)
