@@ -91,3 +91,13 @@ def test_bad_recordings(tmp_path: Path) -> None:
     assert r.returncode == 2 and "no /master/nav" in r.stderr
     r = subprocess.run([str(EXE / "dpos-process"), str(tmp_path / "missing"), "--out", str(tmp_path / "o3")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "not a rosbag2 directory" in r.stderr and "nor a dpos spill" in r.stderr
+
+
+def test_output_and_filter_rates(tmp_path: Path) -> None:
+    b = _sim_bag(tmp_path / "bag", 30.0)
+    r = subprocess.run([str(EXE / "dpos-process"), str(b), "--method", "ukf", "--filter-rate", "2", "--output-rate", "10",
+                        "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    rows = np.loadtxt(tmp_path / "o" / "paper_su_seed2" / "ant_r.csv", delimiter=",", skiprows=1)
+    # the first pose (t = 0.01 s) opens the first 0.1 s interval, then one per interval up to 30 s
+    assert rows.shape[0] == 301 and np.allclose(np.diff(rows[1:, 0]), 0.1, atol=1e-6)

@@ -54,11 +54,13 @@ def solve(
     initial_attitude_error_deg: float = 0.0,
     oracle_truth: dict | None = None,
     only: list[str] | None = None,
+    filter_rate_hz: float = 1.0,
+    output_rate_hz: float = 0.0,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
     with their antennas); carry the solutions to their antennas.  Returns the antennas and the
     timing (processing and data seconds)."""
-    cfg = TAConfig(attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
+    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
     results = {}
     t0 = time.perf_counter()
     if only is not None:
@@ -97,8 +99,20 @@ def solve(
         p_e = earth.geodetic_to_ecef(r.llh[:, 0], r.llh[:, 1], r.llh[:, 2]) + np.einsum("nij,nj->ni", earth.C_en(r.llh[:, 0], r.llh[:, 1]), d_n)
         lat, lon, h = earth.ecef_to_geodetic(p_e)
         v = r.vel_n_mps + np.einsum("nij,nj->ni", r.C_nb, np.cross(w_b, l_a))
-        out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", Trajectory(r.t_s, np.stack([lat, lon, h], -1), v, r.C_nb), r.sigma)
+        keep = _decimate(r.t_s, output_rate_hz)
+        llh = np.stack([lat, lon, h], -1)
+        out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", Trajectory(r.t_s[keep], llh[keep], v[keep], r.C_nb[keep]), r.sigma[keep])
     return out, timing
+
+
+def _decimate(t_s: FloatArray, rate_hz: float) -> NDArray[np.intp]:
+    """Indices of the samples at ``rate_hz`` (the first sample at or after each multiple of
+    1/rate); all samples for rate 0."""
+    if rate_hz <= 0.0:
+        return np.arange(t_s.size)
+    k = np.floor(t_s * rate_hz + 1e-6)
+    first = np.concatenate([[True], np.diff(k) > 0])
+    return np.nonzero(first)[0]
 
 
 def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution]) -> dict[str, dict]:

@@ -45,7 +45,8 @@ def _stamp_ns(data: bytes) -> int:
     return sec * 1_000_000_000 + nsec
 
 
-def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float):
+def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
+                  filter_rate_hz: float, output_rate_hz: float):
     """One sub-IMU in a worker process: read the spill, align, return the antenna solutions."""
     from dpos_core.sim.scenario import load_aircraft
     from dpos_ros.products import solve
@@ -53,7 +54,8 @@ def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, par
 
     sess = read_session(Path(spill_dir))
     aircraft = load_aircraft("session", text=aircraft_yaml)
-    ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub])
+    ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub],
+                         filter_rate_hz=filter_rate_hz, output_rate_hz=output_rate_hz)
     return ants, timing, sess.warnings
 
 
@@ -272,7 +274,7 @@ class TransferAlignNode(Node):
 
         with cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn")) as ex:
             futs = {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
-                              cfg.initial_attitude_error_deg): n for n in self.sub_names}
+                              cfg.initial_attitude_error_deg, cfg.filter_rate_hz, cfg.output_rate_hz): n for n in self.sub_names}
             done = 0
             for f in cf.as_completed(futs):
                 ants, tm, warns = f.result()

@@ -27,6 +27,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="default urtss: at the oracle bound on the simulations; the seed's UPS is still being reworked (README)")
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0, help="random seed of the particle methods")
+    ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, seed 000)")
+    ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
                     help="initial sub-IMU attitude error per axis (default: the recording's transfer_alignment setting, else 0)")
@@ -51,7 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     print(f"dpos-process: session {sess.session_id}: {len(sess.sub_imus)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg")
-    antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0)
+    if not args.filter_rate > 0 or args.output_rate < 0:
+        ap.error("--filter-rate must be > 0 and --output-rate >= 0")
+    antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
+                             filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate)
     ev = evaluate(sess, antennas)
     out = write(args.out, sess, antennas, args.method, timing, ev or None)
     for name, a in antennas.items():
