@@ -14,6 +14,11 @@ Keys (in order):
   sim_paper_su_time_ratio      simulating paper_su (1300 s, one sub-IMU, every topic) / data duration
   urtss_paper_su_time_ratio    UKF + URTSS of one sub-IMU over paper_su (40 deg initial errors) / duration
   ups_paper_su_time_ratio      UPF (100 particles) + FFBSm of one sub-IMU over paper_su / duration
+  graph_loss_count             messages lost by transfer_align_node while the live graph carries master
+                               IMU + nav and 6 sub-IMUs at 200 Hz in real time for 60 s (must be 0);
+                               graph_cpu_percent: CPU per node over the run
+  replay_speed_factor          data duration / wall time of the fastest zero-loss replay (dpos-play
+                               --rate 0) of paper_su with 2 sub-IMUs into transfer_align_node
 """
 
 from __future__ import annotations
@@ -128,10 +133,112 @@ def bench_transfer_alignment(results: dict, repeats: int) -> None:
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
 
+def _cpu_s(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as f:
+        parts = f.read().rsplit(")", 1)[1].split()
+    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def bench_graph(results: dict, repeats: int) -> None:
+    import tempfile
+
+    import yaml
+
+    from dpos_core.sim.scenario import config_text, load_scenario
+    from dpos_core.sim.session import SimulatedSession
+    from dpos_ros import spill
+    from dpos_ros.graph import Graph, GraphSpec, NodeSpec
+    from dpos_ros.sim_streams import device_streams
+
+    dur = 60.0
+    tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_graph_"))
+    sc = yaml.safe_load(config_text("scenarios", "paper_wing"))
+    sc["rates_hz"] = {"master_imu_hz": 200.0, "master_nav_hz": 200.0, "sub_imu_hz": 200.0}
+    sc["aircraft"] = "paper_wing"
+    scen = tmp / "wing200.yaml"
+    scen.write_text(yaml.safe_dump(sc))
+    subs = [s.name for s in load_scenario(scen).aircraft.sub_imus]
+    common = {"scenario": str(scen), "aircraft_config": "paper_wing", "duration": dur, "rate_factor": 1.0,
+              "publish_truth": False, "min_subscribers": 1, "wait_subscribers_s": 10.0}
+    out = tmp / "out"
+    spec = GraphSpec(nodes=[
+        NodeSpec("transfer_align_node", "transfer_align_node", {"method": "ukf", "aircraft_config": "paper_wing", "output_dir": str(out)},
+                 ready_subscribes=("/master/nav",)),
+        NodeSpec("pos_master_node", "pos_master_node", {**common, "alignment": "reference"}),
+        *[NodeSpec(n, "pos_sub_node", {**common, "name": n}) for n in subs],
+    ], ros_domain_id=150 + os.getpid() % 50, ready_timeout_s=60.0, stop_timeout_s=30.0)
+    cpu0, cpu1 = {}, {}
+    with Graph(spec, log=lambda n, l: None) as g:
+        for name, p in g.procs.items():
+            cpu0[name] = _cpu_s(p.popen.pid)
+        t0 = time.perf_counter()
+        status_dir = out
+        deadline = time.monotonic() + dur + 240
+        while time.monotonic() < deadline and not any(status_dir.glob("*/status.json")):
+            time.sleep(0.5)
+        wall = time.perf_counter() - t0
+        for name, p in g.procs.items():
+            cpu1[name] = _cpu_s(p.popen.pid)
+    ss = SimulatedSession(load_scenario(scen), 1, dur)
+    expected = {s.topic: len(s) for dev in ["master"] + [f"sub_imu/{n}" for n in subs]
+                for s in device_streams(ss, dev, truth=False) if s.topic in ("/master/nav",) or s.topic.startswith("/sub_imu/")}
+    d = next((out / "spill").iterdir())
+    raw, _, _, _ = spill.read_spill(d)
+    lost = sum(expected[t] - len(raw.get(t, ("", [], []))[2]) for t in expected)
+    n_msgs = sum(expected.values())
+    results["graph_loss_count"] = int(lost)
+    results["graph_messages"] = int(n_msgs)
+    results["graph_cpu_percent"] = {n: round(100.0 * (cpu1[n] - cpu0[n]) / wall, 1) for n in cpu0}
+    print(f"graph: {n_msgs} messages of /master/nav + 6 sub-IMUs at 200 Hz over {dur:.0f} s real time: lost {lost}")
+    print("graph CPU % per node over the session and its processing: " + ", ".join(f"{k} {v}" for k, v in results["graph_cpu_percent"].items()))
+
+
+def bench_replay(results: dict, repeats: int) -> None:
+    import subprocess
+    import tempfile
+
+    from dpos_ros import bag, spill
+
+    tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_replay_"))
+    exe = Path(sys.executable).parent
+    b = tmp / "bag"
+    subprocess.run([str(exe / "dpos-sim"), "--scenario", "paper_su", "--aircraft", "paper_su_pair", "--seed", "1", "--no-truth",
+                    "--out", str(b)], check=True, capture_output=True, timeout=600)
+    topics = ["/dpos/datum", "/master/nav", "/master/imu", "/gnss/fix", "/gnss/vel", "/sub_imu/sub_r/imu", "/sub_imu/sub_l/imu", "/session/end"]
+    env = dict(os.environ, ROS_DOMAIN_ID=str(200 + os.getpid() % 30))
+    out = tmp / "out"
+    ta = subprocess.Popen([str(exe / "transfer_align_node"), "--ros-args", "-p", "method:=ukf", "-p", "aircraft_config:=paper_su_pair",
+                           "-p", f"output_dir:={out}"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        t0 = time.perf_counter()
+        r = subprocess.run([str(exe / "dpos-play"), str(b), "--rate", "0", "--min-subscribers", "1", "--wait-subscribers", "30",
+                            "--topics", *topics], env=env, capture_output=True, text=True, timeout=1800)
+        wall = time.perf_counter() - t0
+    finally:
+        import signal
+
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not any(out.glob("*/status.json")):
+            time.sleep(0.5)
+        os.killpg(ta.pid, signal.SIGINT)
+        ta.wait(60)
+    raw = bag.read_raw(b, ["/master/nav", "/sub_imu/sub_r/imu", "/sub_imu/sub_l/imu"])
+    d = next((out / "spill").iterdir())
+    got, _, _, _ = spill.read_spill(d)
+    lost = sum(len(raw[t][2]) - len(got.get(t, ("", [], []))[2]) for t in raw)
+    results["replay_speed_factor"] = 1300.0 / wall if lost == 0 and r.returncode == 0 else 0.0
+    results["replay_lost"] = int(lost)
+    n = sum(len(v[2]) for v in got.values())
+    print(f"replay: paper_su 1300 s, 2 sub-IMUs ({n} messages into transfer_align_node) in {wall:.1f} s: "
+          f"{1300.0 / wall:.1f}x real time, lost {lost}")
+
+
 BENCHES: dict[str, Callable[[dict, int], None]] = {
     "strapdown": bench_strapdown,
     "sim": bench_sim,
     "transfer_alignment": bench_transfer_alignment,
+    "graph": bench_graph,
+    "replay": bench_replay,
 }
 
 

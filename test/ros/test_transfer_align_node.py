@@ -112,10 +112,16 @@ def test_killed_node_loses_nothing(tmp_path: Path) -> None:
     sub = subprocess.Popen([str(EXE / "pos_sub_node"), "--ros-args", "-r", "__node:=sub_r", "-p", "name:=sub_r", *common],
                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        assert _wait(lambda: (out / "spill").is_dir() and any((out / "spill").iterdir()), 60)
-        d = next((out / "spill").iterdir())
+        # the spill directory exists a moment before its spill.json: wait for a readable spill
+        assert _wait(lambda: (out / "spill").is_dir() and any(spill.is_spill(p) for p in (out / "spill").iterdir()), 60)
+        d = next(p for p in (out / "spill").iterdir() if spill.is_spill(p))
+
+        def buffered() -> int:
+            raw = spill.read_spill(d)[0]
+            return len(raw["/sub_imu/sub_r/imu"][1]) if "/sub_imu/sub_r/imu" in raw else 0
+
         # let it buffer ~15 s of data (3 s wall at 5x), then kill it hard
-        assert _wait(lambda: spill.read_spill(d)[0].get("/sub_imu/sub_r/imu", ("", [], []))[1].__len__() > 1500, 60)
+        assert _wait(lambda: buffered() > 1500, 60)
         os.killpg(ta.pid, signal.SIGKILL)
         ta.wait(10)
     finally:
