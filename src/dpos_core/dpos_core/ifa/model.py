@@ -61,8 +61,7 @@ it to their covariance too (divided differences / Jacobian), not only to the mea
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -71,7 +70,8 @@ from .. import earth
 from ..attitude import rotvec_to_dcm
 from ..sim.sensors import DEG_PER_H, UG_MPS2
 from ..strapdown import NavState, NavTrajectory, Strapdown
-from ..ta.model import compose_rotvec, right_jacobian_inv
+from ..ins_errors import Interval, IntervalIntegrals, propagate_nav_errors
+from ..ta.model import compose_rotvec
 
 FloatArray = NDArray[np.float64]
 DEG = np.pi / 180.0
@@ -182,30 +182,7 @@ def check_fix(fix: GnssFix, last_t_s: float | None) -> None:
         raise ValueError(f"GNSS fix at t={t}: latitude {fix.llh[0]} rad out of range")
 
 
-@dataclass
-class _Interval:
-    """Nominal data of the step from one filter epoch to the next (accumulated over IMU chunks)."""
-
-    T: float = 0.0
-    F_n: FloatArray = field(default_factory=lambda: np.zeros(3))  # int f^n dt
-    C_int: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))  # int C_est dt
-    start: NavState | None = None
-    end: NavState | None = None
-
-
-@dataclass(frozen=True)
-class _Linearization:
-    """Interval constants of ``f``: mid-interval rates, velocity, latitude, height, gravity."""
-
-    T: float
-    F_n: FloatArray
-    C_int: FloatArray
-    w_ie: FloatArray
-    w_en: FloatArray
-    v: FloatArray
-    lat: float
-    h: float
-    g: float
+_Linearization = Interval  # the interval constants of ``f`` (dpos_core.ins_errors)
 
 
 class IfaModel:
@@ -227,7 +204,7 @@ class IfaModel:
         self.gyro_bias_comp = np.zeros(3)  #: removed from the IMU rates [rad/s]
         self.accel_bias_comp = np.zeros(3)  #: removed from the specific force [m/s^2]
         self.feed_biases = False
-        self._iv = _Interval(start=initial.copy())
+        self._iv = IntervalIntegrals(initial.copy())
         self._omega_last = np.zeros(3)  # last bias-compensated IMU rate (lever-arm velocity)
         self.chunks: list[NavTrajectory] = []
 
@@ -260,64 +237,25 @@ class IfaModel:
         fb = np.asarray(f_mps2, dtype=float) - self.accel_bias_comp
         chunk = self.strapdown.run_increments(t, om * dt, fb * dt)
         self.chunks.append(chunk)
-        C = np.concatenate([start.C_nb[None], chunk.C_nb])
-        C_mid = 0.5 * (C[1:] + C[:-1])
-        iv = self._iv
-        iv.F_n = iv.F_n + np.einsum("kij,kj->i", C_mid, fb * dt)
-        iv.C_int = iv.C_int + np.einsum("kij,k->ij", C_mid, dt[:, 0])
-        iv.T += float(t[-1] - start.t_s)
-        iv.end = self.strapdown.state
+        self._iv.add(start, chunk, fb, dt[:, 0])
         self._omega_last = om[-1]
 
     def interval(self) -> _Linearization | None:
         """Constants of ``f`` for the step since the last filter epoch (None if no time passed)."""
-        iv = self._iv
-        if iv.end is None or iv.T <= 0.0:
-            return None
-        a, b = iv.start, iv.end
-        v = 0.5 * (a.vel_n_mps + b.vel_n_mps)
-        lat = 0.5 * (a.llh[0] + b.llh[0])
-        h = 0.5 * (a.llh[2] + b.llh[2])
-        return _Linearization(iv.T, iv.F_n.copy(), iv.C_int.copy(), earth.earth_rate_n(lat),
-                              earth.transport_rate_n(lat, h, v), v, float(lat), float(h),
-                              float(earth.normal_gravity(lat, h)))
+        return self._iv.close()
 
     def start_interval(self) -> None:
         """A filter epoch happened: the next interval starts at the current (corrected) state."""
-        self._iv = _Interval(start=self.strapdown.state)
+        self._iv = IntervalIntegrals(self.strapdown.state)
 
     # ------------------------------------------------------------------ f, Q
     def f(self, lin: _Linearization, x: FloatArray) -> FloatArray:
         """Transition over one interval, x (..., n) -> (..., n) (eq. 24, module docstring)."""
         X = self.full(np.asarray(x, dtype=float))
-        T = lin.T
-        phi, dv, dp = X[..., PHI], X[..., DV], X[..., DP]
-        eps, nab = X[..., EPS], X[..., NAB]
-        E = rotvec_to_dcm(phi)
-        Et = np.swapaxes(E, -1, -2)
-        r_m, r_n = (float(r) for r in earth.radii_of_curvature(lin.lat))
-        Rm, Rn = r_m + lin.h, r_n + lin.h
-        sl, cl = math.sin(lin.lat), math.cos(lin.lat)
-        ve, vn = lin.v[0], lin.v[1]
-        dL = dp[..., 1] / Rm
-        dh = dp[..., 2]
-        om = earth.OMEGA_IE_RADPS
-        dw_ie = np.stack([np.zeros_like(dL), -om * sl * dL, om * cl * dL], -1)
-        dw_en = np.stack([
-            -dv[..., 1] / Rm + vn * dh / Rm**2,
-            dv[..., 0] / Rn - ve * dh / Rn**2,
-            dv[..., 0] * sl / cl / Rn + ve / (cl * cl) * dL / Rn - ve * sl / cl * dh / Rn**2,
-        ], -1)
-        w_in = lin.w_ie + lin.w_en
-        rate = (w_in - np.einsum("...ij,j->...i", Et, w_in)) + np.einsum("...ij,...j->...i", Et, dw_ie + dw_en)
-        phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - eps @ lin.C_int.T)
-        cor = np.cross(2.0 * lin.w_ie + lin.w_en, dv) + np.cross(2.0 * dw_ie + dw_en, lin.v)
-        dg = np.stack([np.zeros_like(dh), np.zeros_like(dh), 2.0 * lin.g / (r_m + lin.h) * dh], -1)
-        dv_new = (dv + np.einsum("...ij,j->...i", np.eye(3) - E, lin.F_n)
-                  + np.einsum("...ij,...j->...i", E, nab @ lin.C_int.T) - (cor - dg) * T)
+        phi_new, dv_new, dp_new = propagate_nav_errors(X[..., PHI], X[..., DV], X[..., DP], X[..., EPS], X[..., NAB], lin)
         if self.n != N_FULL:  # 13 states: the vertical channel is slaved to the GNSS, not propagated
             dv_new[..., 2] = 0.0
-        dp_new = dp + 0.5 * (dv + dv_new) * T
+            dp_new[..., 2] = X[..., DP][..., 2]
         out = X.copy()
         out[..., PHI], out[..., DV], out[..., DP] = phi_new, dv_new, dp_new
         return self.reduce(out)

@@ -51,10 +51,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import earth
-from ..attitude import quat_conj, quat_mul, quat_to_dcm, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat, skew
+from ..attitude import quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
 from ..sim.bodies import K_BEND
 from ..sim.flexure import FlexureModel
 from ..sim.sensors import ImuErrorModel
+from ..ins_errors import Interval, IntervalIntegrals, propagate_nav_errors, right_jacobian_inv  # noqa: F401 (re-export)
 from ..strapdown import NavState, NavTrajectory, Strapdown
 
 FloatArray = NDArray[np.float64]
@@ -139,37 +140,12 @@ class TAConfig:
 
 
 @dataclass
-class _Interval:
-    T: float
-    w_in: FloatArray  # (3,) mid-interval w_ie + w_en of the nominal
-    w_ie: FloatArray
-    w_en: FloatArray
-    F_n: FloatArray  # (3,) int f^n dt
-    C_int: FloatArray  # (3, 3) int C_est dt
-    v: FloatArray  # (3,) mid-interval velocity
-    lat: float
-    h: float
-    g: float
-
-
-@dataclass
 class _Epoch:
     y: FloatArray | None
     R: FloatArray
     A: FloatArray  # C_m C_0
     C_m: FloatArray
     w_m: FloatArray
-
-
-def right_jacobian_inv(phi: FloatArray) -> FloatArray:
-    """``J_r(phi)^-1 = I + 1/2 [phi x] + (1/a^2 - (1 + cos a) / (2 a sin a)) [phi x]^2`` (..., 3, 3)."""
-    a2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    a = np.sqrt(a2)
-    small = a < 1e-4
-    safe = np.where(small, 1.0, a)
-    c = np.where(small, 1.0 / 12.0 + a2 / 720.0, 1.0 / safe**2 - (1.0 + np.cos(safe)) / (2.0 * safe * np.sin(safe)))
-    K = skew(phi)
-    return np.eye(3) + 0.5 * K + c * (K @ K)
 
 
 def compose_rotvec(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -219,7 +195,7 @@ class TransferAlignmentModel:
         self.epochs_s = np.concatenate([[t0], t_imu[self._epoch_idx[1:]]])
         self.n_epochs = int(self.epochs_s.size)
         self.strapdown = Strapdown(self.initial)
-        self._intervals: list[_Interval] = []
+        self._intervals: list[Interval] = []
         self._epochs: list[_Epoch | None] = [None] * self.n_epochs
         self._chunks: list[NavTrajectory] = []
         self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
@@ -282,17 +258,9 @@ class TransferAlignmentModel:
         start = self.strapdown.state
         chunk = self.strapdown.run_increments(t, om * dt, f * dt)
         self._chunks.append(chunk)
-        C = np.concatenate([start.C_nb[None], chunk.C_nb])
-        C_mid = 0.5 * (C[1:] + C[:-1])
-        F_n = np.einsum("kij,kj->i", C_mid, f * dt)
-        C_int = np.einsum("kij,k->ij", C_mid, dt[:, 0])
-        T = float(self.epochs_s[k + 1] - self.epochs_s[k])
-        v = 0.5 * (start.vel_n_mps + chunk.vel_n_mps[-1])
-        lat = 0.5 * (start.llh[0] + chunk.llh[-1, 0])
-        h = 0.5 * (start.llh[2] + chunk.llh[-1, 2])
-        w_ie = earth.earth_rate_n(lat)
-        w_en = earth.transport_rate_n(lat, h, v)
-        self._intervals.append(_Interval(T, w_ie + w_en, w_ie, w_en, F_n, C_int, v, lat, h, float(earth.normal_gravity(lat, h))))
+        acc = IntervalIntegrals(start)
+        acc.add(start, chunk, f, dt[:, 0])
+        self._intervals.append(acc.close())
         self._nominal_at.append(self.strapdown.state)
         self._build_epoch(k + 1)
 
@@ -300,33 +268,7 @@ class TransferAlignmentModel:
     def f(self, k: int, x: FloatArray) -> FloatArray:
         it = self._intervals[k]
         T = it.T
-        phi, dv, dp = x[..., PHI], x[..., DV], x[..., DP]
-        eps, nab = x[..., EPS], x[..., NAB]
-        E = rotvec_to_dcm(phi)
-        Et = np.swapaxes(E, -1, -2)
-        r_m, r_n = (float(r) for r in earth.radii_of_curvature(it.lat))
-        Rm, Rn = r_m + it.h, r_n + it.h
-        sl, cl = np.sin(it.lat), np.cos(it.lat)
-        ve, vn = it.v[0], it.v[1]
-        dL = dp[..., 1] / Rm
-        dh = dp[..., 2]
-        om = earth.OMEGA_IE_RADPS
-        dw_ie = np.stack([np.zeros_like(dL), -om * sl * dL, om * cl * dL], -1)
-        dw_en = np.stack([
-            -dv[..., 1] / Rm + vn * dh / Rm**2,
-            dv[..., 0] / Rn - ve * dh / Rn**2,
-            dv[..., 0] * sl / cl / Rn + ve / (cl * cl) * dL / Rn - ve * sl / cl * dh / Rn**2,
-        ], -1)
-        dw_in = dw_ie + dw_en
-        w_in = it.w_in
-        rate = (w_in - np.einsum("...ij,j->...i", Et, w_in)) + np.einsum("...ij,...j->...i", Et, dw_in)
-        phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - eps @ it.C_int.T)
-        I_E = np.eye(3) - E
-        cor = np.cross(2.0 * it.w_ie + it.w_en, dv) + np.cross(2.0 * dw_ie + dw_en, it.v)
-        dg = np.stack([np.zeros_like(dh), np.zeros_like(dh), 2.0 * it.g / (r_m + it.h) * dh], -1)
-        dv_new = (dv + np.einsum("...ij,j->...i", I_E, it.F_n)
-                  + np.einsum("...ij,...j->...i", E, nab @ it.C_int.T) - (cor - dg) * T)
-        dp_new = dp + 0.5 * (dv + dv_new) * T
+        phi_new, dv_new, dp_new = propagate_nav_errors(x[..., PHI], x[..., DV], x[..., DP], x[..., EPS], x[..., NAB], it)
         out = x.copy()
         out[..., PHI], out[..., DV], out[..., DP] = phi_new, dv_new, dp_new
         Phi = self._flex_phi(T)

@@ -1,0 +1,121 @@
+"""Navigation-error propagation over a filter interval, shared by the error-state models
+(transfer alignment, seed 000 eq. 11; in-flight alignment, seed 001 eq. 24).
+
+Errors are computed - true: attitude ``phi`` as a rotation vector (``C_est = expm(-[phi x]) C_true``,
+exact for any angle), velocity ``dv`` and position ``dp`` in local ENU [m/s, m], gyro bias ``eps``
+and accelerometer bias ``nabla`` in body axes::
+
+    phi_dot = J_r(phi)^-1 ((I - E^T) w_in + E^T dw_in - C_est eps),       E = expm([phi x])
+    dv_dot  = (I - E) f^n + E C_est nabla - (2 w_ie + w_en) x dv - (2 dw_ie + dw_en) x v + dg
+    dp_dot  = dv
+
+One step over the interval holds the errors at their start value and uses the interval integrals
+of the nominal (``int f^n dt``, ``int C_est dt``) and its mid-interval rates; the position by the
+trapezoid rule.  :class:`IntervalIntegrals` accumulates the integrals from the strapdown's output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import earth
+from .attitude import rotvec_to_dcm, skew
+from .strapdown import NavState, NavTrajectory
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Interval:
+    """Nominal over one filter interval: length T, ``F_n = int f^n dt`` (3,), ``C_int = int C_est dt``
+    (3, 3), mid-interval Earth and transport rates (3,), velocity (3,), latitude, height, gravity."""
+
+    T: float
+    F_n: FloatArray
+    C_int: FloatArray
+    w_ie: FloatArray
+    w_en: FloatArray
+    v: FloatArray
+    lat: float
+    h: float
+    g: float
+
+    @property
+    def w_in(self) -> FloatArray:
+        return self.w_ie + self.w_en
+
+
+class IntervalIntegrals:
+    """Accumulates :class:`Interval` from the strapdown chunks integrated since ``start``."""
+
+    def __init__(self, start: NavState) -> None:
+        self.start = start
+        self.end: NavState | None = None
+        self.T = 0.0
+        self.F_n = np.zeros(3)
+        self.C_int = np.zeros((3, 3))
+
+    def add(self, prev: NavState, chunk: NavTrajectory, f_b_mps2: FloatArray, dt_s: FloatArray) -> None:
+        """A chunk integrated from ``prev`` with specific forces f_b (m, 3) over steps dt (m,)."""
+        C = np.concatenate([prev.C_nb[None], chunk.C_nb])
+        C_mid = 0.5 * (C[1:] + C[:-1])
+        dt = np.asarray(dt_s, dtype=float).reshape(-1)
+        self.F_n = self.F_n + np.einsum("kij,kj->i", C_mid, f_b_mps2 * dt[:, None])
+        self.C_int = self.C_int + np.einsum("kij,k->ij", C_mid, dt)
+        self.T += float(np.sum(dt))
+        self.end = chunk.state(-1)
+
+    def close(self) -> Interval | None:
+        """The interval's constants (None when no time passed)."""
+        if self.end is None or self.T <= 0.0:
+            return None
+        a, b = self.start, self.end
+        v = 0.5 * (a.vel_n_mps + b.vel_n_mps)
+        lat = 0.5 * (a.llh[0] + b.llh[0])
+        h = 0.5 * (a.llh[2] + b.llh[2])
+        return Interval(self.T, self.F_n.copy(), self.C_int.copy(), earth.earth_rate_n(lat), earth.transport_rate_n(lat, h, v),
+                        v, float(lat), float(h), float(earth.normal_gravity(lat, h)))
+
+
+def right_jacobian_inv(phi: FloatArray) -> FloatArray:
+    """``J_r(phi)^-1 = I + 1/2 [phi x] + (1/a^2 - (1 + cos a) / (2 a sin a)) [phi x]^2`` (..., 3, 3)."""
+    a2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    a = np.sqrt(a2)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    c = np.where(small, 1.0 / 12.0 + a2 / 720.0, 1.0 / safe**2 - (1.0 + np.cos(safe)) / (2.0 * safe * np.sin(safe)))
+    K = skew(phi)
+    return np.eye(3) + 0.5 * K + c * (K @ K)
+
+
+def propagate_nav_errors(
+    phi: FloatArray, dv: FloatArray, dp: FloatArray, eps: FloatArray, nabla: FloatArray, it: Interval
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """One interval of the error dynamics (module docstring); every input (..., 3), vectorized."""
+    T = it.T
+    E = rotvec_to_dcm(phi)
+    Et = np.swapaxes(E, -1, -2)
+    r_m, r_n = (float(r) for r in earth.radii_of_curvature(it.lat))
+    Rm, Rn = r_m + it.h, r_n + it.h
+    sl, cl = np.sin(it.lat), np.cos(it.lat)
+    ve, vn = it.v[0], it.v[1]
+    dL = dp[..., 1] / Rm
+    dh = dp[..., 2]
+    om = earth.OMEGA_IE_RADPS
+    dw_ie = np.stack([np.zeros_like(dL), -om * sl * dL, om * cl * dL], -1)
+    dw_en = np.stack([
+        -dv[..., 1] / Rm + vn * dh / Rm**2,
+        dv[..., 0] / Rn - ve * dh / Rn**2,
+        dv[..., 0] * sl / cl / Rn + ve / (cl * cl) * dL / Rn - ve * sl / cl * dh / Rn**2,
+    ], -1)
+    w_in = it.w_in
+    rate = (w_in - np.einsum("...ij,j->...i", Et, w_in)) + np.einsum("...ij,...j->...i", Et, dw_ie + dw_en)
+    phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - eps @ it.C_int.T)
+    cor = np.cross(2.0 * it.w_ie + it.w_en, dv) + np.cross(2.0 * dw_ie + dw_en, it.v)
+    dg = np.stack([np.zeros_like(dh), np.zeros_like(dh), 2.0 * it.g / (r_m + it.h) * dh], -1)
+    dv_new = dv + np.einsum("...ij,j->...i", np.eye(3) - E, it.F_n) + np.einsum("...ij,...j->...i", E, nabla @ it.C_int.T) - (cor - dg) * T
+    dp_new = dp + 0.5 * (dv + dv_new) * T
+    return phi_new, dv_new, dp_new
