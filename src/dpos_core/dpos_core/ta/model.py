@@ -199,9 +199,8 @@ class TransferAlignmentModel:
         self._epochs: list[_Epoch | None] = [None] * self.n_epochs
         self._chunks: list[NavTrajectory] = []
         self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
-        fm = self.install.flexure
-        self._Phi_th, self._Q_th = (None, None)
-        self._flex = fm
+        self._flex = self.install.flexure
+        self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
         self._build_epoch(0)
 
     # ------------------------------------------------------------------ nominal / epochs
@@ -271,18 +270,18 @@ class TransferAlignmentModel:
         phi_new, dv_new, dp_new = propagate_nav_errors(x[..., PHI], x[..., DV], x[..., DP], x[..., EPS], x[..., NAB], it)
         out = x.copy()
         out[..., PHI], out[..., DV], out[..., DP] = phi_new, dv_new, dp_new
-        Phi = self._flex_phi(T)
+        Phi = self._flex_discrete(T)[0]
         th, thd = x[..., TH], x[..., THD]
         out[..., TH] = Phi[:, 0, 0] * th + Phi[:, 0, 1] * thd
         out[..., THD] = Phi[:, 1, 0] * th + Phi[:, 1, 1] * thd
         return out
 
-    def _flex_phi(self, T: float) -> FloatArray:
-        cache = self.__dict__.setdefault("_flex_cache", {})
+    def _flex_discrete(self, T: float) -> tuple[FloatArray, FloatArray]:
+        """Exact flexure transition and noise (3, 2, 2) each over T, cached per interval length."""
         key = round(T, 9)
-        if key not in cache:
-            cache[key] = self._flex.discrete(T)
-        return cache[key][0]
+        if key not in self._flex_cache:
+            self._flex_cache[key] = self._flex.discrete(T)
+        return self._flex_cache[key]
 
     def Q(self, k: int) -> FloatArray:
         T = self._intervals[k].T
@@ -297,8 +296,7 @@ class TransferAlignmentModel:
         Q[DV, DV] = np.eye(3) * qa
         Q[DP, DP] = np.eye(3) * qa * T * T / 3.0
         Q[DV, DP] = Q[DP, DV] = np.eye(3) * qa * T / 2.0
-        Qth = self.__dict__.setdefault("_flex_cache", {}).get(round(T, 9)) or self._flex.discrete(T)
-        Qf = Qth[1]
+        Qf = self._flex_discrete(T)[1]
         for i in range(3):
             ii = [18 + i, 21 + i]
             Q[np.ix_(ii, ii)] = Qf[i]

@@ -45,6 +45,8 @@ class LinearizedAboutTruth:
         self._truth_other = truth_other
         self._lin_h: dict[int, FloatArray] = {}
         self._lin_f: dict[int, FloatArray] = {}
+        self._F: dict[int, FloatArray] = {}  # Jacobians, cached per epoch
+        self._H: dict[int, FloatArray] = {}
         self._step = np.array([1e-6] * 3 + [1e-4] * 3 + [1e-3] * 3 + [1e-9] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-6] * 3)
 
     def _true_error(self, nominal, t: float) -> FloatArray:
@@ -66,7 +68,7 @@ class LinearizedAboutTruth:
     # StateSpaceModel
     def f(self, k: int, x: FloatArray) -> FloatArray:
         xl = self._lin_f[k]
-        F = self.__dict__.setdefault("_F", {}).get(k)
+        F = self._F.get(k)
         if F is None:
             F = _jacobian(lambda X: self.m.f(k, X), xl, self._step)
             self._F[k] = F
@@ -83,7 +85,7 @@ class LinearizedAboutTruth:
 
     def h(self, k: int, x: FloatArray) -> FloatArray:
         xl = self.lin_h(k)
-        H = self.__dict__.setdefault("_H", {}).get(k)
+        H = self._H.get(k)
         if H is None:
             H = _jacobian(lambda X: self.m.h(k, X), xl, self._step)
             self._H[k] = H
