@@ -1,15 +1,26 @@
 """pos_sub_node — one sub-IMU device per node instance.
 
-``device: sim`` publishes the simulated sub-IMU ``name`` live (dpos_ros.sim_device):
+``device: sim`` (default) publishes the simulated sub-IMU ``name`` live (dpos_ros.sim_device):
 /sub_imu/<name>/imu and, with ``publish_truth``, /truth/sub_imu/<name> and
 /truth/antenna/<its antennas> — byte for byte what ``dpos-sim`` writes for the same scenario,
 aircraft, seed, duration and datum, so that it and pos_master_node show one flight. When
-everything is published the node stays up until SIGINT/SIGTERM. ``device: ros`` (real drivers)
-is not implemented yet.
+everything is published the node stays up until SIGINT/SIGTERM.
+
+``device: ros`` relays a real IMU driver (dpos_ros.relay.DeviceRelay): every good
+sensor_msgs/Imu on the relative topic ``imu_in`` (remap it to the driver's topic) is republished
+on /sub_imu/<name>/imu with frame ``sub_imu_<name>``, its stamp kept, rotated into our FLU body axes
+by ``input_rotation_rpy_deg``; NaN, duplicate or out-of-order stamps and unavailable fields are
+rejected and counted, gaps are counted; the counts are on the DiagnosticArray ``/<node name>/status``
+(1 Hz, latched). ``input_reliability`` selects the subscription's QoS. The simulator parameters
+(scenario, seed, duration, rate_factor, publish_truth, min_subscribers, wait_subscribers_s, datum)
+do not apply and are ignored (an info line names those that were set). With ``aircraft_config``
+set, ``name`` must be one of its sub-IMUs.
 
 Run one instance per sub-IMU, each with its own ``name`` and node name::
 
     pos_sub_node --ros-args -r __node:=sub_r -p name:=sub_r -p aircraft_config:=paper_su_pair
+    pos_sub_node --ros-args -r __node:=sub_r -p name:=sub_r -p device:=ros -r imu_in:=/vn100/imu \\
+        -p input_rotation_rpy_deg:="[180.0, 0.0, 0.0]"
 """
 
 from __future__ import annotations
@@ -21,10 +32,16 @@ from rclpy.node import Node
 
 from dpos_ros.node_main import run_node
 from dpos_ros.params import ParameterError, datum_llh_rad, declare_config, format_config
+from dpos_ros.relay import DeviceRelay, Route, rotation_from_rpy_deg
 from dpos_ros.sim_device import SimDevice, load_sim_session, use_device_fastdds_profile
 from pos_sub_node.params import PosSubConfig
 
 NODE_NAME = "pos_sub_node"
+#: The driver topic of ``device: ros`` (relative: remap it, ``-r imu_in:=/driver/imu``).
+IMU_INPUT = "imu_in"
+#: Parameters of the simulated device only (ignored by ``device: ros``).
+SIM_ONLY = ("datum", "scenario", "seed", "duration", "rate_factor", "publish_truth", "min_subscribers",
+            "wait_subscribers_s")
 
 
 class PosSubNode(Node):
@@ -32,23 +49,23 @@ class PosSubNode(Node):
 
     Raises:
         ParameterError: an invalid parameter, a ``name`` that is not a sub-IMU of the aircraft,
-            an unknown scenario/aircraft, a duration longer than the scenario, or ``device: ros``.
+            an unknown scenario/aircraft, or a duration longer than the scenario (``device: sim``).
     """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.device: SimDevice | None = None
+        self.relay: DeviceRelay | None = None
         try:
             self.config: PosSubConfig = declare_config(self, PosSubConfig)
             cfg = self.config
-            if cfg.device != "sim":
-                raise ParameterError(
-                    "device", cfg.device, "real drivers (device: ros) are not implemented yet; use device:=sim"
-                )
-            self.session = load_sim_session(cfg.scenario, cfg.aircraft_config, cfg.seed, cfg.duration)
-            aircraft = self.session.scenario.aircraft
-            names = [s.name for s in aircraft.sub_imus]
-            if cfg.name not in names:
+            if cfg.device == "ros":
+                aircraft = self._load_aircraft(cfg.aircraft_config) if cfg.aircraft_config else None
+            else:
+                self.session = load_sim_session(cfg.scenario, cfg.aircraft_config, cfg.seed, cfg.duration)
+                aircraft = self.session.scenario.aircraft
+            names = [] if aircraft is None else [s.name for s in aircraft.sub_imus]
+            if aircraft is not None and cfg.name not in names:
                 raise ParameterError(
                     "name", cfg.name,
                     f"aircraft {aircraft.name!r} has no sub-IMU {cfg.name!r}; its sub-IMUs: {', '.join(names) or 'none'}"
@@ -57,7 +74,39 @@ class PosSubNode(Node):
         except ParameterError:
             self.destroy_node()
             raise
-        self._start_sim()
+        if cfg.device == "ros":
+            self._start_relay()
+        else:
+            self._start_sim()
+
+    @staticmethod
+    def _load_aircraft(aircraft_config: str) -> Any:
+        from dpos_core.sim.scenario import ConfigError, load_aircraft
+
+        try:
+            return load_aircraft(aircraft_config)
+        except ConfigError as exc:
+            raise ParameterError("aircraft_config", aircraft_config, str(exc)) from None
+
+    def _start_relay(self) -> None:
+        import dataclasses
+
+        from dpos_ros.conversions import sub_imu_frame
+
+        cfg = self.config
+        log = self.get_logger()
+        defaults = PosSubConfig(name=cfg.name)
+        overridden = [f.name for f in dataclasses.fields(cfg)
+                      if f.name in SIM_ONLY and getattr(cfg, f.name) != getattr(defaults, f.name)]
+        if overridden:
+            log.info(f"device: ros ignores the simulator parameters {format_config(cfg, tuple(overridden))}")
+        rotation = None if not any(cfg.input_rotation_rpy_deg) else rotation_from_rpy_deg(cfg.input_rotation_rpy_deg)
+        route = Route("imu", IMU_INPUT, f"/sub_imu/{cfg.name}/imu", sub_imu_frame(cfg.name))
+        self.relay = DeviceRelay(self, [route], input_reliability=cfg.input_reliability, R_out_in=rotation)
+        log.info(
+            f"{NODE_NAME}: {format_config(cfg, ('name', 'device', 'aircraft_config', 'input_reliability', 'input_rotation_rpy_deg'))}"
+            f" -> relaying {self.relay.describe()}; status on {self.get_fully_qualified_name()}/status"
+        )
 
     def _start_sim(self) -> None:
         from dpos_ros.sim_streams import device_streams, session_id

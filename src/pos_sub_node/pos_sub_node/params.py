@@ -15,6 +15,7 @@ from dpos_ros.params import (
     scenario_param,
     wait_subscribers_param,
 )
+from dpos_ros.relay import input_reliability_param, input_rotation_param
 
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
@@ -35,7 +36,8 @@ class PosSubConfig:
         aircraft_config: aircraft configuration, built-in name or YAML path; '' = the scenario's own.
         name: sub-IMU name (required), one of the aircraft's sub-IMUs: topic /sub_imu/<name>/imu,
             frame sub_imu_<name>; mount and lever arm come from the aircraft configuration.
-        device: sensor data source: ``sim`` or ``ros`` (not implemented yet).
+        device: sensor data source: ``sim`` (the built-in simulator) or ``ros`` (relay a driver's
+            sensor_msgs/Imu from the remappable topic ``imu_in``, dpos_ros.relay).
         scenario: simulator scenario; must match pos_master_node's.
         seed: simulator random seed; must match pos_master_node's (one flight).
         duration: simulated session length [s], 0 = the whole scenario; must match pos_master_node's.
@@ -44,6 +46,14 @@ class PosSubConfig:
         min_subscribers: the simulated device starts publishing when every topic has this many
             matched subscriptions (0 = at once) ...
         wait_subscribers_s: ... or after this many seconds.
+        input_reliability: ``device: ros``: QoS reliability of the ``imu_in`` subscription,
+            ``best_effort`` (matches every driver) or ``reliable``.
+        input_rotation_rpy_deg: ``device: ros``: [roll, pitch, yaw] [deg] of the driver's IMU axes
+            in our FLU body axes (URDF rpy; FRD -> FLU = [180, 0, 0]); default identity.
+
+    ``device: ros`` ignores ``datum``, ``scenario``, ``seed``, ``duration``, ``rate_factor``,
+    ``publish_truth``, ``min_subscribers`` and ``wait_subscribers_s``; ``device: sim`` ignores the
+    ``input_*`` parameters.
     """
 
     datum: tuple[float, ...] = datum_param()
@@ -57,3 +67,5 @@ class PosSubConfig:
     publish_truth: bool = param(True, "publish /truth/* (simulated devices only)")
     min_subscribers: int = min_subscribers_param()
     wait_subscribers_s: float = wait_subscribers_param()
+    input_reliability: str = input_reliability_param()
+    input_rotation_rpy_deg: tuple[float, float, float] = input_rotation_param()
