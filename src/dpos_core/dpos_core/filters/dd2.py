@@ -295,11 +295,13 @@ def guard_noise_cov(R_hat: FloatArray, R: FloatArray, r_floor: float = 1e-2, dia
 
 def add2_update(x: FloatArray, S: FloatArray, y: FloatArray, h: Fn, SR: FloatArray, window: InnovationWindow,
                 residual: Residual | None = None, r_floor: float = 1e-2, step: float = H_STEP,
-                diagonal: bool = False, debias: bool = False, r_ceiling: float = np.inf) -> tuple[DD2Update, FloatArray]:
+                diagonal: bool = False, debias: bool = False, r_ceiling: float = np.inf,
+                adapt: bool = True) -> tuple[DD2Update, FloatArray]:
     """ADD2 measurement update (eq. 20-23) for one (unbatched) state.
 
-    The innovation is pushed into ``window`` (mutated); once it holds ``N`` innovations the gain
-    uses the guarded windowed covariance.  Returns ``(DD2Update, R_eff)`` where ``R_eff`` (p, p)
+    The innovation is pushed into ``window`` (mutated); once it holds ``N`` innovations (and
+    ``adapt``) the gain uses the guarded windowed covariance; ``adapt=False`` is the DD2 update
+    with the nominal R (the window still records the innovation).  Returns ``(DD2Update, R_eff)`` where ``R_eff`` (p, p)
     is the measurement-noise covariance the gain implies (the nominal ``SR SR^T`` before the
     window is full) and ``DD2Update.S_y`` the factor of ``P_gain``.
     """
@@ -311,7 +313,7 @@ def add2_update(x: FloatArray, S: FloatArray, y: FloatArray, h: Fn, SR: FloatArr
     R = symmetrize(SR @ SR.T)
     P_state = symmetrize(fac.S1 @ fac.S1.T + fac.S2 @ fac.S2.T)
     window.push(nu, P_state)
-    if window.full:
+    if window.full and adapt:
         if debias:
             R_eff = guard_noise_cov(window.noise_cov(), R, r_floor, diagonal, r_ceiling)
             P_gain = symmetrize(P_state + R_eff)
@@ -346,12 +348,12 @@ def aekf_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, rel_step: f
 
 def aekf_update(x: FloatArray, P: FloatArray, y: FloatArray, h: Fn, R: FloatArray, window: InnovationWindow,
                 residual: Residual | None = None, r_floor: float = 1e-2, rel_step: float = 1e-6,
-                diagonal: bool = False, debias: bool = False, r_ceiling: float = np.inf
+                diagonal: bool = False, debias: bool = False, r_ceiling: float = np.inf, adapt: bool = True
                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """Innovation-adaptive EKF measurement update (Mohamed & Schwarz 1999).
 
-    ``nu = y - h(x)`` enters ``window``; once full, ``R_hat = C_v - H P H^T`` (guarded, see
-    :func:`guard_innovation_cov`) replaces ``R``.  Joseph-form covariance update.
+    ``nu = y - h(x)`` enters ``window``; once full (and ``adapt``), ``R_hat = C_v - H P H^T``
+    (guarded, see :func:`guard_innovation_cov`) replaces ``R``.  Joseph-form covariance update.
     Returns ``(x (n,), P (n, n), nu (p,), S_nu (p, p), K (n, p), R_used (p, p))``.
     """
     res = residual or (lambda a, b: a - b)
@@ -360,10 +362,10 @@ def aekf_update(x: FloatArray, P: FloatArray, y: FloatArray, h: Fn, R: FloatArra
     nu = res(np.asarray(y, dtype=float), h(x[None])[0])
     HPH = symmetrize(H @ P @ H.T)
     window.push(nu, HPH)
-    if window.full and debias:
+    if window.full and adapt and debias:
         R_used = guard_noise_cov(window.noise_cov(), R, r_floor, diagonal, r_ceiling)
         S_nu = symmetrize(HPH + R_used)
-    elif window.full:
+    elif window.full and adapt:
         R_used, S_nu = guard_innovation_cov(window.cov(), HPH, R, r_floor, diagonal, r_ceiling)
     else:
         R_used, S_nu = R, symmetrize(HPH + R)

@@ -114,6 +114,11 @@ class IfaConfig:
     adapt_diagonal: bool = True
     adapt_debias: bool = False
     lever_arm_coupling: bool = False
+    coarse_heading_sigma_deg: float = 1.0
+    fine_heading_sigma_deg: float = 3.0
+    fine_level_sigma_deg: float = 0.2
+    heading_hypotheses: int = 6
+    hypothesis_prune_log: float = 20.0
     gnss_pos_sigma_m: tuple[float, float, float] = (1.5, 1.5, 1.5)
     gnss_vel_sigma_mps: tuple[float, float, float] = (0.03, 0.03, 0.03)
     use_reported_sigma: bool = False
@@ -130,6 +135,8 @@ class IfaConfig:
     nis_quantile: float = 0.999
 
     def __post_init__(self) -> None:
+        if self.heading_hypotheses < 1:
+            raise ValueError(f"heading_hypotheses must be >= 1, got {self.heading_hypotheses}")
         if self.window < 1:
             raise ValueError(f"window must be >= 1, got {self.window}")
         pos = (self.r_floor, *self.gnss_pos_sigma_m, *self.gnss_vel_sigma_mps, self.position_sigma_m,
@@ -348,13 +355,20 @@ class IfaModel:
         return self.reduce(X)
 
     # ------------------------------------------------------------------ prior
-    def prior(self) -> tuple[FloatArray, FloatArray]:
-        """Prior mean (zeros) and covariance (n, n) from the configuration."""
+    def prior(self, fine_from: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+        """Prior mean (zeros) and covariance (n, n) from the configuration; with ``fine_from``
+        (the current covariance (n, n)) the prior of the fine phase: position and velocity
+        variances kept, attitude from ``fine_level_sigma_deg`` / ``fine_heading_sigma_deg``,
+        biases from the sensor priors, no correlations (module docstring)."""
         cfg = self.cfg
         d = np.zeros(N_FULL)
         d[DP] = cfg.position_sigma_m**2
         d[DV] = cfg.velocity_sigma_mps**2
         d[PHI] = np.array([cfg.level_sigma_deg, cfg.level_sigma_deg, cfg.heading_sigma_deg]) ** 2 * DEG**2
+        if fine_from is not None:
+            cur = self.full(np.diag(fine_from))
+            d[DP], d[DV] = cur[DP], cur[DV]
+            d[PHI] = np.array([cfg.fine_level_sigma_deg, cfg.fine_level_sigma_deg, cfg.fine_heading_sigma_deg]) ** 2 * DEG**2
         d[EPS] = (max(cfg.gyro_bias_deg_h, 1e-6) * DEG_PER_H) ** 2
         d[NAB] = (max(cfg.accel_bias_ug, 1e-3) * UG_MPS2) ** 2
         return np.zeros(self.n), np.diag(self.reduce(d))

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -59,10 +59,12 @@ class EpochRecord:
     nis_window: float
     R_diag: FloatArray  # diagonal of the R the gain used
     status: int
+    loglik: float = 0.0  #: log-likelihood of this epoch's innovation (model covariance)
+    hypotheses: int = 1  #: heading hypotheses still alive after this epoch
 
 
-class InFlightAligner:
-    """Online in-flight alignment (module docstring).
+class _Engine:
+    """One hypothesis of the online in-flight alignment (module docstring).
 
     Args:
         initial: navigation state at the start (t_s, attitude with the heading error, ...).
@@ -88,6 +90,9 @@ class InFlightAligner:
         self.last_fix_t: float | None = None
         self.status = ALIGNING
         self.aligned_t_s: float | None = None
+        self.may_align = True  #: False while other heading hypotheses are alive
+        self.fine = False  #: coarse (False) / fine (True) phase
+        self.fine_t_s: float | None = None
         self.records: list[EpochRecord] = []
         self._nis_limit = float(chi2.ppf(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window)
 
@@ -156,17 +161,20 @@ class InFlightAligner:
                 x, S = pr.x, pr.S
         y, h, R = m.measurement(fix)
         SR = chol(R)
-        window = self.window.copy()
+        # adaptation gate: while the predicted heading sigma is large the innovations are
+        # dominated by the nonlinear heading error, not by the GNSS noise (module docstring)
+        adapt = self.fine
+        window = self.window.copy() if adapt else InnovationWindow(cfg.window)
         if self.method == "aekf":
             Hs = _jac(h, x, P)
             Py_model = symmetrize(Hs @ P @ Hs.T + R)  # model innovation covariance (nominal R) for the NIS
             x, P, nu, _, _, R_used = aekf_update(x, P, y, h, R, window, r_floor=cfg.r_floor, diagonal=cfg.adapt_diagonal,
-                                                 debias=cfg.adapt_debias, r_ceiling=cfg.r_ceiling)
+                                                 debias=cfg.adapt_debias, r_ceiling=cfg.r_ceiling, adapt=adapt)
         elif self.method == "add2":
             fac = divided_differences(x, S, h)
             Py_model = symmetrize(fac.S1 @ fac.S1.T + fac.S2 @ fac.S2.T + R)
             up, R_used = add2_update(x, S, y, h, SR, window, r_floor=cfg.r_floor, diagonal=cfg.adapt_diagonal, debias=cfg.adapt_debias,
-                                      r_ceiling=cfg.r_ceiling)
+                                      r_ceiling=cfg.r_ceiling, adapt=adapt)
             x, S, nu = up.x, up.S, up.nu
         else:
             up = dd2_update(x, S, y, h, SR)
@@ -176,6 +184,7 @@ class InFlightAligner:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise FloatingPointError("non-finite state after the update")
         nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
+        loglik = -0.5 * (nis + float(np.linalg.slogdet(2.0 * np.pi * Py_model)[1]))
         self.nis_hist = (self.nis_hist + [nis])[-cfg.window:]
         nis_w = float(np.mean(self.nis_hist))
         x_hat = x.copy()
@@ -183,7 +192,7 @@ class InFlightAligner:
         # alignment decision
         sig_h = float(np.sqrt(P_hat[m.phi_index][:, m.phi_index][2, 2]))
         consistent = len(self.nis_hist) >= cfg.window and nis_w < self._nis_limit
-        if self.status == ALIGNING and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
+        if self.status == ALIGNING and self.may_align and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
             self.status = ALIGNED
             self.aligned_t_s = fix.t_s
             m.feed_biases = True
@@ -200,12 +209,147 @@ class InFlightAligner:
             fac = divided_differences(x, S, shift)
             x = fac.y
             S = householder_tria(np.concatenate([fac.S1, fac.S2], axis=-1))
+        if not self.fine and sig_h < cfg.coarse_heading_sigma_deg * DEG:
+            # end of the coarse phase: restart from the coarse estimate (already fed back)
+            self.fine = True
+            self.fine_t_s = fix.t_s
+            x, P = m.prior(fine_from=P_hat)
+            S = chol(P)
+            window = InnovationWindow(cfg.window)
         m.start_interval()
         self.x, self.S, self.P, self.window = x, S, P, window
         self.last_fix_t = fix.t_s
-        rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status)
+        rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status, loglik)
         self.records.append(rec)
         return rec
+
+
+class InFlightAligner:
+    """Online in-flight alignment (module docstring): a bank of heading hypotheses.
+
+    Args:
+        initial: navigation state at the start (t_s, attitude with the heading error, ...).
+        lever_arm_m: IMU -> GNSS antenna in IMU (FLU) axes (3,).
+        cfg: :class:`~.model.IfaConfig` (``heading_hypotheses``, ``hypothesis_prune_log``).
+        method: ``add2``, ``dd2`` or ``aekf``.
+        imu_dt_s: IMU sample interval (process noise per sample, stamp tolerance).
+
+    With ``cfg.heading_hypotheses = M > 1`` the engine runs M filters whose initial headings are
+    the given one plus ``k 360/M`` deg, each with a heading prior sigma of ``min(heading_sigma_deg,
+    180/M)`` deg, and accumulates the log-likelihood of each one's innovations.  A hypothesis whose
+    accumulated log-likelihood falls more than ``hypothesis_prune_log`` below the best is dropped;
+    the reported one (``.nav``, ``.x``, records, ...) is the given heading until it is dropped, then
+    the best survivor.  No hypothesis may declare the alignment while others are alive.
+    """
+
+    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaConfig = IfaConfig(),
+                 method: str = "add2", imu_dt_s: float = 0.01) -> None:
+        if method not in METHODS:
+            raise ValueError(f"unknown IFA method {method!r}; choose one of {METHODS}")
+        self.method, self.cfg = method, cfg
+        M = cfg.heading_hypotheses
+        if M == 1:
+            self.hyps = [_Engine(initial, lever_arm_m, cfg, method, imu_dt_s)]
+        else:
+            sub = replace(cfg, heading_sigma_deg=min(cfg.heading_sigma_deg, 180.0 / M))
+            self.hyps = [_Engine(_rotate_heading(initial, k * 2.0 * np.pi / M), lever_arm_m, sub, method, imu_dt_s)
+                         for k in range(M)]
+        self.loglik = np.zeros(M)
+        self.offsets_deg = [k * 360.0 / M for k in range(M)]
+        self._cur = 0
+        self.records: list[EpochRecord] = []
+        self._sync()
+
+    def _sync(self) -> None:
+        for h in self.hyps:
+            h.may_align = len(self.hyps) == 1
+
+    @property
+    def engine(self) -> _Engine:
+        """The reported hypothesis."""
+        return self.hyps[self._cur]
+
+    @property
+    def hypotheses(self) -> int:
+        return len(self.hyps)
+
+    def __getattr__(self, name: str):  # x, S, P, window, model, last_fix_t, fine, ... of the reported one
+        if name in ("hyps", "_cur"):
+            raise AttributeError(name)
+        return getattr(self.hyps[self._cur], name)
+
+    @property
+    def status(self) -> int:
+        return self.engine.status
+
+    @property
+    def aligned(self) -> bool:
+        return self.engine.aligned
+
+    @property
+    def aligned_t_s(self) -> float | None:
+        return self.engine.aligned_t_s
+
+    @property
+    def nav(self) -> NavState:
+        return self.engine.nav
+
+    @property
+    def cov(self) -> FloatArray:
+        return self.engine.cov
+
+    @property
+    def attitude_sigma_rad(self) -> FloatArray:
+        return self.engine.attitude_sigma_rad
+
+    def bias_estimates(self) -> tuple[FloatArray, FloatArray]:
+        return self.engine.bias_estimates()
+
+    def propagate(self, t_s: ArrayLike, omega_radps: ArrayLike, f_mps2: ArrayLike) -> None:
+        """Integrate IMU samples (strictly after the navigation time) in every hypothesis."""
+        for h in self.hyps:
+            h.propagate(t_s, omega_radps, f_mps2)
+
+    def check(self, fix: GnssFix) -> None:
+        """Raise ``ValueError`` if ``fix`` cannot be used now (nothing changes)."""
+        self.engine.check(fix)
+
+    def update(self, fix: GnssFix) -> EpochRecord:
+        """One filter epoch in every hypothesis, then pruning (class docstring).  Raises
+        ``ValueError`` (nothing changed) for an unusable fix; a hypothesis whose update fails
+        numerically is dropped while others remain."""
+        self.check(fix)
+        recs: dict[int, EpochRecord] = {}
+        err: ValueError | None = None
+        for i, h in enumerate(self.hyps):
+            try:
+                recs[i] = h.update(fix)
+            except ValueError as e:
+                err = e
+        if not recs:
+            raise err  # type: ignore[misc]
+        keep = sorted(recs)
+        ll = np.array([self.loglik[i] + recs[i].loglik for i in keep])
+        alive = [k for k, i in enumerate(keep) if ll[k] >= ll.max() - self.cfg.hypothesis_prune_log]
+        cur = self._cur if self._cur in [keep[k] for k in alive] else keep[alive[int(np.argmax(ll[alive]))]]
+        rec = recs[cur]
+        self.hyps = [self.hyps[keep[k]] for k in alive]
+        self.offsets_deg = [self.offsets_deg[keep[k]] for k in alive]
+        self.loglik = ll[alive] - ll[alive].max()
+        self._cur = [keep[k] for k in alive].index(cur)
+        self._sync()
+        rec.hypotheses = len(self.hyps)
+        self.records.append(rec)
+        return rec
+
+
+def _rotate_heading(s: NavState, dpsi_rad: float) -> NavState:
+    """The state with its heading increased by ``dpsi_rad`` (pitch, roll kept)."""
+    from ..attitude import dcm_to_quat
+    from ..frames import C_nb_from_hpr, hpr_from_C_nb
+
+    hpr = hpr_from_C_nb(quat_to_dcm(s.q_nb))
+    return NavState(s.t_s, dcm_to_quat(C_nb_from_hpr(hpr[0] + dpsi_rad, hpr[1], hpr[2])), s.vel_n_mps.copy(), s.llh.copy())
 
 
 def _jac(fn, x: FloatArray, P: FloatArray) -> FloatArray:
@@ -309,10 +453,11 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
             warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
             continue
         # the epoch sample of the output is the corrected state
-        ch = al.model.chunks[-1] if al.model.chunks else None
-        if ch is not None and abs(ch.t_s[-1] - al.model.t_s) < 1e-12:
-            s = al.nav
-            ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
+        for h in al.hyps:
+            ch = h.model.chunks[-1] if h.model.chunks else None
+            if ch is not None and abs(ch.t_s[-1] - h.model.t_s) < 1e-12:
+                s = h.nav
+                ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
     if i < t_imu.size:
         al.propagate(t_imu[i:], om[i:], fb[i:])
     runtime = time.perf_counter() - t0
