@@ -12,10 +12,8 @@ test_transfer_align_node.py runs the same graph as processes. Every wait is boun
 from __future__ import annotations
 
 import json
-import time
 from collections import defaultdict
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -31,6 +29,7 @@ from dpos_ros import spill
 from dpos_ros.qos import NAV_QOS, STATUS_QOS
 from dpos_ros.sim_device import load_sim_session, message_class, qos_profile
 from dpos_ros.sim_streams import TopicStream, device_streams, session_id
+from ros_wait import spin_until  # test/ros/ros_wait.py
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -83,14 +82,6 @@ def _positions(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
     return t, p
 
 
-def _spin_until(executor: Any, condition, timeout: float, what) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}")
-        executor.spin_once(timeout_sec=0.1)
-
-
 def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
     from pos_master_node.node import PosMasterNode
     from pos_sub_node.node import PosSubNode
@@ -135,7 +126,7 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
             counts = counter.ta_counts()
             return all(counts.get(t) == len(expected[t]) for t in sub_topics)
 
-        _spin_until(executor, ta_buffered_subs, TIMEOUT_S,
+        spin_until(executor, ta_buffered_subs, TIMEOUT_S,
                     lambda: f"transfer_align_node to buffer the sub-IMU devices' topics; it reports {counter.ta_counts()}")
         master = PosMasterNode(context=ros_context, parameter_overrides=[
             *sim, Parameter("alignment", value="reference"), Parameter("publish_truth", value=MASTER_TRUTH)])
@@ -147,7 +138,7 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
             return (products / "status.json").is_file() and all(
                 len(counter.received[f"/antenna/{a}/odom"]) >= n_sub for a in ANTENNAS)
 
-        _spin_until(executor, done, TIMEOUT_S, lambda: f"the products and antenna poses; received "
+        spin_until(executor, done, TIMEOUT_S, lambda: f"the products and antenna poses; received "
                     f"{ {t: len(v) for t, v in counter.received.items()} }, transfer_align_node: {ta._progress}")
         for n in nodes[2:]:
             assert n.device.finished.is_set() and n.device.error is None

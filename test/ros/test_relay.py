@@ -9,7 +9,6 @@ a test node. Every wait is bounded; nothing sleeps.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -25,20 +24,13 @@ from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 from dpos_ros.params import ParameterError
 from dpos_ros.qos import SENSOR_QOS, STATUS_QOS
 from dpos_ros.relay import DeviceRelay, Route, rotation_from_rpy_deg
+from ros_wait import spin_until  # test/ros/ros_wait.py
 
 pytestmark = pytest.mark.ros
 
 TIMEOUT_S = 20.0
 T0_NS = 1_700_000_000_123_000_000
 PERIOD_NS = 10_000_000  # 100 Hz
-
-
-def _spin_until(executor: Any, condition, timeout: float, what) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}")
-        executor.spin_once(timeout_sec=0.05)
 
 
 def _driver_qos(reliability: str) -> QoSProfile:
@@ -141,7 +133,7 @@ def test_pos_sub_node_relays_driver_imu(case, ros_context, ros_executor):
         assert node.device is None and node.relay is not None
         assert node.relay.describe() == "imu_in (/drv/imu) -> /sub_imu/sub_r/imu [sub_imu_sub_r]"
         out_pub = node.relay._states[0].publisher
-        _spin_until(ros_executor, lambda: pub.get_subscription_count() >= 1 and out_pub.get_subscription_count() >= 1,
+        spin_until(ros_executor, lambda: pub.get_subscription_count() >= 1 and out_pub.get_subscription_count() >= 1,
                     TIMEOUT_S, "the driver -> relay -> sink matches")
         msgs, good, rejected = _imu_sequence(np.random.default_rng(5))
         # what the driver sent, copied before the relay (same process) could touch it
@@ -152,9 +144,9 @@ def test_pos_sub_node_relays_driver_imu(case, ros_context, ros_executor):
         for m in msgs:  # one at a time, so that a best-effort reader never overflows
             count = node.relay.stats["/sub_imu/sub_r/imu"].received
             pub.publish(m)
-            _spin_until(ros_executor, lambda c=count: node.relay.stats["/sub_imu/sub_r/imu"].received > c,
+            spin_until(ros_executor, lambda c=count: node.relay.stats["/sub_imu/sub_r/imu"].received > c,
                         TIMEOUT_S, "the relay to receive the message")
-        _spin_until(ros_executor, lambda: len(got) >= len(good), TIMEOUT_S,
+        spin_until(ros_executor, lambda: len(got) >= len(good), TIMEOUT_S,
                     lambda: f"{len(good)} relayed messages (got {len(got)})")
 
         # every good message, in order, same stamp, values rotated into the body axes
@@ -182,7 +174,7 @@ def test_pos_sub_node_relays_driver_imu(case, ros_context, ros_executor):
         def status_values() -> dict[str, str]:
             return {kv.key: kv.value for kv in statuses[-1].status[0].values} if statuses else {}
 
-        _spin_until(ros_executor, lambda: status_values().get("received") == str(len(msgs)), TIMEOUT_S,
+        spin_until(ros_executor, lambda: status_values().get("received") == str(len(msgs)), TIMEOUT_S,
                     lambda: f"a status with the final counts (last {status_values()})")
         values = status_values()
         assert values["relayed"] == "75" and values["gaps"] == "1" and values["missing"] == "5"
@@ -259,7 +251,7 @@ def test_device_relay_fix_and_vel_routes(ros_context, ros_executor):
     try:
         # status_period_s=None: no status publisher of its own
         assert "/relay_host/status" not in {t for t, _ in host.get_publisher_names_and_types_by_node("relay_host", "/")}
-        _spin_until(ros_executor, lambda: min(fix_pub.get_subscription_count(), vel_pub.get_subscription_count(),
+        spin_until(ros_executor, lambda: min(fix_pub.get_subscription_count(), vel_pub.get_subscription_count(),
                                               relay._states[0].publisher.get_subscription_count(),
                                               relay._states[1].publisher.get_subscription_count()) >= 1,
                     TIMEOUT_S, "the matches")
@@ -267,8 +259,8 @@ def test_device_relay_fix_and_vel_routes(ros_context, ros_executor):
             for m in msgs:
                 n = relay.stats[topic].received
                 pub.publish(m)
-                _spin_until(ros_executor, lambda n=n, t=topic: relay.stats[t].received > n, TIMEOUT_S, f"{topic} input")
-        _spin_until(ros_executor, lambda: len(got["/gnss/fix"]) >= 2 and len(got["/gnss/vel"]) >= 2, TIMEOUT_S,
+                spin_until(ros_executor, lambda n=n, t=topic: relay.stats[t].received > n, TIMEOUT_S, f"{topic} input")
+        spin_until(ros_executor, lambda: len(got["/gnss/fix"]) >= 2 and len(got["/gnss/vel"]) >= 2, TIMEOUT_S,
                     lambda: f"the relayed fixes and velocities ({ {k: len(v) for k, v in got.items()} })")
         fix_stats, vel_stats = relay.stats["/gnss/fix"], relay.stats["/gnss/vel"]
         assert fix_stats.rejected == {"no_fix": 1, "zero_cov": 1, "negative_cov": 1, "nan": 1, "out_of_range": 1}
