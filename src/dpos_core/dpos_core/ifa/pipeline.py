@@ -28,7 +28,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
-from ..attitude import quat_to_dcm
+from ..attitude import dcm_to_quat, quat_to_dcm
+from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..filters.dd2 import (
     InnovationWindow,
     aekf_predict,
@@ -239,7 +240,9 @@ class InFlightAligner:
     180/M)`` deg, and accumulates the log-likelihood of each one's innovations.  A hypothesis whose
     accumulated log-likelihood falls more than ``hypothesis_prune_log`` below the best is dropped;
     the reported one (``.nav``, ``.x``, records, ...) is the given heading until it is dropped, then
-    the best survivor.  No hypothesis may declare the alignment while others are alive.
+    the best survivor.  Two hypotheses whose headings agree within ``coarse_heading_sigma_deg``
+    converged to the same solution: the less likely one is dropped.  No hypothesis may declare the
+    alignment while others are alive.
     """
 
     def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaConfig = IfaConfig(),
@@ -331,6 +334,14 @@ class InFlightAligner:
         keep = sorted(recs)
         ll = np.array([self.loglik[i] + recs[i].loglik for i in keep])
         alive = [k for k, i in enumerate(keep) if ll[k] >= ll.max() - self.cfg.hypothesis_prune_log]
+        if len(alive) > 1:  # hypotheses that converged to the same heading: keep the likelier one
+            yaw = np.array([hpr_from_C_nb(quat_to_dcm(self.hyps[keep[k]].nav.q_nb))[0] for k in alive])
+            order = sorted(range(len(alive)), key=lambda j: -ll[alive[j]])
+            kept: list[int] = []
+            for j in order:
+                if all(abs(np.angle(np.exp(1j * (yaw[j] - yaw[q])))) >= self.cfg.coarse_heading_sigma_deg * DEG for q in kept):
+                    kept.append(j)
+            alive = [alive[j] for j in sorted(kept)]
         cur = self._cur if self._cur in [keep[k] for k in alive] else keep[alive[int(np.argmax(ll[alive]))]]
         rec = recs[cur]
         self.hyps = [self.hyps[keep[k]] for k in alive]
@@ -345,9 +356,6 @@ class InFlightAligner:
 
 def _rotate_heading(s: NavState, dpsi_rad: float) -> NavState:
     """The state with its heading increased by ``dpsi_rad`` (pitch, roll kept)."""
-    from ..attitude import dcm_to_quat
-    from ..frames import C_nb_from_hpr, hpr_from_C_nb
-
     hpr = hpr_from_C_nb(quat_to_dcm(s.q_nb))
     return NavState(s.t_s, dcm_to_quat(C_nb_from_hpr(hpr[0] + dpsi_rad, hpr[1], hpr[2])), s.vel_n_mps.copy(), s.llh.copy())
 

@@ -22,6 +22,8 @@ import numpy as np
 from dpos_core.sim.scenario import ConfigError, config_text, load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import metrics as M
+from dpos_core.ifa.evaluate import is_ifa_scenario
+from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.ta.pipeline import METHODS, ORACLE
 
 from ..products import evaluate, metrics_json, report_md, solve
@@ -52,25 +54,38 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="dpos-eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", required=True)
     ap.add_argument("--aircraft")
-    ap.add_argument("--methods", default="ups,urtss", help=f"comma list of {METHODS + (ORACLE,)}")
+    ap.add_argument("--methods", help=f"comma list of {METHODS + (ORACLE,)} (default ups,urtss); IFA scenarios: "
+                    f"{IFA_METHODS} (default all)")
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--duration", type=float)
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG")
     ap.add_argument("--out", type=Path, required=True)
+    ifa = ap.add_argument_group("in-flight alignment scenarios (paper_ifa)")
+    ifa.add_argument("--initial-heading-error", type=float, metavar="DEG", help="default: the scenario's ifa block")
+    ifa.add_argument("--heading-sweep", metavar="DEG,DEG,..", help="also run these initial heading errors, both signs")
+    ifa.add_argument("--outage", metavar="T0,DUR", help="also run with a GNSS outage [T0, T0+DUR) s")
+    ifa.add_argument("--noise-jump", metavar="T0,SCALE", help="also run with the GNSS noise x SCALE from T0 s on")
+    ifa.add_argument("--no-table", action="store_true", help="skip the Table-3 runs (only the experiments asked for)")
     args = ap.parse_args(argv)
+    try:
+        scenario = load_scenario(args.scenario, aircraft=args.aircraft)
+    except ConfigError as e:
+        print(f"dpos-eval: {e}", file=sys.stderr)
+        return 2
+    if is_ifa_scenario(scenario):
+        from ..ifa_eval import main_ifa
+
+        return main_ifa(ap, args, scenario)
+    if args.methods is None:
+        args.methods = "ups,urtss"
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     bad = [m for m in methods if m not in METHODS + (ORACLE,)]
     if bad or not methods:
         ap.error(f"unknown method(s) {bad}; choose from {METHODS + (ORACLE,)}")
     if args.runs < 1:
         ap.error("--runs must be >= 1")
-    try:
-        scenario = load_scenario(args.scenario, aircraft=args.aircraft)
-    except ConfigError as e:
-        print(f"dpos-eval: {e}", file=sys.stderr)
-        return 2
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
     ac_text = config_text("aircraft", args.aircraft) if args.aircraft else None
     per_method: dict[str, list[dict]] = {m: [] for m in methods}
