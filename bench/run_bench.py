@@ -133,6 +133,21 @@ def bench_transfer_alignment(results: dict, repeats: int) -> None:
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
 
+def bench_ifa(results: dict, repeats: int) -> None:
+    from dpos_core.ifa.evaluate import initial_state
+    from dpos_core.ifa.pipeline import run as ifa_run
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+
+    ss = SimulatedSession(load_scenario("paper_ifa"), 1)
+    imu, gnss = ss.master_imu(), ss.gnss()
+    init = initial_state(ss, 30.0)
+    dur = float(imu.t_s[-1] - init.t_s)
+    el = _best_of(lambda: ifa_run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, method="add2", initial=init), repeats)
+    results["ifa_add2_paper_ifa_time_ratio"] = el / dur
+    print(f"in-flight alignment add2: paper_ifa {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
+
+
 def _cpu_s(pid: int) -> float:
     with open(f"/proc/{pid}/stat") as f:
         parts = f.read().rsplit(")", 1)[1].split()
@@ -237,6 +252,7 @@ BENCHES: dict[str, Callable[[dict, int], None]] = {
     "strapdown": bench_strapdown,
     "sim": bench_sim,
     "transfer_alignment": bench_transfer_alignment,
+    "ifa": bench_ifa,
     "graph": bench_graph,
     "replay": bench_replay,
 }

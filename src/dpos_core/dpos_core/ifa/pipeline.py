@@ -276,37 +276,13 @@ class InFlightAligner:
     def hypotheses(self) -> int:
         return len(self.hyps)
 
-    def __getattr__(self, name: str):  # x, S, P, window, model, last_fix_t, fine, ... of the reported one
+    def __getattr__(self, name: str):
+        """``status``, ``aligned``, ``aligned_t_s``, ``nav``, ``cov``, ``attitude_sigma_rad``,
+        ``bias_estimates()``, ``x``, ``S``, ``P``, ``window``, ``model``, ``last_fix_t``, ``fine``:
+        those of the reported hypothesis (:attr:`engine`)."""
         if name in ("hyps", "_cur"):
             raise AttributeError(name)
         return getattr(self.hyps[self._cur], name)
-
-    @property
-    def status(self) -> int:
-        return self.engine.status
-
-    @property
-    def aligned(self) -> bool:
-        return self.engine.aligned
-
-    @property
-    def aligned_t_s(self) -> float | None:
-        return self.engine.aligned_t_s
-
-    @property
-    def nav(self) -> NavState:
-        return self.engine.nav
-
-    @property
-    def cov(self) -> FloatArray:
-        return self.engine.cov
-
-    @property
-    def attitude_sigma_rad(self) -> FloatArray:
-        return self.engine.attitude_sigma_rad
-
-    def bias_estimates(self) -> tuple[FloatArray, FloatArray]:
-        return self.engine.bias_estimates()
 
     def propagate(self, t_s: ArrayLike, omega_radps: ArrayLike, f_mps2: ArrayLike) -> None:
         """Integrate IMU samples (strictly after the navigation time) in every hypothesis."""
