@@ -168,6 +168,9 @@ class TransferAlignmentModel:
     cfg: TAConfig
     initial: NavState
     n: int = N_STATES
+    #: the components the particle filters sample (the attitude error, the nonlinear part of eq.
+    #: 11-12 and 16-20); the others are carried by each particle's UKF (filters.runners)
+    sampled = THD
     epochs_s: FloatArray = field(init=False)
     n_epochs: int = field(init=False)
 
@@ -201,6 +204,8 @@ class TransferAlignmentModel:
         self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
         self._flex = self.install.flexure
         self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
+        self._q_cache: dict[float, FloatArray] = {}
+        self._imu_dt_s = float(np.median(np.diff(t_imu)))
         self._build_epoch(0)
 
     # ------------------------------------------------------------------ nominal / epochs
@@ -285,8 +290,15 @@ class TransferAlignmentModel:
 
     def Q(self, k: int) -> FloatArray:
         T = self._intervals[k].T
+        key = round(T, 9)
+        if key not in self._q_cache:
+            self._q_cache[key] = self._process_noise(T)
+        return self._q_cache[key]
+
+    def _process_noise(self, T: float) -> FloatArray:
+        """Process noise (24, 24) of an interval of length T (module docstring)."""
         imu = self.install.imu
-        dt = float(np.median(np.diff(self.imu.t_s)))
+        dt = self._imu_dt_s
         from ..sim.sensors import DEG_PER_H, UG_MPS2
 
         qg = (imu.gyro_noise_deg_h * DEG_PER_H) ** 2 * dt * T

@@ -2,7 +2,9 @@
 and the smoothed trajectory at the IMU rate.
 
 Methods: ``ukf`` (forward only), ``urtss`` (UKF + unscented RTS smoother), ``upf`` (forward
-only), ``ups`` (UPF + FFBSm reweighting, seed 000).
+only), ``ups`` (seed 000's unscented particle smoother: the Rao-Blackwellized UPF - particles on
+the flexure rate, every particle's UKF carrying the other 21 states - and its backward pass;
+filters.runners explains the choice and what the literal variant measured).
 
 Output at the IMU rate: the error estimates at the filter epochs are applied to the stored
 nominal trajectory, linearly interpolated between epochs.  Within the interval after epoch k
@@ -20,7 +22,7 @@ from numpy.typing import NDArray
 from .. import earth
 from ..attitude import dcm_to_quat, quat_to_dcm, rotvec_to_dcm
 from ..filters.points import UnscentedPoints
-from ..filters.runners import ffbsm, run_sigma_point_filter, run_upf, smooth_gaussian, weighted_moments
+from ..filters.runners import rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..strapdown import NavState
 from .model import DP, DV, PHI, Installation, ImuData, MasterNav, TAConfig, TransferAlignmentModel, compose_rotvec
@@ -113,8 +115,10 @@ def run(
         tr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points)
         corr = tr.corrections
         ess = tr.ess
-        lw = ffbsm(model, tr) if method == "ups" else tr.logw
-        x, P = weighted_moments(tr.particles, lw)
+        if method == "ups":
+            _, x, P = rb_smooth(tr)
+        else:
+            x, P = tr.mixture.x_f, tr.mixture.P_f
     out = _apply(model, x, P, corr)
     return TAResult(method, *out, model.epochs_s, x, P, ess)
 
