@@ -103,6 +103,15 @@ class IfaConfig:
         gyro_bias_deg_h, accel_bias_ug: prior bias sigma; gyro_noise_deg_h, accel_noise_ug:
             white noise per IMU sample (process noise).
         q_scale: multiplies the process noise (model error of the discretization).
+        coarse_heading_sigma_deg: heading 1 sigma that ends a filter's coarse phase (nominal R, no
+            adaptation); the fine phase restarts the attitude / bias covariance from
+            ``fine_level_sigma_deg`` / ``fine_heading_sigma_deg`` and the sensor bias priors
+            (the coarse transient of the first turn leaves overconfident bias estimates), and
+            ADD2 / AEKF adapt R only there.  Also the heading difference under which two
+            hypotheses count as the same solution.
+        heading_hypotheses: filters in the bank (initial heading + k 360/M deg); 1 = a single filter.
+        hypothesis_prune_log: drop a hypothesis whose accumulated innovation log-likelihood is
+            this far below the best (pipeline.InFlightAligner).
         aligned_heading_sigma_deg: heading 1 sigma below which the alignment may be declared.
         nis_quantile: the windowed mean NIS must stay below this chi-square quantile.
     """

@@ -16,6 +16,11 @@ it detects GNSS noise the model does not explain; its window mean over N epochs 
 with ``sigma_heading < cfg.aligned_heading_sigma_deg`` and window-mean NIS below the
 ``cfg.nis_quantile`` quantile (window full).  Status per epoch: 0 ALIGNING, 1 ALIGNED,
 2 DEGRADED (aligned, but the current window is inconsistent).
+
+Large heading errors: :class:`InFlightAligner` is a bank of ``cfg.heading_hypotheses`` filters
+(class docstring) pruned by their accumulated innovation likelihood; each filter has a coarse and
+a fine phase (``IfaConfig.coarse_heading_sigma_deg``).  The alignment is declared only once one
+hypothesis is left.
 """
 
 from __future__ import annotations
@@ -414,6 +419,7 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
     first = int(np.searchsorted(t_imu, initial.t_s + 1e-9))  # samples after the initial state
     i = first
     rejected: list[tuple[float, str]] = []
+    out: list[NavTrajectory] = []  # navigation of the hypothesis reported at each interval (as a node follows it)
     g_t = np.asarray(gnss.t_s, dtype=float)
     for j in range(g_t.size):
         fix = GnssFix(float(g_t[j]), np.asarray(gnss.llh[j], dtype=float), np.asarray(gnss.pos_sigma_m[j], dtype=float),
@@ -429,6 +435,7 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
         i1 = int(np.searchsorted(t_imu, fix.t_s + 0.5 * dt, side="right"))
         if i1 > i:
             al.propagate(t_imu[i:i1], om[i:i1], fb[i:i1])
+            out.append(al.engine.model.chunks[-1])  # the reported hypothesis' navigation
             i = i1
         try:
             al.update(fix)
@@ -436,17 +443,17 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
             rejected.append((fix.t_s, str(e)))
             warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
             continue
-        # the epoch sample of the output is the corrected state
-        for h in al.hyps:
-            ch = h.model.chunks[-1] if h.model.chunks else None
-            if ch is not None and abs(ch.t_s[-1] - h.model.t_s) < 1e-12:
-                s = h.nav
-                ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
+        # the epoch sample of the output is the corrected state (of the hypothesis reported now)
+        ch = out[-1] if out else None
+        if ch is not None and abs(ch.t_s[-1] - al.model.t_s) < 1e-12:
+            s = al.nav
+            ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
     if i < t_imu.size:
         al.propagate(t_imu[i:], om[i:], fb[i:])
+        out.append(al.engine.model.chunks[-1])
     runtime = time.perf_counter() - t0
     chunks = [NavTrajectory(np.array([initial.t_s]), initial.q_nb[None], initial.vel_n_mps[None], initial.llh[None])]
-    nav = NavTrajectory.concatenate(chunks + al.model.chunks)
+    nav = NavTrajectory.concatenate(chunks + out)
     recs = al.records
     n, p = al.model.n, al.model.p
     gb, ab = al.bias_estimates()
