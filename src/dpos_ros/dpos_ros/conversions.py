@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -220,3 +221,136 @@ def session_end_msg(t_ns: int, session_id: str):
     m = Header()
     _stamp(m, t_ns, session_id)
     return m
+
+
+# ------------------------------------------------------------------------------ full covariances (master nav, IFA)
+
+
+def odometry_values_cov(
+    llh: FloatArray,
+    vel_n_mps: FloatArray,
+    q_nb: FloatArray,
+    datum_llh: FloatArray,
+    omega_b_radps: FloatArray | None,
+    pos_cov_n: FloatArray,
+    att_cov_n: FloatArray,
+    vel_cov_n: FloatArray,
+) -> FloatArray:
+    """As :func:`odometry_values` (N, 85), with full covariances in local-level ENU terms.
+
+    ``pos_cov_n`` [m^2], ``att_cov_n`` (attitude error as a rotation about the local ENU axes, the
+    seeds' ``phi`` [rad^2]) and ``vel_cov_n`` [m^2/s^2]: (3, 3) for every sample or (N, 3, 3).
+    The pose covariance is rotated into ``enu``, the velocity covariance into the body.
+    """
+    out = odometry_values(llh, vel_n_mps, q_nb, datum_llh, omega_b_radps)
+    n = out.shape[0]
+    R = earth.C_datum_n(llh[:, 0], llh[:, 1], datum_llh)
+    C_nb = quat_to_dcm(q_nb)
+    Rt = np.swapaxes(R, 1, 2)
+    pose = np.zeros((n, 6, 6))
+    pose[:, :3, :3] = R @ np.asarray(pos_cov_n, dtype=float) @ Rt
+    pose[:, 3:, 3:] = R @ np.asarray(att_cov_n, dtype=float) @ Rt
+    out[:, 7:43] = pose.reshape(n, 36)
+    twist = out[:, 49:85].reshape(n, 6, 6).copy()
+    twist[:, :3, :3] = np.swapaxes(C_nb, 1, 2) @ np.asarray(vel_cov_n, dtype=float) @ C_nb
+    out[:, 49:85] = twist.reshape(n, 36)
+    return out
+
+
+def odometry_cov_n(block: OdometryBlock, datum_llh: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Inverse of the covariance part of :func:`odometry_values_cov`: (pos, att, vel) covariances
+    (N, 3, 3) each in local-level ENU terms."""
+    R = earth.C_datum_n(block.llh[:, 0], block.llh[:, 1], datum_llh)
+    Rt = np.swapaxes(R, 1, 2)
+    C_nb = quat_to_dcm(block.q_nb)
+    pos = Rt @ block.pose_cov[:, :3, :3] @ R
+    att = Rt @ block.pose_cov[:, 3:, 3:] @ R
+    vel = C_nb @ block.twist_cov[:, :3, :3] @ np.swapaxes(C_nb, 1, 2)
+    return pos, att, vel
+
+
+def imu_bias_values(gyro_radps: FloatArray, accel_mps2: FloatArray, gyro_cov: FloatArray, accel_cov: FloatArray) -> FloatArray:
+    """Double block (N, 37) of ``/ifa/imu_bias`` (``sensor_msgs/Imu`` in the IMU frame): gyro bias
+    [rad/s] in angular_velocity, accelerometer bias [m/s^2] in linear_acceleration, their (N, 3, 3)
+    covariances; no orientation (``orientation_covariance[0] = -1``)."""
+    g = np.atleast_2d(np.asarray(gyro_radps, dtype=float))
+    n = g.shape[0]
+    v = np.zeros((n, cdr.IMU_DOUBLES))
+    v[:, 3] = 1.0
+    v[:, 4] = -1.0
+    v[:, 13:16] = g
+    v[:, 16:25] = np.broadcast_to(np.asarray(gyro_cov, dtype=float), (n, 3, 3)).reshape(n, 9)
+    v[:, 25:28] = np.atleast_2d(np.asarray(accel_mps2, dtype=float))
+    v[:, 28:37] = np.broadcast_to(np.asarray(accel_cov, dtype=float), (n, 3, 3)).reshape(n, 9)
+    return v
+
+
+def imu_bias_from_values(v: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Inverse of :func:`imu_bias_values`: gyro (N, 3), accel (N, 3), gyro_cov (N, 3, 3), accel_cov (N, 3, 3)."""
+    n = v.shape[0]
+    return v[:, 13:16].copy(), v[:, 25:28].copy(), v[:, 16:25].reshape(n, 3, 3).copy(), v[:, 28:37].reshape(n, 3, 3).copy()
+
+
+def decode_raw(raw: bytes, kind: str, frame_id: str, child_frame_id: str = "") -> tuple[int, FloatArray]:
+    """One serialized Imu / Odometry message -> ``(t_ns, values (n_doubles,))``.
+
+    Fast path for the frame names of this product (:func:`cdr.decode`); other frame names go
+    through rclpy's deserializer.
+    """
+    lay = _layout(kind, frame_id, child_frame_id)
+    if len(raw) >= lay.size:
+        try:
+            t, v = cdr.decode(lay, np.frombuffer(raw, dtype=np.uint8)[None, : lay.size])
+            return int(t[0]), v[0]
+        except ValueError:
+            pass
+    return _decode_slow(raw, kind)
+
+
+def _decode_slow(raw: bytes, kind: str) -> tuple[int, FloatArray]:
+    from rclpy.serialization import deserialize_message
+
+    if kind == "imu":
+        from sensor_msgs.msg import Imu
+
+        m = deserialize_message(raw, Imu)
+        o, w, a = m.orientation, m.angular_velocity, m.linear_acceleration
+        vals = [o.x, o.y, o.z, o.w, *m.orientation_covariance, w.x, w.y, w.z, *m.angular_velocity_covariance,
+                a.x, a.y, a.z, *m.linear_acceleration_covariance]
+    else:
+        from nav_msgs.msg import Odometry
+
+        m = deserialize_message(raw, Odometry)
+        p, o = m.pose.pose.position, m.pose.pose.orientation
+        lin, ang = m.twist.twist.linear, m.twist.twist.angular
+        vals = [p.x, p.y, p.z, o.x, o.y, o.z, o.w, *m.pose.covariance, lin.x, lin.y, lin.z, ang.x, ang.y, ang.z, *m.twist.covariance]
+    return m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, np.asarray(vals, dtype=float)
+
+
+_LAYOUTS: dict[tuple[str, str, str], cdr.Layout] = {}
+
+
+def _layout(kind: str, frame_id: str, child_frame_id: str = "") -> cdr.Layout:
+    key = (kind, frame_id, child_frame_id)
+    if key not in _LAYOUTS:
+        _LAYOUTS[key] = cdr.layout(kind, frame_id, child_frame_id)
+    return _LAYOUTS[key]
+
+
+def raw_stamp_ns(raw: bytes) -> int:
+    """``header.stamp`` [ns] of a serialized (little-endian CDR) message with a header first."""
+    return int.from_bytes(raw[4:8], "little", signed=True) * 1_000_000_000 + int.from_bytes(raw[8:12], "little")
+
+
+def decode_raw_batch(raws: Sequence[bytes], kind: str, frame_id: str, child_frame_id: str = "") -> tuple[NDArray[np.int64], FloatArray]:
+    """Serialized Imu / Odometry messages -> ``(t_ns (N,), values (N, n_doubles))`` (vectorized
+    when all have this product's frame names, else one by one like :func:`decode_raw`)."""
+    lay = _layout(kind, frame_id, child_frame_id)
+    if all(len(r) >= lay.size for r in raws):
+        try:
+            rows = np.frombuffer(b"".join(bytes(r[: lay.size]) for r in raws), dtype=np.uint8).reshape(len(raws), lay.size)
+            return cdr.decode(lay, rows)
+        except ValueError:
+            pass
+    out = [decode_raw(r, kind, frame_id, child_frame_id) for r in raws]
+    return np.array([t for t, _ in out], dtype=np.int64), np.stack([v for _, v in out])

@@ -80,6 +80,18 @@ Waiting for subscribers
     Note that all topics count, ``/truth/*`` included: with ``publish_truth`` and nobody
     subscribing to truth, the wait runs out.
 
+Taps (derived streams)
+    A :class:`Tap` publishes messages computed from one of the device's streams by the device
+    thread itself, e.g. pos_master_node's /master/nav mechanized from /master/imu. Before a source
+    message is published for the first time, ``produce(stream, indices)`` gets it together with
+    the following source messages that are already due (``rate_factor`` 0: the next
+    ``max_batch``; > 0: those whose time has come, at most ``max_batch``), so that the work is
+    batched; it returns, per source message, the derived messages (serialized) to publish right
+    after it. The tap's writer gets the source's depth and the same flow control; before
+    ``/session/end`` it is acknowledged too. Its subscribers are not waited for
+    (``min_subscribers`` counts the device's own streams only). ``tap_published`` counts its
+    messages (``published`` counts the streams' only).
+
 Progress is logged every ~10 % and at the end: ``published N messages on M topics in T s``.
 """
 
@@ -95,14 +107,17 @@ from collections.abc import Callable, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from dataclasses import dataclass
+
 import numpy as np
+from numpy.typing import NDArray
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile
 
 from . import qos as dpos_qos
 from .sim_streams import TopicStream, merged_order
 
-__all__ = ["SimDevice", "message_class", "qos_profile", "writer_depths", "writer_qos", "load_sim_session",
+__all__ = ["SimDevice", "Tap", "message_class", "qos_profile", "writer_depths", "writer_qos", "load_sim_session",
            "use_device_fastdds_profile", "END_TOPIC"]
 
 #: The topic that ends a session; everything else is acknowledged before it is published.
@@ -115,6 +130,8 @@ FLOW_WINDOW = 100
 HEARTBEAT_PERIOD_MS = 20
 #: A flow-control wait is logged after this many seconds, and again every as many.
 ACK_WARN_S = 10.0
+#: Poll period of a flow-control wait [s] (see _wait_acked: the GIL).
+ACK_POLL_S = 0.001
 
 _QOS = {
     "sensor": dpos_qos.SENSOR_QOS,
@@ -161,6 +178,26 @@ def use_device_fastdds_profile(environ: MutableMapping[str, str] | None = None) 
     for k in _PROFILE_ENV:
         env[k] = str(path)
     return str(path)
+
+
+@dataclass(frozen=True)
+class Tap:
+    """A stream derived from one of the device's streams (see "Taps" in the module docstring).
+
+    Attributes:
+        source: topic of the device stream that feeds it.
+        topic, msgtype: of the derived messages; qos: a stream QoS kind (:func:`qos_profile`).
+        produce: ``(source stream, message indices (B,)) -> B sequences of serialized messages``,
+            called in the device thread before those source messages are published.
+        max_batch: most source messages per call.
+    """
+
+    source: str
+    topic: str
+    msgtype: str
+    produce: Callable[[TopicStream, NDArray[np.int64]], Sequence[Sequence[bytes]]]
+    qos: str = "nav"
+    max_batch: int = 100
 
 
 def qos_profile(kind: str) -> QoSProfile:
@@ -260,6 +297,7 @@ class SimDevice:
         min_subscribers: matched subscriptions every non-latched topic needs before starting.
         wait_subscribers_s: longest wait for ``min_subscribers`` [s].
         on_finished: called in the thread once everything is published, with this object.
+        taps: derived streams published by the thread (module docstring, "Taps").
 
     Attributes (read after :attr:`finished` is set): ``published`` (messages), ``topics``,
     ``elapsed_s``, ``error`` (an exception that ended the thread early, else None).
@@ -274,6 +312,7 @@ class SimDevice:
         min_subscribers: int = 0,
         wait_subscribers_s: float = 0.0,
         on_finished: Callable[["SimDevice"], None] | None = None,
+        taps: Sequence[Tap] = (),
     ) -> None:
         if not rate_factor >= 0.0:
             raise ValueError(f"rate_factor must be >= 0, got {rate_factor}")
@@ -283,6 +322,9 @@ class SimDevice:
         self.min_subscribers = int(min_subscribers)
         self.wait_subscribers_s = float(wait_subscribers_s)
         self._on_finished = on_finished
+        self.taps = list(taps)
+        #: messages published by the taps
+        self.tap_published = 0
         self._log = node.get_logger()
         self._stop = threading.Event()
         #: set when every message is published (or the thread ended on an error)
@@ -308,6 +350,11 @@ class SimDevice:
         self._stop.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
+
+    @property
+    def stopping(self) -> bool:
+        """:meth:`stop` was called."""
+        return self._stop.is_set()
 
     @property
     def running(self) -> bool:
@@ -343,6 +390,22 @@ class SimDevice:
         self.publishers = [
             self._node.create_publisher(message_class(s.msgtype), s.topic, writer_qos(s, d)) for s, d in zip(streams, depth)
         ]
+        # taps: one writer each after the streams' (index len(streams) + j), the source's depth
+        tap_source: dict[int, int] = {}  # stream index -> tap index
+        for j, tap in enumerate(self.taps):
+            if tap.source not in topics:
+                raise ValueError(f"tap {tap.topic}: no device stream {tap.source!r}")
+            src = topics.index(tap.source)
+            if src in tap_source:
+                raise ValueError(f"more than one tap on {tap.source}")
+            tap_source[src] = j
+            p = qos_profile(tap.qos)
+            d = depth[src]
+            depth.append(d)
+            self.publishers.append(self._node.create_publisher(
+                message_class(tap.msgtype), tap.topic,
+                QoSProfile(history=p.history, depth=d, reliability=p.reliability, durability=p.durability)))
+        self._pub_topics = topics + [t.topic for t in self.taps]
         self.started.set()
         t0_wall = time.monotonic()
 
@@ -358,7 +421,9 @@ class SimDevice:
         keep = ~np.isin(si_all, latched)
         t_all, si_all, mi_all = t_all[keep], si_all[keep], mi_all[keep]
         n = len(t_all)
-        unacked = [0] * len(streams)
+        unacked = [0] * len(self.publishers)
+        tap_out: dict[int, dict[int, Sequence[bytes]]] = {i: {} for i in tap_source}  # derived messages per source message
+        tap_next = {i: 0 for i in tap_source}  # first source message not handed to produce yet
         end_index = {i for i, s in enumerate(streams) if s.topic == END_TOPIC}
         rate = self.rate_factor
         t_first = int(t_all[0]) if n else 0
@@ -381,14 +446,36 @@ class SimDevice:
                         wait_s = min((due - now_rel) / rate * 1e-9, POLL_S)
                         if self._stop.wait(wait_s):
                             return
+            m = int(mi_all[k])
+            if i in tap_source and m >= tap_next[i]:
+                tap = self.taps[tap_source[i]]
+                src = streams[i]
+                hi = min(len(src), m + max(1, tap.max_batch))
+                if rate > 0.0:  # only what is due now (at least this message)
+                    due_until = t_first + now_rel
+                    hi = max(m + 1, min(hi, int(np.searchsorted(src.t_ns, due_until, side="right"))))
+                idx = np.arange(m, hi)
+                out = tap.produce(src, idx)
+                if len(out) != idx.size:
+                    raise ValueError(f"tap {tap.topic}: produce returned {len(out)} entries for {idx.size} messages")
+                tap_out[i].update(zip(idx.tolist(), out))
+                tap_next[i] = hi
             if i in end_index:
-                if not self._wait_acked(range(len(streams)), unacked):
+                if not self._wait_acked(range(len(self.publishers)), unacked):
                     return
             elif unacked[i] >= depth[i] and not self._wait_acked([i], unacked):
                 return
-            self.publishers[i].publish(streams[i].message(int(mi_all[k])))
+            self.publishers[i].publish(streams[i].message(m))
             self.published += 1
             unacked[i] += 1
+            if i in tap_source:
+                jt = len(streams) + tap_source[i]
+                for raw in tap_out[i].pop(m, ()):
+                    if unacked[jt] >= depth[jt] and not self._wait_acked([jt], unacked):
+                        return
+                    self.publishers[jt].publish(raw)
+                    self.tap_published += 1
+                    unacked[jt] += 1
             tenth = (k + 1) * 10 // n
             if tenth >= next_report and k + 1 < n:
                 self._log.info(
@@ -396,7 +483,7 @@ class SimDevice:
                     f"+{(int(t_all[k]) - t_first) * 1e-9:.1f} s, after {time.monotonic() - t0_wall:.1f} s)"
                 )
                 next_report = tenth + 1
-        if not self._wait_acked(range(len(streams)), unacked):
+        if not self._wait_acked(range(len(self.publishers)), unacked):
             return
         self.elapsed_s = time.monotonic() - t0_wall
         self._log.info(f"published {self.published} messages on {len(streams)} topics in {self.elapsed_s:.1f} s")
@@ -440,14 +527,19 @@ class SimDevice:
             if unacked[i] == 0:
                 continue
             publisher = self.publishers[i]
-            waited = 0.0
-            while not publisher.wait_for_all_acked(Duration(nanoseconds=int(0.5e9))):
-                if self._stop.is_set():
+            t_start = time.monotonic()
+            next_warn = ACK_WARN_S
+            # poll: rclpy holds the GIL inside wait_for_all_acked, so a blocking wait would starve
+            # every other Python thread of the process (the executor whose subscriptions must take
+            # the samples of a KEEP_ALL reader before it acknowledges more); Event.wait releases it
+            while not publisher.wait_for_all_acked(Duration(nanoseconds=0)):
+                if self._stop.wait(ACK_POLL_S):
                     return False
-                waited += 0.5
-                if waited % ACK_WARN_S == 0:
+                waited = time.monotonic() - t_start
+                if waited >= next_warn:
+                    next_warn += ACK_WARN_S
                     self._log.warning(
-                        f"{self.streams[i].topic}: subscribers have not acknowledged "
+                        f"{self._pub_topics[i]}: subscribers have not acknowledged "
                         f"{unacked[i]} messages for {waited:.0f} s; waiting (flow control)"
                     )
             unacked[i] = 0

@@ -1,34 +1,472 @@
-"""ifa_node — stub: declares and validates its parameters, logs its plan, spins."""
+"""ifa_node — in-flight alignment of the main POS against GNSS (seed 001: ADD2, DD2 or AEKF).
+
+Shadow mechanization (exact and deterministic): the node runs
+:class:`dpos_core.ifa.pipeline.InFlightAligner` on the very IMU samples pos_master_node mechanizes,
+from the very state it starts from, so that its closed-loop strapdown and the master's navigation
+are one trajectory (dpos_ros.master_nav), and its corrections equal
+:func:`dpos_core.ifa.pipeline.run` on the same data.
+
+Inputs
+    ``/master/nav`` (Odometry): the first message is the initial state (pos_master_node publishes
+    the state its mechanization starts from first; its stamp is the time origin of the node);
+    later ones are compared with the shadow strapdown at the GNSS epochs (before the update) and
+    the discrepancy goes into the status (``nav_discrepancy_m`` / ``_deg``: zero to rounding when
+    the master had received every earlier correction when it computed that epoch; a master
+    running ahead of the corrections with ``rate_factor`` 0 shows its lag here).
+    ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
+    out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
+    ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
+    not come when GNSS data ``pair_timeout_s`` newer has arrived is dropped with a warning (and
+    vice versa). NavSatFix covariance: ENU [m^2]; ``COVARIANCE_TYPE_UNKNOWN`` uses the nominal
+    sigmas. ``/dpos/datum`` (latched) unless the ``datum`` parameter is set.
+
+Epochs (at the GNSS rate, driven by the IMU): when the buffered IMU reaches a fix stamp, the samples
+up to it are propagated and the fix is applied (:meth:`InFlightAligner.update`). Bad GNSS input -
+non-finite values, zero covariance, no fix, a duplicate or out-of-order stamp - is rejected with a
+warning naming the problem, counted (``rejected_fixes``) and leaves the filter untouched (it is
+checked before any IMU is propagated for it).
+
+Outputs per accepted epoch
+    ``/ifa/correction`` (Odometry, frame ``enu``, child ``master_imu``): the corrected master state
+    at the IMU sample of the epoch (stamp = that sample's stamp = the GNSS epoch on a common
+    grid), pose covariance from the filter (position, attitude error about the local ENU axes
+    rotated into ``enu``), twist in the body with the velocity covariance.
+    ``/ifa/imu_bias`` (Imu, frame ``master_imu``): the gyro / accelerometer bias compensation the
+    closed loop removes from the IMU samples after the stamp, with the filter's covariances.
+    Published from the alignment epoch on: seed 001 sec. 3.3 feeds the biases back when the
+    alignment ends (before, their estimates are in the status: ``gyro_bias_deg_h``,
+    ``accel_bias_ug``), so pos_master_node can apply every message it gets.
+    ``/ifa/status`` (DiagnosticArray, TRANSIENT_LOCAL): message WAITING (no data yet; level
+    STALE), ALIGNING (WARN), ALIGNED (OK), DEGRADED (WARN: aligned, innovations inconsistent);
+    key/values: method, epochs, heading_sigma_deg, att_sigma_deg, R_diag, nis, nis_window,
+    aligned_t_s, rejected_fixes, last_rejection, unpaired, imu_samples, imu_dropped, imu_gaps,
+    nav_discrepancy_m, nav_discrepancy_deg, gyro_bias_deg_h, accel_bias_ug.
+"""
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TwistWithCovarianceStamped
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
+from dpos_ros import conversions as cv
+from dpos_ros.master_nav import body_rate_eb, stamp_s
 from dpos_ros.node_main import run_node
-from dpos_ros.params import ParameterError, declare_config, format_config
+from dpos_ros.params import ParameterError, datum_llh_rad, declare_config, format_config
+from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
 from ifa_node.params import IfaConfig
 
 NODE_NAME = "ifa_node"
+STATUS_NAME = "ifa_node: in-flight alignment"
+DEG = np.pi / 180.0
+#: IMU samples kept while waiting for the first /master/nav
+MAX_PRESTART_IMU = 20000
+#: /master/nav messages kept for the epoch comparison
+NAV_CACHE = 2000
+#: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
+#: (nor a deeper KEEP_LAST): measured here, such a reader stopped acknowledging after ~5000
+#: samples although the node had taken every one, and the simulated device's flow control then
+#: waited forever. The node takes a sample in microseconds (raw bytes, decoded in batches) and
+#: pos_master_node at rate_factor 0 keeps at most ``max_lead_s`` ahead of the corrections, so it
+#: does not fall 5000 samples behind; a loss would show as an IMU gap (warned, counted).
+INPUT_QOS = SENSOR_QOS
+_LEVELS = {"WAITING": DiagnosticStatus.STALE, "ALIGNING": DiagnosticStatus.WARN, "ALIGNED": DiagnosticStatus.OK,
+           "DEGRADED": DiagnosticStatus.WARN}
+
+
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _sigma(variances: Sequence[float]) -> np.ndarray:
+    v = np.asarray(variances, dtype=float)
+    return np.sqrt(np.where(v < 0.0, np.nan, v))
 
 
 class IfaNode(Node):
-    """In-flight alignment node (stub until its issue lands)."""
+    """In-flight alignment node; see the module docstring."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         try:
             self.config: IfaConfig = declare_config(self, IfaConfig)
+            self._setup()
         except ParameterError:
             self.destroy_node()
             raise
+
+    def _setup(self) -> None:
+        from dpos_core.sim.scenario import ConfigError, load_aircraft, load_scenario
+
+        cfg = self.config
+        try:
+            aircraft = load_aircraft(cfg.aircraft_config) if cfg.aircraft_config else load_scenario(cfg.scenario).aircraft
+        except ConfigError as e:
+            name, value = ("aircraft_config", cfg.aircraft_config) if cfg.aircraft_config else ("scenario", cfg.scenario)
+            raise ParameterError(name, value, str(e)) from None
+        try:
+            self.core_config = cfg.core_config()
+        except ValueError as e:
+            raise ParameterError("window", cfg.window, str(e)) from None
+        self.aircraft = aircraft
+        self.lever_arm_m = np.asarray(aircraft.gnss_lever_arm_m, dtype=float)
+        datum = datum_llh_rad(cfg.datum)
+        self.datum_llh = None if datum is None else np.asarray(datum, dtype=float)
+        self.al = None  # InFlightAligner, once the initial state is known
+        self.origin_ns: int | None = None
+        self._first_nav: bytes | None = None
+        self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
+        self._last_imu_ns: int | None = None
+        self._imu_dt_s: float | None = None
+        self._last_sample: tuple[int, np.ndarray] | None = None  # last propagated (t_ns, omega)
+        self._fixes: dict[int, NavSatFix] = {}
+        self._vels: dict[int, TwistWithCovarianceStamped] = {}
+        self._newest_gnss_ns = -1
+        self._navs: OrderedDict[int, bytes] = OrderedDict()
+        self._pre: OrderedDict[int, Any] = OrderedDict()  # shadow state at epochs before the update
+        self.epochs = 0
+        self.rejected = 0
+        self.unpaired = 0
+        self.last_rejection = ""
+        self.imu_samples = 0
+        self.imu_dropped = 0
+        self.imu_gaps = 0
+        self.discrepancy = (float("nan"), float("nan"))
+        self.last_record = None
+        self.corrections_published = 0
+        self._warned_unknown_cov = False
+
+        self.pub_correction = self.create_publisher(Odometry, "/ifa/correction", NAV_QOS)
+        self.pub_bias = self.create_publisher(Imu, "/ifa/imu_bias", NAV_QOS)
+        self.pub_status = self.create_publisher(DiagnosticArray, "/ifa/status", STATUS_QOS)
+        self.create_subscription(Imu, "/master/imu", self._on_imu, INPUT_QOS, raw=True)
+        self.create_subscription(Odometry, "/master/nav", self._on_nav, INPUT_QOS, raw=True)
+        self.create_subscription(NavSatFix, "/gnss/fix", self._on_fix, INPUT_QOS)
+        self.create_subscription(TwistWithCovarianceStamped, "/gnss/vel", self._on_vel, INPUT_QOS)
+        if self.datum_llh is None:
+            self.create_subscription(NavSatFix, "/dpos/datum", self._on_datum, DATUM_QOS)
         self.get_logger().info(
-            f"{NODE_NAME}: {format_config(self.config, ('method', 'window'))}"
-            " -> would subscribe /master/nav, /master/imu, /gnss/fix, /gnss/vel"
-            " and publish /ifa/correction, /ifa/imu_bias, /ifa/status (stub: not implemented yet)"
+            f"{NODE_NAME}: {format_config(cfg, ('method', 'window', 'use_reported_sigma', 'aligned_heading_sigma_deg'))}"
+            f" aircraft={aircraft.name} lever_arm_m={list(self.lever_arm_m)}: subscribing /master/nav, /master/imu,"
+            f" /gnss/fix, /gnss/vel{'' if self.datum_llh is not None else ', /dpos/datum'}"
+            " -> publishing /ifa/correction, /ifa/imu_bias, /ifa/status"
         )
+        self._publish_status()
+
+    # ------------------------------------------------------------------ inputs
+    def _on_datum(self, msg: NavSatFix) -> None:
+        if self.datum_llh is None:
+            self.datum_llh = cv.datum_from_msg(msg)
+            self._maybe_start()
+
+    def _on_nav(self, raw: bytes) -> None:
+        if self.al is None:
+            if self._first_nav is None:
+                self._first_nav = bytes(raw)
+                self._maybe_start()
+            return
+        t_ns = cv.raw_stamp_ns(raw)
+        if t_ns in self._pre:
+            self._compare(self._pre.pop(t_ns), raw)
+        else:
+            self._navs[t_ns] = bytes(raw)
+            while len(self._navs) > NAV_CACHE:
+                self._navs.popitem(last=False)
+
+    def _on_imu(self, raw: bytes) -> None:
+        """Buffer the raw sample (decoded in batches when propagated); stamp checks here."""
+        t_ns = cv.raw_stamp_ns(raw)
+        log = self.get_logger()
+        last = self._last_imu_ns
+        if last is not None and t_ns <= last:
+            self.imu_dropped += 1
+            log.warning(f"{'duplicate' if t_ns == last else 'out-of-order'} /master/imu stamp {t_ns} ns (last {last} ns): dropped")
+            return
+        if last is not None and self._imu_dt_s is not None and (t_ns - last) * 1e-9 > 1.5 * self._imu_dt_s:
+            self.imu_gaps += 1
+            log.warning(f"/master/imu gap of {(t_ns - last) * 1e-9:.4f} s before stamp {t_ns} ns: integrated across")
+        self._last_imu_ns = t_ns
+        self.imu_samples += 1
+        self._imu.append((t_ns, bytes(raw)))
+        if self.al is None:
+            if len(self._imu) > MAX_PRESTART_IMU:
+                del self._imu[: len(self._imu) - MAX_PRESTART_IMU]
+            self._maybe_start()
+        else:
+            self._process()
+
+    def _on_fix(self, msg: NavSatFix) -> None:
+        t_ns = _stamp_ns(msg.header)
+        if t_ns in self._fixes:
+            self._reject(t_ns, f"duplicate GNSS stamp {t_ns} ns (a fix with this stamp is already waiting): dropped")
+            return
+        self._fixes[t_ns] = msg
+        self._newest_gnss_ns = max(self._newest_gnss_ns, t_ns)
+        self._process()
+
+    def _on_vel(self, msg: TwistWithCovarianceStamped) -> None:
+        t_ns = _stamp_ns(msg.header)
+        if t_ns in self._vels:
+            self.get_logger().warning(f"duplicate /gnss/vel stamp {t_ns} ns: the first one is kept")
+            return
+        self._vels[t_ns] = msg
+        self._newest_gnss_ns = max(self._newest_gnss_ns, t_ns)
+        self._process()
+
+    # ------------------------------------------------------------------ start
+    def _maybe_start(self) -> None:
+        """Start the aligner from the first /master/nav once the datum and two IMU samples are known."""
+        from dpos_core.ifa.pipeline import InFlightAligner
+        from dpos_core.strapdown import NavState
+
+        if self.al is not None or self._first_nav is None or self.datum_llh is None:
+            return
+        t0_ns, v = cv.decode_raw(self._first_nav, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+        self._imu = [s for s in self._imu if s[0] > t0_ns]
+        if len(self._imu) < 2:
+            return
+        t_imu = np.array([s[0] for s in self._imu[:51]], dtype=np.int64)  # the IMU interval: median step
+        self._imu_dt_s = float(np.median(np.diff(stamp_s(t_imu, t0_ns))))
+        blk = cv.odometry_from_values(np.array([t0_ns]), v[None], self.datum_llh)
+        initial = NavState(0.0, blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0])
+        self.origin_ns = t0_ns
+        self.al = InFlightAligner(initial, self.lever_arm_m, self.core_config, self.config.method, self._imu_dt_s)
+        self._first_nav = None
+        hpr = initial.hpr_rad / DEG
+        self.get_logger().info(
+            f"started from /master/nav at stamp {t0_ns} ns: heading {hpr[0]:.3f} pitch {hpr[1]:.3f} roll {hpr[2]:.3f} deg,"
+            f" IMU interval {self._imu_dt_s:.6g} s; {self.config.method.upper()} ALIGNING"
+        )
+        self._publish_status()
+        self._process()
+
+    # ------------------------------------------------------------------ epochs
+    def _reject(self, t_ns: int, reason: str) -> None:
+        self.rejected += 1
+        self.last_rejection = reason
+        self.get_logger().warning(f"GNSS fix rejected: {reason}")
+        self._publish_status()
+
+    def _gnss_fix(self, t_ns: int, fix: NavSatFix, vel: TwistWithCovarianceStamped | None):
+        from dpos_core.ifa.model import GnssFix
+
+        cov = np.asarray(fix.position_covariance, dtype=float).reshape(3, 3)
+        if fix.position_covariance_type == NavSatFix.COVARIANCE_TYPE_UNKNOWN:
+            pos_sigma = np.asarray(self.config.gnss_pos_sigma_m, dtype=float)
+            if not self._warned_unknown_cov:
+                self._warned_unknown_cov = True
+                self.get_logger().warning("/gnss/fix without covariance (COVARIANCE_TYPE_UNKNOWN): using gnss_pos_sigma_m")
+        else:
+            pos_sigma = _sigma(np.diag(cov))
+        if vel is None:
+            v, v_sigma = np.zeros(3), np.ones(3)
+        else:
+            lin = vel.twist.twist.linear
+            v = np.array([lin.x, lin.y, lin.z], dtype=float)
+            v_sigma = _sigma(np.diag(np.asarray(vel.twist.covariance, dtype=float).reshape(6, 6))[:3])
+        llh = np.array([np.deg2rad(fix.latitude), np.deg2rad(fix.longitude), fix.altitude], dtype=float)
+        return GnssFix(float(stamp_s(t_ns, self.origin_ns)), llh, pos_sigma, v, v_sigma)
+
+    def _pair(self, t_ns: int) -> int | None:
+        tol = int(round(self.config.pair_tolerance_s * 1e9))
+        near = [k for k in self._vels if abs(k - t_ns) <= tol]
+        return min(near, key=lambda k: abs(k - t_ns)) if near else None
+
+    def _process(self) -> None:
+        """Apply every GNSS epoch the buffered IMU has reached (stamp order)."""
+        from dpos_core.ifa.model import check_fix
+
+        al = self.al
+        if al is None:
+            return
+        timeout_ns = int(round(self.config.pair_timeout_s * 1e9))
+        half = 0.5 * self._imu_dt_s
+        half_ns = int(round(half * 1e9))
+        while self._fixes:
+            t_ns = min(self._fixes)
+            fix_msg = self._fixes[t_ns]
+            t_s = float(stamp_s(t_ns, self.origin_ns))
+            if al.last_fix_t is not None and t_s <= al.last_fix_t + 1e-9:  # no need to wait for its velocity
+                del self._fixes[t_ns]
+                kv = self._pair(t_ns)
+                vel = self._vels.pop(kv) if kv is not None else None
+                try:
+                    check_fix(self._gnss_fix(t_ns, fix_msg, vel), al.last_fix_t)
+                    reason = f"GNSS fix at t={t_s} is before the navigation time"
+                except ValueError as e:
+                    reason = str(e)
+                self._reject(t_ns, reason)
+                continue
+            kv = self._pair(t_ns)
+            if kv is None:
+                if self._newest_gnss_ns - t_ns > timeout_ns:
+                    del self._fixes[t_ns]
+                    self.unpaired += 1
+                    self.get_logger().warning(f"/gnss/fix at stamp {t_ns} ns has no /gnss/vel within "
+                                              f"{self.config.pair_tolerance_s} s: dropped")
+                    continue
+                break  # wait for its velocity
+            if not self._imu or self._imu[-1][0] < t_ns - half_ns:
+                break  # wait for the IMU to reach the fix
+            del self._fixes[t_ns]
+            vel = self._vels.pop(kv)
+            if fix_msg.status.status == NavSatStatus.STATUS_NO_FIX:
+                self._reject(t_ns, f"GNSS message at t={t_s} reports no fix (status {fix_msg.status.status})")
+                continue
+            fix = self._gnss_fix(t_ns, fix_msg, vel)
+            try:
+                check_fix(fix, al.last_fix_t)
+                if t_s < al.model.t_s - half:
+                    raise ValueError(f"GNSS fix at t={t_s} is older than the navigation (t={al.model.t_s})")
+            except ValueError as e:
+                self._reject(t_ns, str(e))
+                continue
+            self._propagate_to(t_s + half)
+            self._epoch(t_ns, fix)
+        self._expire_vels(timeout_ns)
+
+    def _expire_vels(self, timeout_ns: int) -> None:
+        for k in [k for k in self._vels if self._newest_gnss_ns - k > timeout_ns and self._pair_fix(k) is None]:
+            del self._vels[k]
+            self.unpaired += 1
+            self.get_logger().warning(f"/gnss/vel at stamp {k} ns has no /gnss/fix: dropped")
+
+    def _pair_fix(self, k: int) -> int | None:
+        tol = int(round(self.config.pair_tolerance_s * 1e9))
+        return next((t for t in self._fixes if abs(t - k) <= tol), None)
+
+    def _propagate_to(self, t_end_s: float) -> None:
+        """Decode the buffered samples up to ``t_end_s`` (one vectorized decode), drop non-finite
+        ones with a warning, propagate the rest."""
+        end_ns = self.origin_ns + int(round(t_end_s * 1e9))
+        n = 0
+        while n < len(self._imu) and self._imu[n][0] <= end_ns:
+            n += 1
+        if n == 0:
+            return
+        batch, self._imu = self._imu[:n], self._imu[n:]
+        t_ns, vals = cv.decode_raw_batch([r for _, r in batch], "imu", cv.MASTER_FRAME)
+        om, f = vals[:, 13:16], vals[:, 25:28]
+        ok = np.all(np.isfinite(om), axis=1) & np.all(np.isfinite(f), axis=1)
+        for i in np.flatnonzero(~ok):
+            self.imu_dropped += 1
+            self.get_logger().warning(f"/master/imu at stamp {t_ns[i]} ns has non-finite values: dropped")
+        if not ok.any():
+            return
+        t_ns, om, f = t_ns[ok], om[ok], f[ok]
+        self.al.propagate(stamp_s(t_ns, self.origin_ns), om, f)
+        self._last_sample = (int(t_ns[-1]), om[-1])
+
+    def _epoch(self, t_fix_ns: int, fix: Any) -> None:
+        al = self.al
+        sample_ns = self._last_sample[0] if self._last_sample is not None else self.origin_ns
+        pre = al.nav
+        try:
+            rec = al.update(fix)
+        except ValueError as e:
+            self._reject(t_fix_ns, str(e))
+            return
+        self.epochs += 1
+        self.last_record = rec
+        if sample_ns in self._navs:
+            self._compare(pre, self._navs.pop(sample_ns))
+        else:
+            self._pre[sample_ns] = pre
+            while len(self._pre) > 20:
+                self._pre.popitem(last=False)
+        self._publish_epoch(sample_ns, rec)
+        self._publish_status()
+
+    def _compare(self, shadow: Any, raw: bytes) -> None:
+        from dpos_core.attitude import attitude_error, quat_to_dcm
+        from dpos_core.earth import geodetic_to_enu
+
+        t_ns, v = cv.decode_raw(raw, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+        blk = cv.odometry_from_values(np.array([t_ns]), v[None], self.datum_llh)
+        d_enu = geodetic_to_enu(*blk.llh[0], shadow.llh)
+        phi = attitude_error(quat_to_dcm(blk.q_nb[0]), shadow.C_nb)
+        self.discrepancy = (float(np.linalg.norm(d_enu)), float(np.linalg.norm(phi) / DEG))
+
+    # ------------------------------------------------------------------ outputs
+    def _cov15(self, P: np.ndarray) -> np.ndarray:
+        from dpos_core.ifa.model import IDX13
+
+        if P.shape[0] == 15:
+            return P
+        P15 = np.zeros((15, 15))
+        P15[np.ix_(IDX13, IDX13)] = P
+        P15[2, 2] = self.config.gnss_pos_sigma_m[2] ** 2  # vertical slaved to the GNSS (13 states)
+        P15[5, 5] = self.config.gnss_vel_sigma_mps[2] ** 2
+        return P15
+
+    def _publish_epoch(self, t_ns: int, rec: Any) -> None:
+        al = self.al
+        s = al.nav
+        P = self._cov15(al.cov)
+        omega = self._last_sample[1] if self._last_sample is not None else np.zeros(3)
+        w_eb = body_rate_eb(s.q_nb[None], s.llh[None], s.vel_n_mps[None], (omega - al.model.gyro_bias_comp)[None])
+        vals = cv.odometry_values_cov(s.llh[None], s.vel_n_mps[None], s.q_nb[None], self.datum_llh, w_eb,
+                                      P[0:3, 0:3], P[6:9, 6:9], P[3:6, 3:6])
+        stamp = np.array([t_ns], dtype=np.int64)
+        self.pub_correction.publish(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, stamp, vals)[0]))
+        self.corrections_published += 1
+        if al.model.feed_biases:
+            from dpos_ros import cdr
+
+            bv = cv.imu_bias_values(al.model.gyro_bias_comp, al.model.accel_bias_comp, P[9:12, 9:12], P[12:15, 12:15])
+            self.pub_bias.publish(bytes(cdr.encode(cdr.layout("imu", cv.MASTER_FRAME), stamp, bv)[0]))
+
+    def state_name(self) -> str:
+        from dpos_core.ifa.pipeline import ALIGNED, DEGRADED
+
+        if self.al is None or self.last_record is None:
+            return "WAITING" if self.al is None else "ALIGNING"
+        return {ALIGNED: "ALIGNED", DEGRADED: "DEGRADED"}.get(self.al.status, "ALIGNING")
+
+    def _publish_status(self) -> None:
+        name = self.state_name()
+        st = DiagnosticStatus()
+        st.name = STATUS_NAME
+        st.hardware_id = "master_imu"
+        st.level = _LEVELS[name]
+        st.message = name
+        values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected,
+                                  "last_rejection": self.last_rejection, "unpaired": self.unpaired,
+                                  "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps}
+        al, rec = self.al, self.last_record
+        if al is not None:
+            from dpos_core.sim.sensors import DEG_PER_H, UG_MPS2
+
+            sig = al.attitude_sigma_rad / DEG
+            gb, ab = al.bias_estimates()
+            values.update({
+                "heading_sigma_deg": f"{sig[2]:.6g}",
+                "att_sigma_deg": " ".join(f"{x:.6g}" for x in sig),
+                "aligned_t_s": "none" if al.aligned_t_s is None else f"{al.aligned_t_s:.3f}",
+                "gyro_bias_deg_h": " ".join(f"{x:.6g}" for x in gb / DEG_PER_H),
+                "accel_bias_ug": " ".join(f"{x:.6g}" for x in ab / UG_MPS2),
+            })
+        if rec is not None:
+            values.update({
+                "t_s": f"{rec.t_s:.3f}",
+                "R_diag": " ".join(f"{x:.6g}" for x in rec.R_diag),
+                "nis": f"{rec.nis:.6g}",
+                "nis_window": f"{rec.nis_window:.6g}",
+                "nav_discrepancy_m": f"{self.discrepancy[0]:.3g}",
+                "nav_discrepancy_deg": f"{self.discrepancy[1]:.3g}",
+            })
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [st]
+        self.pub_status.publish(arr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -18,6 +18,13 @@ from dpos_ros.params import (
 ALIGNMENTS = ("ifa", "given", "reference")
 
 
+def _check_len(*allowed: int):
+    def check(value: tuple[float, ...]) -> str | None:
+        return None if len(value) in allowed else f"expected {' or '.join(str(n) for n in allowed)} values, got {len(value)}"
+
+    return check
+
+
 @dataclass(frozen=True)
 class PosMasterConfig:
     """Validated parameters of pos_master_node.
@@ -38,6 +45,17 @@ class PosMasterConfig:
         min_subscribers: the simulated device starts publishing when every topic but the datum
             has this many matched subscriptions (0 = at once) ...
         wait_subscribers_s: ... or after this many seconds.
+        initial_heading_error_deg: ``alignment: ifa`` in simulation: the mechanization starts from
+            truth with this heading error [deg] (level errors 0); ``[]`` = the scenario's
+            ``ifa.initial_heading_error_deg``, else 0.
+        initial_state: ``alignment: given``: [lat_deg, lon_deg, h_m, vE, vN, vU, heading_deg,
+            pitch_deg, roll_deg] at the session start; ``[]`` = truth (simulation).
+        initial_sigma: 1 sigma [pos_m, vel_mps, heading_deg, pitch_deg, roll_deg] of /master/nav
+            until the first /ifa/correction (then the filter's covariance); default: the
+            ifa_node's prior.
+        ring_s: seconds of IMU samples kept for re-integration after a correction.
+        max_lead_s: ``rate_factor`` 0 with an ifa_node running: the simulated device waits while
+            the mechanization is more than this many seconds ahead of the last correction (0 = never).
     """
 
     datum: tuple[float, ...] = datum_param()
@@ -51,3 +69,13 @@ class PosMasterConfig:
     publish_truth: bool = param(True, "publish /truth/* (simulated devices only)")
     min_subscribers: int = min_subscribers_param()
     wait_subscribers_s: float = wait_subscribers_param()
+    initial_heading_error_deg: tuple[float, ...] = param(
+        (), "alignment ifa (simulation): heading error [deg] of the initial state; [] = the scenario's", check=_check_len(0, 1))
+    initial_state: tuple[float, ...] = param(
+        (), "alignment given: [lat_deg, lon_deg, h_m, vE, vN, vU, heading_deg, pitch_deg, roll_deg]; [] = truth (simulation)",
+        check=_check_len(0, 9))
+    initial_sigma: tuple[float, ...] = param(
+        (5.0, 0.5, 100.0, 1.0, 1.0), "1 sigma [pos_m, vel_mps, heading_deg, pitch_deg, roll_deg] of /master/nav before the first correction",
+        minimum=0.0, length=5)
+    max_lead_s: float = param(2.0, "rate_factor 0 with an ifa_node: stay at most this many seconds ahead of its corrections (0 = no limit)", minimum=0.0)
+    ring_s: float = param(60.0, "seconds of IMU samples kept for re-integration after an IFA correction", minimum=1.0)
