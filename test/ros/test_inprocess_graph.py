@@ -37,11 +37,9 @@ SCENARIO, AIRCRAFT, SEED, DURATION_S = "paper_su", "paper_su_pair", 1, 20.0
 SUBS = ("sub_r", "sub_l")
 ANTENNAS = {"ant_r": "sub_r", "ant_l": "sub_l"}
 TIMEOUT_S = 150.0
-#: No /truth/master: transfer_align_node's finalize waits for /master/nav and the sub-IMUs up to the
-#: end stamp, but not for /truth/*; at rate 0 its queued /truth/master samples (a few hundred) are
-#: still being spilled when /master/nav is complete, and those arriving after the spill is closed
-#: open a new (empty) session. The antenna truth comes from the sub-IMU devices.
-MASTER_TRUTH = False
+#: /truth/master too: at rate 0 a few hundred of its samples are still queued when /master/nav and
+#: the sub-IMUs are complete; transfer_align_node's finalize must wait for them (none may be lost).
+MASTER_TRUTH = True
 
 
 def _keep_all(qos: QoSProfile) -> QoSProfile:
@@ -89,7 +87,7 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
 
     session = load_sim_session(SCENARIO, AIRCRAFT, SEED, DURATION_S)
     sid = session_id(session)
-    streams = device_streams(session, "master", truth=False)  # see MASTER_TRUTH
+    streams = device_streams(session, "master", truth=MASTER_TRUTH)
     for name in SUBS:
         streams += device_streams(session, f"sub_imu/{name}", truth=True)
     expected = {s.topic: s for s in streams}
@@ -158,7 +156,7 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
     assert len(spills) == 1
     raw, _, _, warns = spill.read_spill(spills[0])
     assert not warns
-    buffered = ["/dpos/datum", "/master/nav", *(f"/sub_imu/{n}/imu" for n in SUBS),
+    buffered = ["/dpos/datum", "/master/nav", "/truth/master", *(f"/sub_imu/{n}/imu" for n in SUBS),
                 *(f"/truth/sub_imu/{n}" for n in SUBS), *(f"/truth/antenna/{a}" for a in ANTENNAS)]
     assert sorted(raw) == sorted(buffered)
     for t in buffered:
@@ -179,6 +177,10 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
     assert max(rmse["pitch_deg"], rmse["roll_deg"]) < 0.01 and rmse["heading_deg"] < 1.5, rmse
     assert max(rmse["vel_e_mps"], rmse["vel_n_mps"], rmse["vel_u_mps"]) < 0.01, rmse
     assert max(rmse["lat_m"], rmse["lon_m"]) < 0.01 and rmse["h_m"] < 0.05, rmse
+    # the whole /truth/master is in the session (a cut-off one gave a 33.7 m baseline error)
+    assert rmse["baseline_m"] < 0.05, rmse
+    late = {kv.key: kv.value for kv in counter.ta_status[-1].status[0].values if kv.key.endswith("late_after_finalize")}
+    assert not late, late
 
     # the published antenna poses against /truth/antenna/<name>, stamp by stamp
     for a in ANTENNAS:

@@ -9,10 +9,12 @@ Buffering
     are reported on ``/transfer_align/status`` (DiagnosticArray, latched, 1 Hz).
 
 Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
-    Waits, at most ``finalize_timeout_s``, until every stream has reached the end stamp and
-    reports what is missing; then runs the smoother for each sub-IMU in worker processes (in
-    parallel on the available cores) while the executor keeps serving callbacks and the status
-    reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
+    Waits, at most ``finalize_timeout_s``, until every stream has reached the end stamp (the
+    truth streams too, unless they stopped arriving for ``STALL_S``) and reports what is
+    missing; a message stamped at or before the end that still arrives after the spill closed is
+    counted (status ``<topic>/late_after_finalize``) and does not open a new session; then runs
+    the smoother for each sub-IMU in worker processes (in parallel on the available cores) while
+    the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
 """
 
@@ -36,6 +38,9 @@ from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
 from transfer_align_node.params import TransferAlignConfig
 
 NODE_NAME = "transfer_align_node"
+#: at finalize, a stream that the smoother does not need (truth) and that has received nothing
+#: for this long is not waited for (it may simply have ended before the session)
+STALL_S = 2.0
 
 
 def _stamp_ns(data: bytes) -> int:
@@ -68,15 +73,17 @@ def _keep_all(qos):
 
 
 class _Stream:
-    __slots__ = ("count", "last_ns", "min_dt", "gaps")
+    __slots__ = ("count", "last_ns", "min_dt", "gaps", "arrived")
 
     def __init__(self) -> None:
         self.count = 0
         self.last_ns: int | None = None
         self.min_dt: int | None = None
         self.gaps = 0
+        self.arrived = time.monotonic()  # wall time of the last message
 
     def add(self, t: int) -> None:
+        self.arrived = time.monotonic()
         if self.last_ns is not None:
             dt = t - self.last_ns
             if dt > 0:
@@ -127,6 +134,8 @@ class TransferAlignNode(Node):
         self._finalize_thread: threading.Thread | None = None
         self._progress = "waiting for data"
         self._sessions_done = 0
+        self._closed_end_ns: int | None = None  # end stamp of the last closed session
+        self._late: dict[str, int] = {}  # messages of a closed session that arrived after it closed
         self._device = None
         topics = {"/master/nav": ("nav_msgs/msg/Odometry", NAV_QOS), "/dpos/datum": ("sensor_msgs/msg/NavSatFix", DATUM_QOS),
                   "/truth/master": ("nav_msgs/msg/Odometry", NAV_QOS)}
@@ -159,6 +168,16 @@ class TransferAlignNode(Node):
         def cb(data: bytes) -> None:
             t = _stamp_ns(data)
             with self._lock:
+                if self._spill is None and self._closed_end_ns is not None and t <= self._closed_end_ns:
+                    # a straggler of the session being finalized: it must not open a new session
+                    n = self._late.get(topic, 0) + 1
+                    self._late[topic] = n
+                    if n == 1:
+                        self.get_logger().warning(
+                            f"{topic}: message stamped {t} ns arrived after its session (ending {self._closed_end_ns} ns) "
+                            "was closed; not in that session's products (counted in the status as late)")
+                    return
+                self._closed_end_ns = None
                 sp = self._ensure_spill()
                 sp.write(topic, msgtype, t, bytes(data))
                 self._streams.setdefault(topic, _Stream()).add(t)
@@ -211,9 +230,14 @@ class TransferAlignNode(Node):
             needed = ["/master/nav"] + [f"/sub_imu/{n}/imu" for n in self.sub_names]
             deadline = time.monotonic() + cfg.finalize_timeout_s
             while True:
+                # the streams the smoother needs, and every other stream of the session (truth,
+                # datum) that is still arriving: none may be cut off by closing the spill
+                now = time.monotonic()
                 with self._lock:
                     behind = [t for t in needed if self._streams.get(t) is None or self._streams[t].last_ns < end_ns - 20_000_000]
-                if not behind or time.monotonic() > deadline:
+                    behind += [t for t, st in self._streams.items() if t not in needed and t != "/dpos/datum"
+                               and st.last_ns < end_ns - 20_000_000 and now - st.arrived < STALL_S]
+                if not behind or now > deadline:
                     break
                 self._progress = f"waiting for data up to the end: {behind}"
                 time.sleep(0.1)
@@ -225,8 +249,9 @@ class TransferAlignNode(Node):
                     sp.set_custom("dpos.session_id", sid)
                 if sp is not None and "/dpos/datum" not in self._streams and cfg.datum:
                     self._spill_datum(sp)
-                self._spill = None  # new messages start the next session
+                self._spill = None  # new messages (stamped after the end) start the next session
                 self._spill_dir = None
+                self._closed_end_ns = end_ns
                 streams = self._streams
                 self._streams = {}
             if behind:
@@ -317,6 +342,11 @@ class TransferAlignNode(Node):
         st.message = self._progress if (finalizing or not streams) else f"buffering {sum(c for c, _, _ in streams.values())} messages"
         st.values = [KeyValue(key="state", value="finalizing" if finalizing else ("buffering" if streams else "idle")),
                      KeyValue(key="sessions_done", value=str(self._sessions_done))]
+        with self._lock:
+            late = dict(self._late)
+        for topic, n in sorted(late.items()):
+            st.values.append(KeyValue(key=f"{topic}/late_after_finalize", value=str(n)))
+            st.level = max(st.level, DiagnosticStatus.WARN)
         for topic, (c, g, last) in sorted(streams.items()):
             st.values.append(KeyValue(key=f"{topic}/count", value=str(c)))
             st.values.append(KeyValue(key=f"{topic}/gaps", value=str(g)))
