@@ -114,3 +114,19 @@ def test_sampled_components_are_validated() -> None:
     m, x0, P0 = _model()
     with pytest.raises(ValueError, match="at least one"):
         run_upf(m, x0, P0, 10, np.random.default_rng(0), sampled=[])
+
+
+@pytest.mark.parametrize("sampled", [None, [1]])
+def test_shared_linearization_equals_per_particle_ukfs_on_a_linear_model(sampled) -> None:
+    """On a linear-Gaussian model every particle's UKF has the same covariance and gain, so the
+    shared-linearization engine must reproduce the per-particle one (same random draws)."""
+    from dpos_core.filters.runners import PerParticleUKF, SharedLinearizationUKF, rb_smooth
+
+    m, x0, P0 = _model(K=25, bias=True)
+    a = run_upf(m, x0, P0, 50, np.random.default_rng(7), sampled=sampled, engine=PerParticleUKF())
+    b = run_upf(m, x0, P0, 50, np.random.default_rng(7), sampled=sampled, engine=SharedLinearizationUKF())
+    np.testing.assert_array_equal(a.resampled, b.resampled)
+    np.testing.assert_allclose(b.particles, a.particles, atol=1e-9)
+    np.testing.assert_allclose(b.logw, a.logw, atol=1e-9)
+    for xa, xb in zip(rb_smooth(a)[1:], rb_smooth(b)[1:]):
+        np.testing.assert_allclose(xb, xa, atol=1e-9)

@@ -59,6 +59,33 @@ def test_urtss_aligns_from_40_deg_and_recovers_rho(su300) -> None:
     assert r.t_s.size == imu.t_s.size and np.all(np.diff(r.t_s) > 0)
 
 
+def test_ups_matches_urtss_from_40_deg_both_engines(su300) -> None:
+    """The unscented particle smoother (100 particles on the flexure rate, filters.runners) from
+    40 deg: rho within 0.1 deg, and over the last 100 s its attitude and velocity errors within
+    10 % (+ a small floor) of the URTSS's - with the shared-linearization engine (default) and
+    with every particle's own UKF (seed 000 as written)."""
+    from dpos_core.filters import runners
+
+    ss, imu, master, ins = su300
+    init = pipeline.initial_from_master(master, ins, (40.0, 40.0, 40.0))
+    cfg = TAConfig(attitude_sigma_deg=40.0)
+    ref = pipeline.run(imu, master, ins, cfg, "urtss", initial=init)
+    tr = ss.truth("sub_imu/sub_r", ref.t_s)
+    sel = ref.t_s >= 200.0
+
+    def rms(r) -> np.ndarray:
+        e_att = np.rad2deg(hpr_error(hpr_from_C_nb(r.C_nb), hpr_from_C_nb(tr.C_nb)))[sel]
+        e_vel = (r.vel_n_mps - tr.vel_n_mps)[sel]
+        return np.concatenate([np.sqrt(np.mean(e_att**2, axis=0)), np.sqrt(np.mean(e_vel**2, axis=0))])
+
+    rho_true = np.asarray(ss.scenario.aircraft.sub_imu("sub_r").rho_deg)
+    for engine in (runners.SharedLinearizationUKF(), runners.PerParticleUKF()):
+        r = pipeline.run(imu, master, ins, cfg, "ups", particles=100, seed=3, initial=init, upf_engine=engine)
+        np.testing.assert_allclose(np.rad2deg(r.x[-1, 15:18]), rho_true, atol=0.1)
+        assert np.all(rms(r) <= 1.1 * rms(ref) + np.array([1e-4] * 3 + [1e-4] * 3)), (type(engine), rms(r), rms(ref))
+        assert r.ess is not None and np.median(r.ess) > 20  # no weight collapse
+
+
 def test_bad_imu_input_is_rejected(su300) -> None:
     ss, imu, master, ins = su300
     init = pipeline.initial_from_master(master, ins)

@@ -85,9 +85,11 @@ def run(
     initial: NavState | None = None,
     points: UnscentedPoints = UnscentedPoints(alpha=0.1),
     oracle_truth=None,
+    upf_engine=None,
 ) -> TAResult:
     """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` with ``oracle_truth =
-    (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`)."""
+    (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
+    the particles' UKFs for upf/ups (filters.runners; default the shared linearization)."""
     if method not in METHODS + (ORACLE,):
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
@@ -112,7 +114,7 @@ def run(
         else:
             x, P = tr.x_f, tr.P_f
     else:
-        tr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points)
+        tr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine)
         corr = tr.corrections
         ess = tr.ess
         if method == "ups":
