@@ -55,7 +55,8 @@ points, covariance and gain - seed 000 as written) and :class:`SharedLinearizati
 default: one unscented transform per step at the particles' weighted mean, shared covariance
 and gain, each particle's mean through the model).  They agree to 1e-9 on a linear model
 (test_filters_particle.py) and within Monte Carlo noise on paper_su (test_ta_model.py); the
-shared one is ~4x faster on paper_su (measured 5.1 s vs 21 s for 1300 s of data, same run).
+shared one is ~2.8x faster on paper_su (measured in one process: 4.2-4.7 s vs 11.3-13.4 s
+for one sub-IMU and 1300 s of data).
 
 With the flexure rate sampled, 100 particles give the URTSS's accuracy on every row of seed
 000 Table 1 (README); sampling the flexure angle too made the position estimate 3x noisier
