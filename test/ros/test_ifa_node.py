@@ -264,3 +264,143 @@ def test_graph_aligns_and_equals_the_offline_run(ros_context) -> None:
               f"final heading error {herr[0]:.4f} deg, corrections == run() to {pos_err.max():.2e} m, wall {wall_s:.1f} s")
     finally:
         spinner.stop()
+
+
+# ----------------------------------------------------------------------------- bad GNSS input
+
+
+def _spin_until(executor: Any, condition, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        executor.spin_once(timeout_sec=0.02)
+
+
+def test_bad_gnss_is_rejected_and_leaves_the_filter_undisturbed(ros_context, ros_executor) -> None:
+    """The test plays the master: initial /master/nav, the IMU, then GNSS fixes with a duplicate,
+    an out-of-order, a NaN and a zero-covariance fix among them: each is rejected with a warning and
+    counted; the corrections equal run() on the good fixes only."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import TwistWithCovarianceStamped
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from sensor_msgs.msg import Imu, NavSatFix
+
+    from dpos_ros.qos import NAV_QOS, SENSOR_QOS, STATUS_QOS
+    from ifa_node.node import IfaNode
+
+    ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=6.0)
+    imu, g = ss.master_imu(), ss.gnss()
+    datum = ss.datum_llh
+    origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
+    init = _initial(ss, 30.0)
+    ifa = IfaNode(context=ros_context, parameter_overrides=[
+        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
+    node = Node("fake_master", context=ros_context)
+    pub = {"nav": node.create_publisher(Odometry, "/master/nav", NAV_QOS), "imu": node.create_publisher(Imu, "/master/imu", SENSOR_QOS),
+           "fix": node.create_publisher(NavSatFix, "/gnss/fix", SENSOR_QOS),
+           "vel": node.create_publisher(TwistWithCovarianceStamped, "/gnss/vel", SENSOR_QOS)}
+    statuses: list[dict[str, str]] = []
+    corrections: list[bytes] = []
+    node.create_subscription(DiagnosticArray, "/ifa/status",
+                             lambda m: statuses.append({kv.key: kv.value for kv in m.status[0].values} | {"message": m.status[0].message}),
+                             STATUS_QOS)
+    node.create_subscription(Odometry, "/ifa/correction", lambda m: corrections.append(bytes(m)), NAV_QOS, raw=True)
+    for n in (ifa, node):
+        ros_executor.add_node(n)
+    try:
+        _spin_until(ros_executor, lambda: all(p.get_subscription_count() >= 1 for p in pub.values()), WAIT_S, "the ifa_node's subscriptions")
+        _spin_until(ros_executor, lambda: statuses and statuses[-1]["message"] == "WAITING", WAIT_S, "WAITING")
+        v0 = cv.odometry_values_cov(init.llh[None], init.vel_n_mps[None], init.q_nb[None], datum, None, np.eye(3), np.eye(3), np.eye(3))
+        pub["nav"].publish(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([origin]), v0)[0]))
+        t_imu = cv.stamps_ns(ss.scenario.start_time_s, imu.t_s)
+        for row in cv.imu_rows(cv.MASTER_FRAME, t_imu, imu.omega_radps, imu.f_mps2, 1e-6, 1e-4):
+            pub["imu"].publish(bytes(row))
+        _spin_until(ros_executor, lambda: ifa.imu_samples == imu.t_s.size and ifa.al is not None, WAIT_S, "the IMU samples")
+        t_g = cv.stamps_ns(ss.scenario.start_time_s, g.t_s)
+
+        def fix(j: int, llh=None, sigma=None, with_vel: bool = True) -> None:
+            llh = g.llh[j] if llh is None else llh
+            pub["fix"].publish(cv.navsatfix_msg(int(t_g[j]), cv.GNSS_FRAME, llh, g.pos_sigma_m[j] if sigma is None else sigma))
+            if with_vel:
+                pub["vel"].publish(cv.gnss_vel_msg(int(t_g[j]), g.vel_n_mps[j], g.vel_sigma_mps[j]))
+
+        def accepted(j: int) -> None:
+            n = ifa.epochs
+            fix(j)
+            _spin_until(ros_executor, lambda: ifa.epochs == n + 1 and len(corrections) == n + 1, WAIT_S, f"epoch {j}")
+
+        def rejected(reason: str, **kw) -> None:
+            n, e = ifa.rejected, ifa.epochs
+            fix(**kw)
+            _spin_until(ros_executor, lambda: ifa.rejected == n + 1, WAIT_S, f"the rejection ({reason})")
+            assert ifa.epochs == e
+            assert reason in ifa.last_rejection, ifa.last_rejection
+
+        accepted(0)
+        accepted(1)
+        rejected("duplicate", j=1, llh=g.llh[1] + [1e-5, 0, 0], with_vel=False)
+        rejected("out-of-order", j=0, with_vel=False)
+        rejected("not finite", j=2, llh=np.array([np.nan, g.llh[2, 1], g.llh[2, 2]]))
+        accepted(2)
+        rejected("zero or negative covariance", j=3, sigma=np.zeros(3))
+        accepted(3)
+        accepted(4)
+        _spin_until(ros_executor, lambda: statuses[-1].get("epochs") == "5", WAIT_S, "the status of epoch 5")
+        assert statuses[-1]["rejected_fixes"] == "4" and statuses[-1]["imu_dropped"] == "0"
+        good = GnssSeries(g.t_s[:5], g.llh[:5], g.pos_sigma_m[:5], g.vel_n_mps[:5], g.vel_sigma_mps[:5])
+        res = run(imu, good, ss.scenario.aircraft.gnss_lever_arm_m, ifa.core_config, "add2", init)
+        corr = _odometry(corrections, datum)
+        np.testing.assert_array_equal(stamp_s(corr.t_ns, origin), good.t_s)
+        k = np.searchsorted(res.t_s, good.t_s - 1e-9)
+        assert _llh_err_m(corr.llh, res.llh[k]).max() < 1e-6
+        assert np.abs(corr.vel_n_mps - res.vel_n_mps[k]).max() < 1e-9
+    finally:
+        for n in (ifa, node):
+            ros_executor.remove_node(n)
+            n.destroy_node()
+
+
+# ----------------------------------------------------------------------------- alignment given
+
+
+def test_given_alignment_integrates_back_to_the_truth(ros_context) -> None:
+    """alignment given from the truth (no ifa_node): /master/nav follows /truth/master within what
+    the master IMU's errors allow over 5 s; /pos_master/status says GIVEN."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from dpos_ros.qos import STATUS_QOS
+    from pos_master_node.node import PosMasterNode
+
+    probe = Probe(ros_context)
+    for topic in ("/truth/master",):
+        from nav_msgs.msg import Odometry
+
+        from dpos_ros.qos import NAV_QOS
+
+        probe.node.create_subscription(Odometry, topic, lambda m, t=topic: probe._got(t, m), NAV_QOS, raw=True)
+    master_status: list[str] = []
+    probe.node.create_subscription(DiagnosticArray, "/pos_master/status", lambda m: master_status.append(m.status[0].message), STATUS_QOS)
+    master = PosMasterNode(context=ros_context, parameter_overrides=[
+        Parameter("scenario", value="paper_ifa"), Parameter("duration", value=5.0), Parameter("rate_factor", value=0.0),
+        Parameter("alignment", value="given")])
+    spinner = Spinner(ros_context, [probe.node, master])
+    try:
+        ss = master.session
+        n_imu = ss.master_imu().t_s.size
+        probe.wait(lambda: probe.raw["/session/end"] and len(probe.raw["/master/nav"]) >= n_imu + 1
+                   and len(probe.raw["/truth/master"]) >= n_imu + 1, WAIT_S,
+                   lambda: f"the session (nav {len(probe.raw['/master/nav'])}, truth {len(probe.raw['/truth/master'])})")
+        nav = _odometry(probe.raw["/master/nav"], ss.datum_llh)
+        tru = _odometry(probe.raw["/truth/master"], ss.datum_llh)
+        np.testing.assert_array_equal(nav.t_ns, tru.t_ns)
+        pos = _llh_err_m(nav.llh, tru.llh)
+        att = np.abs(hpr_error(hpr_from_C_nb(cv.quat_to_dcm(nav.q_nb)), hpr_from_C_nb(cv.quat_to_dcm(tru.q_nb)))) / DEG
+        vel = np.abs(nav.vel_n_mps - tru.vel_n_mps)
+        # the master IMU's 100 ug and 0.02 deg/h biases over 5 s: 5 mm/s, 1.2 cm, 3e-5 deg (measured: 5.1 mm/s, 3e-5 deg)
+        assert pos[0] < 1e-6 and pos.max() < 0.03, pos.max()
+        assert vel.max() < 0.01 and att.max() < 1e-3, (vel.max(), att.max())
+        assert master_status and master_status[-1] == "GIVEN"
+    finally:
+        spinner.stop()

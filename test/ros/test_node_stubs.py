@@ -1,7 +1,7 @@
 """The four nodes: start, log their plan, stop cleanly; reject bad parameters.
 
-ifa_node is still a stub ("would ..."); transfer_align_node logs what it buffers; the device nodes run their
-simulated device ("-> publishing ...", see test_sim_device.py for what they publish).
+ifa_node logs what it subscribes and publishes (its behaviour: test_ifa_node.py); transfer_align_node logs what it
+buffers; the device nodes run their simulated device ("-> publishing ...", see test_sim_device.py for what they publish).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ NODES = {
 PLAN = {
     "pos_master_node": "-> publishing ",
     "pos_sub_node": "-> publishing ",
-    "ifa_node": "would ",
+    "ifa_node": "-> publishing /ifa/correction",
     "transfer_align_node": "buffering /master/nav",
 }
 

@@ -354,3 +354,15 @@ def decode_raw_batch(raws: Sequence[bytes], kind: str, frame_id: str, child_fram
             pass
     out = [decode_raw(r, kind, frame_id, child_frame_id) for r in raws]
     return np.array([t for t, _ in out], dtype=np.int64), np.stack([v for _, v in out])
+
+
+def diagnostic_array(stamp_msg, name: str, hardware_id: str, level: bytes | int, message: str, values: dict):
+    """``diagnostic_msgs/DiagnosticArray`` with one status (values stringified) - the node statuses."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    st = DiagnosticStatus(name=name, hardware_id=hardware_id, level=level if isinstance(level, bytes) else bytes([level]), message=message)
+    st.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    arr = DiagnosticArray()
+    arr.header.stamp = stamp_msg
+    arr.status = [st]
+    return arr

@@ -50,7 +50,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -432,11 +432,7 @@ class IfaNode(Node):
 
     def _publish_status(self) -> None:
         name = self.state_name()
-        st = DiagnosticStatus()
-        st.name = STATUS_NAME
-        st.hardware_id = "master_imu"
-        st.level = _LEVELS[name]
-        st.message = name
+        st_name, level, message = STATUS_NAME, _LEVELS[name], name
         values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected,
                                   "last_rejection": self.last_rejection, "unpaired": self.unpaired,
                                   "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps}
@@ -462,11 +458,7 @@ class IfaNode(Node):
                 "nav_discrepancy_m": f"{self.discrepancy[0]:.3g}",
                 "nav_discrepancy_deg": f"{self.discrepancy[1]:.3g}",
             })
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [st]
-        self.pub_status.publish(arr)
+        self.pub_status.publish(cv.diagnostic_array(self.get_clock().now().to_msg(), st_name, "master_imu", level, message, values))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -46,7 +46,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 
 from dpos_ros.node_main import run_node
@@ -228,12 +228,12 @@ class PosMasterNode(Node):
 
     def _publish_status(self) -> None:
         mech = self.mech
-        st = DiagnosticStatus()
-        st.name = NODE_NAME
-        st.hardware_id = "master_imu"
+        from dpos_ros import conversions as cv
+
         given = self.config.alignment == "given"
-        st.level = DiagnosticStatus.OK if self.aligned else DiagnosticStatus.WARN
-        st.message = "GIVEN" if given else ("ALIGNED" if self.aligned else "UNALIGNED")
+        st_name = NODE_NAME
+        level = DiagnosticStatus.OK if self.aligned else DiagnosticStatus.WARN
+        message = "GIVEN" if given else ("ALIGNED" if self.aligned else "UNALIGNED")
         with self._lock:
             values = {
                 "alignment": self.config.alignment,
@@ -244,11 +244,7 @@ class PosMasterNode(Node):
                 "nav_t_s": f"{mech.t_s:.3f}",
                 "heading_sigma_deg": f"{np.sqrt(self._nav_cov[1][2, 2]) / DEG:.6g}",
             }
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [st]
-        self.status_pub.publish(arr)
+        self.status_pub.publish(cv.diagnostic_array(self.get_clock().now().to_msg(), st_name, "master_imu", level, message, values))
 
     # ------------------------------------------------------------------ device
     def _start_sim(self) -> None:
