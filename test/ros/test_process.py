@@ -32,7 +32,8 @@ def _sim_bag(path: Path, duration: float = 450.0, mutate=None) -> Path:
 def products(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("proc")
     b = _sim_bag(d / "bag")
-    r = subprocess.run([str(EXE / "dpos-process"), str(b), "--method", "urtss", "--initial-attitude-error", "40", "--out", str(d / "out")],
+    # the default method: seed 000's unscented particle smoother (100 particles)
+    r = subprocess.run([str(EXE / "dpos-process"), str(b), "--initial-attitude-error", "40", "--out", str(d / "out")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     return d / "out" / "paper_su_seed2"
@@ -54,13 +55,13 @@ def test_metrics_schema_and_accuracy(products: Path) -> None:
     reports 0.5 deg, 0.02 m/s and 1 m for its full flight)."""
     m = json.loads((products / "metrics.json").read_text())
     assert m["scenario"] == "paper_su" and m["runs"] == 1 and m["segments"] == ["AB"]
-    mean = m["methods"]["urtss"]["mean"]
+    mean = m["methods"]["ups"]["mean"]
     assert set(mean) == {"rmse", "std"} and set(mean["rmse"]) == {"heading_deg", "pitch_deg", "roll_deg", "vel_e_mps", "vel_n_mps", "vel_u_mps", "lat_m", "lon_m", "h_m", "baseline_m"}
     r = mean["rmse"]
     assert max(r["heading_deg"], r["pitch_deg"], r["roll_deg"]) < 0.01
     assert max(r["vel_e_mps"], r["vel_n_mps"], r["vel_u_mps"]) < 0.005
     assert max(r["lat_m"], r["lon_m"], r["h_m"], r["baseline_m"]) < 0.05
-    t = m["methods"]["urtss"]["timing"]
+    t = m["methods"]["ups"]["timing"]
     assert t["data_s"] == pytest.approx(450.0, abs=0.1) and t["processing_s"] > 0
     assert "| Attitude error | Heading (°)" in (products / "report.md").read_text()
 

@@ -23,7 +23,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="dpos-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=500.0, help="seconds of paper_su to fly (default 500: includes the S-turn and 100 s of segment AB)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--method", default="urtss", help="transfer-alignment method (default urtss)")
+    ap.add_argument("--method", default="ups", help="transfer-alignment method (default ups)")
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
     ap.add_argument("--timeout", type=float, default=170.0)
     ap.add_argument("--verbose", action="store_true", help="stream every node's log")

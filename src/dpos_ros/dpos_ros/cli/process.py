@@ -3,7 +3,7 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
 
     dpos-process /tmp/paper_su_s1 --out /tmp/products                 # URTSS
     dpos-process /tmp/paper_su_s1 --method ups --particles 100 --out /tmp/products
-    dpos-process BAG --method urtss --aircraft my_aircraft.yaml --out DIR
+    dpos-process BAG --method ups --aircraft my_aircraft.yaml --out DIR
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from ..session_io import SessionError, read_session
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="dpos-process", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", type=Path, help="rosbag2 directory of the session")
-    ap.add_argument("--method", choices=METHODS, default="urtss",
-                    help="default urtss: at the oracle bound on the simulations; the seed's UPS is still being reworked (README)")
+    ap.add_argument("--method", choices=METHODS, default="ups",
+                    help="default ups (seed 000's unscented particle smoother); urtss is the Gaussian smoother")
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0, help="random seed of the particle methods")
     ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, seed 000)")
