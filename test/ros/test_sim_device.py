@@ -253,7 +253,7 @@ def test_real_time_pacing_and_ifa_warning(start_node):
         ("pos_master_node", ["-p", "duration:=-1.0"], ["'duration'", "-1.0", ">= 0"]),
         ("pos_master_node", ["-p", "duration:=2000.0"], ["'duration'", "2000.0", "1300"]),
         ("pos_sub_node", ["-p", "name:=sub_r", "-p", "duration:=2000.0"], ["'duration'", "longer than"]),
-        ("pos_master_node", ["-p", "device:=ros"], ["'device'", "ros", "not implemented"]),
+        ("pos_master_node", ["-p", "device:=ros", "-p", "alignment:=reference"], ["'alignment'", "reference", "simulation only"]),
         ("pos_sub_node", ["-p", "name:=sub_r", "-p", "device:=ros", "-p", "input_reliability:=sometimes"],
          ["'input_reliability'", "sometimes", "best_effort, reliable"]),
         ("pos_master_node", ["-p", "aircraft_config:=no_such_plane"], ["'aircraft_config'", "no_such_plane"]),

@@ -14,6 +14,7 @@ from dpos_ros.params import (
     scenario_param,
     wait_subscribers_param,
 )
+from dpos_ros.relay import input_reliability_param, input_rotation_param
 
 ALIGNMENTS = ("ifa", "given", "reference")
 
@@ -31,10 +32,12 @@ class PosMasterConfig:
 
     Attributes:
         datum: [lat_deg, lon_deg, h_m] of the ``enu`` frame origin, published on /dpos/datum;
-            ``[]`` = the scenario's start point (``device: sim``).
+            ``[]`` = the scenario's start point (``device: sim``) or the first valid /gnss/fix
+            (``device: ros``).
         aircraft_config: aircraft configuration, built-in name or YAML path; '' = the scenario's own.
-        device: sensor data source: ``sim`` (built-in simulator) or ``ros`` (driver topics, not
-            implemented yet).
+        device: sensor data source: ``sim`` (built-in simulator) or ``ros`` (relay real drivers'
+            sensor_msgs/Imu, NavSatFix and TwistWithCovarianceStamped from the remappable topics
+            ``imu_in``, ``fix_in``, ``vel_in``; dpos_ros.relay).
         scenario: simulator scenario (``device: sim``).
         seed: simulator random seed; all nodes with the same seed see one flight.
         duration: simulated session length [s], 0 = the whole scenario.
@@ -49,13 +52,27 @@ class PosMasterConfig:
             truth with this heading error [deg] (level errors 0); ``[]`` = the scenario's
             ``ifa.initial_heading_error_deg``, else 0.
         initial_state: ``alignment: given``: [lat_deg, lon_deg, h_m, vE, vN, vU, heading_deg,
-            pitch_deg, roll_deg] at the session start; ``[]`` = truth (simulation).
+            pitch_deg, roll_deg] at the session start (``device: ros``: at the first relayed IMU
+            stamp; required); ``[]`` = truth (simulation). ``alignment: ifa`` with ``device: ros``:
+            only its heading is used, when the ground speed is too low for the course.
         initial_sigma: 1 sigma [pos_m, vel_mps, heading_deg, pitch_deg, roll_deg] of /master/nav
             until the first /ifa/correction (then the filter's covariance); default: the
             ifa_node's prior.
         ring_s: seconds of IMU samples kept for re-integration after a correction.
         max_lead_s: ``rate_factor`` 0 with an ifa_node running: the simulated device waits while
             the mechanization is more than this many seconds ahead of the last correction (0 = never).
+        input_reliability: ``device: ros``: QoS reliability of the driver subscriptions,
+            ``best_effort`` (matches every driver) or ``reliable``.
+        input_rotation_rpy_deg: ``device: ros``: [roll, pitch, yaw] [deg] of the driver's IMU axes
+            in our FLU body axes (URDF rpy; FRD -> FLU = [180, 0, 0]); default identity.
+        min_course_speed_mps: ``device: ros``, ``alignment: ifa``: the initial heading is the
+            GNSS course over ground when the ground speed is at least this [m/s]; below it the
+            ``initial_state`` heading is used, or the node waits for a faster fix.
+
+    ``device: ros`` ignores ``scenario``, ``seed``, ``duration``, ``rate_factor``,
+    ``publish_truth``, ``min_subscribers``, ``wait_subscribers_s``, ``initial_heading_error_deg``
+    and ``max_lead_s``; ``device: sim`` ignores the ``input_*`` parameters and
+    ``min_course_speed_mps``.
     """
 
     datum: tuple[float, ...] = datum_param()
@@ -79,3 +96,7 @@ class PosMasterConfig:
         minimum=0.0, length=5)
     max_lead_s: float = param(2.0, "rate_factor 0 with an ifa_node: stay at most this many seconds ahead of its corrections (0 = no limit)", minimum=0.0)
     ring_s: float = param(60.0, "seconds of IMU samples kept for re-integration after an IFA correction", minimum=1.0)
+    input_reliability: str = input_reliability_param()
+    input_rotation_rpy_deg: tuple[float, float, float] = input_rotation_param()
+    min_course_speed_mps: float = param(
+        5.0, "device ros, alignment ifa: least ground speed [m/s] for the course over ground as initial heading", minimum=0.0)
