@@ -67,7 +67,7 @@ SIGINT/SIGTERM.
     skipped with a warning and the node waits for a faster one.
 
     ``/dpos/datum`` (latched): the ``datum`` parameter when set (stamped with the node's clock at
-    start), else the first valid /gnss/fix (the antenna position, the fix's stamp). /nav is not
+    start), else the first valid /gnss/fix (the antenna position, the fix's stamp). /master/nav is not
     published before the datum is known. ``/session/end`` is never published by a live device:
     the operator (or dpos-record) ends the session. ``alignment: reference`` is simulation only
     (ParameterError); the simulator parameters (scenario, seed, duration, rate_factor,
