@@ -56,13 +56,16 @@ def solve(
     only: list[str] | None = None,
     filter_rate_hz: float = 1.0,
     output_rate_hz: float = 0.0,
+    master_aligned_sigma_deg: float = 0.1,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
-    with their antennas); carry the solutions to their antennas.  Returns the antennas and the
+    with their antennas) from the first epoch at which the main POS is aligned
+    (:func:`aligned_master`); carry the solutions to their antennas.  Returns the antennas and the
     timing (processing and data seconds)."""
     cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
     results = {}
     t0 = time.perf_counter()
+    master = aligned_master(sess, master_aligned_sigma_deg)
     if only is not None:
         from dataclasses import replace
 
@@ -74,8 +77,10 @@ def solve(
             continue
         ins = Installation.from_aircraft(aircraft, s.name)
         e = initial_attitude_error_deg
-        init = pipeline.initial_from_master(sess.master, ins, (e, e, e))
-        results[s.name] = pipeline.run(sess.sub_imus[s.name], sess.master, ins, cfg, method, particles, seed, initial=init,
+        if master is None:
+            continue
+        init = pipeline.initial_from_master(master, ins, (e, e, e))
+        results[s.name] = pipeline.run(sess.sub_imus[s.name], master, ins, cfg, method, particles, seed, initial=init,
                                        oracle_truth=None if oracle_truth is None else oracle_truth[s.name])
     for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
@@ -89,7 +94,8 @@ def solve(
             continue
         r = results.get(a.sub_imu)
         if r is None:
-            out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: sub-IMU {a.sub_imu} has no data")
+            why = "the main POS is never aligned" if master is None else f"sub-IMU {a.sub_imu} has no data"
+            out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
             continue
         imu = sess.sub_imus[a.sub_imu]
         omega = np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int)
@@ -103,6 +109,30 @@ def solve(
         llh = np.stack([lat, lon, h], -1)
         out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", Trajectory(r.t_s[keep], llh[keep], v[keep], r.C_nb[keep]), r.sigma[keep])
     return out, timing
+
+
+def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1):
+    """The main-system navigation from its first epoch whose attitude 1-sigma (every axis, from
+    the /master/nav covariance) is below ``sigma_deg`` - the covariance is how pos_master_node flags
+    a navigation that the in-flight alignment has not aligned yet (design.md) - or None if it never
+    is.  Transfer alignment against an unaligned main POS (e.g. a 30 deg heading error with a
+    100 deg sigma) would start the sub-IMUs from a wrong attitude; their poses start when the main
+    POS is aligned instead, and a warning says so."""
+    from dataclasses import fields, replace
+
+    m = sess.master
+    sig = np.rad2deg(np.sqrt(np.max(np.diagonal(m.att_cov, axis1=1, axis2=2), axis=1)))
+    ok = np.nonzero(sig < sigma_deg)[0]
+    if ok.size == 0:
+        sess.warnings.append(f"/master/nav is never aligned (attitude 1-sigma >= {sigma_deg:g} deg throughout, "
+                             f"min {sig.min():.3g} deg): no sub-IMU is aligned")
+        return None
+    i = int(ok[0])
+    if i == 0:
+        return m
+    sess.warnings.append(f"/master/nav is unaligned (attitude 1-sigma >= {sigma_deg:g} deg) for its first "
+                         f"{m.t_s[i] - m.t_s[0]:.1f} s: the antenna poses start at t = {m.t_s[i]:.2f} s")
+    return replace(m, **{f.name: getattr(m, f.name)[i:] for f in fields(m)})
 
 
 def _decimate(t_s: FloatArray, rate_hz: float) -> NDArray[np.intp]:

@@ -1,11 +1,13 @@
 """``dpos-demo`` (``make demo``): the product on the built-in simulated flight, as a live graph.
 
-Starts, without launch, pos_master_node (main POS, reference alignment), two pos_sub_node (the
-wing sub-IMUs sub_r and sub_l), ifa_node and transfer_align_node on their own ROS_DOMAIN_ID;
-the devices publish paper_su (shortened) as fast as the graph keeps up; when pos_master_node
-publishes /session/end, transfer_align_node aligns both sub-IMUs in worker processes, publishes
-/antenna/<name>/odom and writes the session products.  Prints where they are and the accuracy
-table against the simulation's truth.
+Starts, without launch, pos_master_node (main POS mechanized from a heading error, aligned in
+flight: ``--alignment ifa``, default; or the simulated reference navigation), ifa_node (ADD2
+against the GNSS, which paper_su's receiver reports with its differential-GNSS sigmas), two
+pos_sub_node (the wing sub-IMUs sub_r and sub_l) and transfer_align_node on their own
+ROS_DOMAIN_ID; the devices publish paper_su (shortened) as fast as the graph keeps up; when
+pos_master_node publishes /session/end, transfer_align_node aligns both sub-IMUs in worker
+processes from the epoch the main POS is aligned, publishes /antenna/<name>/odom and writes the
+session products.  Prints where they are and the accuracy table against the simulation's truth.
 """
 
 from __future__ import annotations
@@ -24,6 +26,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=500.0, help="seconds of paper_su to fly (default 500: includes the S-turn and 100 s of segment AB)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--method", default="ups", help="transfer-alignment method (default ups)")
+    ap.add_argument("--alignment", choices=("ifa", "reference"), default="ifa",
+                    help="main POS: ifa (mechanized, aligned in flight by ifa_node against GNSS; default) or reference "
+                         "(the simulated reference navigation, truth + the paper's noise)")
+    ap.add_argument("--initial-heading-error", type=float, default=30.0, metavar="DEG",
+                    help="with --alignment ifa: the main POS starts with this heading error (default 30)")
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
     ap.add_argument("--timeout", type=float, default=170.0)
     ap.add_argument("--verbose", action="store_true", help="stream every node's log")
@@ -37,8 +44,9 @@ def main(argv: list[str] | None = None) -> int:
         NodeSpec("transfer_align_node", "transfer_align_node",
                  {"method": args.method, "aircraft_config": "paper_su_pair", "output_dir": str(out), "initial_attitude_error_deg": 1.0},
                  ready_subscribes=("/master/nav", "/sub_imu/sub_r/imu", "/sub_imu/sub_l/imu")),
-        NodeSpec("ifa_node", "ifa_node", {"method": "add2"}),
-        NodeSpec("pos_master_node", "pos_master_node", {**sim, "alignment": "reference"}),
+        NodeSpec("ifa_node", "ifa_node", {"method": "add2", "aircraft_config": "paper_su_pair", "use_reported_sigma": True}),
+        NodeSpec("pos_master_node", "pos_master_node", {**sim, "alignment": args.alignment,
+                                                        **({"initial_heading_error_deg": [args.initial_heading_error]} if args.alignment == "ifa" else {})}),
         NodeSpec("sub_r", "pos_sub_node", {**sim, "name": "sub_r"}),
         NodeSpec("sub_l", "pos_sub_node", {**sim, "name": "sub_l"}),
     ], ros_domain_id=domain, ready_timeout_s=60.0, stop_timeout_s=15.0)

@@ -1,0 +1,40 @@
+"""Transfer alignment waits for the main POS to be aligned (its /master/nav covariance)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from dpos_core.sim.scenario import load_aircraft
+from dpos_ros.products import solve
+from dpos_ros.session_io import read_session
+
+BAG = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
+
+
+def _session_with_unaligned_start(unaligned_s: float):
+    sess = read_session(BAG)
+    m = sess.master
+    att_cov = m.att_cov.copy()
+    early = m.t_s < m.t_s[0] + unaligned_s
+    att_cov[early] = np.eye(3) * np.deg2rad(30.0) ** 2  # what pos_master_node publishes before the IFA aligns
+    return replace(sess, master=replace(m, att_cov=att_cov), warnings=[])
+
+
+def test_antenna_poses_start_when_the_main_pos_is_aligned() -> None:
+    sess = _session_with_unaligned_start(10.0)
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "ukf", initial_attitude_error_deg=1.0)
+    t0 = sess.master.t_s[0]
+    first_aligned = sess.master.t_s[sess.master.t_s >= t0 + 10.0][0]
+    for a in ants.values():
+        assert a.status == "estimated" and a.traj.t_s[0] >= first_aligned - 1e-9 and a.traj.t_s[0] < first_aligned + 0.02
+    assert any("unaligned" in w and "10.0 s" in w for w in sess.warnings), sess.warnings
+
+
+def test_a_never_aligned_main_pos_gives_no_antenna_and_says_why() -> None:
+    sess = _session_with_unaligned_start(1e9)
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "ukf")
+    assert {a.status for a in ants.values()} == {"not estimated: the main POS is never aligned"}
+    assert any("never aligned" in w for w in sess.warnings), sess.warnings
