@@ -181,6 +181,9 @@ def bench_graph(results: dict, repeats: int) -> None:
                  ready_subscribes=("/master/nav",)),
         NodeSpec("pos_master_node", "pos_master_node", {**common, "alignment": "reference"}),
         *[NodeSpec(n, "pos_sub_node", {**common, "name": n}) for n in subs],
+        # /master/imu has no consumer in this graph (no ifa_node with alignment: reference): a recorder counts it
+        NodeSpec("recorder", "dpos-record", args=("--out", str(tmp / "rec"), "--until-session-end", "/master/imu", "/session/end"),
+                 ready_subscribes=("/master/imu",)),
     ], ros_domain_id=150 + os.getpid() % 50, ready_timeout_s=60.0, stop_timeout_s=30.0)
     cpu0, cpu1 = {}, {}
     with Graph(spec, log=lambda n, l: None) as g:
@@ -189,22 +192,27 @@ def bench_graph(results: dict, repeats: int) -> None:
         t0 = time.perf_counter()
         status_dir = out
         deadline = time.monotonic() + dur + 240
-        while time.monotonic() < deadline and not any(status_dir.glob("*/status.json")):
+        while time.monotonic() < deadline and not (any(status_dir.glob("*/status.json")) and g.procs["recorder"].popen.poll() is not None):
             time.sleep(0.5)
         wall = time.perf_counter() - t0
         for name, p in g.procs.items():
-            cpu1[name] = _cpu_s(p.popen.pid)
+            if name != "recorder":
+                cpu1[name] = _cpu_s(p.popen.pid)
+    cpu0.pop("recorder", None)
     ss = SimulatedSession(load_scenario(scen), 1, dur)
     expected = {s.topic: len(s) for dev in ["master"] + [f"sub_imu/{n}" for n in subs]
-                for s in device_streams(ss, dev, truth=False) if s.topic in ("/master/nav",) or s.topic.startswith("/sub_imu/")}
+                for s in device_streams(ss, dev, truth=False) if s.topic in ("/master/nav", "/master/imu") or s.topic.startswith("/sub_imu/")}
     d = next((out / "spill").iterdir())
     raw, _, _, _ = spill.read_spill(d)
+    from dpos_ros import bag
+
+    raw.update({t: v for t, v in bag.read_raw(tmp / "rec").items() if t == "/master/imu"})
     lost = sum(expected[t] - len(raw.get(t, ("", [], []))[2]) for t in expected)
     n_msgs = sum(expected.values())
     results["graph_loss_count"] = int(lost)
     results["graph_messages"] = int(n_msgs)
     results["graph_cpu_percent"] = {n: round(100.0 * (cpu1[n] - cpu0[n]) / wall, 1) for n in cpu0}
-    print(f"graph: {n_msgs} messages of /master/nav + 6 sub-IMUs at 200 Hz over {dur:.0f} s real time: lost {lost}")
+    print(f"graph: {n_msgs} messages of /master/imu, /master/nav + 6 sub-IMUs at 200 Hz over {dur:.0f} s real time: lost {lost}")
     print("graph CPU % per node over the session and its processing: " + ", ".join(f"{k} {v}" for k, v in results["graph_cpu_percent"].items()))
 
 
