@@ -103,6 +103,13 @@ nodes:
     assert r.returncode == 0, r.stdout + r.stderr
     assert "[a] " in r.stdout and "[b] " in r.stdout and "2 node(s) ready" in r.stdout
     assert "exit codes a=0, b=0" in r.stdout
-    ex = subprocess.run([str(EXE / "dpos-graph"), "--example", "sim_paper_su"], capture_output=True, text=True, timeout=30)
-    assert ex.returncode == 0 and "pos_master_node" in ex.stdout
-    GraphSpec.from_yaml(tmp_path / "ex.yaml", text=ex.stdout)
+    for name in ("sim_paper_su", "aircraft_ros"):  # the packaged examples: the whole product graph
+        ex = subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=30)
+        assert ex.returncode == 0, ex.stderr
+        spec = GraphSpec.from_yaml(tmp_path / f"{name}.yaml", text=ex.stdout)
+        assert sorted(n.executable for n in spec.nodes) == sorted(
+            ["transfer_align_node", "ifa_node", "pos_master_node", "pos_sub_node", "pos_sub_node"]), name
+    ros = GraphSpec.from_yaml(tmp_path / "r.yaml", text=subprocess.run(
+        [str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=30).stdout)
+    master = next(n for n in ros.nodes if n.name == "pos_master_node")
+    assert master.parameters["device"] == "ros" and set(master.remaps) == {"imu_in", "fix_in", "vel_in"}

@@ -135,6 +135,7 @@ class TransferAlignNode(Node):
         self._progress = "waiting for data"
         self._sessions_done = 0
         self._closed_end_ns: int | None = None  # end stamp of the last closed session
+        self._end_on_shutdown = False
         self._late: dict[str, int] = {}  # messages of a closed session that arrived after it closed
         self._device = None
         topics = {"/master/nav": ("nav_msgs/msg/Odometry", NAV_QOS), "/dpos/datum": ("sensor_msgs/msg/NavSatFix", DATUM_QOS),
@@ -211,12 +212,13 @@ class TransferAlignNode(Node):
         resp.message = f"finalizing session up to {last} ns" if started else "a session is already being finalized"
         return resp
 
-    def _start_finalize(self, end_ns: int, session_id: str) -> bool:
+    def _start_finalize(self, end_ns: int, session_id: str, shutdown: bool = False) -> bool:
         with self._lock:
             if self._finalizing:
                 return False
             self._finalizing = True
             self._end = (end_ns, session_id)
+            self._end_on_shutdown = shutdown
         self._finalize_thread = threading.Thread(target=self._finalize, name="finalize", daemon=True)
         self._finalize_thread.start()
         return True
@@ -234,7 +236,11 @@ class TransferAlignNode(Node):
                 # datum) that is still arriving: none may be cut off by closing the spill
                 now = time.monotonic()
                 with self._lock:
-                    behind = [t for t in needed if self._streams.get(t) is None or self._streams[t].last_ns < end_ns - 20_000_000]
+                    # at shutdown the devices may be gone already: a stalled stream is not waited for either
+                    stalled = (lambda st: now - st.arrived >= STALL_S) if self._end_on_shutdown else (lambda st: False)
+                    behind = [t for t in needed if (self._streams.get(t) is None and not self._end_on_shutdown)
+                              or (t in self._streams and self._streams[t].last_ns < end_ns - 20_000_000
+                                  and not stalled(self._streams[t]))]
                     behind += [t for t, st in self._streams.items() if t not in needed and t != "/dpos/datum"
                                and st.last_ns < end_ns - 20_000_000 and now - st.arrived < STALL_S]
                 if not behind or now > deadline:
@@ -254,8 +260,12 @@ class TransferAlignNode(Node):
                 self._closed_end_ns = end_ns
                 streams = self._streams
                 self._streams = {}
+            short = [t for t, st in streams.items() if t in needed and st.last_ns < end_ns - 20_000_000]
             if behind:
                 log.warning(f"finalize: after {cfg.finalize_timeout_s:g} s still short of the end stamp: {behind}")
+            elif short:
+                log.warning(f"finalize at shutdown: {short} stopped short of the last stamp of the session "
+                            f"({end_ns} ns); processing what arrived")
             if missing:
                 log.warning(f"finalize: no data at all on {missing}")
             if sp is None:
@@ -315,12 +325,16 @@ class TransferAlignNode(Node):
                 antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of seed 004 is not implemented yet)")
         sess = read_session(spill_dir)
         sess.warnings[:0] = warnings
-        streams = antenna_streams(sess, antennas)
-        self._progress = f"publishing {sum(len(s) for s in streams)} antenna poses"
+        streams = [s for s in antenna_streams(sess, antennas) if len(s)]
         if self._device is not None:
             self._device.stop()
-        self._device = SimDevice(self, streams, 0.0).start()
-        self._device.finished.wait()
+            self._device = None
+        if streams:
+            self._progress = f"publishing {sum(len(s) for s in streams)} antenna poses"
+            self._device = SimDevice(self, streams, 0.0).start()
+            self._device.finished.wait()
+        else:
+            log.warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
         out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
         self._sessions_done += 1
         for name, a in antennas.items():
@@ -366,7 +380,7 @@ class TransferAlignNode(Node):
                 last = max((s.last_ns for s in self._streams.values() if s.last_ns is not None), default=None)
             if pending and last is not None:
                 self.get_logger().info("shutdown: finalizing the buffered session")
-                self._start_finalize(last, "")
+                self._start_finalize(last, "", shutdown=True)
             t = getattr(self, "_finalize_thread", None)
             if t is not None and t.is_alive():
                 t.join()
