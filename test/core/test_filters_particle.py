@@ -74,7 +74,7 @@ def test_ffbsm_approaches_rts_and_weights_are_consistent() -> None:
     err_s, err_f = [], []
     for seed in range(3):
         tr = run_upf(m, x0, P0, 400, np.random.default_rng(seed))
-        lw = ffbsm(m, tr)
+        lw = ffbsm(tr)
         np.testing.assert_allclose(np.exp(lw).sum(axis=1), 1.0, atol=1e-12)
         np.testing.assert_array_equal(lw[-1], tr.logw[-1])
         xs, _ = weighted_moments(tr.particles, lw)

@@ -167,6 +167,18 @@ class Strapdown:
         self._t_s = state.t_s
         self._mode = None
 
+    def resume(self, state: NavState, dtheta_rad: ArrayLike, dvel_mps: ArrayLike, dvel_n_mps: ArrayLike) -> None:
+        """Restart from ``state`` as if the increment sample ending at ``state.t_s`` had just been
+        integrated: ``dtheta_rad``, ``dvel_mps`` (3,) that sample's body increments (the coning and
+        sculling memory) and ``dvel_n_mps`` (3,) the velocity change it produced (the kernel's
+        previous velocity change).  Re-integrating the following samples then reproduces the
+        original run exactly (used to replay stored samples after a correction)."""
+        self.reset(state)
+        self._prev[0:3] = np.asarray(dtheta_rad, dtype=float).reshape(3)
+        self._prev[3:6] = np.asarray(dvel_mps, dtype=float).reshape(3)
+        self._prev[6] = 1.0
+        self._state[10:13] = np.asarray(dvel_n_mps, dtype=float).reshape(3)
+
     @property
     def state(self) -> NavState:
         """Current navigation state (a copy)."""

@@ -13,9 +13,8 @@ its navigation is *exactly* the closed-loop strapdown of :class:`dpos_core.ifa.p
 
 Exactness needs the integrator's memory at ``t_k`` too (the coning / sculling terms use the
 previous increments, the velocity extrapolation the previous velocity change; :meth:`Strapdown.correct`
-keeps them): they are stored per sample and restored after :meth:`Strapdown.reset` (the only place
-that touches ``Strapdown``'s private arrays - ``test_master_nav.py`` pins the equality with the
-aligner to 1e-9: test_ifa_node.py).
+keeps them): they are stored per sample and restored with :meth:`Strapdown.resume`
+(test_ifa_node.py pins the equality with the aligner to 1e-9).
 
 Times are seconds since an origin stamp (:func:`stamp_s`): ``(t_ns - origin_ns) / 1e9`` gives the
 simulator's ``k / rate`` bit for bit, so the nodes integrate the very step lengths of
@@ -226,10 +225,7 @@ class MasterMechanization:
         """Restart the strapdown at stored sample j (its state and memory) and re-integrate j+1:."""
         r = self.ring
         sd = self.strapdown
-        sd.reset(NavState(r.t_s[j], r.q_nb[j], r.vel[j], r.llh[j]))
-        # the integrator's memory after sample j (dpos_core._strapdown_kernel layout)
-        sd._prev[0:3], sd._prev[3:6], sd._prev[6] = r.dtheta[j], r.dvel[j], 1.0
-        sd._state[10:13] = r.dv_step[j]
+        sd.resume(NavState(r.t_s[j], r.q_nb[j], r.vel[j], r.llh[j]), r.dtheta[j], r.dvel[j], r.dv_step[j])
         if j + 1 < len(r):
             r.replace_from(j + 1, self._integrate(r.t_s[j + 1:], r.omega[j + 1:], r.f[j + 1:]))
 

@@ -35,7 +35,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from dpos_ros.params import ParameterError
 
-__all__ = ["run_node", "EXIT_OK", "EXIT_BAD_PARAMETER", "POLL_PERIOD_S"]
+__all__ = ["run_node", "install_stop_handlers", "restore_handlers", "EXIT_OK", "EXIT_BAD_PARAMETER", "POLL_PERIOD_S"]
 
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
@@ -43,6 +43,23 @@ EXIT_BAD_PARAMETER = 2
 POLL_PERIOD_S = 0.1
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def install_stop_handlers(on_stop: Callable[[], None]) -> dict:
+    """SIGINT and SIGTERM call ``on_stop()`` instead of raising (only in the main thread, where
+    Python allows handlers; elsewhere nothing is installed).  Returns the previous handlers, for
+    :func:`restore_handlers`."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in _STOP_SIGNALS:
+            previous[sig] = signal.signal(sig, lambda _signum, _frame: on_stop())
+    return previous
+
+
+def restore_handlers(previous: dict) -> None:
+    """Put back the handlers :func:`install_stop_handlers` replaced."""
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
 
 
 def run_node(
@@ -61,10 +78,7 @@ def run_node(
     """
     args = list(sys.argv if argv is None else argv)
     stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in _STOP_SIGNALS:
-            previous[sig] = signal.signal(sig, lambda _signum, _frame: stop.set())
+    previous = install_stop_handlers(stop.set)
     node = None
     executor = None
     try:
@@ -86,6 +100,5 @@ def run_node(
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_handlers(previous)
     return EXIT_OK

@@ -152,7 +152,7 @@ class ParticleTrack:
     of the transition that produced them); pred_mean (K - 1, N, s), pred_cov (K - 1, N, s, s): each
     particle's predicted density of the sampled components at the next epoch (the transition
     density of the backward pass); sampled (s,) indices; corrections (K, n); ess (K,); resampled
-    (K,) bool; mean (K, n) weighted filtered means; mixture: the moments of the weighted mixture
+    (K,) bool; mixture: the moments of the weighted mixture
     of the particles' Gaussians - filtered, predicted (in the corrected coordinates of the
     next epoch) and their cross-covariances - as a :class:`GaussianTrack` for the RTS recursion.
     """
@@ -166,8 +166,12 @@ class ParticleTrack:
     corrections: FloatArray
     ess: FloatArray
     resampled: NDArray[np.bool_]
-    mean: FloatArray
     mixture: GaussianTrack
+
+    @property
+    def mean(self) -> FloatArray:
+        """Weighted filtered means (K, n) (the mixture's)."""
+        return self.mixture.x_f
 
 
 def sampled_indices(model: StateSpaceModel, n: int, sampled=None) -> NDArray[np.intp]:
@@ -318,7 +322,6 @@ def run_upf(
     corr = np.zeros((K, n))
     ess_k = np.empty(K)
     res_k = np.zeros(K, dtype=bool)
-    means = np.empty((K, n))
 
     m = np.broadcast_to(np.asarray(x0, dtype=float), (N, n)).copy()  # each particle's UKF (predicted)
     P = engine.init(np.asarray(P0, dtype=float), N)
@@ -340,22 +343,19 @@ def run_upf(
         if c is not None:
             corr[k] = c
             m = model.shift(k, m, c)  # exact for P: the shifted components are linear or sampled
-            mean = model.shift(k, mean, c)
             if k > 0:  # the mixture's prediction of k in the corrected coordinates of k (for the smoother)
                 mix_x_p[k - 1] = model.shift(k, mix_x_p[k - 1], c)
         parts[k] = m
         logws[k] = logw
-        means[k] = mean
         ess_k[k] = ess(logw)
+        # moments of the mixture (the carried Gaussians and the spread of their means)
+        mix_x_f[k], mix_P_f[k] = _mixture(w, m, P)
         if k + 1 == K:
-            mix_x_f[k], mix_P_f[k] = _mixture(w, m, P)
             break
-        m_k, P_k = m, P
+        m_k = m
         m, P, C = engine.predict(model, k, m, P, w, S, points)
         pred_mean[k] = m[:, S]
         pred_cov[k] = P[..., S[:, None], S[None, :]]
-        # moments of the mixture (the carried Gaussians and the spread of their means)
-        mix_x_f[k], mix_P_f[k] = _mixture(w, m_k, P_k)
         mix_x_p[k], mix_P_p[k] = _mixture(w, m, P)
         dm, dp = m_k - mix_x_f[k], m - mix_x_p[k]
         mix_C[k] = (C if C.ndim == 2 else np.einsum("n,nij->ij", w, C)) + (dm * w[:, None]).T @ dp
@@ -365,29 +365,15 @@ def run_upf(
             logw = np.full(N, -np.log(N))
             res_k[k] = True
     mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, np.empty((K, 0)), np.empty((K, 0, 0)))
-    return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, means, mixture)
+    return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture)
 
 
-def ffbsm(model: StateSpaceModel, track: ParticleTrack) -> FloatArray:
+def ffbsm(track: ParticleTrack) -> FloatArray:
     """Backward reweighting (seed 000 eq. 9) of the sampled components: smoothed normalized log
-    weights (K, N) of ``track.particles`` (:func:`rb_smooth` also smooths the carried states)."""
-    return _backward(track)[0]
-
-
-def rb_smooth(track: ParticleTrack) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The unscented particle smoother (module docstring).  Returns the FFBSm log weights (K, N)
-    (eq. 9) and the smoothed mean (K, n) and covariance (K, n, n): the FFBSm moments when every
-    component is sampled, else the RTS recursion on the moments of the particles' mixture."""
-    lw = _backward(track)[0]
-    if track.sampled.size == track.particles.shape[2]:
-        x, P = weighted_moments(track.particles, lw)
-    else:
-        x, P = smooth_gaussian(track.mixture)
-    return lw, x, P
-
-
-def _backward(track: ParticleTrack):
-    K, N, n = track.particles.shape
+    weights (K, N) of ``track.particles``.  ``w_{K-1|K} = w_{K-1}``; the transition density
+    ``p(x_{k+1}^j | x_{0:k}^i)`` is particle i's predicted Gaussian of the sampled components
+    (the carried states marginalized).  :func:`rb_smooth` also smooths the carried states."""
+    K, N, _ = track.particles.shape
     S = track.sampled
     logws = np.empty((K, N))
     logws[-1] = track.logw[-1]
@@ -401,7 +387,19 @@ def _backward(track: ParticleTrack):
         L = -0.5 * np.sum(z * z, axis=2) - half_logdet[:, None]  # L[i, j] = log p(x_{k+1}^j | i) + const
         denom = _logsumexp(lwk[:, None] + L, axis=0)  # (N,) over m, for each j
         logws[k] = log_normalize(lwk + _logsumexp(logws[k + 1][None, :] + L - denom[None, :], axis=1))
-    return (logws,)
+    return logws
+
+
+def rb_smooth(track: ParticleTrack) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The unscented particle smoother (module docstring).  Returns the FFBSm log weights (K, N)
+    (eq. 9) and the smoothed mean (K, n) and covariance (K, n, n): the FFBSm moments when every
+    component is sampled, else the RTS recursion on the moments of the particles' mixture."""
+    lw = ffbsm(track)
+    if track.sampled.size == track.particles.shape[2]:
+        x, P = weighted_moments(track.particles, lw)
+    else:
+        x, P = smooth_gaussian(track.mixture)
+    return lw, x, P
 
 
 def weighted_moments(particles: FloatArray, logw: FloatArray) -> tuple[FloatArray, FloatArray]:

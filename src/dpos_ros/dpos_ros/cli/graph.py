@@ -9,7 +9,6 @@ cleanly on Ctrl-C (or when a node exits / after a duration).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
@@ -17,6 +16,7 @@ from importlib import resources
 from pathlib import Path
 
 from ..graph import Graph, GraphError, GraphSpec
+from ..node_main import install_stop_handlers
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,8 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dpos-graph: --until-exit {args.until_exit!r} is not a node of the graph", file=sys.stderr)
         return 2
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    install_stop_handlers(stop.set)
     g = Graph(spec)
     try:
         g.start()

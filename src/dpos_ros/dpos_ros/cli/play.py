@@ -14,11 +14,11 @@ carries the bag's log time so that nodes with use_sim_time follow the bag. /dpos
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
+
+from ..node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
 EXIT_INTERRUPTED = 1
@@ -64,10 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ERROR
 
     player = None
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda _s, _f: player.stop() if player is not None else None)
+    previous = install_stop_handlers(lambda: player.stop() if player is not None else None)
     use_device_fastdds_profile()  # prompt acknowledgements for the flow control
     node = None
     status = EXIT_OK
@@ -113,8 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_handlers(previous)
     return status
 
 

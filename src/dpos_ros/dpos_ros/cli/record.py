@@ -15,11 +15,12 @@ the bag is still written); 2 on bad arguments or when the bag cannot be written.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
 from pathlib import Path
+
+from ..node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
 EXIT_MISSING = 1
@@ -77,10 +78,7 @@ def main(argv: list[str] | None = None) -> int:
 
     stop = threading.Event()
     reason = ["interrupted"]
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda _s, _f: stop.set())
+    previous = install_stop_handlers(stop.set)
     node = executor = recorder = None
     status = EXIT_OK
     t0 = time.monotonic()
@@ -127,8 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_handlers(previous)
     if recorder is None:
         return EXIT_ERROR
     elapsed = time.monotonic() - t0
