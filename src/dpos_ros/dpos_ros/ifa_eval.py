@@ -13,7 +13,6 @@ import json
 from pathlib import Path
 
 from dpos_core.ifa import evaluate as E
-from dpos_core.ifa.pipeline import METHODS
 from dpos_core.sim.scenario import Scenario
 
 
@@ -27,12 +26,9 @@ def _pair(ap: argparse.ArgumentParser, text: str | None, name: str) -> tuple[flo
     return a, b
 
 
-def main_ifa(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Scenario) -> int:
-    """Run the experiments asked for, write ``metrics.json`` and ``report.md`` to ``args.out``."""
-    methods = [m.strip() for m in (args.methods or ",".join(METHODS)).split(",") if m.strip()]
-    bad = [m for m in methods if m not in METHODS]
-    if bad or not methods:
-        ap.error(f"unknown IFA method(s) {bad}; choose from {METHODS}")
+def main_ifa(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Scenario, methods: list[str]) -> int:
+    """Run the experiments asked for with ``methods`` (checked against the core's METHODS by the
+    caller), write ``metrics.json`` and ``report.md`` to ``args.out``."""
     if args.runs < 1:
         ap.error("--runs must be >= 1")
     outage = _pair(ap, args.outage, "outage")

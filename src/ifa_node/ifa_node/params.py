@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from dpos_core.ifa.pipeline import METHODS
 from dpos_ros.params import aircraft_config_param, datum_param, param, scenario_param
 
-METHODS = ("add2", "dd2", "aekf")
 
 
 @dataclass(frozen=True)
@@ -17,16 +17,18 @@ class IfaConfig:
     Attributes:
         datum: [lat_deg, lon_deg, h_m] of the ``enu`` origin; ``[]`` = /dpos/datum.
         aircraft_config: aircraft (built-in name or YAML path) whose ``gnss_lever_arm_m`` is used;
-            '' = the aircraft of ``scenario`` (as pos_master_node / pos_sub_node resolve it).
-        scenario: the session's scenario (only to find its aircraft when aircraft_config is '').
-        method: alignment filter: ``add2`` (default), ``dd2`` or ``aekf``.
+            '' = the aircraft of ``scenario`` (a simulated session). One of the two is required:
+            the lever arm is what only the user knows about a real installation.
+        scenario: a simulated session's scenario (only to find its aircraft when aircraft_config
+            is ''); '' = none.
+        method: alignment filter, one of :data:`dpos_core.ifa.pipeline.METHODS` (default ``add2``).
         window: window length of the adaptive estimation, in GNSS epochs (>= 2).
         gnss_pos_sigma_m, gnss_vel_sigma_mps: nominal GNSS noise (E, N, U) of the filter's R.
         use_reported_sigma: R from each fix's own covariance instead of the nominal sigmas.
         aligned_heading_sigma_deg: heading 1 sigma below which ALIGNED may be declared (with a
             consistent innovation window).
         heading_sigma_deg: prior heading 1 sigma [deg] (large: any initial heading).
-        vertical: 15 states with the vertical channel (True) or the seed's 13.
+        vertical: 15 states with the vertical channel (True) or the paper's 13.
         pair_tolerance_s: a /gnss/fix and a /gnss/vel closer than this are one epoch.
         pair_timeout_s: a fix (velocity) whose partner has not come when GNSS data this much newer
             has arrived is dropped with a warning.
@@ -34,7 +36,7 @@ class IfaConfig:
 
     datum: tuple[float, ...] = datum_param()
     aircraft_config: str = aircraft_config_param()
-    scenario: str = scenario_param("the session's scenario: its aircraft gives the GNSS lever arm when aircraft_config is ''")
+    scenario: str = scenario_param("a simulated session's scenario: its aircraft gives the GNSS lever arm when aircraft_config is ''", default="")
     method: str = param("add2", "in-flight alignment filter", choices=METHODS)
     window: int = param(10, "window length of the adaptive estimation (GNSS epochs)", minimum=2)
     gnss_pos_sigma_m: tuple[float, float, float] = param((1.5, 1.5, 1.5), "nominal GNSS position sigma E, N, U [m]", minimum=0.0, exclusive_minimum=True)
@@ -42,7 +44,7 @@ class IfaConfig:
     use_reported_sigma: bool = param(False, "R from each fix's covariance instead of the nominal sigmas")
     aligned_heading_sigma_deg: float = param(0.1, "heading 1 sigma [deg] below which ALIGNED may be declared", minimum=0.0, exclusive_minimum=True)
     heading_sigma_deg: float = param(100.0, "prior heading 1 sigma [deg]", minimum=0.0, exclusive_minimum=True)
-    vertical: bool = param(True, "15 states with the vertical channel (false: the seed's 13)")
+    vertical: bool = param(True, "15 states with the vertical channel (false: the paper's 13)")
     pair_tolerance_s: float = param(0.001, "a /gnss/fix and /gnss/vel closer than this [s] form one epoch", minimum=0.0)
     pair_timeout_s: float = param(2.0, "drop a fix without velocity once GNSS data this much [s] newer arrived", minimum=0.0)
 

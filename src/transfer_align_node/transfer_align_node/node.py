@@ -108,11 +108,8 @@ class TransferAlignNode(Node):
     # ------------------------------------------------------------------ setup
     def _setup(self) -> None:
         from dpos_core.sim.scenario import ConfigError, config_text, load_aircraft
-        from dpos_core.ta.pipeline import METHODS
 
         cfg = self.config
-        if cfg.method not in METHODS:
-            raise ParameterError("method", cfg.method, f"not implemented yet; available: {list(METHODS)}")
         ref = cfg.aircraft_config or "paper_su"
         try:
             self.aircraft_yaml = config_text("aircraft", ref)
@@ -322,7 +319,7 @@ class TransferAlignNode(Node):
                 log.info(f"{self._progress} ({futs[f]})")
         for a in self.aircraft.antennas:
             if a.name not in antennas and (a.sub_imu is None or a.sub_imu in self.sub_names):
-                antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of seed 004 is not implemented yet)")
+                antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
         sess = read_session(spill_dir)
         sess.warnings[:0] = warnings
         streams = [s for s in antenna_streams(sess, antennas) if len(s)]

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from dpos_core.ta.pipeline import METHODS
 from dpos_ros.params import aircraft_config_param, datum_param, param
 
-METHODS = ("ups", "urtss", "ukf", "cdkf", "cdvf", "pf", "rpf", "mcmc_rpf")
 
 
 def _check_sub_imus(names: tuple[str, ...]) -> str | None:
@@ -24,8 +24,7 @@ class TransferAlignConfig:
     Attributes:
         datum: [lat_deg, lon_deg, h_m] of the ``enu`` frame origin.
         aircraft_config: aircraft YAML path, '' = built-in default.
-        method: smoother / filter: ``ups`` (default), ``urtss``, ``ukf``, ``cdkf``, ``cdvf``,
-            ``pf``, ``rpf``, ``mcmc_rpf``.
+        method: smoother / filter, one of :data:`dpos_core.ta.pipeline.METHODS` (default ``ups``).
         particles: number of particles of the particle methods (>= 1).
         filter_rate_hz: measurement update rate of the filter (> 0).
         output_dir: session products go to ``output_dir/<session id>/``.

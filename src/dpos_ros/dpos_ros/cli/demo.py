@@ -18,14 +18,17 @@ import sys
 import time
 from pathlib import Path
 
+from dpos_core.ta.pipeline import METHODS
+
 from ..graph import Graph, GraphError, GraphSpec, NodeSpec
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """The command line of dpos-demo (its ``--method`` choices are the core's METHODS)."""
     ap = argparse.ArgumentParser(prog="dpos-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=500.0, help="seconds of paper_su to fly (default 500: includes the S-turn and 100 s of segment AB)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--method", default="ups", help="transfer-alignment method (default ups)")
+    ap.add_argument("--method", default="ups", choices=METHODS, help="transfer-alignment method (default ups)")
     ap.add_argument("--alignment", choices=("ifa", "reference"), default="ifa",
                     help="main POS: ifa (mechanized, aligned in flight by ifa_node against GNSS; default) or reference "
                          "(the simulated reference navigation, truth + the paper's noise)")
@@ -34,7 +37,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
     ap.add_argument("--timeout", type=float, default=170.0)
     ap.add_argument("--verbose", action="store_true", help="stream every node's log")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
     t_start = time.monotonic()
     domain = int(os.environ.get("DPOS_DEMO_DOMAIN_ID", 100 + os.getpid() % 100))
     sim = {"scenario": "paper_su", "aircraft_config": "paper_su_pair", "seed": args.seed, "duration": args.duration,

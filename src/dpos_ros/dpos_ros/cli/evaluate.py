@@ -1,11 +1,11 @@
-"""``dpos-eval``: Monte Carlo evaluation in the seeds' format.
+"""``dpos-eval``: Monte Carlo evaluation in the papers' format.
 
     dpos-eval --scenario paper_su --methods ups,urtss,oracle --runs 5 --seed 1 --out /tmp/eval
 
 Each run simulates the scenario with seed S + r and processes it through the same reader and
 solver as dpos-process (in memory, no bag).  ``oracle`` is the model linearized about the true
 state with the true noise statistics (the practical bound; simulations only).  Writes
-``metrics.json`` (design.md schema, means over runs and antennas) and ``report.md`` (seed 000
+``metrics.json`` (design.md schema, means over runs and antennas) and ``report.md`` ([Gong2018]
 Table 1 layout with the paper's columns, and each method's ratio to the oracle).
 """
 
@@ -50,7 +50,22 @@ def _oracle_truth(ss: SimulatedSession, name: str):
     return nav, other
 
 
-def main(argv: list[str] | None = None) -> int:
+def methods_of(text: str | None, *, ifa: bool) -> list[str]:
+    """The ``--methods`` list for a transfer-alignment (``ifa=False``) or in-flight alignment
+    scenario, checked against the core's METHODS; raises ValueError naming the unknown ones."""
+    known = IFA_METHODS if ifa else METHODS + (ORACLE,)
+    if text is None:
+        text = ",".join(IFA_METHODS) if ifa else "ups,urtss"
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    bad = [m for m in methods if m not in known]
+    if bad or not methods:
+        kind = "IFA method" if ifa else "transfer-alignment method"
+        raise ValueError(f"unknown {kind}(s) {bad}; choose from {known}")
+    return methods
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line of dpos-eval."""
     ap = argparse.ArgumentParser(prog="dpos-eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", required=True)
     ap.add_argument("--aircraft")
@@ -68,22 +83,25 @@ def main(argv: list[str] | None = None) -> int:
     ifa.add_argument("--outage", metavar="T0,DUR", help="also run with a GNSS outage [T0, T0+DUR) s")
     ifa.add_argument("--noise-jump", metavar="T0,SCALE", help="also run with the GNSS noise x SCALE from T0 s on")
     ifa.add_argument("--no-table", action="store_true", help="skip the Table-3 runs (only the experiments asked for)")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = parser()
     args = ap.parse_args(argv)
     try:
         scenario = load_scenario(args.scenario, aircraft=args.aircraft)
     except ConfigError as e:
         print(f"dpos-eval: {e}", file=sys.stderr)
         return 2
+    try:
+        methods = methods_of(args.methods, ifa=is_ifa_scenario(scenario))
+    except ValueError as e:
+        ap.error(str(e))
     if is_ifa_scenario(scenario):
         from ..ifa_eval import main_ifa
 
-        return main_ifa(ap, args, scenario)
-    if args.methods is None:
-        args.methods = "ups,urtss"
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    bad = [m for m in methods if m not in METHODS + (ORACLE,)]
-    if bad or not methods:
-        ap.error(f"unknown method(s) {bad}; choose from {METHODS + (ORACLE,)}")
+        return main_ifa(ap, args, scenario, methods)
     if args.runs < 1:
         ap.error("--runs must be >= 1")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))

@@ -20,19 +20,25 @@ from ..products import evaluate, solve, write
 from ..session_io import SessionError, read_session
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """The command line of dpos-process (its ``--method`` choices are the core's METHODS)."""
     ap = argparse.ArgumentParser(prog="dpos-process", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", type=Path, help="rosbag2 directory of the session")
     ap.add_argument("--method", choices=METHODS, default="ups",
-                    help="default ups (seed 000's unscented particle smoother); urtss is the Gaussian smoother")
+                    help="default ups ([Gong2018]'s unscented particle smoother); urtss is the Gaussian smoother")
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0, help="random seed of the particle methods")
-    ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, seed 000)")
+    ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, [Gong2018])")
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
                     help="initial sub-IMU attitude error per axis (default: the recording's transfer_alignment setting, else 0)")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/)")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = parser()
     args = ap.parse_args(argv)
     if args.particles < 1:
         ap.error("--particles must be >= 1")
