@@ -4,6 +4,7 @@ logs, clean stop (SIGINT first), no orphans."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -62,6 +63,7 @@ ros_domain_id: {domain}
 nodes:
   - name: lonely
     executable: ifa_node
+    parameters: {{scenario: paper_su}}
     ready: {{publishes: [/never/published]}}
 """)
     graph = Graph.from_yaml(g, log=lambda n, line: None, ready_timeout_s=4.0)
@@ -96,6 +98,7 @@ ros_domain_id: {domain}
 nodes:
   - name: a
     executable: ifa_node
+    parameters: {{scenario: paper_su}}
   - name: b
     executable: transfer_align_node
 """)
@@ -103,13 +106,32 @@ nodes:
     assert r.returncode == 0, r.stdout + r.stderr
     assert "[a] " in r.stdout and "[b] " in r.stdout and "2 node(s) ready" in r.stdout
     assert "exit codes a=0, b=0" in r.stdout
-    for name in ("sim_paper_su", "aircraft_ros"):  # the packaged examples: the whole product graph
-        ex = subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=30)
-        assert ex.returncode == 0, ex.stderr
-        spec = GraphSpec.from_yaml(tmp_path / f"{name}.yaml", text=ex.stdout)
+    examples = {name: subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=30)
+                for name in ("sim_paper_su", "aircraft_ros")}  # the packaged examples: the whole product graph
+    assert all(ex.returncode == 0 for ex in examples.values())
+    # the real-device example makes the user state what only they know, and names what is left
+    with pytest.raises(GraphError, match="set what only you know") as e:
+        GraphSpec.from_yaml(tmp_path / "r.yaml", text=examples["aircraft_ros"].stdout)
+    for unset in ("pos_master_node: parameter 'datum'", "pos_master_node: parameter 'input_rotation_rpy_deg'",
+                  "pos_master_node: remap 'imu_in'", "ifa_node: parameter 'aircraft_config'", "sub_l: remap 'imu_in'"):
+        assert unset in str(e.value), unset
+    r = subprocess.run([str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=30)
+    (tmp_path / "r.yaml").write_text(r.stdout)
+    r = subprocess.run([str(EXE / "dpos-graph"), str(tmp_path / "r.yaml")], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "'datum' = <[LAT_DEG, LON_DEG, H_M] OR [] FOR THE FIRST FIX>" in r.stderr, r.stderr
+    filled = {"<AIRCRAFT FILE>": "/etc/dpos/aircraft.yaml", "<PRODUCTS DIRECTORY>": "/data/dpos",
+              "<[LAT_DEG, LON_DEG, H_M] OR [] FOR THE FIRST FIX>": "[]", "<MAIN IMU TOPIC>": "/imu/data",
+              "<GNSS FIX TOPIC>": "/ublox/fix", "<GNSS VELOCITY TOPIC>": "/ublox/fix_velocity",
+              "<RIGHT WING IMU TOPIC>": "/wing_r/imu", "<LEFT WING IMU TOPIC>": "/wing_l/imu"}
+    text = examples["aircraft_ros"].stdout
+    for k, v in filled.items():
+        text = text.replace(f'"{k}"', v)
+    text = re.sub(r'"<\[ROLL, PITCH, YAW\][^"]*>"', "[180.0, 0.0, 0.0]", text)
+    specs = {"sim_paper_su": GraphSpec.from_yaml(tmp_path / "s.yaml", text=examples["sim_paper_su"].stdout),
+             "aircraft_ros": GraphSpec.from_yaml(tmp_path / "r.yaml", text=text)}
+    for name, spec in specs.items():
         assert sorted(n.executable for n in spec.nodes) == sorted(
             ["transfer_align_node", "ifa_node", "pos_master_node", "pos_sub_node", "pos_sub_node"]), name
-    ros = GraphSpec.from_yaml(tmp_path / "r.yaml", text=subprocess.run(
-        [str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=30).stdout)
-    master = next(n for n in ros.nodes if n.name == "pos_master_node")
+    master = next(n for n in specs["aircraft_ros"].nodes if n.name == "pos_master_node")
     assert master.parameters["device"] == "ros" and set(master.remaps) == {"imu_in", "fix_in", "vel_in"}
+    assert master.parameters["datum"] == [] and master.parameters["input_rotation_rpy_deg"] == [180.0, 0.0, 0.0]

@@ -22,7 +22,7 @@ STOP_TIMEOUT_S = 10.0
 NODES = {
     "pos_master_node": [],
     "pos_sub_node": ["-p", "name:=sub_r"],
-    "ifa_node": [],
+    "ifa_node": ["-p", "scenario:=paper_su"],
     "transfer_align_node": [],
 }
 
@@ -105,7 +105,7 @@ def _node_classes():
     return {
         "pos_master_node": (PosMasterNode, PosMasterConfig()),
         "pos_sub_node": (PosSubNode, PosSubConfig(name="sub_r")),
-        "ifa_node": (IfaNode, IfaConfig()),
+        "ifa_node": (IfaNode, IfaConfig(scenario="paper_su")),
         "transfer_align_node": (TransferAlignNode, TransferAlignConfig()),
     }
 
@@ -113,7 +113,8 @@ def _node_classes():
 @pytest.mark.parametrize("script", sorted(NODES))
 def test_node_in_process_has_default_config(script, ros_context, ros_executor):
     cls, expected = _node_classes()[script]
-    overrides = [Parameter("name", value="sub_r")] if script == "pos_sub_node" else []
+    overrides = {"pos_sub_node": [Parameter("name", value="sub_r")],
+                 "ifa_node": [Parameter("scenario", value="paper_su")]}.get(script, [])
     node = cls(context=ros_context, parameter_overrides=overrides)
     try:
         assert node.get_name() == script
@@ -136,10 +137,18 @@ def test_node_in_process_rejects_bad_override(ros_context):
 def test_parameters_are_read_only(ros_context):
     from ifa_node.node import IfaNode
 
-    node = IfaNode(context=ros_context)
+    node = IfaNode(context=ros_context, parameter_overrides=[Parameter("scenario", value="paper_su")])
     try:
         result = node.set_parameters([Parameter("window", value=20)])[0]
         assert not result.successful
         assert node.config.window == 10
     finally:
         node.destroy_node()
+
+
+def test_ifa_node_needs_the_lever_arm_of_the_installation(ros_context):
+    """Without an aircraft file nor a simulated scenario ifa_node does not guess a lever arm."""
+    from ifa_node.node import IfaNode
+
+    with pytest.raises(ParameterError, match="'aircraft_config' = '': required: the aircraft file of your installation"):
+        IfaNode(context=ros_context)

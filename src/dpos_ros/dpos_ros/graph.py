@@ -84,6 +84,11 @@ def _resolve(exe: str) -> str:
     return found
 
 
+def _is_placeholder(v: Any) -> bool:
+    """A value written ``<LIKE THIS>`` in an example graph: the user must replace it."""
+    return isinstance(v, str) and len(v) > 2 and v.startswith("<") and v.endswith(">")
+
+
 def _param_text(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -127,6 +132,11 @@ class GraphSpec:
             nodes.append(NodeSpec(str(n["name"]), str(n["executable"]), dict(n.get("parameters") or {}), n.get("params_file"),
                                   dict(n.get("remaps") or {}), tuple(ready.get("publishes") or ()), tuple(ready.get("subscribes") or ()),
                                   tuple(str(a) for a in n.get("args") or ())))
+        unset = [f"{n.name}: {where} {key!r} = {value}" for n in nodes for where, values in (("parameter", n.parameters), ("remap", n.remaps))
+                 for key, value in values.items() if _is_placeholder(value)]
+        if unset:
+            raise GraphError(f"{label}: set what only you know about your installation (values written <LIKE THIS>):\n  "
+                             + "\n  ".join(unset))
         names = [n.name for n in nodes]
         if len(set(names)) != len(names):
             raise GraphError(f"{label}: duplicate node names {names}")

@@ -394,6 +394,9 @@ def wait_subscribers_param() -> Any:
     )
 
 
-def scenario_param(description: str = "simulator scenario (device: sim): built-in name or YAML path") -> Any:
-    """The ``scenario`` parameter: a built-in scenario of the simulator or a user's YAML file."""
-    return param("paper_su", description, non_empty=True, check=_check_scenario)
+def scenario_param(description: str = "simulator scenario (device: sim): built-in name or YAML path", default: str = "paper_su") -> Any:
+    """The ``scenario`` parameter: a built-in scenario of the simulator or a user's YAML file
+    (``default=''``: optional, '' = none)."""
+    if default == "":
+        return param("", description, check=lambda v: _check_scenario(v) if v else None)
+    return param(default, description, non_empty=True, check=_check_scenario)

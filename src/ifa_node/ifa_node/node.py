@@ -1,4 +1,4 @@
-"""ifa_node — in-flight alignment of the main POS against GNSS (seed 001: ADD2, DD2 or AEKF).
+"""ifa_node — in-flight alignment of the main POS against GNSS ([Fang2012]: ADD2, DD2 or AEKF).
 
 Shadow mechanization (exact and deterministic): the node runs
 :class:`dpos_core.ifa.pipeline.InFlightAligner` on the very IMU samples pos_master_node mechanizes,
@@ -33,7 +33,7 @@ Outputs per accepted epoch
     rotated into ``enu``), twist in the body with the velocity covariance.
     ``/ifa/imu_bias`` (Imu, frame ``master_imu``): the gyro / accelerometer bias compensation the
     closed loop removes from the IMU samples after the stamp, with the filter's covariances.
-    Published from the alignment epoch on: seed 001 sec. 3.3 feeds the biases back when the
+    Published from the alignment epoch on: [Fang2012] sec. 3.3 feeds the biases back when the
     alignment ends (before, their estimates are in the status: ``gyro_bias_deg_h``,
     ``accel_bias_ug``), so pos_master_node can apply every message it gets.
     ``/ifa/status`` (DiagnosticArray, TRANSIENT_LOCAL): message WAITING (no data yet; level
@@ -106,6 +106,9 @@ class IfaNode(Node):
         from dpos_core.sim.scenario import ConfigError, load_aircraft, load_scenario
 
         cfg = self.config
+        if not cfg.aircraft_config and not cfg.scenario:
+            raise ParameterError("aircraft_config", "", "required: the aircraft file of your installation (its gnss_lever_arm_m "
+                                 "moves the GNSS antenna to the IMU); for a simulated session set scenario instead")
         try:
             aircraft = load_aircraft(cfg.aircraft_config) if cfg.aircraft_config else load_scenario(cfg.scenario).aircraft
         except ConfigError as e:
