@@ -103,7 +103,7 @@ def test_named_attitude_cases() -> None:
 
 
 def test_seed_rfu_convention() -> None:
-    """Seed 000 eq. 19: C_b^n(RFU, ENU) with psi counter-clockwise; same body as our FLU attitude."""
+    """[Gong2018] eq. 19: C_b^n(RFU, ENU) with psi counter-clockwise; same body as our FLU attitude."""
     rng = np.random.default_rng(9)
     h, p, r = rng.uniform(0, 2 * np.pi, 500), rng.uniform(-1.4, 1.4, 500), rng.uniform(-3, 3, 500)
     psi = frames.seed_psi_from_heading(h)
@@ -126,5 +126,5 @@ def test_seed_rfu_convention() -> None:
     np.testing.assert_allclose(frames.vec_flu_from_rfu([1.0, 0.0, 0.0]), [0, -1, 0])
     v = rng.normal(size=(10, 3))
     np.testing.assert_allclose(frames.vec_rfu_from_flu(frames.vec_flu_from_rfu(v)), v)
-    # seed 000 lever arm [5, 0.1, 0.1] m RFU = 5 m out on the right wing
+    # [Gong2018] lever arm [5, 0.1, 0.1] m RFU = 5 m out on the right wing
     np.testing.assert_allclose(frames.vec_flu_from_rfu([5.0, 0.1, 0.1]), [0.1, -5.0, 0.1])

@@ -1,4 +1,4 @@
-"""DD2 / ADD2 / AEKF pieces (dpos_core.filters.dd2, seed 001 eq. 2-23)."""
+"""DD2 / ADD2 / AEKF pieces (dpos_core.filters.dd2, [Fang2012] eq. 2-23)."""
 
 from __future__ import annotations
 

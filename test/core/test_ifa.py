@@ -1,4 +1,4 @@
-"""In-flight alignment of the main POS (dpos_core.ifa, seed 001) on simulated paper_ifa sessions."""
+"""In-flight alignment of the main POS (dpos_core.ifa, [Fang2012]) on simulated paper_ifa sessions."""
 
 from __future__ import annotations
 

@@ -84,7 +84,7 @@ def test_bad_segments_are_rejected() -> None:
 
 
 def test_flexure_statistics_match_the_model() -> None:
-    """Seed 000 sec. 4.1.3: tau 2/5/2 s, variance 0.01/0.15/0.01 deg^2.
+    """[Gong2018] sec. 4.1.3: tau 2/5/2 s, variance 0.01/0.15/0.01 deg^2.
 
     Over T = 20,000 s the sample variance of a process with correlation time ~tau has a relative
     standard error of about sqrt(2 * T_c / T) with T_c = int rho^2 = 5 / (4 beta) ~ 0.6 tau:

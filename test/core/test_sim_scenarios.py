@@ -30,7 +30,7 @@ def test_paper_su_plan() -> None:
     np.testing.assert_allclose(np.rad2deg(p.heading) % 360, [40, 40, 100, 40, 40, 220, 220], atol=1e-9)
     np.testing.assert_allclose([s.duration_s for s in sc.segments], [200, 100, 100, 400, 100, 400])
     s = sc.aircraft.sub_imu("sub_r")
-    np.testing.assert_allclose(s.lever_arm_m, [0.1, -5.0, 0.1])  # seed 000 RFU [5, 0.1, 0.1] m
+    np.testing.assert_allclose(s.lever_arm_m, [0.1, -5.0, 0.1])  # [Gong2018] RFU [5, 0.1, 0.1] m
     assert sc.master_nav_noise.heading_deg == 0.005 and sc.master_nav_noise.pitch_deg == 0.0025
     assert s.imu.gyro_bias_deg_h == 0.01 and s.imu.accel_noise_ug == 50.0
     assert sc.transfer_alignment["particles"] == 100
@@ -84,7 +84,7 @@ def test_sensor_noise_matches_the_configuration() -> None:
     r_m, _ = earth.radii_of_curvature(tr.llh[:, 0])
     assert np.std((g.llh[:, 0] - tr.llh[:, 0]) * r_m) == pytest.approx(0.05, rel=0.15)
     assert np.std(g.vel_n_mps[:, 2] - tr.vel_n_mps[:, 2]) == pytest.approx(0.02, rel=0.15)
-    # reference navigation: heading noise 0.005 deg (seed 000)
+    # reference navigation: heading noise 0.005 deg ([Gong2018])
     nav = ss.master_nav_reference()
     trn = ss.truth("master", nav.t_s)
     phi = attitude_error(nav.C_nb, trn.C_nb)

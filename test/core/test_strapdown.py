@@ -172,7 +172,7 @@ def test_chunked_integration_equals_one_call() -> None:
 
 def test_closed_loop_correction_restores_the_truth() -> None:
     """Start with 5 deg / 2 m/s / 30 m errors, integrate 20 s, feed back the exact errors at that
-    epoch with the seeds' sign convention: the state equals the truth and stays on it."""
+    epoch with the papers' sign convention: the state equals the truth and stays on it."""
     traj = CoordinatedTurnClimb()
     fs = 100.0
     t = np.arange(0.0, 60.0 + 0.5 / fs, 1.0 / fs)

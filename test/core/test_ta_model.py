@@ -1,4 +1,4 @@
-"""Transfer-alignment model (seed 000): the UKF/URTSS pipeline on a short paper_su run."""
+"""Transfer-alignment model ([Gong2018]): the UKF/URTSS pipeline on a short paper_su run."""
 
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def test_ups_matches_urtss_from_40_deg_both_engines(su300) -> None:
     """The unscented particle smoother (100 particles on the flexure rate, filters.runners) from
     40 deg: rho within 0.1 deg, and over the last 100 s its attitude and velocity errors within
     10 % (+ a small floor) of the URTSS's - with the shared-linearization engine (default) and
-    with every particle's own UKF (seed 000 as written)."""
+    with every particle's own UKF ([Gong2018] as written)."""
     from dpos_core.filters import runners
 
     ss, imu, master, ins = su300

@@ -34,7 +34,7 @@ def test_eval_ifa_writes_table3_and_experiments(tmp_path: Path) -> None:
     assert out["epochs_in_outage"] == 0 and m["outage"]["t0_s"] == 30.0
     assert set(m["noise_jump"]["methods"]) == {"add2", "dd2"} and m["noise_jump"]["scale"] == 10.0
     rep = (tmp_path / "report.md").read_text()
-    for s in ("| ADD2 (ours) |", "| ADD2 (seed 001) | 0.014 | 0.0016 | 0.0018 | 6.8505 |", "| DD2 (ours) |",
+    for s in ("| ADD2 (ours) |", "| ADD2 ([Fang2012]) | 0.014 | 0.0016 | 0.0018 | 6.8505 |", "| DD2 (ours) |",
               "Initial-heading sweep", "GNSS outage 30-40 s", "GNSS noise x10 from 40 s"):
         assert s in rep, s
 

@@ -150,7 +150,7 @@ def attitude_error(C_nb_est: ArrayLike, C_nb_true: ArrayLike) -> FloatArray:
     """Attitude error ``phi^n`` (rotation vector, world frame) of an estimate, shape ``(..., 3)``.
 
     Defined exactly (no small-angle assumption) by ``C_nb_est = expm(-[phi x]) @ C_nb_true``,
-    the misalignment ("phi-angle") convention of the seeds' error models (seed 000 eq. 11:
+    the misalignment ("phi-angle") convention of the papers' error models ([Gong2018] eq. 11:
     ``C_n^{n'} = I - [phi x]`` to first order).  Valid for any angle below pi and
     free of Euler-angle singularities and heading wrap.  The estimate is corrected by
     ``C_nb_true = expm([phi x]) @ C_nb_est``.

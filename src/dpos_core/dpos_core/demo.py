@@ -1,7 +1,7 @@
 """``dpos-strapdown-demo``: strapdown demonstration on a closed-form flight.
 
 Integrates a 30-deg-bank climbing turn (100 m/s, 600 s, 200 Hz) twice: with a perfect IMU, which
-must return the truth, and with the sub-IMU error model of seed 000 sec. 4.1.2 (gyro 0.01 deg/h
+must return the truth, and with the sub-IMU error model of [Gong2018] sec. 4.1.2 (gyro 0.01 deg/h
 constant + 0.01 deg/h random, accelerometer 50 ug + 50 ug), which shows free-inertial drift.
 Prints an error table and the processing-time ratio, and writes a PNG of the errors.
 """
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
           f"(processing time / data duration = {elapsed / args.duration:.2e})")
     print()
     print(f"{'IMU':<22}{'t [s]':>7}{'|pos| [m]':>12}{'|vel| [m/s]':>13}{'att [deg]':>11}{'heading [deg]':>15}")
-    for name, e in (("perfect", e_perfect), ("seed-000 sub-IMU", e_sensor)):
+    for name, e in (("perfect", e_perfect), ("[Gong2018] sub-IMU", e_sensor)):
         for tq in (60.0, args.duration / 2, args.duration):
             i = min(int(round(tq * args.rate)) - 1, len(t) - 2)
             print(f"{name:<22}{t[i + 1]:>7.0f}{np.linalg.norm(e['pos_m'][i]):>12.2e}"
@@ -97,7 +97,7 @@ def _plot(out_dir: Path, t: np.ndarray, llh: np.ndarray, e_perfect: dict, e_sens
     fig, ax = plt.subplots(2, 2, figsize=(11, 7.5), constrained_layout=True)
     ax[0, 0].plot(enu[:, 0] / 1e3, enu[:, 1] / 1e3)
     ax[0, 0].set(xlabel="East [km]", ylabel="North [km]", title="ground track", aspect="equal")
-    for lab, e in (("perfect IMU", e_perfect), ("seed-000 sub-IMU", e_sensor)):
+    for lab, e in (("perfect IMU", e_perfect), ("[Gong2018] sub-IMU", e_sensor)):
         ax[0, 1].semilogy(t, np.linalg.norm(e["pos_m"], axis=1) + 1e-12, label=lab)
         ax[1, 0].semilogy(t, np.linalg.norm(e["vel_mps"], axis=1) + 1e-15, label=lab)
         ax[1, 1].semilogy(t, np.rad2deg(np.linalg.norm(e["att_rad"], axis=1)) + 1e-15, label=lab)

@@ -1,7 +1,7 @@
 """Body and world axis conventions, and Euler angles.
 
 This module is the one place that knows how the product's REP 103 frames (body FLU: x forward,
-y left, z up; world ENU) relate to the seed papers' frames (body RFU: x right, y forward, z up;
+y left, z up; world ENU) relate to the papers' frames (body RFU: x right, y forward, z up;
 world ENU) and to the Euler angles that reports use.
 
 Aviation angles (reports, parameters):
@@ -10,7 +10,7 @@ Aviation angles (reports, parameters):
     roll     right wing down positive, (-pi, pi]
     with ``C_ned_frd = Rz(heading) Ry(pitch) Rx(roll)`` (the aerospace 3-2-1 sequence).
 
-Seed angles (seed 000 eq. 19, seed 001): ``C_b^n = Rz(psi) Rx(theta) Ry(gamma)`` for an RFU body
+Seed angles ([Gong2018] eq. 19, [Fang2012]): ``C_b^n = Rz(psi) Rx(theta) Ry(gamma)`` for an RFU body
 in ENU.  Here ``psi`` is measured counter-clockwise from north (towards west), so
 ``psi = -heading``; ``theta`` = pitch, ``gamma`` = roll (same signs as aviation).
 
@@ -89,13 +89,13 @@ def vec_rfu_from_flu(v_flu: ArrayLike) -> FloatArray:
 
 
 def C_nb_rfu_from_seed_angles(psi_rad: ArrayLike, theta_rad: ArrayLike, gamma_rad: ArrayLike) -> FloatArray:
-    """Seed 000 eq. 19: ``C_b^n = Rz(psi) Rx(theta) Ry(gamma)`` for an RFU body in ENU."""
+    """[Gong2018] eq. 19: ``C_b^n = Rz(psi) Rx(theta) Ry(gamma)`` for an RFU body in ENU."""
     psi, theta, gamma = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (psi_rad, theta_rad, gamma_rad)))
     return _rz(psi) @ _rx(theta) @ _ry(gamma)
 
 
 def seed_angles_from_C_nb_rfu(C_nb_rfu: ArrayLike) -> FloatArray:
-    """Inverse of seed 000 eq. 19 -> ``[psi, theta, gamma]`` (psi counter-clockwise from north, wrapped)."""
+    """Inverse of [Gong2018] eq. 19 -> ``[psi, theta, gamma]`` (psi counter-clockwise from north, wrapped)."""
     C = np.asarray(C_nb_rfu, dtype=float)
     psi = np.arctan2(-C[..., 0, 1], C[..., 1, 1])
     theta = np.arcsin(np.clip(C[..., 2, 1], -1.0, 1.0))

@@ -1,5 +1,5 @@
 """Navigation-error propagation over a filter interval, shared by the error-state models
-(transfer alignment, seed 000 eq. 11; in-flight alignment, seed 001 eq. 24).
+(transfer alignment, [Gong2018] eq. 11; in-flight alignment, [Fang2012] eq. 24).
 
 Errors are computed - true: attitude ``phi`` as a rotation vector (``C_est = expm(-[phi x]) C_true``,
 exact for any angle), velocity ``dv`` and position ``dp`` in local ENU [m/s, m], gyro bias ``eps``

@@ -22,7 +22,7 @@ linearly over the interval: coning ``T^2/12 w_{k-1} x w_k``, sculling
 ``T^2/12 (w_{k-1} x f_k + f_{k-1} x w_k)`` (derived from Savage 1998 eq. 26-29).
 
 A caller can correct the state at any epoch (closed-loop error feedback) with
-:meth:`Strapdown.correct`, whose sign convention is the seeds' (errors = computed - true,
+:meth:`Strapdown.correct`, whose sign convention is the papers' (errors = computed - true,
 attitude error ``phi`` with ``C_nb_est = expm(-[phi x]) C_nb_true``).
 """
 

@@ -6,7 +6,7 @@ its navigation is *exactly* the closed-loop strapdown of :class:`dpos_core.ifa.p
 ("shadow mechanization"): both integrate the same IMU samples from the same initial state, and
 
 * a correction (``/ifa/correction``) for the epoch ``t_k`` replaces the state at the IMU sample
-  ``t_k`` (the aligner's state right after its feedback, seed 001 sec. 3.3) and re-integrates the
+  ``t_k`` (the aligner's state right after its feedback, [Fang2012] sec. 3.3) and re-integrates the
   samples stored after ``t_k`` (a ring of the last ``ring_s`` seconds);
 * a bias compensation (``/ifa/imu_bias`` stamped ``t_k``) is removed from the IMU samples after
   ``t_k``, as :meth:`dpos_core.ifa.model.IfaModel.propagate` does from the alignment epoch on.

@@ -4,8 +4,8 @@
   ``antennas/``            rosbag2 (MCAP) with ``/antenna/<name>/odom`` (pose in ``enu``, twist in the
                            antenna frame, covariances from the smoother)
   ``<antenna>.csv``        time, lat, lon, h, vE, vN, vU, heading, pitch, roll and their 1-sigma
-  ``metrics.json``         when truth is in the recording: RMSE/STD (seed 000 eq. 21) per antenna
-  ``report.md`` + PNGs     the seeds' table layout and error plots
+  ``metrics.json``         when truth is in the recording: RMSE/STD ([Gong2018] eq. 21) per antenna
+  ``report.md`` + PNGs     the papers' table layout and error plots
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def solve(
     out: dict[str, AntennaSolution] = {}
     for a in aircraft.antennas:
         if a.sub_imu is None:
-            out[a.name] = AntennaSolution(a.name, None, "not estimated: no IMU (the least-squares wing fit of seed 004 is not implemented yet)")
+            out[a.name] = AntennaSolution(a.name, None, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
             continue
         r = results.get(a.sub_imu)
         if r is None:
@@ -260,7 +260,7 @@ def metrics_json(sess: RecordedSession | None, per_method: dict[str, tuple[dict,
     return out
 
 
-PAPER_TABLE1 = {  # seed 000 Table 1: (URTSS RMSE, STD), (UPS RMSE, STD)
+PAPER_TABLE1 = {  # [Gong2018] Table 1: (URTSS RMSE, STD), (UPS RMSE, STD)
     "heading_deg": ((3.7874, 1.2914), (0.4959, 0.0217)), "pitch_deg": ((0.5166, 0.1218), (0.0766, 0.0781)),
     "roll_deg": ((0.8238, 0.0371), (0.0569, 0.0568)), "vel_e_mps": ((0.0264, 0.0245), (0.0133, 0.0134)),
     "vel_n_mps": ((0.0403, 0.0414), (0.0225, 0.0148)), "vel_u_mps": ((0.0125, 0.0124), (0.0224, 0.0211)),
@@ -274,7 +274,7 @@ ROWS = [("Attitude error", "Heading (°)", "heading_deg"), ("", "Pitch (°)", "p
 
 
 def report_md(metrics: dict, title: str, paper: bool | None = None) -> str:
-    """Seed 000 Table 1 layout: means of RMSE and STD over the imaging segments (and runs)."""
+    """[Gong2018] Table 1 layout: means of RMSE and STD over the imaging segments (and runs)."""
     methods = list(metrics["methods"])
     paper = metrics.get("scenario") == "paper_su" if paper is None else paper
     head = ["Parameter", ""] + [f"{m.upper()} {c}" for m in methods for c in ("RMSE", "STD")]
@@ -282,7 +282,7 @@ def report_md(metrics: dict, title: str, paper: bool | None = None) -> str:
         head += ["paper URTSS RMSE", "paper URTSS STD", "paper UPS RMSE", "paper UPS STD"]
     what = f"Scenario `{metrics['scenario']}`" if metrics.get("scenario") else "Live session"
     lines = [f"# {title}", "", f"{what}, {metrics['runs']} run(s), segments {', '.join(metrics['segments'])}; "
-             "means of RMSE and STD (seed 000 eq. 21) over the segments, the runs and the antennas.", "",
+             "means of RMSE and STD ([Gong2018] eq. 21) over the segments, the runs and the antennas.", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for group, label, key in ROWS:
         row = [group, label]

@@ -1,7 +1,7 @@
 """Square-root second-order divided-difference filter (DD2), its innovation-adaptive variant
-(ADD2) and the innovation-adaptive EKF (AEKF) of the in-flight alignment (seed 001).
+(ADD2) and the innovation-adaptive EKF (AEKF) of the in-flight alignment ([Fang2012]).
 
-DD2 (Norgaard, Poulsen, Ravn 2000; seed 001 eq. 2-14), additive noise, ``h = sqrt(3)``.
+DD2 (Norgaard, Poulsen, Ravn 2000; [Fang2012] eq. 2-14), additive noise, ``h = sqrt(3)``.
 With the columns ``s_j`` of the lower-triangular factor ``S`` (``P = S S^T``) and
 ``f_j^+- = f(x +- h s_j)``, ``f_0 = f(x)``:
 
@@ -14,7 +14,7 @@ With the columns ``s_j`` of the lower-triangular factor ``S`` (``P = S S^T``) an
 
   With additive process noise ``w ~ N(0, S_Q S_Q^T)`` the noise columns of eq. 4 reduce to
   ``S_xw1 = S_Q`` and ``S_xw2 = 0`` (``f`` is linear in ``w``), and ``n_w`` drops out of the
-  mean weights.  Eq. 5 of the seed prints ``f(+) + f(-)`` in ``S_x1``; Norgaard's first-order
+  mean weights.  Eq. 5 of the paper prints ``f(+) + f(-)`` in ``S_x1``; Norgaard's first-order
   term is the difference ``f(+) - f(-)`` (used here, and the only choice that reproduces the
   Kalman filter on a linear model).
 
@@ -28,7 +28,7 @@ With the columns ``s_j`` of the lower-triangular factor ``S`` (``P = S S^T``) an
   ``tria`` is :func:`~.linalg.householder_tria`.  On a linear-Gaussian model every second-order
   column vanishes and DD2 is the Kalman filter (``S+`` is the Joseph form).
 
-ADD2 (seed 001 eq. 18-23).  The innovation ``z_k = y_k - y_pred`` enters a moving window of the
+ADD2 ([Fang2012] eq. 18-23).  The innovation ``z_k = y_k - y_pred`` enters a moving window of the
 last ``N`` innovations and ``D_k = 1/N sum z_i z_i^T`` (eq. 22) replaces ``S_y S_y^T`` in the gain
 (eq. 23).  Taken literally this is ill-defined: for ``k < N`` (or ``N < p``) ``D_k`` is singular,
 and a window of 10 small innovations can fall below the part of the innovation covariance that
@@ -52,7 +52,7 @@ as ``1/N sum (z_i z_i^T - P_yx,i)`` with each innovation's own state part
 at ``r_ceiling R`` so that state errors the filter does not know about cannot inflate R without
 bound (which would freeze the gain).
 
-AEKF (Mohamed & Schwarz 1999, innovation-based adaptive estimation; seed 001's baseline): the
+AEKF (Mohamed & Schwarz 1999, innovation-based adaptive estimation; [Fang2012]'s baseline): the
 EKF whose measurement noise is ``R_hat = C_v - H P^- H^T`` from the same windowed innovation
 covariance ``C_v``, guarded the same way.  Jacobians are central differences of ``f`` and
 ``h`` at the current estimate (step ``1e-6`` relative to the state's sigma).
@@ -190,7 +190,7 @@ def _gain_from_factor(Pxy: FloatArray, Sy: FloatArray) -> FloatArray:
 
 
 class InnovationWindow:
-    """Moving window of the last ``N`` innovations (seed 001 eq. 15-16, 22).
+    """Moving window of the last ``N`` innovations ([Fang2012] eq. 15-16, 22).
 
     ``cov()`` is ``1/n sum_{i in window} z_i z_i^T`` (n = number held, at most ``N``), i.e. the
     moving average of the outer products (eq. 22, innovations assumed zero-mean); with

@@ -2,7 +2,7 @@
 cross-covariance) URTSS.
 
 * Linear Kalman filter: ``kf_predict`` / ``kf_update``.
-* Unscented Kalman filter (seed 000 eq. 2-5): ``ut_predict`` / ``ut_update`` propagate any point
+* Unscented Kalman filter ([Gong2018] eq. 2-5): ``ut_predict`` / ``ut_update`` propagate any point
   set (:mod:`.points`) through the model, batched over leading axes (particles).
 * ``rts_smooth``: the RTS recursion written with the cross-covariance ``C_k = Cov(x_k, x_{k+1} | y_1:k)``,
   which is ``P_k F^T`` for the linear filter and the sigma-point cross-covariance for the
@@ -63,7 +63,7 @@ def kf_update(x: FloatArray, P: FloatArray, y: FloatArray, H: FloatArray, R: Flo
 
 
 def ut_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, points=UnscentedPoints()) -> Prediction:
-    """Unscented time update with additive process noise (seed 000 eq. 4)."""
+    """Unscented time update with additive process noise ([Gong2018] eq. 4)."""
     n = x.shape[-1]
     wm, wc = points.weights(n)
     X = points.points(x, P)
@@ -86,7 +86,7 @@ def ut_update(
     points=UnscentedPoints(),
     residual: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
 ) -> Update:
-    """Unscented measurement update with additive noise (seed 000 eq. 5).
+    """Unscented measurement update with additive noise ([Gong2018] eq. 5).
 
     ``residual(a, b)`` (default ``a - b``) forms measurement differences (e.g. for angles)."""
     n = x.shape[-1]

@@ -1,4 +1,4 @@
-"""The state-space model interface every filter and smoother runs on (seed 000 eq. 1).
+"""The state-space model interface every filter and smoother runs on ([Gong2018] eq. 1).
 
 ``x_{k+1} = f_k(x_k) + w_k``, ``w_k ~ N(0, Q_k)``;  ``y_k = h_k(x_k) + v_k``, ``v_k ~ N(0, R_k)``,
 for epochs ``k = 0 .. K-1``.  ``f``/``h`` take states with any leading axes (particles, sigma
@@ -7,7 +7,7 @@ points) and are vectorized over them.
 Closed-loop error-state filters (the transfer alignment) feed the estimate back into the
 navigation at each epoch and reset the error state: after the update at epoch ``k`` the filter
 asks ``feedback(k, mean)`` for the correction ``c_k`` it applies, and re-expresses every state
-with ``shift(k, x, c_k)`` (the particles move by the applied correction, seed 000 sec. 3.3).
+with ``shift(k, x, c_k)`` (the particles move by the applied correction, [Gong2018] sec. 3.3).
 Open-loop models return ``None`` from ``feedback``.
 """
 

@@ -1,11 +1,11 @@
 """Deterministic point sets for Gaussian filters.
 
-* :class:`UnscentedPoints`: the scaled unscented transform (seed 000 eq. 2-3; Julier 2002,
+* :class:`UnscentedPoints`: the scaled unscented transform ([Gong2018] eq. 2-3; Julier 2002,
   van der Merwe 2004): ``2n + 1`` points ``x +- sqrt((n + lambda) P)_j`` with
   ``lambda = alpha^2 (n + kappa) - n``, mean weights ``W0m = lambda / (n + lambda)``,
   ``W0c = W0m + 1 - alpha^2 + beta``, ``Wj = 1 / (2 (n + lambda))``.
 * :class:`CentralDifferencePoints`: Stirling's interpolation (Norgaard, Poulsen, Ravn 2000;
-  seed 001 eq. 2-14): points ``x +- h s_j`` of a square root ``S``, step ``h = sqrt(3)`` for a
+  [Fang2012] eq. 2-14): points ``x +- h s_j`` of a square root ``S``, step ``h = sqrt(3)`` for a
   Gaussian prior; mean weights ``(h^2 - n)/h^2`` and ``1/(2 h^2)``.  Used by CDKF and DD2.
 """
 

@@ -2,12 +2,12 @@
 
 * :func:`run_sigma_point_filter` -> :class:`GaussianTrack`: UKF (unscented points) or CDKF
   (central-difference points) with closed-loop feedback; :func:`smooth_gaussian` is URTSS / RTS.
-* :func:`run_upf` -> :class:`ParticleTrack`: the unscented particle filter (seed 000 eq. 2-8;
+* :func:`run_upf` -> :class:`ParticleTrack`: the unscented particle filter ([Gong2018] eq. 2-8;
   van der Merwe et al. 2000), Rao-Blackwellized: every particle carries a UKF over the whole
   state and its posterior is the particle's proposal; importance weights in logs; SIR
   resampling when the effective sample size drops below a threshold.  All particles and their
   sigma points are processed in one vectorized call.
-* :func:`ffbsm` (seed 000 eq. 9): forward-filtering backward-smoothing reweighting,
+* :func:`ffbsm` ([Gong2018] eq. 9): forward-filtering backward-smoothing reweighting,
   ``w_{k|K}^i = w_k^i sum_j w_{k+1|K}^j p(x_{k+1}^j|x_k^i) / sum_m w_k^m p(x_{k+1}^j|x_k^m)``;
   :func:`rb_smooth` (the UPS) adds, along the same backward kernel, an RTS step for the states
   each particle carries as a Gaussian.
@@ -19,7 +19,7 @@ attitude, velocity and position errors only the sensors' white noise (1e-8 rad a
 1 s epoch, far below their posterior spread).  So in those directions the density is a point
 mass: a particle drawn from a UKF posterior has weight zero (or, regularized, an arbitrary one).
 What was measured here (paper_su, seed 1, 100 particles): sampling all 24 states from each
-particle's UKF, the seed's literal UPF, the ESS was 1.0 at every one of the 1300 epochs and
+particle's UKF, the paper's literal UPF, the ESS was 1.0 at every one of the 1300 epochs and
 the smoother ended at 45x the oracle (baseline 12-17 mm); regularizing the density with a
 Silverman kernel in the noise-free directions did not change that (the kernel is built from a
 cloud that has already collapsed); kernel-regularized transitions with Liu-West shrinkage
@@ -28,7 +28,7 @@ kept the ESS near 50 but let the cloud's static parameters random-walk away from
 
 So the density is restricted to the noise-driven subspace (the issue's second option), in
 the Rao-Blackwellized form (Chen and Liu 2000; Schon, Gustafsson and Nordlund 2005, cited by
-seed 003): the particles sample only the components ``model.sampled`` (the flexure rate, where
+[Yan2016]): the particles sample only the components ``model.sampled`` (the flexure rate, where
 eq. 13's noise enters); each particle's UKF carries every other state as a Gaussian conditioned
 on the particle's sampled path (exact Gaussian conditioning after each draw).  Then, for
 particle i at epoch k:
@@ -51,7 +51,7 @@ particle i at epoch k:
   O(K N n + K n^2)).
 
 Two engines run the particles' UKFs: :class:`PerParticleUKF` (each particle its own sigma
-points, covariance and gain - seed 000 as written) and :class:`SharedLinearizationUKF` (the
+points, covariance and gain - [Gong2018] as written) and :class:`SharedLinearizationUKF` (the
 default: one unscented transform per step at the particles' weighted mean, shared covariance
 and gain, each particle's mean through the model).  They agree to 1e-9 on a linear model
 (test_filters_particle.py) and within Monte Carlo noise on paper_su (test_ta_model.py); the
@@ -208,7 +208,7 @@ def _mixture(w: FloatArray, m: FloatArray, P: FloatArray) -> tuple[FloatArray, F
 
 
 class PerParticleUKF:
-    """Each particle's own unscented transforms (covariances (N, n, n)): seed 000 as written."""
+    """Each particle's own unscented transforms (covariances (N, n, n)): [Gong2018] as written."""
 
     def init(self, P0: FloatArray, N: int) -> FloatArray:
         return np.broadcast_to(P0, (N,) + P0.shape).copy()
@@ -301,7 +301,7 @@ def run_upf(
     integrates to it).  SIR (systematic) resampling when ESS < ``ess_threshold`` N.
 
     Args:
-        x0, P0: prior mean (n,) and covariance (n, n) of every particle's UKF (seed 000 step 1).
+        x0, P0: prior mean (n,) and covariance (n, n) of every particle's UKF ([Gong2018] step 1).
         sampled: indices or slice of the sampled components; default ``model.sampled`` or all.
         engine: :class:`SharedLinearizationUKF` (default) or :class:`PerParticleUKF`.
     """
@@ -369,7 +369,7 @@ def run_upf(
 
 
 def ffbsm(track: ParticleTrack) -> FloatArray:
-    """Backward reweighting (seed 000 eq. 9) of the sampled components: smoothed normalized log
+    """Backward reweighting ([Gong2018] eq. 9) of the sampled components: smoothed normalized log
     weights (K, N) of ``track.particles``.  ``w_{K-1|K} = w_{K-1}``; the transition density
     ``p(x_{k+1}^j | x_{0:k}^i)`` is particle i's predicted Gaussian of the sampled components
     (the carried states marginalized).  :func:`rb_smooth` also smooths the carried states."""

@@ -1,11 +1,11 @@
-"""Offline Monte Carlo evaluation of the in-flight alignment (seed 001 sec. 4.1, Table 3).
+"""Offline Monte Carlo evaluation of the in-flight alignment ([Fang2012] sec. 4.1, Table 3).
 
 Each run simulates the scenario (:class:`~dpos_core.sim.session.SimulatedSession`, seed S + r) in
 memory, starts the aligner from the truth at t0 with the initial heading (and level) error, and
 compares the closed-loop navigation with the truth.  ``dpos-eval`` dispatches here for a scenario
 with an ``ifa:`` block and no sub-IMUs (paper_ifa).  Experiments (all deterministic for a seed):
 
-* ``table``: final heading / pitch / roll error per method over the runs (seed 001 Table 3);
+* ``table``: final heading / pitch / roll error per method over the runs ([Fang2012] Table 3);
 * ``sweep``: initial heading errors of both signs, final heading error and convergence time;
 * ``outage``: a GNSS outage ``[t0, t0 + dur)`` added to the scenario's schedule;
 * ``noise_jump``: the GNSS noise scaled by ``scale`` from ``t0`` to the end (appended to the
@@ -33,7 +33,7 @@ from .pipeline import METHODS, attitude_errors_deg, run
 FloatArray = NDArray[np.float64]
 DEG = np.pi / 180.0
 KEYS = ("heading_deg", "pitch_deg", "roll_deg")
-#: seed 001 Table 3 (its "DD2" row is the paper's ADD2)
+#: [Fang2012] Table 3 (its "DD2" row is the paper's ADD2)
 PAPER_TABLE3 = {"add2": (0.014, 0.0016, 0.0018, 6.8505), "aekf": (0.031, 0.0019, 0.0022, 7.6235)}
 CONVERGED_DEG = 0.05
 
@@ -208,7 +208,7 @@ def report_md(metrics: dict) -> str:
     L = [f"# In-flight alignment: {metrics['scenario']} ({metrics['runs']} runs, seeds {metrics['seeds'][0]}.."
          f"{metrics['seeds'][-1]}, initial heading error {metrics['initial_heading_error_deg']} deg)", ""]
     if "methods" in metrics:
-        L += ["Final attitude error (seed 001 Table 3 layout): mean |error| over runs, RMSE in brackets; time used = "
+        L += ["Final attitude error ([Fang2012] Table 3 layout): mean |error| over runs, RMSE in brackets; time used = "
               "processing time per run (ours: Python; the paper's: MATLAB, for reference).", "",
               "| filter | heading (deg) | pitch (deg) | roll (deg) | time used (s) | aligned at (s) | converged |",
               "|---|---|---|---|---|---|---|"]
@@ -219,7 +219,7 @@ def report_md(metrics: dict) -> str:
                      + f" | {tu:.2f} | {_f(d['aligned_t_s'], '.0f')} | {d['converged_fraction'] * 100:.0f}% |")
             if m in PAPER_TABLE3:
                 p = PAPER_TABLE3[m]
-                L.append(f"| {m.upper()} (seed 001) | {p[0]} | {p[1]} | {p[2]} | {p[3]} | — | — |")
+                L.append(f"| {m.upper()} ([Fang2012]) | {p[0]} | {p[1]} | {p[2]} | {p[3]} | — | — |")
         L.append("")
     if "heading_sweep" in metrics:
         L += [f"Initial-heading sweep: final |heading error| (deg) over {metrics['runs']} seeds, converged = final "

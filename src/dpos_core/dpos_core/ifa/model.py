@@ -1,9 +1,9 @@
-"""The large-heading-error model of the main POS's in-flight alignment (seed 001 sec. 3, eq. 24-25).
+"""The large-heading-error model of the main POS's in-flight alignment ([Fang2012] sec. 3, eq. 24-25).
 
-State (errors = computed - true, the seed's sign; level position in local ENU metres instead of
-``dL, dlambda`` for conditioning, which only rescales the seed's states)::
+State (errors = computed - true, the paper's sign; level position in local ENU metres instead of
+``dL, dlambda`` for conditioning, which only rescales the paper's states)::
 
-    15-state (default, ``vertical=True``)         13-state (seed 001, ``vertical=False``)
+    15-state (default, ``vertical=True``)         13-state ([Fang2012], ``vertical=False``)
     0:3   dp    position error E, N, U [m]        0:2   dp   E, N [m]
     3:6   dv    velocity error E, N, U [m/s]      2:4   dv   E, N [m/s]
     6:9   phi   attitude error (ENU rotation vector) 4:7 phi
@@ -21,7 +21,7 @@ exact for large level errors too and has no Euler singularity.  The dynamics are
     dv_dot  = (I - E) f^n + E C_est nabla - (2 w_ie + w_en) x dv - (2 dw_ie + dw_en) x v + dg
     dp_dot  = dv;    eps, nabla random constants
 
-(``f^n = C_est f^b`` is the computed specific force; the seed's ``(C_n^p - I) C_b^n f^b`` with
+(``f^n = C_est f^b`` is the computed specific force; the paper's ``(C_n^p - I) C_b^n f^b`` with
 ``C_b^n`` the true attitude is the same term.)  ``F_1, F_2`` of eq. 24 are the ``dw_ie, dw_en``
 terms in ENU metres.  Discretized over each filter interval exactly as the transfer-alignment
 model: the strapdown integrates the nominal at the IMU rate, the errors are held at their start
@@ -32,7 +32,7 @@ vertical channel diverges (positive gravity feedback, and 100 ug of vertical acc
 alone gives ~80 m in 400 s), and the paper_ifa track climbs and descends at 5 m/s, so by default
 the filter carries ``dh, dv_U`` and matches the GNSS height and vertical velocity too
 (15 states, 6 measurements): the vertical accelerometer bias becomes observable and the vertical
-errors stay bounded by the GNSS.  With ``vertical=False`` (the seed's 13 states, 4 measurements)
+errors stay bounded by the GNSS.  With ``vertical=False`` (the paper's 13 states, 4 measurements)
 the strapdown's height and vertical velocity are instead slaved to the lever-arm compensated GNSS
 at every epoch (the usual external height damping).
 
@@ -43,14 +43,14 @@ Measurement (eq. 25 with the lever arm ``l`` from the IMU to the GNSS antenna, I
 
 in local ENU (metres, m/s).  ``(C_est - C_true) l = (I - E) C_est l`` is the lever-arm term the
 attitude error leaves after compensation (about 1 m for this aircraft at a 180 deg heading
-error).  By default it is left out, i.e. the seed's linear ``H = [I 0]``
+error).  By default it is left out, i.e. the paper's linear ``H = [I 0]``
 (``IfaConfig.lever_arm_coupling``): in level flight it makes the heading weakly and multimodally
 observable through 1.5 m GNSS noise, and the Gaussian filters then pull a 100 deg-sigma heading
 prior far off before the first turn (measured: ADD2 diverged on paper_ifa seed 2 from 30 deg with
 it, converged without it); the neglected term is at most ~1 m at the start and vanishes as the
 heading converges.
 
-Closed loop (seed 001 sec. 3.3): position, velocity and attitude errors are fed back into the
+Closed loop ([Fang2012] sec. 3.3): position, velocity and attitude errors are fed back into the
 strapdown after every update.  The biases stay in the state; while aligning they are not fed
 back (poorly observable: feeding noisy estimates in would disturb the filter), and from the
 epoch the alignment is declared on, the estimates are removed from the IMU samples (and from the
@@ -79,16 +79,16 @@ DEG = np.pi / 180.0
 # indices into the full 15-state vector
 DP, DV, PHI, EPS, NAB = (slice(i, i + 3) for i in range(0, 15, 3))
 N_FULL = 15
-#: the seed's 13 states inside the 15 (no dh, dv_U)
+#: the paper's 13 states inside the 15 (no dh, dv_U)
 IDX13 = np.array([0, 1, 3, 4, 6, 7, 8, 9, 10, 11, 12, 13, 14])
 
 
 @dataclass(frozen=True)
 class IfaConfig:
-    """Alignment settings.  Defaults: seed 001 Table 1 sensors, N = 10 (sec. 4).
+    """Alignment settings.  Defaults: [Fang2012] Table 1 sensors, N = 10 (sec. 4).
 
     Attributes:
-        vertical: 15 states with the vertical channel (True) or the seed's 13 (False).
+        vertical: 15 states with the vertical channel (True) or the paper's 13 (False).
         window: innovation window N of ADD2 / AEKF (eq. 22).
         r_floor: eigenvalue floor of the adapted R relative to the nominal R (dd2.guard_innovation_cov).
         r_ceiling: cap of the adapted R relative to the nominal R (10x the nominal sigma).

@@ -1,4 +1,4 @@
-"""In-flight alignment of the main POS against GNSS (seed 001): ADD2, DD2 or AEKF on the
+"""In-flight alignment of the main POS against GNSS ([Fang2012]): ADD2, DD2 or AEKF on the
 large-heading-error model of :mod:`.model`, the master strapdown in closed loop at the IMU rate.
 
 * :class:`InFlightAligner` is the online engine (the node's core): :meth:`~InFlightAligner.propagate`

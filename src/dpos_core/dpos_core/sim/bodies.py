@@ -7,7 +7,7 @@ A motion is a function ``t (M,) -> (p_e (M,3), v_e (M,3), C_eb (M,3,3), omega_eb
 Sub-IMU on the wing (all vectors of the lever arm in master body axes ``b``):
 
 * attitude ``C_bs(t) = C_mount expm([rho x]) expm([theta(t) x])``: nominal mount, rigid
-  misalignment ``rho`` and flexure ``theta`` (seed 000 sec. 3.2; theta in sub-IMU axes);
+  misalignment ``rho`` and flexure ``theta`` ([Gong2018] sec. 3.2; theta in sub-IMU axes);
 * body rate ``omega_es^s = C_bs^T omega_eb^b + J_r(theta) theta_dot`` (right Jacobian of SO(3));
 * position ``p_s = p_m + C_eb r(t)`` with the bending lever arm
   ``r(t) = r0 + k_bend (C_s0 theta) x r0``: a uniformly curved wing whose section at ``r0`` has

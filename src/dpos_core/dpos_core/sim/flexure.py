@@ -1,4 +1,4 @@
-"""Wing flexure: a second-order Gauss-Markov process per axis (seed 000 eq. 13).
+"""Wing flexure: a second-order Gauss-Markov process per axis ([Gong2018] eq. 13).
 
 ``theta_ddot + 2 beta theta_dot + beta^2 theta = eta`` with ``beta = 2.146 / tau`` and white
 ``eta`` of spectral density ``q = 4 beta^3 sigma^2``, whose stationary variance is ``sigma^2`` for the
@@ -9,7 +9,7 @@ slope, so the flexure rate seen by a gyro is the derivative of the flexure angle
 
 Along the wing the flexure of one wing side is one modal process scaled by the span:
 ``theta(s, t) = (|s| / s_ref)^p q(t)``, so the variance at the reference span is the configured one
-and grows with the span (seed 004: variance growing along the wing); left and right wings have
+and grows with the span ([LSFit]: variance growing along the wing); left and right wings have
 independent realisations.
 """
 

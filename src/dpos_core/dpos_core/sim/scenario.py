@@ -3,7 +3,7 @@
 Built-in files live beside this module (``scenarios/<name>.yaml``, ``aircraft/<name>.yaml``) and are
 found by name; any other argument is a path, so users can write their own.  All body vectors
 in the aircraft file are in the product's FLU axes (x forward, y left, z up) of the master IMU;
-the seeds' RFU numbers are converted in the shipped files (see their comments).
+the papers' RFU numbers are converted in the shipped files (see their comments).
 
 Every problem is reported as a ``ConfigError`` naming the file and the offending key.
 """
@@ -91,7 +91,7 @@ class Rates:
 
 @dataclass(frozen=True)
 class SarAidingConfig:
-    """SAR position/heading fixes and a barometric altimeter (seed 003)."""
+    """SAR position/heading fixes and a barometric altimeter ([Yan2016])."""
 
     rate_hz: float = 1.0
     pos_sigma_m: float = 10.0

@@ -1,10 +1,10 @@
 """Sensor error models of the simulator: IMUs, GNSS, and the main system's navigation output.
 
-The seeds specify sensor errors as a "constant" and a "random" part (seed 000 sec. 4.1.2:
+The seeds specify sensor errors as a "constant" and a "random" part ([Gong2018] sec. 4.1.2:
 gyro 0.01 deg/h + 0.01 deg/h, accelerometer 50 ug + 50 ug).  Here the constant part is drawn
 once per run and axis from N(0, constant^2) and the random part is white noise with that
 standard deviation on every output sample (the mean rate / specific force over the sample
-interval), as in the seeds' simulations.
+interval), as in the papers' simulations.
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ class GnssModel:
 
 @dataclass(frozen=True)
 class NavNoiseModel:
-    """Main-system navigation output = truth + white noise (``alignment: reference``, seed 000)."""
+    """Main-system navigation output = truth + white noise (``alignment: reference``, [Gong2018])."""
 
     heading_deg: float = 0.005
     pitch_deg: float = 0.0025

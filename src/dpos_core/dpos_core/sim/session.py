@@ -198,7 +198,7 @@ class SimulatedSession:
         return model.draw_biases(self.rng(f"imu/{name}"))
 
     def master_nav_reference(self) -> NavSeries:
-        """Main-system navigation = truth + white noise (``alignment: reference``, seed 000)."""
+        """Main-system navigation = truth + white noise (``alignment: reference``, [Gong2018])."""
         nz = self.scenario.master_nav_noise
         tr = self.truth("master", self.sample_times(self.scenario.rates.master_nav_hz, include_start=True))
         rng = self.rng("nav/master")

@@ -1,1 +1,1 @@
-"""Transfer alignment of the sub-IMUs against the main POS (seed 000)."""
+"""Transfer alignment of the sub-IMUs against the main POS ([Gong2018])."""

@@ -1,4 +1,4 @@
-"""Accuracy metrics in the seeds' format (seed 000 eq. 21, Table 1).
+"""Accuracy metrics in the papers' format ([Gong2018] eq. 21, Table 1).
 
 For every evaluated body (antenna or sub-IMU) and imaging segment: RMSE and STD of the errors of
 heading, pitch, roll [deg], east/north/up velocity [m/s], latitude/longitude/height [m], and the
@@ -36,7 +36,7 @@ def errors(est: Trajectory, truth: Trajectory, master_est: FloatArray | None = N
     """Error series (N,) per key, est - truth at the same stamps.
 
     ``master_est`` / ``master_true``: master positions (N, 3) llh for the baseline error
-    ``|p_est - p_m,est| - |p_true - p_m,true|`` (seed 000 sec. 4.2); omitted without them.
+    ``|p_est - p_m,est| - |p_true - p_m,true|`` ([Gong2018] sec. 4.2); omitted without them.
     """
     if est.t_s.shape != truth.t_s.shape or np.max(np.abs(est.t_s - truth.t_s), initial=0.0) > 1e-6:
         raise ValueError("estimate and truth must be sampled at the same stamps")
@@ -61,7 +61,7 @@ def errors(est: Trajectory, truth: Trajectory, master_est: FloatArray | None = N
 
 
 def rmse_std(e: FloatArray) -> tuple[float, float]:
-    """Seed 000 eq. 21."""
+    """[Gong2018] eq. 21."""
     e = np.asarray(e, dtype=float)
     if e.size == 0:
         return float("nan"), float("nan")

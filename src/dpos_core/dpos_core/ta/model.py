@@ -1,4 +1,4 @@
-"""The 24-state nonlinear transfer-alignment model of a sub-IMU (seed 000 sec. 3, eq. 11-20).
+"""The 24-state nonlinear transfer-alignment model of a sub-IMU ([Gong2018] sec. 3, eq. 11-20).
 
 State (errors = computed - true, as in the seed; position in local ENU metres instead of
 ``dL, dlambda, dh`` for conditioning)::
@@ -12,7 +12,7 @@ State (errors = computed - true, as in the seed; position in local ENU metres in
     18:21 theta  wing flexure, sub-IMU axes [rad]             (2nd-order Markov, eq. 13)
     21:24 theta_dot
 
-Continuous dynamics (the seed's eq. 11 with the exact attitude error ``E = expm([phi x])``
+Continuous dynamics (the paper's eq. 11 with the exact attitude error ``E = expm([phi x])``
 instead of the Euler-angle matrix of eq. 12, valid for any angle):
 
     phi_dot = J_r(phi)^-1 ((I - E^T) w_in + E^T dw_in - C_est eps)
@@ -33,7 +33,7 @@ Measurement (eq. 16-20, formed from the two attitudes instead of subtracted Eule
     z_vel = v_est - v_m - C_m (w_m x r0) = dv + C_m (w_m x (k [C_0 theta] x r0) + k [C_0 theta_dot] x r0) + v
     z_pos = p_est - p_m - C_m r0         = dp + C_m (k [C_0 theta] x r0) + v     (optional, ENU metres)
 
-Seed 000 matches attitude and velocity only; the position match (seeds 002 and 004 use the
+[Gong2018] matches attitude and velocity only; the position match ([Ye2024] and [LSFit] use the
 master's position through the lever arm too) is on by default (``TAConfig.use_position``) and
 bounds the position and baseline errors by the main system's position accuracy.
 
@@ -121,7 +121,7 @@ class Installation:
 
 @dataclass(frozen=True)
 class TAConfig:
-    """Filter settings (seed 000 sec. 4.1.3 defaults)."""
+    """Filter settings ([Gong2018] sec. 4.1.3 defaults)."""
 
     filter_rate_hz: float = 1.0
     attitude_sigma_deg: float = 40.0  #: prior 1 sigma of each attitude-error axis

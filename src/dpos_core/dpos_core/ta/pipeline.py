@@ -2,7 +2,7 @@
 and the smoothed trajectory at the IMU rate.
 
 Methods: ``ukf`` (forward only), ``urtss`` (UKF + unscented RTS smoother), ``upf`` (forward
-only), ``ups`` (seed 000's unscented particle smoother: the Rao-Blackwellized UPF - particles on
+only), ``ups`` ([Gong2018]'s unscented particle smoother: the Rao-Blackwellized UPF - particles on
 the flexure rate, every particle's UKF carrying the other 21 states - and its backward pass;
 filters.runners explains the choice and what the literal variant measured).
 
@@ -61,7 +61,7 @@ class TAResult:
 def initial_from_master(master: MasterNav, install: Installation, attitude_error_hpr_deg=(0.0, 0.0, 0.0)) -> NavState:
     """Sub-IMU start state at the first master epoch: master position + lever arm, master velocity
     + lever-arm velocity, master attitude x nominal mount, optionally rotated by an initial
-    attitude error (aviation heading/pitch/roll offsets, as in seed 000's 40 deg test)."""
+    attitude error (aviation heading/pitch/roll offsets, as in [Gong2018]'s 40 deg test)."""
     C_m = master.C_nb[0]
     r = install.lever_arm_m
     C_s = C_m @ install.C_b_s0
