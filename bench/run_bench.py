@@ -159,7 +159,8 @@ def bench_graph(results: dict, repeats: int) -> None:
 
     import yaml
 
-    from dpos_core.sim.scenario import config_text, load_scenario
+    from dpos_core.config import config_text
+    from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
     from dpos_ros import spill
     from dpos_ros.graph import Graph, GraphSpec, NodeSpec

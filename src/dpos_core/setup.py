@@ -8,7 +8,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    # Data read with importlib.resources (e.g. sim/scenarios/*.yaml, sim/aircraft/*.yaml).
+    # Data read with importlib.resources (config/scenarios/*.yaml, config/aircraft/*.yaml).
     package_data={package_name: ['**/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -9,7 +11,6 @@ from scipy.spatial.transform import Rotation
 from dpos_core import attitude as att
 from dpos_core import frames
 
-DEG = np.pi / 180.0
 
 
 @pytest.fixture

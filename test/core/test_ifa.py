@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 import warnings
 from dataclasses import replace
 
@@ -17,7 +19,6 @@ from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import GnssSeries, SimulatedSession
 from dpos_core.strapdown import NavState
 
-DEG = np.pi / 180.0
 
 
 def _initial(ss: SimulatedSession, heading_err_deg: float) -> NavState:

@@ -8,10 +8,14 @@ import pytest
 from dpos_core import earth
 from dpos_core.attitude import attitude_error, dcm_to_quat, rotvec_to_dcm
 from dpos_core.kinematics import increments_from_motion, nav_from_ecef
-from dpos_core.sim.bodies import flexed_body_motion, mount_dcm, right_jacobian, rigid_offset_motion
-from dpos_core.sim.flexure import FlexureModel, FlexureRealization
+from dpos_core.attitude import mount_dcm, right_jacobian
+from dpos_core.sim.bodies import flexed_body_motion, rigid_offset_motion
+from dpos_core.config.flexure import FlexureModel
+from dpos_core.sim.flexure import FlexureRealization
 from dpos_core.sim.flight import Flight, FlightStart, Segment
-from dpos_core.sim.sensors import DEG_PER_H, UG_MPS2, GnssModel, ImuErrorModel, NoiseInterval
+from dpos_core.units import DEG_PER_H, UG_MPS2
+from dpos_core.config.sensors import GnssModel, ImuErrorModel, NoiseInterval
+from dpos_core.sim.sensors import draw_biases, measure
 from dpos_core.strapdown import NavState, Strapdown
 
 
@@ -70,8 +74,8 @@ def test_imu_noise_matches_its_configuration() -> None:
     m = ImuErrorModel(gyro_bias_deg_h=0.01, gyro_noise_deg_h=0.01, accel_bias_ug=50.0, accel_noise_ug=50.0)
     rng = np.random.default_rng(11)
     n, dt = 200_000, 0.01
-    biases = m.draw_biases(rng)
-    om, f = m.measure(np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, dt), biases, rng)
+    biases = draw_biases(m, rng)
+    om, f = measure(m, np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, dt), biases, rng)
     np.testing.assert_allclose(om.std(axis=0), 0.01 * DEG_PER_H, rtol=0.01)
     np.testing.assert_allclose(f.std(axis=0), 50 * UG_MPS2, rtol=0.01)
     np.testing.assert_allclose(om.mean(axis=0), biases[0], atol=5 * 0.01 * DEG_PER_H / np.sqrt(n))

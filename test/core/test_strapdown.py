@@ -7,6 +7,8 @@ derived from the leading term and are not tuned to the measurement.
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,6 @@ from dpos_core.frames import C_nb_from_hpr, _rx
 from dpos_core.kinematics import imu_from_ecef_kinematics, integrate_increments, nav_from_ecef
 from dpos_core.strapdown import NavState, NavTrajectory, Strapdown
 
-DEG = np.pi / 180.0
 LAT0, LON0, H0 = 40.0 * DEG, 116.0 * DEG, 500.0
 
 

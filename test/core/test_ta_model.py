@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 import numpy as np
 import pytest
 
@@ -10,10 +12,9 @@ from dpos_core.frames import hpr_error, hpr_from_C_nb
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim, pipeline
-from dpos_core.ta.model import ImuData, TAConfig, TransferAlignmentModel, compose_rotvec, right_jacobian_inv
-from dpos_core.sim.bodies import right_jacobian
+from dpos_core.attitude import compose_rotvec, right_jacobian
+from dpos_core.ta.model import ImuData, TAConfig, TransferAlignmentModel, right_jacobian_inv
 
-DEG = np.pi / 180.0
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,8 @@ Every wait is bounded; nothing sleeps for a fixed time.
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 import threading
 import time
 from collections import defaultdict
@@ -33,7 +35,6 @@ from dpos_ros.master_nav import MasterMechanization, initial_state_from_truth, s
 
 pytestmark = pytest.mark.ros
 
-DEG = np.pi / 180.0
 R_EARTH_M = 6.378e6
 GRAPH_TIMEOUT_S = 120.0
 WAIT_S = 30.0

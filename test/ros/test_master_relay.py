@@ -16,6 +16,8 @@ Every wait is bounded; nothing sleeps.
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 from collections import defaultdict
 from typing import Any
 
@@ -42,7 +44,6 @@ from ros_wait import spin_until  # test/ros/ros_wait.py
 
 pytestmark = pytest.mark.ros
 
-DEG = np.pi / 180.0
 TIMEOUT_S = 60.0
 CHUNK = 100  # messages published before waiting for the relay to catch up
 DRIVER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.RELIABLE,

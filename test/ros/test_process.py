@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dpos_core.sim.scenario import config_text, load_scenario
+from dpos_core.config import config_text
+from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros import bag
 from dpos_ros.sim_streams import TopicStream, session_custom_data, session_streams

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core.sim.scenario import load_aircraft
+from dpos_core.config import load_aircraft
 from dpos_ros.products import solve
 from dpos_ros.session_io import read_session
 

@@ -17,6 +17,8 @@ a mechanization test.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +28,6 @@ from .earth import C_en, geodetic_to_ecef, normal_gravity
 from .frames import C_nb_from_hpr
 from .kinematics import imu_from_ecef_kinematics, nav_from_ecef
 
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -15,10 +15,11 @@ Euler angles live in :mod:`dpos_core.frames`, which owns the body/world axis con
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
 
 _SMALL_ANGLE_RAD = 1e-6
 
@@ -170,3 +171,35 @@ def wrap_angle(angle_rad: ArrayLike) -> FloatArray:
     a = np.asarray(angle_rad, dtype=float)
     w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
     return np.where(w == -np.pi, np.pi, w)
+
+
+def right_jacobian(theta: ArrayLike) -> FloatArray:
+    """Right Jacobian of SO(3): ``expm([theta x])^T d/dt expm([theta x]) = [J_r(theta) theta_dot x]``.
+
+    ``J_r = I - (1 - cos a)/a^2 [theta x] + (a - sin a)/a^3 [theta x]^2`` (series below 1e-4 rad).
+    """
+    th = np.asarray(theta, dtype=float)
+    a2 = np.sum(th * th, axis=-1)[..., None, None]
+    a = np.sqrt(a2)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    c1 = np.where(small, 0.5 - a2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    c2 = np.where(small, 1.0 / 6.0 - a2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    K = skew(th)
+    return np.eye(3) - c1 * K + c2 * (K @ K)
+
+
+def mount_dcm(mount_rpy_deg: ArrayLike, rho_deg: ArrayLike) -> FloatArray:
+    """``C_b_s0 = C_mount expm([rho x])`` from the nominal mount roll/pitch/yaw (about x, y, z of
+    the master body, applied z-y-x) and the rigid misalignment rotation vector [deg]."""
+    r, p, y = np.deg2rad(np.asarray(mount_rpy_deg, dtype=float))
+    cz, sz, cy, sy, cx, sx = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
+    Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
+    Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    return Rz @ Ry @ Rx @ rotvec_to_dcm(np.deg2rad(np.asarray(rho_deg, dtype=float)))
+
+
+def compose_rotvec(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``log(expm([a x]) expm([b x]))`` (..., 3)."""
+    return quat_to_rotvec(quat_mul(rotvec_to_quat(a), rotvec_to_quat(b)))

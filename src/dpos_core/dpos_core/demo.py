@@ -8,6 +8,8 @@ Prints an error table and the processing-time ratio, and writes a PNG of the err
 
 from __future__ import annotations
 
+from dpos_core.units import DEG, DEG_PER_H
+
 import argparse
 import time
 from pathlib import Path
@@ -20,8 +22,6 @@ from .attitude import attitude_error, dcm_to_quat
 from .kinematics import integrate_increments
 from .strapdown import NavState, NavTrajectory, Strapdown
 
-DEG = np.pi / 180.0
-DEG_PER_H = DEG / 3600.0
 UG = 9.80665e-6
 
 

@@ -17,6 +17,8 @@ iteration for ECEF -> geodetic (Bowring 1976), iterated to machine precision.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -33,7 +35,6 @@ GAMMA_P_MPS2: float = 9.8321849378  #: normal gravity at the poles [m/s^2]
 K_SOMIGLIANA: float = (B_M * GAMMA_P_MPS2) / (A_M * GAMMA_E_MPS2) - 1.0
 M_GRAV: float = OMEGA_IE_RADPS**2 * A_M**2 * B_M / GM_M3PS2
 
-FloatArray = NDArray[np.float64]
 
 
 def radii_of_curvature(lat_rad: ArrayLike) -> tuple[FloatArray, FloatArray]:

@@ -16,6 +16,8 @@ trapezoid rule.  :class:`IntervalIntegrals` accumulates the integrals from the s
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +27,6 @@ from . import earth
 from .attitude import rotvec_to_dcm, skew
 from .strapdown import NavState, NavTrajectory
 
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

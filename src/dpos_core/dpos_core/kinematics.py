@@ -14,6 +14,8 @@ functions, which is exact to far below the mechanization's own algorithm error.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from typing import Callable
 
 import numpy as np
@@ -21,7 +23,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from .earth import C_en, OMEGA_IE_RADPS, ecef_to_geodetic, normal_gravity
 
-FloatArray = NDArray[np.float64]
 
 OMEGA_IE_E: FloatArray = np.array([0.0, 0.0, OMEGA_IE_RADPS])
 

@@ -28,6 +28,8 @@ attitude error ``phi`` with ``C_nb_est = expm(-[phi x]) C_nb_true``).
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +39,6 @@ from . import _strapdown_kernel as _k
 from .attitude import dcm_to_quat, quat_mul, quat_normalize, quat_to_dcm, rotvec_to_quat
 from .frames import C_nb_from_hpr, hpr_from_C_nb
 
-FloatArray = NDArray[np.float64]
 
 
 @dataclass

@@ -13,12 +13,13 @@ Alignment in CDR is relative to the payload after the 4-byte encapsulation heade
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
 
 #: doubles after the header: orientation xyzw (4) + cov (9) + angular velocity (3) + cov (9) + linear acceleration (3) + cov (9)

@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -28,7 +30,6 @@ from dpos_core.frames import hpr_sigma_to_rotation_cov
 
 from . import cdr
 
-FloatArray = NDArray[np.float64]
 
 WORLD_FRAME = "enu"
 MASTER_FRAME = "master_imu"

@@ -23,6 +23,8 @@ simulator's ``k / rate`` bit for bit, so the nodes integrate the very step lengt
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG
+
 import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,8 +36,6 @@ from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
 from dpos_core.strapdown import NavState, NavTrajectory, Strapdown
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
 #: two stamps closer than this are the same sample [s]
 STAMP_TOL_S = 1e-6
 

@@ -360,9 +360,9 @@ def _override_value(exc: Exception) -> Any:
 
 
 def _check_scenario(value: str) -> str | None:
-    from dpos_core.sim.scenario import builtin_scenarios
+    from dpos_core.config import builtin_names
 
-    known = builtin_scenarios()
+    known = builtin_names("scenarios")
     if value in known:
         return None
     if value.endswith((".yaml", ".yml")):

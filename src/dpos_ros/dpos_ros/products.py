@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import json
 import time
 from dataclasses import dataclass
@@ -21,7 +23,7 @@ from numpy.typing import NDArray
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat
 from dpos_core.frames import hpr_from_C_nb
-from dpos_core.sim.scenario import AircraftConfig
+from dpos_core.config import AircraftConfig
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta.metrics import Trajectory
@@ -30,7 +32,6 @@ from dpos_core.ta.model import Installation, TAConfig
 from . import conversions as cv
 from .session_io import RecordedSession
 
-FloatArray = NDArray[np.float64]
 
 
 @dataclass

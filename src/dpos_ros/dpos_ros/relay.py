@@ -57,6 +57,8 @@ called in the subscription callback, after the message is published.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import copy
 import math
 import statistics
@@ -84,7 +86,6 @@ __all__ = [
     "GAP_FACTOR", "PERIOD_WINDOW", "MIN_PERIODS", "WARN_PERIOD_S",
 ]
 
-FloatArray = NDArray[np.float64]
 
 #: Route kinds and their message types.
 KINDS: dict[str, type] = {"imu": Imu, "fix": NavSatFix, "vel": TwistWithCovarianceStamped}

@@ -7,6 +7,8 @@ median) counted; each as a warning naming the topic.  A missing ``/master/nav`` 
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +24,6 @@ from dpos_core.ta.model import ImuData, MasterNav
 from . import bag, cdr
 from . import conversions as cv
 
-FloatArray = NDArray[np.float64]
 
 
 class SessionError(ValueError):

@@ -262,7 +262,8 @@ def load_sim_session(scenario: str, aircraft_config: str, seed: int, duration_s:
     Cheap: samples are generated lazily. Raises :class:`~dpos_ros.params.ParameterError` naming
     the parameter (``scenario``, ``aircraft_config``, ``duration`` or ``seed``).
     """
-    from dpos_core.sim.scenario import ConfigError, load_aircraft, load_scenario
+    from dpos_core.config import ConfigError, load_aircraft
+    from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
 
     from .params import ParameterError

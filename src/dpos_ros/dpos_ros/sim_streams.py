@@ -74,7 +74,7 @@ def _odometry_stream(topic: str, child: str, series: NavSeries, session: Simulat
 
 
 def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) -> TopicStream:
-    from dpos_core.sim.sensors import DEG_PER_H, UG_MPS2
+    from dpos_core.units import DEG_PER_H, UG_MPS2
 
     ac = session.scenario.aircraft
     model = session.scenario.master_imu if name == "master" else ac.sub_imu(name).imu

@@ -45,6 +45,8 @@ Outputs per accepted epoch
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
@@ -65,7 +67,6 @@ from ifa_node.params import IfaConfig
 
 NODE_NAME = "ifa_node"
 STATUS_NAME = "ifa_node: in-flight alignment"
-DEG = np.pi / 180.0
 #: IMU samples kept while waiting for the first /master/nav
 MAX_PRESTART_IMU = 20000
 #: /master/nav messages kept for the epoch comparison
@@ -103,14 +104,14 @@ class IfaNode(Node):
             raise
 
     def _setup(self) -> None:
-        from dpos_core.sim.scenario import ConfigError, load_aircraft, load_scenario
+        from dpos_core.config import ConfigError, load_aircraft, scenario_aircraft
 
         cfg = self.config
         if not cfg.aircraft_config and not cfg.scenario:
             raise ParameterError("aircraft_config", "", "required: the aircraft file of your installation (its gnss_lever_arm_m "
                                  "moves the GNSS antenna to the IMU); for a simulated session set scenario instead")
         try:
-            aircraft = load_aircraft(cfg.aircraft_config) if cfg.aircraft_config else load_scenario(cfg.scenario).aircraft
+            aircraft = load_aircraft(cfg.aircraft_config) if cfg.aircraft_config else scenario_aircraft(cfg.scenario)
         except ConfigError as e:
             name, value = ("aircraft_config", cfg.aircraft_config) if cfg.aircraft_config else ("scenario", cfg.scenario)
             raise ParameterError(name, value, str(e)) from None
@@ -441,7 +442,7 @@ class IfaNode(Node):
                                   "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps}
         al, rec = self.al, self.last_record
         if al is not None:
-            from dpos_core.sim.sensors import DEG_PER_H, UG_MPS2
+            from dpos_core.units import DEG_PER_H, UG_MPS2
 
             sig = al.attitude_sigma_rad / DEG
             gb, ab = al.bias_estimates()

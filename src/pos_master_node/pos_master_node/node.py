@@ -77,6 +77,8 @@ SIGINT/SIGTERM.
 
 from __future__ import annotations
 
+from dpos_core.units import DEG
+
 import math
 import threading
 import time
@@ -97,7 +99,6 @@ from pos_master_node.params import PosMasterConfig
 NODE_NAME = "pos_master_node"
 NAV_TOPIC = "/master/nav"
 STATUS_TOPIC = "/pos_master/status"
-DEG = np.pi / 180.0
 #: longest wait for an /ifa/correction before the device runs on (max_lead_s) [s]
 LEAD_WAIT_S = 5.0
 #: The driver topics of ``device: ros`` (relative: remap them, ``-r imu_in:=/driver/imu``).
@@ -167,7 +168,7 @@ class PosMasterNode(Node):
                 raise ParameterError("initial_state", list(cfg.initial_state), str(e)) from None
         self.lever_arm_b_m: np.ndarray | None = None
         if cfg.aircraft_config:
-            from dpos_core.sim.scenario import ConfigError, load_aircraft
+            from dpos_core.config import ConfigError, load_aircraft
 
             try:
                 self.lever_arm_b_m = np.asarray(load_aircraft(cfg.aircraft_config).gnss_lever_arm_m, dtype=float)

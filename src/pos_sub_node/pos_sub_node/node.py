@@ -81,7 +81,7 @@ class PosSubNode(Node):
 
     @staticmethod
     def _load_aircraft(aircraft_config: str) -> Any:
-        from dpos_core.sim.scenario import ConfigError, load_aircraft
+        from dpos_core.config import ConfigError, load_aircraft
 
         try:
             return load_aircraft(aircraft_config)

@@ -53,7 +53,7 @@ def _stamp_ns(data: bytes) -> int:
 def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
                   filter_rate_hz: float, output_rate_hz: float):
     """One sub-IMU in a worker process: read the spill, align, return the antenna solutions."""
-    from dpos_core.sim.scenario import load_aircraft
+    from dpos_core.config import load_aircraft
     from dpos_ros.products import solve
     from dpos_ros.session_io import read_session
 
@@ -107,7 +107,7 @@ class TransferAlignNode(Node):
 
     # ------------------------------------------------------------------ setup
     def _setup(self) -> None:
-        from dpos_core.sim.scenario import ConfigError, config_text, load_aircraft
+        from dpos_core.config import ConfigError, config_text, load_aircraft
 
         cfg = self.config
         ref = cfg.aircraft_config or "paper_su"

@@ -60,6 +60,8 @@ covariance ``C_v``, guarded the same way.  Jacobians are central differences of 
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -69,7 +71,6 @@ from scipy.linalg import cho_solve, solve_triangular
 
 from .linalg import chol, gain, householder_tria, symmetrize
 
-FloatArray = NDArray[np.float64]
 Fn = Callable[[FloatArray], FloatArray]
 Residual = Callable[[FloatArray, FloatArray], FloatArray]
 H_STEP = float(np.sqrt(3.0))

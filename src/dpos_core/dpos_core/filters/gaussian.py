@@ -13,6 +13,8 @@ cross-covariance) URTSS.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -22,7 +24,6 @@ from numpy.typing import NDArray
 from .linalg import gain, symmetrize
 from .points import UnscentedPoints
 
-FloatArray = NDArray[np.float64]
 Fn = Callable[[FloatArray], FloatArray]
 
 

@@ -13,12 +13,13 @@ Open-loop models return ``None`` from ``feedback``.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
 
 
 class StateSpaceModel(Protocol):

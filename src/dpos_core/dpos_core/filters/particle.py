@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
 
 
 def log_normalize(logw: FloatArray) -> FloatArray:

@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +20,6 @@ from numpy.typing import NDArray
 
 from .linalg import chol
 
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,8 @@ With the flexure rate sampled, 100 particles give the URTSS's accuracy on every 
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,7 +78,6 @@ from .model import StateSpaceModel
 from .particle import ess, log_normalize, systematic_resample
 from .points import UnscentedPoints
 
-FloatArray = NDArray[np.float64]
 
 
 # ------------------------------------------------------------------------------------ Gaussian

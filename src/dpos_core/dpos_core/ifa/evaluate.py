@@ -14,6 +14,8 @@ with an ``ifa:`` block and no sub-IMUs (paper_ifa).  Experiments (all determinis
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG
+
 import time
 import warnings
 from dataclasses import dataclass, replace
@@ -24,14 +26,12 @@ from numpy.typing import NDArray
 from ..attitude import dcm_to_quat
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..sim.scenario import Scenario
-from ..sim.sensors import NoiseInterval
+from ..config.sensors import NoiseInterval
 from ..sim.session import SimulatedSession
 from ..strapdown import NavState
 from .model import IfaConfig
 from .pipeline import METHODS, attitude_errors_deg, run
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
 KEYS = ("heading_deg", "pitch_deg", "roll_deg")
 #: [Fang2012] Table 3 (its "DD2" row is the paper's ADD2)
 PAPER_TABLE3 = {"add2": (0.014, 0.0016, 0.0018, 6.8505), "aekf": (0.031, 0.0019, 0.0022, 7.6235)}

@@ -61,6 +61,8 @@ it to their covariance too (divided differences / Jacobian), not only to the mea
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,13 +70,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import earth
 from ..attitude import rotvec_to_dcm
-from ..sim.sensors import DEG_PER_H, UG_MPS2
+from dpos_core.units import DEG_PER_H, UG_MPS2
 from ..strapdown import NavState, NavTrajectory, Strapdown
 from ..ins_errors import Interval, IntervalIntegrals, propagate_nav_errors
-from ..ta.model import compose_rotvec
+from ..attitude import compose_rotvec
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
 
 # indices into the full 15-state vector
 DP, DV, PHI, EPS, NAB = (slice(i, i + 3) for i in range(0, 15, 3))

@@ -25,6 +25,8 @@ hypothesis is left.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG
+
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -48,8 +50,6 @@ from ..filters.linalg import chol, householder_tria, solve_spd, symmetrize
 from ..strapdown import NavState, NavTrajectory
 from .model import GnssFix, IfaConfig, IfaModel, check_fix
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
 METHODS = ("add2", "dd2", "aekf")
 ALIGNING, ALIGNED, DEGRADED = 0, 1, 2
 

@@ -20,6 +20,8 @@ interpolated with cubic Hermite polynomials.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG, G0_MPS2
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,9 +31,6 @@ from .. import earth
 from .._strapdown_kernel import rk4_llh
 from ..frames import C_nb_from_hpr
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
-G0_MPS2 = 9.80665  # standard gravity for the coordinated-turn bank
 
 
 @dataclass(frozen=True)

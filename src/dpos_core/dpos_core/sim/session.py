@@ -13,6 +13,8 @@ Times are scenario seconds from the start; ``scenario.start_time_s`` is the stam
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -24,13 +26,14 @@ from .. import earth
 from ..attitude import dcm_to_quat, quat_to_dcm
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..kinematics import Motion, increments_from_motion, nav_from_ecef
-from .bodies import flexed_body_motion, mount_dcm, rigid_offset_motion
+from ..attitude import mount_dcm
+from .bodies import flexed_body_motion, rigid_offset_motion
 from .flexure import FlexureRealization
 from .flight import Flight
 from .scenario import Scenario
-from .sensors import DEG
+from .sensors import draw_biases, measure
+from dpos_core.units import DEG
 
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -181,8 +184,8 @@ class SimulatedSession:
         t = self.sample_times(rate_hz, include_start=True)
         dth, dv = increments_from_motion(self.motion(body), t)
         rng = self.rng(component)
-        biases = model.draw_biases(rng)
-        om, f = model.measure(dth, dv, np.diff(t), biases, rng)
+        biases = draw_biases(model, rng)
+        om, f = measure(model, dth, dv, np.diff(t), biases, rng)
         return ImuSeries(t[1:], om, f)
 
     def master_imu(self) -> ImuSeries:
@@ -195,7 +198,7 @@ class SimulatedSession:
     def imu_biases(self, name: str) -> tuple[FloatArray, FloatArray]:
         """The constant gyro [rad/s] and accelerometer [m/s^2] biases drawn for an IMU (truth)."""
         model = self.scenario.master_imu if name == "master" else self.scenario.aircraft.sub_imu(name).imu
-        return model.draw_biases(self.rng(f"imu/{name}"))
+        return draw_biases(model, self.rng(f"imu/{name}"))
 
     def master_nav_reference(self) -> NavSeries:
         """Main-system navigation = truth + white noise (``alignment: reference``, [Gong2018])."""

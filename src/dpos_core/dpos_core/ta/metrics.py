@@ -9,6 +9,8 @@ baseline (master-to-antenna distance) [m]; then means over the segments and over
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +19,6 @@ from numpy.typing import NDArray
 from .. import earth
 from ..frames import hpr_error, hpr_from_C_nb
 
-FloatArray = NDArray[np.float64]
 
 KEYS = ("heading_deg", "pitch_deg", "roll_deg", "vel_e_mps", "vel_n_mps", "vel_u_mps", "lat_m", "lon_m", "h_m", "baseline_m")
 

@@ -45,21 +45,20 @@ strapdown and the error states shifted by the applied correction.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG
+
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .. import earth
-from ..attitude import quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
-from ..sim.bodies import K_BEND
-from ..sim.flexure import FlexureModel
-from ..sim.sensors import ImuErrorModel
+from ..attitude import compose_rotvec, mount_dcm, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
+from ..config.flexure import K_BEND, FlexureModel
+from ..config.sensors import ImuErrorModel
 from ..ins_errors import Interval, IntervalIntegrals, propagate_nav_errors, right_jacobian_inv  # noqa: F401 (re-export)
 from ..strapdown import NavState, NavTrajectory, Strapdown
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
 
 N_STATES = 24
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
@@ -110,7 +109,6 @@ class Installation:
         enters."""
         from dataclasses import replace
 
-        from ..sim.bodies import mount_dcm
 
         s = aircraft.sub_imu(name)
         scale = aircraft.flexure.span_scale(s.span_m)
@@ -146,11 +144,6 @@ class _Epoch:
     A: FloatArray  # C_m C_0
     C_m: FloatArray
     w_m: FloatArray
-
-
-def compose_rotvec(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``log(expm([a x]) expm([b x]))`` (..., 3)."""
-    return quat_to_rotvec(quat_mul(rotvec_to_quat(a), rotvec_to_quat(b)))
 
 
 @dataclass
@@ -299,7 +292,7 @@ class TransferAlignmentModel:
         """Process noise (24, 24) of an interval of length T (module docstring)."""
         imu = self.install.imu
         dt = self._imu_dt_s
-        from ..sim.sensors import DEG_PER_H, UG_MPS2
+        from dpos_core.units import DEG_PER_H, UG_MPS2
 
         qg = (imu.gyro_noise_deg_h * DEG_PER_H) ** 2 * dt * T
         qa = (imu.accel_noise_ug * UG_MPS2) ** 2 * dt * T
@@ -360,7 +353,7 @@ class TransferAlignmentModel:
     # ------------------------------------------------------------------ priors and output
     def prior(self) -> tuple[FloatArray, FloatArray]:
         """Prior mean (zeros) and covariance (24, 24) from the configuration."""
-        from ..sim.sensors import DEG_PER_H, UG_MPS2
+        from dpos_core.units import DEG_PER_H, UG_MPS2
 
         cfg, ins = self.cfg, self.install
         d = np.zeros(N_STATES)

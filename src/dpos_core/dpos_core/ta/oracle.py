@@ -10,6 +10,8 @@ the exact linear KF and its RTS smoother (the unscented transform is exact for l
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray
+
 from collections.abc import Callable
 
 import numpy as np
@@ -19,7 +21,6 @@ from .. import earth
 from ..attitude import attitude_error
 from .model import DP, DV, PHI, TransferAlignmentModel
 
-FloatArray = NDArray[np.float64]
 
 
 def _jacobian(fn: Callable[[FloatArray], FloatArray], x: FloatArray, scale: FloatArray) -> FloatArray:

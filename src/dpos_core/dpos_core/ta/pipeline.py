@@ -14,6 +14,8 @@ k and its end error is the estimate at k + 1 before that epoch's correction.
 
 from __future__ import annotations
 
+from dpos_core.units import FloatArray, DEG
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,10 +27,9 @@ from ..filters.points import UnscentedPoints
 from ..filters.runners import rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..strapdown import NavState
-from .model import DP, DV, PHI, Installation, ImuData, MasterNav, TAConfig, TransferAlignmentModel, compose_rotvec
+from ..attitude import compose_rotvec
+from .model import DP, DV, PHI, Installation, ImuData, MasterNav, TAConfig, TransferAlignmentModel
 
-FloatArray = NDArray[np.float64]
-DEG = np.pi / 180.0
 METHODS = ("ukf", "urtss", "upf", "ups")
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
 

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core.sim.scenario import ConfigError, config_text, load_scenario
+from dpos_core.config import ConfigError, config_text
+from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import metrics as M
 from dpos_core.ifa.evaluate import is_ifa_scenario
@@ -32,7 +33,7 @@ from ..sim_streams import session_custom_data, session_streams
 
 
 def _oracle_truth(ss: SimulatedSession, name: str):
-    from dpos_core.sim.sensors import DEG
+    from dpos_core.units import DEG
 
     s = ss.scenario.aircraft.sub_imu(name)
     gb, ab = ss.imu_biases(name)

@@ -13,8 +13,9 @@ import numpy as np
 
 from dpos_core import earth
 from dpos_core.attitude import attitude_error
-from dpos_core.sim.bodies import mount_dcm
-from dpos_core.sim.scenario import ConfigError, load_scenario
+from dpos_core.attitude import mount_dcm
+from dpos_core.config import ConfigError
+from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 
 

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from dpos_core.sim.scenario import ConfigError, load_aircraft
+from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS
 
 from ..products import evaluate, solve, write

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core.sim.scenario import ConfigError, builtin_scenarios, config_text, load_scenario
+from dpos_core.config import ConfigError, config_text
+from dpos_core.sim.scenario import builtin_scenarios, load_scenario
 from dpos_core.sim.session import SimulatedSession
 
 from ..bag import write_streams

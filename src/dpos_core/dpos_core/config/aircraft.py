@@ -1,0 +1,137 @@
+"""The aircraft (vehicle) configuration: GNSS antenna, sub-IMUs, antennas and the wing flexure.
+
+All body vectors are in the product's FLU axes (x forward, y left, z up) of the master IMU; the
+papers' RFU numbers are converted in the shipped files (see their comments).  Read by every node
+(``aircraft_config``), the offline tools and the simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .files import ConfigError, build, parse_yaml, read_yaml, vec3
+from .flexure import FlexureModel
+from .sensors import ImuErrorModel
+
+
+@dataclass(frozen=True)
+class SubImuConfig:
+    """One sub-IMU on the wing.
+
+    Attributes:
+        name: used in topics ``/sub_imu/<name>/imu`` and frames ``sub_imu_<name>``.
+        span_m: signed span position (+ right wing, - left wing), scales the flexure.
+        lever_arm_m: (3,) from the master IMU, master FLU axes.
+        mount_rpy_deg: nominal mount rotation of the sub-IMU axes w.r.t. the master's.
+        rho_deg: (3,) rigid misalignment (rotation vector, sub-IMU axes) the transfer alignment estimates.
+        imu: sensor error model.
+    """
+
+    name: str
+    span_m: float
+    lever_arm_m: tuple[float, float, float]
+    mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rho_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    imu: ImuErrorModel = field(default_factory=ImuErrorModel)
+
+
+@dataclass(frozen=True)
+class AntennaConfig:
+    """One antenna phase centre.
+
+    Attributes:
+        name: topic ``/antenna/<name>/odom``, frame ``antenna_<name>``.
+        span_m: signed span position along the wing.
+        sub_imu: carrier sub-IMU name, or ``None`` for an antenna without IMU (least-squares fit along the wing).
+        lever_arm_m: (3,) from the carrier sub-IMU in its axes; for ``fit`` antennas from the master IMU in master axes.
+    """
+
+    name: str
+    span_m: float
+    sub_imu: str | None
+    lever_arm_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class AircraftConfig:
+    name: str
+    gnss_lever_arm_m: tuple[float, float, float]
+    flexure: FlexureModel
+    sub_imus: tuple[SubImuConfig, ...]
+    antennas: tuple[AntennaConfig, ...]
+
+    def sub_imu(self, name: str) -> SubImuConfig:
+        for s in self.sub_imus:
+            if s.name == name:
+                return s
+        raise KeyError(f"aircraft {self.name!r} has no sub-IMU {name!r} (has: {[s.name for s in self.sub_imus]})")
+
+
+def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> AircraftConfig:
+    """Load a built-in aircraft configuration by name, or a YAML file by path (or its ``text``)."""
+    d, label = parse_yaml(text, f"aircraft {name_or_path}") if text is not None else read_yaml("aircraft", name_or_path)
+    allowed = {"name", "gnss_lever_arm_m", "flexure", "sub_imus", "antennas", "description"}
+    if set(d) - allowed:
+        raise ConfigError(f"{label}: unknown key(s) {sorted(set(d) - allowed)}")
+    flex = build(FlexureModel, d.get("flexure"), f"{label}: flexure")
+    subs = []
+    for i, s in enumerate(d.get("sub_imus") or []):
+        where = f"{label}: sub_imus[{i}]"
+        if not isinstance(s, dict) or not s.get("name"):
+            raise ConfigError(f"{where}: needs a non-empty name")
+        s = dict(s)
+        imu = build(ImuErrorModel, s.pop("imu", None), f"{where}.imu")
+        for k in ("lever_arm_m", "mount_rpy_deg", "rho_deg"):
+            if k in s:
+                s[k] = vec3(s[k], f"{where}.{k}")
+        if "span_m" not in s or "lever_arm_m" not in s:
+            raise ConfigError(f"{where}: span_m and lever_arm_m are required")
+        subs.append(build(SubImuConfig, {**s, "imu": imu}, where))
+    names = [s.name for s in subs]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"{label}: duplicate sub-IMU names {names}")
+    ants = []
+    for i, a in enumerate(d.get("antennas") or []):
+        where = f"{label}: antennas[{i}]"
+        if not isinstance(a, dict) or not a.get("name"):
+            raise ConfigError(f"{where}: needs a non-empty name")
+        a = dict(a)
+        carrier = a.get("sub_imu", "fit")
+        a["sub_imu"] = None if carrier in (None, "fit") else str(carrier)
+        if a["sub_imu"] is not None and a["sub_imu"] not in names:
+            raise ConfigError(f"{where}: sub_imu {carrier!r} is not a configured sub-IMU {names}")
+        a["lever_arm_m"] = vec3(a.get("lever_arm_m", [0, 0, 0]), f"{where}.lever_arm_m")
+        if "span_m" not in a:
+            raise ConfigError(f"{where}: span_m is required")
+        ants.append(build(AntennaConfig, a, where))
+    if len({a.name for a in ants}) != len(ants):
+        raise ConfigError(f"{label}: duplicate antenna names")
+    return AircraftConfig(
+        name=str(d.get("name", Path(str(name_or_path)).stem)),
+        gnss_lever_arm_m=vec3(d.get("gnss_lever_arm_m", [0, 0, 0]), f"{label}: gnss_lever_arm_m"),
+        flexure=flex,
+        sub_imus=tuple(subs),
+        antennas=tuple(ants),
+    )
+
+
+def scenario_aircraft_ref(scenario: str | Path) -> str:
+    """The aircraft a scenario file flies: its ``aircraft`` key (a built-in name, or a path that a
+    user scenario file may give relative to itself), else the scenario's name."""
+    d, _ = read_yaml("scenarios", scenario)
+    ref = str(d.get("aircraft", d.get("name", Path(str(scenario)).stem)))
+    base = Path(str(scenario))
+    if ref.endswith((".yaml", ".yml")) and not Path(ref).is_absolute() and base.suffix in (".yaml", ".yml"):
+        beside = base.parent / ref
+        if beside.is_file():
+            return str(beside)
+    return ref
+
+
+def scenario_aircraft(scenario: str | Path) -> AircraftConfig:
+    """The aircraft of a built-in or user scenario (see :func:`scenario_aircraft_ref`)."""
+    try:
+        return load_aircraft(scenario_aircraft_ref(scenario))
+    except ConfigError as e:
+        raise ConfigError(f"scenario {scenario}: aircraft: {e}") from None
