@@ -1,6 +1,7 @@
 # dpos workspace.
 #   make demo    bootstrap .venv if needed, run the end-to-end demo (.venv/bin/dpos-demo)
-#   make test    bootstrap .venv if needed, run the test suite (pytest)
+#   make test    bootstrap .venv if needed, run the linters (make lint) and the test suite (pytest)
+#   make lint    ruff (ruff.toml) and mypy (mypy.ini) on the sources; part of make test
 #   make bench   bootstrap .venv if needed, run the benchmarks (writes bench/results.json)
 #   make clean   remove build artefacts;  make distclean  also remove .venv
 #   make lock    re-resolve requirements*.txt from requirements*.in
@@ -21,13 +22,19 @@ export PIP_DISABLE_PIP_VERSION_CHECK := 1
 export RMW_IMPLEMENTATION := rmw_fastrtps_cpp
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench venv clean distclean lock
+.PHONY: demo test lint bench venv clean distclean lock
 
 demo: $(STAMP)
 	$(VENV)/bin/dpos-demo
 
-test: $(STAMP)
+test: lint
 	$(VPY) -m pytest -q $(PYTEST_ARGS)
+
+MYPY_PACKAGES := $(foreach p,$(PACKAGES),-p $(p))
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check --no-cache src tools bench test
+	$(VENV)/bin/mypy --cache-dir .venv/.mypy_cache $(MYPY_PACKAGES)
 
 BENCH_STAMP := $(VENV)/.dpos-bench-installed
 

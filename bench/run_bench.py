@@ -28,8 +28,8 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -162,9 +162,9 @@ def bench_graph(results: dict, repeats: int) -> None:
     from dpos_core.config import config_text
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
-    from dpos_ros import spill
-    from dpos_ros.graph import Graph, GraphSpec, NodeSpec
-    from dpos_ros.sim_streams import device_streams
+    from dpos_ros.devices.sim_streams import device_streams
+    from dpos_ros.io import spill
+    from dpos_ros.runtime.graph import Graph, GraphSpec, NodeSpec
 
     dur = 60.0
     tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_graph_"))
@@ -205,7 +205,7 @@ def bench_graph(results: dict, repeats: int) -> None:
                 for s in device_streams(ss, dev, truth=False) if s.topic in ("/master/nav", "/master/imu") or s.topic.startswith("/sub_imu/")}
     d = next((out / "spill").iterdir())
     raw, _, _, _ = spill.read_spill(d)
-    from dpos_ros import bag
+    from dpos_ros.io import bag
 
     raw.update({t: v for t, v in bag.read_raw(tmp / "rec").items() if t == "/master/imu"})
     lost = sum(expected[t] - len(raw.get(t, ("", [], []))[2]) for t in expected)
@@ -221,7 +221,7 @@ def bench_replay(results: dict, repeats: int) -> None:
     import subprocess
     import tempfile
 
-    from dpos_ros import bag, spill
+    from dpos_ros.io import bag, spill
 
     tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_replay_"))
     exe = Path(sys.executable).parent

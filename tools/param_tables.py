@@ -2,7 +2,7 @@
 """Parameter tables of docs/design.md, generated from the nodes' config dataclasses.
 
 Every node keeps its parameters in a frozen dataclass whose fields are made by
-:func:`dpos_ros.params.param` (default, description and constraints in the field metadata).
+:func:`dpos_ros.runtime.params.param` (default, description and constraints in the field metadata).
 This script renders one Markdown table per node and keeps docs/design.md in step with the code:
 the tables sit between the markers ``<!-- params:NODE begin -->`` and ``<!-- params:NODE end -->``.
 
@@ -11,7 +11,7 @@ the tables sit between the markers ``<!-- params:NODE begin -->`` and ``<!-- par
     .venv/bin/python tools/param_tables.py --print ifa_node   # print one table
 
 The constraint column is what the node declares to ROS (``ros2 param describe`` shows it as
-"additional constraints"): it is produced by running :func:`dpos_ros.params.declare_config` on a
+"additional constraints"): it is produced by running :func:`dpos_ros.runtime.params.declare_config` on a
 recording stand-in for the node, so the text is exactly the code's.  Extra checks of a field
 (``check=`` of :func:`param`) are described from :data:`CHECKS` (or named, when unknown).
 """
@@ -43,9 +43,9 @@ NODES: dict[str, str] = {
 #: Extra checks (``param(check=...)``) by the check function's qualified name. A check that is
 #: not listed here is shown by name, so that a new one shows up as a stale table.
 CHECKS: dict[str, str] = {
-    "dpos_ros.params._check_datum": "[] or [lat_deg in [-90, 90], lon_deg in [-180, 180], h_m]",
-    "dpos_ros.params._check_scenario": "a built-in scenario or an existing .yaml file",
-    "dpos_ros.params.scenario_param.<locals>.<lambda>": "'' or a built-in scenario or an existing .yaml file",
+    "dpos_ros.runtime.params._check_datum": "[] or [lat_deg in [-90, 90], lon_deg in [-180, 180], h_m]",
+    "dpos_ros.runtime.params._check_scenario": "a built-in scenario or an existing .yaml file",
+    "dpos_ros.runtime.params.scenario_param.<locals>.<lambda>": "'' or a built-in scenario or an existing .yaml file",
     "pos_sub_node.params._check_name": "letters, digits, '_', starting with a letter",
     "transfer_align_node.params._check_sub_imus": "names non-empty and unique",
 }
@@ -81,9 +81,9 @@ class _RecordingNode:
 
 
 def declared_constraints(cls: type) -> dict[str, str]:
-    """``additional_constraints`` of each parameter, as :func:`dpos_ros.params.declare_config`
+    """``additional_constraints`` of each parameter, as :func:`dpos_ros.runtime.params.declare_config`
     declares them."""
-    from dpos_ros.params import ParameterError, declare_config
+    from dpos_ros.runtime.params import ParameterError, declare_config
 
     node = _RecordingNode()
     try:
@@ -94,12 +94,12 @@ def declared_constraints(cls: type) -> dict[str, str]:
 
 
 def _param_spec(field: dataclasses.Field) -> Any:
-    from dpos_ros import params
+    from dpos_ros.runtime import params
 
     key = getattr(params, "_META_KEY", "dpos_param")
     spec = field.metadata.get(key)
     if spec is None:
-        raise TypeError(f"field {field.name!r} is not made by dpos_ros.params.param()")
+        raise TypeError(f"field {field.name!r} is not made by dpos_ros.runtime.params.param()")
     return spec
 
 

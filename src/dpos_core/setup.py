@@ -9,7 +9,7 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
     # Data read with importlib.resources (config/scenarios/*.yaml, config/aircraft/*.yaml).
-    package_data={package_name: ['**/*.yaml']},
+    package_data={package_name: ['**/*.yaml', 'py.typed']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

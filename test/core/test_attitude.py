@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from dpos_core import attitude as att
 from dpos_core import frames
-
+from dpos_core.units import DEG
 
 
 @pytest.fixture

@@ -7,9 +7,9 @@ import pytest
 
 from dpos_core.filters.dd2 import (
     InnovationWindow,
+    add2_update,
     aekf_predict,
     aekf_update,
-    add2_update,
     dd2_predict,
     dd2_update,
     guard_innovation_cov,

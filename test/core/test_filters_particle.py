@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dpos_core.filters.gaussian import kf_predict, kf_update, rts_smooth
+from dpos_core.errors import NumericalFailure
 from dpos_core.filters.linalg import chol
 from dpos_core.filters.model import LinearGaussianModel
-from dpos_core.filters.particle import ess, log_normalize, multinomial_resample, stratified_resample, systematic_resample
+from dpos_core.filters.particle import RESAMPLING, ess, log_normalize, resample_indices
 from dpos_core.filters.runners import ffbsm, run_sigma_point_filter, run_upf, smooth_gaussian, weighted_moments
 
 
@@ -40,16 +40,51 @@ def _kalman(m: LinearGaussianModel, x0, P0):
     return tr.x_f, smooth_gaussian(tr)[0]
 
 
-def test_resampling_schemes_preserve_weights() -> None:
+@pytest.mark.parametrize("scheme", RESAMPLING)
+def test_resampling_scheme_draws_index_i_n_w_i_times_in_expectation(scheme: str) -> None:
+    """N = 5 weights, one of them zero; over M = 4000 draws the mean count of index i is N w_i
+    within 5 standard errors of the mean (the multinomial variance N w_i (1 - w_i) per draw, which
+    bounds the stratified and systematic ones); every draw has N indices; a zero weight is never
+    drawn; systematic counts are floor(N w_i) or ceil(N w_i)."""
     rng = np.random.default_rng(0)
+    w = np.array([0.0, 0.45, 0.3, 0.15, 0.1])
+    with np.errstate(divide="ignore"):
+        logw = log_normalize(np.log(w))
+    N, M = w.size, 4000
+    counts = np.array([np.bincount(resample_indices(logw, rng, scheme), minlength=N) for _ in range(M)])
+    assert counts.shape == (M, N) and np.all(counts.sum(axis=1) == N)
+    se = np.sqrt(N * w * (1.0 - w) / M)
+    assert np.all(np.abs(counts.mean(axis=0) - N * w) <= 5.0 * se), (counts.mean(axis=0), N * w, se)
+    assert np.all(counts[:, 0] == 0)
+    if scheme == "systematic":
+        assert np.all((counts == np.floor(N * w)) | (counts == np.ceil(N * w)))
+
+
+def test_upf_resampling_scheme_is_a_choice() -> None:
+    """run_upf(resample=...) takes every scheme of RESAMPLING (each resamples and tracks the
+    Kalman mean: measured rms 0.05-0.1 with 200 particles, the position's posterior std ~0.6), the
+    default is systematic (same draws, same result), anything else is refused."""
+    m, x0, P0 = _model()
+    kf, _ = _kalman(m, x0, P0)
+    for scheme in RESAMPLING:
+        tr = run_upf(m, x0, P0, 200, np.random.default_rng(1), resample=scheme)
+        assert tr.resampled.any(), scheme
+        assert np.sqrt(np.mean((tr.mean - kf) ** 2)) < 0.2, scheme
+    a = run_upf(m, x0, P0, 50, np.random.default_rng(2))
+    b = run_upf(m, x0, P0, 50, np.random.default_rng(2), resample=RESAMPLING[0])
+    np.testing.assert_array_equal(a.mean, b.mean)
+    assert RESAMPLING[0] == "systematic"
+    with pytest.raises(ValueError, match="unknown resampling scheme"):
+        run_upf(m, x0, P0, 10, np.random.default_rng(0), resample="residual")
+    with pytest.raises(ValueError, match="unknown resampling scheme"):
+        resample_indices(np.log(np.full(3, 1 / 3)), np.random.default_rng(0), "residual")
+
+
+def test_log_weights_and_ess() -> None:
     logw = log_normalize(np.log(np.array([0.5, 0.25, 0.125, 0.125])))
-    for fn in (systematic_resample, stratified_resample, multinomial_resample):
-        counts = np.zeros(4)
-        for _ in range(2000):
-            counts += np.bincount(fn(logw, rng), minlength=4)
-        np.testing.assert_allclose(counts / counts.sum(), np.exp(logw), atol=0.01)
+    np.testing.assert_allclose(np.exp(logw).sum(), 1.0, rtol=1e-15)
     assert ess(logw) == pytest.approx(1.0 / np.sum(np.exp(logw) ** 2))
-    with pytest.raises(FloatingPointError):
+    with pytest.raises(NumericalFailure, match="weights are zero"):
         log_normalize(np.full(3, -np.inf))
 
 

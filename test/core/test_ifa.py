@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 import warnings
 from dataclasses import replace
 
@@ -13,12 +11,13 @@ import pytest
 from dpos_core.attitude import dcm_to_quat
 from dpos_core.filters.linalg import chol
 from dpos_core.frames import C_nb_from_hpr, hpr_from_C_nb
-from dpos_core.ifa.model import GnssFix, IfaConfig, IfaModel
+from dpos_core.ifa.model import GnssFix, IfaFilterConfig, IfaModel
 from dpos_core.ifa.pipeline import InFlightAligner, attitude_errors_deg, run
+from dpos_core.series import GnssSeries
 from dpos_core.sim.scenario import load_scenario
-from dpos_core.sim.session import GnssSeries, SimulatedSession
+from dpos_core.sim.session import SimulatedSession
 from dpos_core.strapdown import NavState
-
+from dpos_core.units import DEG
 
 
 def _initial(ss: SimulatedSession, heading_err_deg: float) -> NavState:
@@ -40,7 +39,7 @@ def _session(seed: int):
     return _CACHE[seed]
 
 
-def _final_errors(seed: int, heading_err_deg: float, method: str, cfg: IfaConfig = IfaConfig()):
+def _final_errors(seed: int, heading_err_deg: float, method: str, cfg: IfaFilterConfig = IfaFilterConfig()):
     ss, imu, gnss, truth = _session(seed)
     res = run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, cfg, method, _initial(ss, heading_err_deg))
     assert np.allclose(res.t_s, truth.t_s)
@@ -70,14 +69,14 @@ def test_add2_aligns_from_180_deg_through_the_hypothesis_bank(heading_err_deg: f
     assert res.aligned and res.aligned_t_s > 20.0
     # the single-hypothesis filter from the same start does not get there (what the bank is for)
     if heading_err_deg == 180.0:
-        err1, res1 = _final_errors(1, heading_err_deg, "add2", IfaConfig(heading_hypotheses=1))
+        err1, res1 = _final_errors(1, heading_err_deg, "add2", IfaFilterConfig(heading_hypotheses=1))
         assert abs(err1[0]) > 0.05 and not res1.aligned
 
 
 def test_hypothesis_bank_prunes_and_reports_one_filter() -> None:
     ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=60.0)
     imu, g = ss.master_imu(), ss.gnss()
-    al = InFlightAligner(_initial(ss, 150.0), ss.scenario.aircraft.gnss_lever_arm_m, IfaConfig(), "add2")
+    al = InFlightAligner(_initial(ss, 150.0), ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(), "add2")
     assert al.hypotheses == 6 and al.offsets_deg == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
     i = 0
     counts = []
@@ -94,7 +93,7 @@ def test_hypothesis_bank_prunes_and_reports_one_filter() -> None:
     dpsi = hpr_from_C_nb(al.nav.C_nb)[0] - hpr_from_C_nb(truth.C_nb[0])[0]
     assert abs(np.angle(np.exp(1j * dpsi))) < 1.0 * DEG  # the survivor has the heading after the first turn
     with pytest.raises(ValueError, match="heading_hypotheses"):
-        IfaConfig(heading_hypotheses=0)
+        IfaFilterConfig(heading_hypotheses=0)
 
 
 @pytest.mark.slow
@@ -134,7 +133,7 @@ def _same(a, b) -> bool:
 @pytest.mark.parametrize("method", ["add2", "dd2", "aekf"])
 def test_bad_gnss_fix_is_rejected_and_leaves_the_filter_untouched(method: str) -> None:
     ss, imu, g = _short()
-    al = InFlightAligner(_initial(ss, 30.0), ss.scenario.aircraft.gnss_lever_arm_m, IfaConfig(), method)
+    al = InFlightAligner(_initial(ss, 30.0), ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(), method)
     i = 0
     for j in range(3):  # three good epochs
         i1 = int(np.searchsorted(imu.t_s, g.t_s[j] + 1e-6))
@@ -170,7 +169,7 @@ def test_run_skips_bad_fixes_with_a_warning() -> None:
     ss, imu, g = _short()
     init = _initial(ss, 30.0)
     lever = ss.scenario.aircraft.gnss_lever_arm_m
-    ref = run(imu, g, lever, IfaConfig(), "add2", init)
+    ref = run(imu, g, lever, IfaFilterConfig(), "add2", init)
     # corrupt: a NaN velocity at index 4, a duplicate of fix 6 and an out-of-order copy of fix 2 after it
     idx = [0, 1, 2, 3, 4, 5, 6, 6, 2, 7, 8, 9, 10, 11]
     t = g.t_s[idx].copy()
@@ -179,7 +178,7 @@ def test_run_skips_bad_fixes_with_a_warning() -> None:
     bad = GnssSeries(t, g.llh[idx], g.pos_sigma_m[idx], vel, g.vel_sigma_mps[idx])
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        res = run(imu, bad, lever, IfaConfig(), "add2", init)
+        res = run(imu, bad, lever, IfaFilterConfig(), "add2", init)
     assert len(w) == 3 and all("skipping GNSS fix" in str(x.message) for x in w)
     assert [r[0] for r in res.rejected] == [g.t_s[4], g.t_s[6], g.t_s[2]]
     assert "not finite" in res.rejected[0][1] and "duplicate" in res.rejected[1][1] and "out-of-order" in res.rejected[2][1]
@@ -192,7 +191,7 @@ def test_run_skips_bad_fixes_with_a_warning() -> None:
 def test_model_shift_inverts_feedback_and_13_state_variant() -> None:
     ss, imu, g = _short()
     for vertical in (True, False):
-        cfg = IfaConfig(vertical=vertical)
+        cfg = IfaFilterConfig(vertical=vertical)
         m = IfaModel(_initial(ss, 90.0), ss.scenario.aircraft.gnss_lever_arm_m, cfg)
         x0, P0 = m.prior()
         assert x0.shape == (cfg.n,) and np.all(np.linalg.eigvalsh(P0) > 0)
@@ -214,7 +213,7 @@ def test_model_shift_inverts_feedback_and_13_state_variant() -> None:
 def test_13_state_model_runs_and_aligns_roughly() -> None:
     ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=120.0)
     imu, g = ss.master_imu(), ss.gnss()
-    res = run(imu, g, ss.scenario.aircraft.gnss_lever_arm_m, IfaConfig(vertical=False), "dd2", _initial(ss, 30.0))
+    res = run(imu, g, ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(vertical=False), "dd2", _initial(ss, 30.0))
     truth = ss.truth("master", res.t_s)
     err = attitude_errors_deg(res, truth.q_nb)[-1]
     assert res.x.shape[1] == 13

@@ -6,17 +6,16 @@ import numpy as np
 import pytest
 
 from dpos_core import earth
-from dpos_core.attitude import attitude_error, dcm_to_quat, rotvec_to_dcm
-from dpos_core.kinematics import increments_from_motion, nav_from_ecef
-from dpos_core.attitude import mount_dcm, right_jacobian
-from dpos_core.sim.bodies import flexed_body_motion, rigid_offset_motion
+from dpos_core.attitude import attitude_error, dcm_to_quat, mount_dcm, right_jacobian, rotvec_to_dcm
 from dpos_core.config.flexure import FlexureModel
+from dpos_core.config.sensors import GnssModel, ImuErrorModel, NoiseInterval
+from dpos_core.kinematics import increments_from_motion, nav_from_ecef
+from dpos_core.sim.bodies import flexed_body_motion, rigid_offset_motion
 from dpos_core.sim.flexure import FlexureRealization
 from dpos_core.sim.flight import Flight, FlightStart, Segment
-from dpos_core.units import DEG_PER_H, UG_MPS2
-from dpos_core.config.sensors import GnssModel, ImuErrorModel, NoiseInterval
 from dpos_core.sim.sensors import draw_biases, measure
 from dpos_core.strapdown import NavState, Strapdown
+from dpos_core.units import DEG_PER_H, UG_MPS2
 
 
 def test_right_jacobian_matches_finite_differences() -> None:

@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 import numpy as np
 import pytest
 
 from dpos_core import earth
 from dpos_core.analytic_trajectory import CoordinatedTurnClimb
 from dpos_core.attitude import attitude_error, dcm_to_quat
-from dpos_core.kinematics import increments_from_motion, integrate_increments
 from dpos_core.config.flexure import FlexureModel
+from dpos_core.kinematics import increments_from_motion, integrate_increments
 from dpos_core.sim.flexure import FlexureRealization
 from dpos_core.sim.flight import Flight, FlightStart, Segment
 from dpos_core.strapdown import NavState, Strapdown
-
+from dpos_core.units import DEG
 
 
 def test_by_parts_increments_equal_the_acceleration_form() -> None:

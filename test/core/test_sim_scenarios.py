@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +12,8 @@ from dpos_core.attitude import attitude_error
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.sim.scenario import builtin_scenarios, load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.units import DEG_PER_H, UG_MPS2
 from dpos_core.strapdown import NavState, Strapdown
-
+from dpos_core.units import DEG, DEG_PER_H, UG_MPS2
 
 
 def test_all_design_scenarios_are_built_in() -> None:

@@ -7,8 +7,6 @@ derived from the leading term and are not tuned to the measurement.
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 import numpy as np
 import pytest
 
@@ -17,12 +15,14 @@ from dpos_core.analytic_trajectory import CoordinatedTurnClimb
 from dpos_core.attitude import attitude_error, dcm_to_quat, quat_conj, quat_mul, quat_to_dcm, rotvec_to_dcm
 from dpos_core.frames import C_nb_from_hpr, _rx
 from dpos_core.kinematics import imu_from_ecef_kinematics, integrate_increments, nav_from_ecef
-from dpos_core.strapdown import NavState, NavTrajectory, Strapdown
+from dpos_core.series import NavSeries
+from dpos_core.strapdown import NavState, Strapdown
+from dpos_core.units import DEG
 
 LAT0, LON0, H0 = 40.0 * DEG, 116.0 * DEG, 500.0
 
 
-def _errors(out: NavTrajectory, llh: np.ndarray, vel: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _errors(out: NavSeries, llh: np.ndarray, vel: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Max |error| over the run: position ENU [m] (3,), velocity [m/s] (3,), attitude phi [rad] (3,)."""
     r_m, r_n = earth.radii_of_curvature(llh[:, 0])
     d = out.llh - llh
@@ -158,7 +158,7 @@ def test_chunked_integration_equals_one_call() -> None:
     sd = Strapdown(s0)
     cuts = [0, 1, 2, 57, 100, 3001, 6000]
     parts = [sd.run_increments(t[1:][a:b], dth[a:b], dv[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
-    chunked = NavTrajectory.concatenate(parts)
+    chunked = NavSeries.concatenate(parts)
     np.testing.assert_array_equal(chunked.t_s, whole.t_s)
     np.testing.assert_allclose(chunked.q_nb, whole.q_nb, atol=1e-15)
     np.testing.assert_allclose(chunked.vel_n_mps, whole.vel_n_mps, atol=1e-12)
@@ -168,7 +168,7 @@ def test_chunked_integration_equals_one_call() -> None:
     whole_r = Strapdown(s0).run_rates(t, om, f)
     sd = Strapdown(s0)
     parts = [sd.run_rates(t[a:b], om[a:b], f[a:b]) for a, b in zip([0, 1, 333, 4000], [1, 333, 4000, 6001])]
-    np.testing.assert_allclose(NavTrajectory.concatenate(parts).llh, whole_r.llh, atol=1e-12)
+    np.testing.assert_allclose(NavSeries.concatenate(parts).llh, whole_r.llh, atol=1e-12)
 
 
 def test_closed_loop_correction_restores_the_truth() -> None:

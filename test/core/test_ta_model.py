@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 import numpy as np
 import pytest
 
-from dpos_core import earth
+from dpos_core.attitude import compose_rotvec, right_jacobian
 from dpos_core.frames import hpr_error, hpr_from_C_nb
+from dpos_core.series import ImuSeries
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim, pipeline
-from dpos_core.attitude import compose_rotvec, right_jacobian
-from dpos_core.ta.model import ImuData, TAConfig, TransferAlignmentModel, right_jacobian_inv
-
+from dpos_core.ta.model import TAConfig, TransferAlignmentModel, right_jacobian_inv
 
 
 @pytest.fixture(scope="module")
@@ -93,11 +90,11 @@ def test_bad_imu_input_is_rejected(su300) -> None:
     om = imu.omega_radps.copy()
     om[10, 1] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        TransferAlignmentModel(ImuData(imu.t_s, om, imu.f_mps2), master, ins, TAConfig(), init)
+        TransferAlignmentModel(ImuSeries(imu.t_s, om, imu.f_mps2), master, ins, TAConfig(), init)
     t = imu.t_s.copy()
     t[50], t[51] = t[51], t[50]
     with pytest.raises(ValueError, match="strictly increasing"):
-        TransferAlignmentModel(ImuData(t, imu.omega_radps, imu.f_mps2), master, ins, TAConfig(), init)
+        TransferAlignmentModel(ImuSeries(t, imu.omega_radps, imu.f_mps2), master, ins, TAConfig(), init)
     with pytest.raises(ValueError, match="unknown method"):
         pipeline.run(imu, master, ins, TAConfig(), "bogus", initial=init)
 
@@ -105,11 +102,9 @@ def test_bad_imu_input_is_rejected(su300) -> None:
 def test_sub_imu_data_before_the_first_master_epoch_is_skipped(su300) -> None:
     """A recorder that joined late, or topics that start at different times: the sub-IMU samples
     before the first master epoch are left out, the rest is aligned."""
-    from dpos_core.ta.model import MasterNav
-
     ss, imu, master, ins = su300
     k = 1000  # master navigation starts 10 s after the sub-IMU
-    late = MasterNav(*(getattr(master, f)[k:] for f in ("t_s", "llh", "vel_n_mps", "C_nb", "omega_b_radps", "att_cov", "vel_cov", "pos_cov")))
+    late = master.select(slice(k, None))
     r = pipeline.run(imu, late, ins, TAConfig(attitude_sigma_deg=2.0), "ukf")
     assert r.t_s[0] > late.t_s[0] and r.t_s[-1] == pytest.approx(imu.t_s[-1])
     assert r.t_s.size == np.count_nonzero(imu.t_s > late.t_s[0])

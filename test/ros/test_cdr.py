@@ -8,8 +8,10 @@ from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu
 
-from dpos_core.attitude import dcm_to_quat, rotvec_to_dcm
-from dpos_ros import cdr, conversions as cv
+from dpos_core.attitude import dcm_to_quat, quat_to_dcm, rotvec_to_dcm
+from dpos_core.frames import hpr_sigma_to_rotation_cov
+from dpos_ros.contract import cdr
+from dpos_ros.contract import conversions as cv
 
 
 def _assert_same_bytes(ours: bytes, theirs: bytes, lay: cdr.Layout) -> None:
@@ -95,8 +97,8 @@ def test_odometry_round_trip_and_frames() -> None:
     vel = rng.normal(0, 80, (n, 3))
     q = dcm_to_quat(rotvec_to_dcm(rng.normal(0, 1, (n, 3))))
     om = rng.normal(0, 0.1, (n, 3))
-    vals = cv.odometry_values(llh, vel, q, datum, om, pos_sigma_m=np.array([0.05, 0.05, 0.1]),
-                              att_sigma_hpr_rad=np.deg2rad([0.005, 0.0025, 0.0025]), vel_sigma_mps=np.full(3, 0.005))
+    att_cov = hpr_sigma_to_rotation_cov(quat_to_dcm(q), np.deg2rad([0.005, 0.0025, 0.0025]))
+    vals = cv.odometry_values_cov(llh, vel, q, datum, om, np.diag([0.05, 0.05, 0.1]) ** 2, att_cov, np.eye(3) * 0.005**2)
     t_ns = np.arange(n, dtype=np.int64) * 10_000_000
     blk = cv.odometry_from_values(t_ns, vals, datum)
     np.testing.assert_allclose(blk.llh[:, :2], llh[:, :2], atol=1e-13)
@@ -109,8 +111,6 @@ def test_odometry_round_trip_and_frames() -> None:
     np.testing.assert_allclose(np.trace(blk.pose_cov[:, :3, :3], axis1=1, axis2=2), 0.05**2 * 2 + 0.1**2, rtol=1e-9)
     np.testing.assert_allclose(np.trace(blk.pose_cov[:, 3:, 3:], axis1=1, axis2=2), np.deg2rad(0.005) ** 2 + 2 * np.deg2rad(0.0025) ** 2, rtol=1e-9)
     # a level body at the datum heading north: heading error = rotation about -Up
-    from dpos_core.frames import hpr_sigma_to_rotation_cov
-
     C = hpr_sigma_to_rotation_cov(np.eye(3)[None] @ np.array([[[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]]), np.array([0.1, 0.0, 0.0]))
     np.testing.assert_allclose(C[0], np.diag([0.0, 0.0, 0.01]), atol=1e-15)
 

@@ -30,4 +30,4 @@ def test_eval_writes_metrics_and_the_oracle_bounds_urtss(tmp_path: Path) -> None
 def test_eval_rejects_unknown_methods(tmp_path: Path) -> None:
     r = subprocess.run([str(EXE / "dpos-eval"), "--scenario", "paper_su", "--methods", "kalman9", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "unknown method" in r.stderr
+    assert r.returncode == 2 and "unknown transfer-alignment method" in r.stderr

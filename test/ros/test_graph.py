@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from dpos_ros.graph import Graph, GraphError, GraphSpec
+from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec
 
 EXE = Path(sys.executable).parent
 

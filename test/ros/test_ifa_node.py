@@ -1,6 +1,6 @@
 """The master loop of the graph: pos_master_node (mechanization with IFA feedback) + ifa_node (issue #5).
 
-* dpos_ros.master_nav: the master mechanization with corrections equals the aligner's closed-loop
+* dpos_core.ifa.mechanization: the master mechanization with corrections equals the aligner's closed-loop
   strapdown (no ROS);
 * in-process graph (one Context, a MultiThreadedExecutor): the simulated master device + the
   mechanization + ifa_node reach ALIGNED, /master/nav agrees with the truth, and the corrections
@@ -13,8 +13,6 @@ Every wait is bounded; nothing sleeps for a fixed time.
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 import threading
 import time
 from collections import defaultdict
@@ -25,13 +23,15 @@ import pytest
 from rclpy.parameter import Parameter
 
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_core.ifa.model import GnssFix, IfaConfig
+from dpos_core.ifa.mechanization import MasterMechanization, initial_state_from_truth, stamp_s
+from dpos_core.ifa.model import GnssFix, IfaFilterConfig
 from dpos_core.ifa.pipeline import InFlightAligner, run
+from dpos_core.series import GnssSeries
 from dpos_core.sim.scenario import load_scenario
-from dpos_core.sim.session import GnssSeries, SimulatedSession
+from dpos_core.sim.session import SimulatedSession
 from dpos_core.strapdown import NavState
-from dpos_ros import conversions as cv
-from dpos_ros.master_nav import MasterMechanization, initial_state_from_truth, stamp_s
+from dpos_core.units import DEG
+from dpos_ros.contract import conversions as cv
 
 pytestmark = pytest.mark.ros
 
@@ -61,7 +61,7 @@ def test_master_mechanization_equals_the_aligner_closed_loop() -> None:
     imu, g = ss.master_imu(), ss.gnss()
     init = _initial(ss, 60.0)
     lever = ss.scenario.aircraft.gnss_lever_arm_m
-    cfg = IfaConfig(use_reported_sigma=True)
+    cfg = IfaFilterConfig(use_reported_sigma=True)
     res = run(imu, g, lever, cfg, "add2", init)
     al = InFlightAligner(init, lever, cfg, "add2", float(np.median(np.diff(imu.t_s))))
     mm = MasterMechanization(init, ring_s=5.0)
@@ -125,7 +125,7 @@ class Probe:
         from rclpy.node import Node
         from std_msgs.msg import Header
 
-        from dpos_ros.qos import NAV_QOS, STATUS_QOS
+        from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
 
         self.node = Node("ifa_probe", context=context)
         self.raw: dict[str, list[bytes]] = defaultdict(list)
@@ -187,7 +187,7 @@ class Spinner:
 
 
 def _odometry(raws: list[bytes], datum: np.ndarray) -> cv.OdometryBlock:
-    from dpos_ros import cdr
+    from dpos_ros.contract import cdr
 
     lay = cdr.layout("odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
     rows = np.stack([np.frombuffer(r, dtype=np.uint8)[: lay.size] for r in raws])
@@ -288,7 +288,7 @@ def test_bad_gnss_is_rejected_and_leaves_the_filter_undisturbed(ros_context, ros
     from rclpy.node import Node
     from sensor_msgs.msg import Imu, NavSatFix
 
-    from dpos_ros.qos import NAV_QOS, SENSOR_QOS, STATUS_QOS
+    from dpos_ros.contract.qos import NAV_QOS, SENSOR_QOS, STATUS_QOS
     from ifa_node.node import IfaNode
 
     ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=6.0)
@@ -371,14 +371,14 @@ def test_given_alignment_integrates_back_to_the_truth(ros_context) -> None:
     the master IMU's errors allow over 5 s; /pos_master/status says GIVEN."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from dpos_ros.qos import STATUS_QOS
+    from dpos_ros.contract.qos import STATUS_QOS
     from pos_master_node.node import PosMasterNode
 
     probe = Probe(ros_context)
     for topic in ("/truth/master",):
         from nav_msgs.msg import Odometry
 
-        from dpos_ros.qos import NAV_QOS
+        from dpos_ros.contract.qos import NAV_QOS
 
         probe.node.create_subscription(Odometry, topic, lambda m, t=topic: probe._got(t, m), NAV_QOS, raw=True)
     master_status: list[str] = []

@@ -24,12 +24,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
-
-from dpos_ros import spill
-from dpos_ros.qos import NAV_QOS, STATUS_QOS
-from dpos_ros.sim_device import load_sim_session, message_class, qos_profile
-from dpos_ros.sim_streams import TopicStream, device_streams, session_id
 from ros_wait import spin_until  # test/ros/ros_wait.py
+
+from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, qos_profile
+from dpos_ros.contract.topics import message_class
+from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_streams import TopicStream, device_streams, session_id
+from dpos_ros.io import spill
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -16,8 +16,6 @@ Every wait is bounded; nothing sleeps.
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 from collections import defaultdict
 from typing import Any
 
@@ -30,17 +28,18 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from ros_wait import spin_until  # test/ros/ros_wait.py
 from sensor_msgs.msg import Imu, NavSatFix
 
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_ros import cdr
-from dpos_ros import conversions as cv
-from dpos_ros.master_nav import MasterMechanization, initial_state_from_list, stamp_s
-from dpos_ros.params import ParameterError
-from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
-from dpos_ros.sim_device import load_sim_session
-from dpos_ros.sim_streams import TopicStream, device_streams
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from dpos_core.ifa.mechanization import MasterMechanization, initial_state_from_list, stamp_s
+from dpos_core.units import DEG
+from dpos_ros.contract import cdr
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_streams import TopicStream, device_streams
+from dpos_ros.runtime.params import ParameterError
 
 pytestmark = pytest.mark.ros
 

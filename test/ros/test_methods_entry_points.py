@@ -19,7 +19,7 @@ from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.ta.pipeline import METHODS as TA_METHODS
 from dpos_core.ta.pipeline import ORACLE
 from dpos_ros.cli import demo, evaluate, process
-from dpos_ros.params import ParameterError, config_from_values
+from dpos_ros.runtime.params import ParameterError, config_from_values
 from ifa_node.params import IfaConfig
 from transfer_align_node.params import TransferAlignConfig
 

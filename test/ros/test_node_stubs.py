@@ -11,7 +11,7 @@ import signal
 import pytest
 from rclpy.parameter import Parameter
 
-from dpos_ros.params import ParameterError, packaged_params_file
+from dpos_ros.runtime.params import ParameterError, packaged_params_file
 
 pytestmark = pytest.mark.ros
 

@@ -1,4 +1,4 @@
-"""dpos_ros.params (config dataclasses <-> parameters) and dpos_ros.qos."""
+"""dpos_ros.runtime.params (config dataclasses <-> parameters) and dpos_ros.contract.qos."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
 
-from dpos_ros import qos
-from dpos_ros.params import (
+from dpos_ros.contract import qos
+from dpos_ros.runtime.params import (
     ParameterError,
     config_from_values,
     declare_config,
@@ -145,7 +145,7 @@ def test_latched_qos_is_transient_local():
 
 
 def test_datum_parameter_empty_means_session_datum():
-    from dpos_ros.params import datum_llh_rad
+    from dpos_ros.runtime.params import datum_llh_rad
     from pos_master_node.params import PosMasterConfig
 
     assert PosMasterConfig().datum == ()

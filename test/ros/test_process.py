@@ -14,8 +14,8 @@ import pytest
 from dpos_core.config import config_text
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_ros import bag
-from dpos_ros.sim_streams import TopicStream, session_custom_data, session_streams
+from dpos_ros.devices.sim_streams import TopicStream, session_custom_data, session_streams
+from dpos_ros.io import bag
 
 EXE = Path(sys.executable).parent
 

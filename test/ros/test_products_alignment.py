@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from dpos_core.config import load_aircraft
-from dpos_ros.products import solve
-from dpos_ros.session_io import read_session
+from dpos_ros.io.session import read_session
+from dpos_ros.products.ta import solve
 
 BAG = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
 

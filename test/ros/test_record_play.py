@@ -1,4 +1,4 @@
-"""dpos-record and dpos-play (dpos_ros.record / dpos_ros.play) as processes.
+"""dpos-record and dpos-play (dpos_ros.io.record / dpos_ros.io.play) as processes.
 
 A dpos-sim bag played with ``dpos-play --rate 0`` into ``dpos-record --until-session-end`` comes back
 with the same messages per topic, byte for byte and in order; ``--rate 10`` is paced and publishes
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from dpos_ros.bag import custom_data, read_raw
+from dpos_ros.io.bag import custom_data, read_raw
 
 pytestmark = pytest.mark.ros
 
@@ -99,8 +99,8 @@ def test_play_rate10_is_paced_and_publishes_clock(sim_bag, ros_context, ros_exec
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import Imu
 
-    from dpos_ros.play import CLOCK_QOS
-    from dpos_ros.qos import SENSOR_QOS
+    from dpos_ros.contract.qos import SENSOR_QOS
+    from dpos_ros.io.play import CLOCK_QOS
 
     _mt, imu_times, imu_raws = read_raw(sim_bag, ["/master/imu"])["/master/imu"]
     node = Node("record_play_clock", context=ros_context)

@@ -1,4 +1,4 @@
-"""``device: ros``: pos_sub_node relays a driver's sensor_msgs/Imu (dpos_ros.relay.DeviceRelay).
+"""``device: ros``: pos_sub_node relays a driver's sensor_msgs/Imu (dpos_ros.devices.relay.DeviceRelay).
 
 A fake driver publishes on /drv/imu (best-effort or reliable); pos_sub_node with ``device:=ros`` and
 ``-r imu_in:=/drv/imu`` must republish every good message on /sub_imu/<name>/imu with the same
@@ -18,13 +18,13 @@ from geometry_msgs.msg import TwistWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from ros_wait import spin_until  # test/ros/ros_wait.py
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from dpos_ros.params import ParameterError
-from dpos_ros.qos import SENSOR_QOS, STATUS_QOS
-from dpos_ros.relay import DeviceRelay, Route, rotation_from_rpy_deg
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from dpos_ros.contract.qos import SENSOR_QOS, STATUS_QOS
+from dpos_ros.devices.relay import DeviceRelay, Route, rotation_from_rpy_deg
+from dpos_ros.runtime.params import ParameterError
 
 pytestmark = pytest.mark.ros
 
@@ -115,7 +115,7 @@ def test_pos_sub_node_relays_driver_imu(case, ros_context, ros_executor):
                  Parameter("input_reliability", value=input_reliability)]
     if rpy is not None:
         overrides.append(Parameter("input_rotation_rpy_deg", value=rpy))
-    # independent of dpos_ros.relay: extrinsic x-y-z = Rz(yaw) Ry(pitch) Rx(roll)
+    # independent of dpos_ros.devices.relay: extrinsic x-y-z = Rz(yaw) Ry(pitch) Rx(roll)
     R = np.eye(3) if rpy is None else Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()
 
     driver = Node("fake_imu_driver", context=ros_context)

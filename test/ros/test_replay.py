@@ -15,7 +15,7 @@ import rclpy
 from rclpy.context import Context
 from std_srvs.srv import Trigger
 
-from dpos_ros import bag, spill
+from dpos_ros.io import bag, spill
 
 EXE = Path(sys.executable).parent
 TOPICS = ["/dpos/datum", "/master/nav", "/sub_imu/sub_r/imu", "/sub_imu/sub_l/imu", "/truth/master",

@@ -15,8 +15,9 @@ import numpy as np
 
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_ros import bag, cdr
-from dpos_ros.sim_streams import session_streams
+from dpos_ros.contract import cdr
+from dpos_ros.devices.sim_streams import session_streams
+from dpos_ros.io import bag
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
 

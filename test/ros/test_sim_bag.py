@@ -15,7 +15,9 @@ from std_msgs.msg import Header
 
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_ros import bag, cdr, conversions as cv
+from dpos_ros.contract import cdr
+from dpos_ros.contract import conversions as cv
+from dpos_ros.io import bag
 
 DURATION_S = 20.0
 

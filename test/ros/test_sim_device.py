@@ -1,6 +1,6 @@
-"""The live simulated devices (dpos_ros.sim_device, pos_master_node / pos_sub_node ``device: sim``).
+"""The live simulated devices (dpos_ros.devices.sim_device, pos_master_node / pos_sub_node ``device: sim``).
 
-What they publish must equal, byte for byte and without loss, the streams of dpos_ros.sim_streams
+What they publish must equal, byte for byte and without loss, the streams of dpos_ros.devices.sim_streams
 (and so a bag of ``dpos-sim``) for the same scenario, aircraft, seed, duration and datum.
 Every wait is bounded; nothing sleeps for a fixed time.
 """
@@ -20,8 +20,9 @@ from rclpy.parameter import Parameter
 
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_ros.sim_device import message_class, qos_profile
-from dpos_ros.sim_streams import TopicStream, device_streams, session_streams
+from dpos_ros.contract.qos import qos_profile
+from dpos_ros.contract.topics import message_class
+from dpos_ros.devices.sim_streams import TopicStream, device_streams, session_streams
 
 pytestmark = pytest.mark.ros
 
@@ -179,7 +180,7 @@ def test_graph_of_processes_equals_the_bag(ros_context, ros_executor, start_node
     """pos_master_node + two pos_sub_node processes at rate 0 == dpos-sim's bag, no message lost."""
     from rclpy.node import Node
 
-    from dpos_ros.bag import read_raw, write_streams
+    from dpos_ros.io.bag import read_raw, write_streams
 
     duration, aircraft, seed = 10.0, "paper_su_pair", 1
     streams = session_streams(_session(duration, aircraft=aircraft, seed=seed), truth=True)
@@ -273,7 +274,7 @@ def test_bad_device_parameters_exit_nonzero_naming_the_problem(script, args, exp
 
 def test_writer_depths_share_the_flow_window():
     """Writer depths: the window shared by message count, >= 1, <= the stream, divisors preferred."""
-    from dpos_ros.sim_device import FLOW_WINDOW, writer_depths
+    from dpos_ros.io.flow import FLOW_WINDOW, writer_depths
 
     streams = device_streams(_session(10.0), "master", truth=True)
     depths = dict(zip((s.topic for s in streams), writer_depths(streams)))
@@ -288,7 +289,7 @@ def test_writer_depths_share_the_flow_window():
 
 
 def test_device_fastdds_profile_respects_the_users_configuration(tmp_path, monkeypatch):
-    from dpos_ros.sim_device import HEARTBEAT_PERIOD_MS, use_device_fastdds_profile
+    from dpos_ros.io.flow import HEARTBEAT_PERIOD_MS, use_device_fastdds_profile
 
     monkeypatch.chdir(tmp_path)
     env = {"RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"}

@@ -15,11 +15,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message, serialize_message
+from ros_wait import spin_until  # test/ros/ros_wait.py
 from std_srvs.srv import Trigger
 
-from dpos_ros import bag
-from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS
+from dpos_ros.io import bag
 
 pytestmark = [pytest.mark.ros]
 
@@ -53,7 +53,7 @@ def test_never_aligned_main_pos(ros_context, tmp_path: Path) -> None:
         msgs[topic] = keep
     qos = {"/dpos/datum": DATUM_QOS, "/master/nav": NAV_QOS, "/sub_imu/sub_r/imu": SENSOR_QOS, "/sub_imu/sub_l/imu": SENSOR_QOS}
     types = {"/dpos/datum": "sensor_msgs/msg/NavSatFix", "/master/nav": "nav_msgs/msg/Odometry"}
-    from dpos_ros.sim_device import message_class
+    from dpos_ros.contract.topics import message_class
 
     executor = MultiThreadedExecutor(num_threads=3, context=ros_context)
     ta = TransferAlignNode(context=ros_context, parameter_overrides=[

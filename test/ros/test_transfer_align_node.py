@@ -12,15 +12,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
-from dpos_ros import spill
-from dpos_ros.graph import Graph
-from dpos_ros.qos import NAV_QOS
+from dpos_ros.contract.qos import NAV_QOS
+from dpos_ros.io import spill
+from dpos_ros.runtime.graph import Graph
 
 EXE = Path(sys.executable).parent
 DUR = 60.0

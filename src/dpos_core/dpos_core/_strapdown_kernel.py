@@ -12,7 +12,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .earth import A_M, E2, F, GAMMA_E_MPS2, K_SOMIGLIANA, M_GRAV, OMEGA_IE_RADPS
+from .earth import A_M, E2, GAMMA_E_MPS2, K_SOMIGLIANA, M_GRAV, OMEGA_IE_RADPS, F
 
 MODE_INCREMENTS = 0
 MODE_RATES = 1

@@ -17,17 +17,16 @@ a mechanization test.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.units import FloatArray
 
 from .earth import C_en, geodetic_to_ecef, normal_gravity
 from .frames import C_nb_from_hpr
 from .kinematics import imu_from_ecef_kinematics, nav_from_ecef
-
 
 
 @dataclass(frozen=True)

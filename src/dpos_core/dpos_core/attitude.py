@@ -15,11 +15,10 @@ Euler angles live in :mod:`dpos_core.frames`, which owns the body/world axis con
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from dpos_core.units import FloatArray
 
 _SMALL_ANGLE_RAD = 1e-6
 
@@ -63,9 +62,9 @@ def quat_conj(q: ArrayLike) -> FloatArray:
 
 def quat_normalize(q: ArrayLike) -> FloatArray:
     """Unit quaternion with non-negative scalar part, shape ``(..., 4)``."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0.0, -q, q)
+    u = np.asarray(q, dtype=float)
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    return np.where(u[..., :1] < 0.0, -u, u)
 
 
 def quat_to_dcm(q: ArrayLike) -> FloatArray:
@@ -137,14 +136,6 @@ def rotvec_to_dcm(phi: ArrayLike) -> FloatArray:
 def dcm_to_rotvec(C: ArrayLike) -> FloatArray:
     """DCM -> rotation vector (``logm``), shape ``(..., 3)``; valid up to pi."""
     return quat_to_rotvec(dcm_to_quat(C))
-
-
-def orthonormalize(C: ArrayLike) -> FloatArray:
-    """Nearest rotation matrix (polar decomposition via SVD), shape ``(..., 3, 3)``."""
-    u, _, vt = np.linalg.svd(np.asarray(C, dtype=float))
-    d = np.sign(np.linalg.det(u @ vt))
-    u[..., :, 2] *= d[..., None]
-    return u @ vt
 
 
 def attitude_error(C_nb_est: ArrayLike, C_nb_true: ArrayLike) -> FloatArray:

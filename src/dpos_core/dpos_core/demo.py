@@ -8,27 +8,26 @@ Prints an error table and the processing-time ratio, and writes a PNG of the err
 
 from __future__ import annotations
 
-from dpos_core.units import DEG, DEG_PER_H
-
 import argparse
 import time
 from pathlib import Path
 
 import numpy as np
 
+from dpos_core.units import DEG_PER_H
+
 from . import earth
 from .analytic_trajectory import CoordinatedTurnClimb
 from .attitude import attitude_error, dcm_to_quat
 from .kinematics import integrate_increments
-from .strapdown import NavState, NavTrajectory, Strapdown
+from .series import NavSeries
+from .strapdown import NavState, Strapdown
 
 UG = 9.80665e-6
 
 
-def _errors(out: NavTrajectory, llh: np.ndarray, vel: np.ndarray, C: np.ndarray) -> dict[str, np.ndarray]:
-    r_m, r_n = earth.radii_of_curvature(llh[:, 0])
-    d = out.llh - llh
-    pos = np.stack([d[:, 1] * (r_n + llh[:, 2]) * np.cos(llh[:, 0]), d[:, 0] * (r_m + llh[:, 2]), d[:, 2]], axis=1)
+def _errors(out: NavSeries, llh: np.ndarray, vel: np.ndarray, C: np.ndarray) -> dict[str, np.ndarray]:
+    pos = earth.dllh_to_enu(out.llh - llh, llh)
     return {"pos_m": pos, "vel_mps": out.vel_n_mps - vel, "att_rad": attitude_error(out.C_nb, C)}
 
 

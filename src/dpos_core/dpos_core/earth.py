@@ -17,10 +17,10 @@ iteration for ECEF -> geodetic (Bowring 1976), iterated to machine precision.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.units import FloatArray
 
 # WGS-84 defining and derived constants (NIMA TR8350.2, 3rd ed.)
 A_M: float = 6378137.0  #: semi-major axis [m]
@@ -167,13 +167,64 @@ def transport_rate_n(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -
     return np.stack([-vn / (r_m + h), ve / (r_n + h), ve * np.tan(lat) / (r_n + h)], axis=-1)
 
 
-def llh_rate(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -> FloatArray:
-    """Time derivative of ``(lat, lon, h)`` for an ENU velocity, shape ``(..., 3)`` [rad/s, rad/s, m/s]."""
-    lat = np.asarray(lat_rad, dtype=float)
-    h = np.asarray(h_m, dtype=float)
-    v = np.asarray(vel_n_mps, dtype=float)
+def _enu_to_dllh(d_enu: FloatArray, lat: FloatArray, h: FloatArray) -> FloatArray:
+    """``[d_N / (R_M + h), d_E / ((R_N + h) cos L), d_U]`` (the body of :func:`enu_to_dllh`)."""
     r_m, r_n = radii_of_curvature(lat)
-    return np.stack([v[..., 1] / (r_m + h), v[..., 0] / ((r_n + h) * np.cos(lat)), v[..., 2]], axis=-1)
+    return np.stack([d_enu[..., 1] / (r_m + h), d_enu[..., 0] / ((r_n + h) * np.cos(lat)), d_enu[..., 2]], axis=-1)
+
+
+def enu_to_dllh(d_enu_m: ArrayLike, llh: ArrayLike) -> FloatArray:
+    """Small local-ENU displacement -> geodetic difference, to first order.
+
+    Args:
+        d_enu_m: displacement (..., 3) [m] East, North, Up in the local-level frame at ``llh``.
+        llh: position (..., 3) ``[lat_rad, lon_rad, h_m]`` where the radii are taken.
+
+    Returns:
+        ``(dlat_rad, dlon_rad, dh_m)`` (..., 3): ``[d_N / (R_M + h), d_E / ((R_N + h) cos L), d_U]``
+        with the radii of :func:`radii_of_curvature` (Groves 2013 eq. 2.105-2.106).  The
+        neglected terms are of order ``|d| / R`` relative (1.6e-7 for 1 m, 1.6e-5 for 100 m); for
+        a large offset (a lever arm of metres) that must be exact use :func:`offset_llh`.
+    """
+    p = np.asarray(llh, dtype=float)
+    return _enu_to_dllh(np.asarray(d_enu_m, dtype=float), p[..., 0], p[..., 2])
+
+
+def dllh_to_enu(dllh: ArrayLike, llh: ArrayLike) -> FloatArray:
+    """Inverse of :func:`enu_to_dllh`: geodetic difference ``(dlat_rad, dlon_rad, dh_m)`` (..., 3)
+    -> local-ENU displacement (..., 3) [m] ``[dlon (R_N + h) cos L, dlat (R_M + h), dh]``, radii at
+    ``llh`` (..., 3).  E.g. a position error ``est - true`` in metres with ``llh`` the truth."""
+    d = np.asarray(dllh, dtype=float)
+    p = np.asarray(llh, dtype=float)
+    lat, h = p[..., 0], p[..., 2]
+    r_m, r_n = radii_of_curvature(lat)
+    return np.stack([d[..., 1] * (r_n + h) * np.cos(lat), d[..., 0] * (r_m + h), d[..., 2]], axis=-1)
+
+
+def offset_llh(llh: ArrayLike, d_n_m: ArrayLike) -> FloatArray:
+    """Position ``llh`` (..., 3) ``[lat_rad, lon_rad, h_m]`` moved by ``d_n_m`` (..., 3) [m] given
+    in the local ENU frame at ``llh``, exactly (through ECEF): ``llh`` (..., 3) of
+    ``p_e(llh) + C_en(llh) d_n``, each point with its own local frame (for one fixed origin this is
+    :func:`enu_to_geodetic`).  For lever arms; small errors use :func:`enu_to_dllh`."""
+    p = np.asarray(llh, dtype=float)
+    p_e = geodetic_to_ecef(p[..., 0], p[..., 1], p[..., 2]) + np.einsum("...ij,...j->...i", C_en(p[..., 0], p[..., 1]),
+                                                                        np.asarray(d_n_m, dtype=float))
+    return np.stack(ecef_to_geodetic(p_e), axis=-1)
+
+
+def enu_between(llh: ArrayLike, llh_ref: ArrayLike) -> FloatArray:
+    """The vector (3,) [m] from ``llh_ref`` to ``llh`` (each (3,) ``[lat_rad, lon_rad, h_m]``) in
+    the local ENU frame at ``llh``, exactly: ``C_en(llh)^T (p_e(llh) - p_e(llh_ref))``, so that
+    ``offset_llh(llh, -enu_between(llh, llh_ref))`` is ``llh_ref``."""
+    a = np.asarray(llh, dtype=float)
+    b = np.asarray(llh_ref, dtype=float)
+    return C_en(a[0], a[1]).T @ (geodetic_to_ecef(*a) - geodetic_to_ecef(*b))
+
+
+def llh_rate(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -> FloatArray:
+    """Time derivative of ``(lat, lon, h)`` for an ENU velocity, shape ``(..., 3)`` [rad/s, rad/s, m/s]
+    (:func:`enu_to_dllh` of the velocity)."""
+    return _enu_to_dllh(np.asarray(vel_n_mps, dtype=float), np.asarray(lat_rad, dtype=float), np.asarray(h_m, dtype=float))
 
 
 def C_datum_n(lat_rad: ArrayLike, lon_rad: ArrayLike, datum_llh: ArrayLike) -> FloatArray:

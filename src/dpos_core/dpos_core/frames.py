@@ -19,13 +19,12 @@ REP 103 yaw (ENU world, FLU body) is measured counter-clockwise from east: ``yaw
 
 from __future__ import annotations
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 from dpos_core.units import FloatArray
 
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
 from .attitude import wrap_angle
-
 
 #: Vector in RFU body axes -> FLU body axes (``v_flu = C_FLU_RFU @ v_rfu``).
 C_FLU_RFU: FloatArray = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])

@@ -12,21 +12,24 @@ and accelerometer bias ``nabla`` in body axes::
 One step over the interval holds the errors at their start value and uses the interval integrals
 of the nominal (``int f^n dt``, ``int C_est dt``) and its mid-interval rates; the position by the
 trapezoid rule.  :class:`IntervalIntegrals` accumulates the integrals from the strapdown's output.
+
+Process noise (:func:`nav_process_noise`): the gyro and accelerometer white noise integrated over
+the interval (angle and velocity random walk) and, for the position, the velocity random walk
+integrated once more.
 """
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import FloatArray
 
 from . import earth
 from .attitude import rotvec_to_dcm, skew
-from .strapdown import NavState, NavTrajectory
-
+from .series import NavSeries
+from .strapdown import NavState
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,7 @@ class IntervalIntegrals:
         self.F_n = np.zeros(3)
         self.C_int = np.zeros((3, 3))
 
-    def add(self, prev: NavState, chunk: NavTrajectory, f_b_mps2: FloatArray, dt_s: FloatArray) -> None:
+    def add(self, prev: NavState, chunk: NavSeries, f_b_mps2: FloatArray, dt_s: FloatArray) -> None:
         """A chunk integrated from ``prev`` with specific forces f_b (m, 3) over steps dt (m,)."""
         C = np.concatenate([prev.C_nb[None], chunk.C_nb])
         C_mid = 0.5 * (C[1:] + C[:-1])
@@ -120,3 +123,29 @@ def propagate_nav_errors(
     dv_new = dv + np.einsum("...ij,j->...i", np.eye(3) - E, it.F_n) + np.einsum("...ij,...j->...i", E, nabla @ it.C_int.T) - (cor - dg) * T
     dp_new = dp + 0.5 * (dv + dv_new) * T
     return phi_new, dv_new, dp_new
+
+
+def nav_process_noise(T_s: float, imu_dt_s: float, gyro_noise_radps: float, accel_noise_mps2: float) -> FloatArray:
+    """Process-noise covariance (9, 9) of ``(phi, dv, dp)`` over an interval of ``T_s`` [s].
+
+    Args:
+        T_s: interval length [s].
+        imu_dt_s: IMU sample interval [s]; the noise sigmas are those of one sample.
+        gyro_noise_radps: 1 sigma [rad/s] of the white noise on one angular-rate sample.
+        accel_noise_mps2: 1 sigma [m/s^2] of the white noise on one specific-force sample.
+
+    Returns:
+        With ``q_g = sigma_g^2 dt T`` [rad^2] and ``q_a = sigma_a^2 dt T`` [m^2/s^2] (white noise of
+        spectral density ``sigma^2 dt`` integrated over T): ``phi`` block ``q_g I``, ``dv`` block
+        ``q_a I``, ``dp`` block ``q_a T^2/3 I`` [m^2] and ``dv``-``dp`` cross block
+        ``q_a T/2 I`` [m^2/s]; attitude uncorrelated with the others.  Rows/columns 0:3 phi
+        (local ENU [rad]), 3:6 dv (local ENU [m/s]), 6:9 dp (local ENU [m]).
+    """
+    qg = gyro_noise_radps**2 * imu_dt_s * T_s
+    qa = accel_noise_mps2**2 * imu_dt_s * T_s
+    Q = np.zeros((9, 9))
+    Q[0:3, 0:3] = np.eye(3) * qg
+    Q[3:6, 3:6] = np.eye(3) * qa
+    Q[6:9, 6:9] = np.eye(3) * qa * T_s * T_s / 3.0
+    Q[3:6, 6:9] = Q[6:9, 3:6] = np.eye(3) * qa * T_s / 2.0
+    return Q

@@ -14,15 +14,14 @@ functions, which is exact to far below the mechanization's own algorithm error.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from .earth import C_en, OMEGA_IE_RADPS, ecef_to_geodetic, normal_gravity
+from dpos_core.units import FloatArray
 
+from .earth import OMEGA_IE_RADPS, C_en, ecef_to_geodetic, normal_gravity
 
 OMEGA_IE_E: FloatArray = np.array([0.0, 0.0, OMEGA_IE_RADPS])
 

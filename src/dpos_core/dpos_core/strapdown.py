@@ -28,17 +28,18 @@ attitude error ``phi`` with ``C_nb_est = expm(-[phi x]) C_nb_true``).
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.errors import RejectedInput
+from dpos_core.units import FloatArray
 
 from . import _strapdown_kernel as _k
 from .attitude import dcm_to_quat, quat_mul, quat_normalize, quat_to_dcm, rotvec_to_quat
 from .frames import C_nb_from_hpr, hpr_from_C_nb
-
+from .series import NavSeries
 
 
 @dataclass
@@ -64,15 +65,18 @@ class NavState:
         self.llh = np.asarray(self.llh, dtype=float).reshape(3).copy()
         for name in ("q_nb", "vel_n_mps", "llh"):
             if not np.all(np.isfinite(getattr(self, name))):
-                raise ValueError(f"NavState.{name} is not finite: {getattr(self, name)}")
+                raise RejectedInput(f"NavState.{name} is not finite: {getattr(self, name)}", what="navigation state", reason="nan",
+                                    t_s=self.t_s)
 
     @classmethod
     def from_hpr(
         cls, t_s: float, hpr_rad: ArrayLike, vel_n_mps: ArrayLike, llh: ArrayLike
-    ) -> "NavState":
+    ) -> NavState:
         """Build from aviation heading/pitch/roll [rad] of an FLU body."""
         h, p, r = np.asarray(hpr_rad, dtype=float)
-        return cls(t_s, dcm_to_quat(C_nb_from_hpr(h, p, r)), vel_n_mps, llh)
+        vel = np.asarray(vel_n_mps, dtype=float)
+        llh_arr = np.asarray(llh, dtype=float)
+        return cls(t_s, dcm_to_quat(C_nb_from_hpr(h, p, r)), vel, llh_arr)
 
     @property
     def C_nb(self) -> FloatArray:
@@ -84,47 +88,8 @@ class NavState:
         """Aviation heading, pitch, roll [rad], shape (3,)."""
         return hpr_from_C_nb(self.C_nb)
 
-    def copy(self) -> "NavState":
+    def copy(self) -> NavState:
         return NavState(self.t_s, self.q_nb.copy(), self.vel_n_mps.copy(), self.llh.copy())
-
-
-@dataclass(frozen=True)
-class NavTrajectory:
-    """Navigation solution at N epochs.
-
-    Attributes:
-        t_s: shape (N,); q_nb: (N, 4); vel_n_mps: (N, 3); llh: (N, 3) ``[lat_rad, lon_rad, h_m]``.
-    """
-
-    t_s: FloatArray
-    q_nb: FloatArray
-    vel_n_mps: FloatArray
-    llh: FloatArray
-
-    def __len__(self) -> int:
-        return int(self.t_s.shape[0])
-
-    @property
-    def C_nb(self) -> FloatArray:
-        """Shape (N, 3, 3)."""
-        return quat_to_dcm(self.q_nb)
-
-    @property
-    def hpr_rad(self) -> FloatArray:
-        """Aviation heading, pitch, roll [rad], shape (N, 3)."""
-        return hpr_from_C_nb(self.C_nb)
-
-    def state(self, i: int) -> NavState:
-        return NavState(self.t_s[i], self.q_nb[i], self.vel_n_mps[i], self.llh[i])
-
-    @staticmethod
-    def concatenate(parts: "list[NavTrajectory]") -> "NavTrajectory":
-        return NavTrajectory(
-            np.concatenate([p.t_s for p in parts]),
-            np.concatenate([p.q_nb for p in parts]),
-            np.concatenate([p.vel_n_mps for p in parts]),
-            np.concatenate([p.llh for p in parts]),
-        )
 
 
 def _check_input(name: str, arr: ArrayLike, n: int | None = None) -> FloatArray:
@@ -135,7 +100,8 @@ def _check_input(name: str, arr: ArrayLike, n: int | None = None) -> FloatArray:
         raise ValueError(f"{name} has {a.shape[0]} rows but t_s has {n}")
     bad = ~np.all(np.isfinite(a), axis=1)
     if bad.any():
-        raise ValueError(f"{name} has non-finite values at {int(bad.sum())} samples (first index {int(np.argmax(bad))})")
+        raise RejectedInput(f"{name} has non-finite values at {int(bad.sum())} samples (first index {int(np.argmax(bad))})",
+                            what="IMU samples", reason="nan")
     return a
 
 
@@ -218,7 +184,7 @@ class Strapdown:
     def _times(self, t_s: ArrayLike) -> FloatArray:
         t = np.ascontiguousarray(t_s, dtype=float).reshape(-1)
         if not np.all(np.isfinite(t)):
-            raise ValueError("t_s has non-finite stamps")
+            raise RejectedInput("t_s has non-finite stamps", what="IMU samples", reason="nan")
         return t
 
     def _steps(self, t: FloatArray, t_start: float | None = None) -> FloatArray:
@@ -227,14 +193,15 @@ class Strapdown:
         dt = np.diff(t, prepend=t0)
         if np.any(dt <= 0.0):
             i = int(np.argmax(dt <= 0.0))
-            raise ValueError(f"t_s must be strictly increasing after t={t0}: sample {i} at {t[i]} (step {dt[i]})")
+            raise RejectedInput(f"t_s must be strictly increasing after t={t0}: sample {i} at {t[i]} (step {dt[i]})",
+                                what="IMU samples", reason="duplicate" if dt[i] == 0.0 else "out_of_order", t_s=float(t[i]))
         return dt
 
     def _check_mode(self, mode: int) -> None:
         if self._mode is not None and self._mode != mode:
             raise ValueError("cannot mix increment and rate input in one integration (call reset() first)")
 
-    def _run(self, mode: int, t: FloatArray, dt: FloatArray, a: FloatArray, b: FloatArray) -> NavTrajectory:
+    def _run(self, mode: int, t: FloatArray, dt: FloatArray, a: FloatArray, b: FloatArray) -> NavSeries:
         n = t.shape[0]
         out_q = np.empty((n, 4))
         out_v = np.empty((n, 3))
@@ -242,9 +209,9 @@ class Strapdown:
         _k.integrate(mode, dt, a, b, self._state, self._prev, self.coning, self.sculling, out_q, out_v, out_llh)
         if n:
             self._t_s = float(t[-1])
-        return NavTrajectory(t.copy(), out_q, out_v, out_llh)
+        return NavSeries(t.copy(), out_q, out_v, out_llh)
 
-    def run_increments(self, t_s: ArrayLike, dtheta_rad: ArrayLike, dvel_mps: ArrayLike) -> NavTrajectory:
+    def run_increments(self, t_s: ArrayLike, dtheta_rad: ArrayLike, dvel_mps: ArrayLike) -> NavSeries:
         """Integrate angle / velocity increments.
 
         Args:
@@ -264,7 +231,7 @@ class Strapdown:
         self._mode = _k.MODE_INCREMENTS
         return self._run(_k.MODE_INCREMENTS, t, dt, a, b)
 
-    def run_rates(self, t_s: ArrayLike, omega_ib_b_radps: ArrayLike, f_ib_b_mps2: ArrayLike) -> NavTrajectory:
+    def run_rates(self, t_s: ArrayLike, omega_ib_b_radps: ArrayLike, f_ib_b_mps2: ArrayLike) -> NavSeries:
         """Integrate angular rate / specific force samples.
 
         The first sample of a fresh integrator must be at the state time (it starts the
@@ -291,11 +258,11 @@ class Strapdown:
         else:
             self._steps(t)
         self._mode = _k.MODE_RATES
-        parts: list[NavTrajectory] = []
+        parts: list[NavSeries] = []
         if starting:
             self._prev[0:3], self._prev[3:6], self._prev[6] = a[0], b[0], 1.0
             s = self.state
-            parts.append(NavTrajectory(t[:1].copy(), s.q_nb[None], s.vel_n_mps[None], s.llh[None]))
+            parts.append(NavSeries(t[:1].copy(), s.q_nb[None], s.vel_n_mps[None], s.llh[None]))
             t, a, b = t[1:], a[1:], b[1:]
         parts.append(self._run(_k.MODE_RATES, t, np.diff(t, prepend=self._t_s), a, b))
-        return NavTrajectory.concatenate(parts) if len(parts) > 1 else parts[0]
+        return NavSeries.concatenate(parts) if len(parts) > 1 else parts[0]

@@ -3,7 +3,7 @@
 Shadow mechanization (exact and deterministic): the node runs
 :class:`dpos_core.ifa.pipeline.InFlightAligner` on the very IMU samples pos_master_node mechanizes,
 from the very state it starts from, so that its closed-loop strapdown and the master's navigation
-are one trajectory (dpos_ros.master_nav), and its corrections equal
+are one trajectory (dpos_core.ifa.mechanization), and its corrections equal
 :func:`dpos_core.ifa.pipeline.run` on the same data.
 
 Inputs
@@ -23,8 +23,20 @@ Inputs
 Epochs (at the GNSS rate, driven by the IMU): when the buffered IMU reaches a fix stamp, the samples
 up to it are propagated and the fix is applied (:meth:`InFlightAligner.update`). Bad GNSS input -
 non-finite values, zero covariance, no fix, a duplicate or out-of-order stamp - is rejected with a
-warning naming the problem, counted (``rejected_fixes``) and leaves the filter untouched (it is
-checked before any IMU is propagated for it).
+warning naming the problem, counted (``rejected_fixes``, ``rejected/<reason>``) and leaves the
+filter untouched (it is checked before any IMU is propagated for it).
+
+Errors (:mod:`dpos_core.errors`)
+    :class:`~dpos_core.errors.RejectedInput` from the core (a fix that fails its checks): a
+    warning ``<input> rejected (<reason>): <what was wrong>``, counted as above.
+    :class:`~dpos_core.errors.NumericalFailure` (the update failed numerically in every heading
+    hypothesis; the core restored the previous state): logged at ERROR, counted
+    (``numerical_failures``, ``last_failure``), and the status goes to level ERROR (message
+    DEGRADED once aligned) until an epoch succeeds again.  A heading hypothesis dropped because
+    its update failed is warned about and counted (``hypotheses_failed``); one pruned by
+    likelihood or merged is logged at INFO.  Cholesky jitter repairs of the filters are counted
+    (``chol_jitter_repairs``).  Anything else - a wrong shape, a wrong type - is a bug: it is not
+    caught, the node stops with the traceback.
 
 Outputs per accepted epoch
     ``/ifa/correction`` (Odometry, frame ``enu``, child ``master_imu``): the corrected master state
@@ -38,14 +50,14 @@ Outputs per accepted epoch
     ``accel_bias_ug``), so pos_master_node can apply every message it gets.
     ``/ifa/status`` (DiagnosticArray, TRANSIENT_LOCAL): message WAITING (no data yet; level
     STALE), ALIGNING (WARN), ALIGNED (OK), DEGRADED (WARN: aligned, innovations inconsistent);
-    key/values: method, epochs, heading_sigma_deg, att_sigma_deg, R_diag, nis, nis_window,
-    aligned_t_s, rejected_fixes, last_rejection, unpaired, imu_samples, imu_dropped, imu_gaps,
-    nav_discrepancy_m, nav_discrepancy_deg, gyro_bias_deg_h, accel_bias_ug.
+    level ERROR after a numerical failure (above); key/values: method, epochs, heading_sigma_deg,
+    att_sigma_deg, R_diag, nis, nis_window, aligned_t_s, rejected_fixes, rejected/<reason>,
+    last_rejection, unpaired, imu_samples, imu_dropped, imu_gaps, numerical_failures,
+    last_failure, hypotheses_failed, chol_jitter_repairs, nav_discrepancy_m, nav_discrepancy_deg,
+    gyro_bias_deg_h, accel_bias_ug.
 """
 
 from __future__ import annotations
-
-from dpos_core.units import DEG
 
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -55,14 +67,26 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistWithCovarianceStamped
 from nav_msgs.msg import Odometry
+from numpy.typing import ArrayLike
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from dpos_ros import conversions as cv
-from dpos_ros.master_nav import body_rate_eb, stamp_s
-from dpos_ros.node_main import run_node
-from dpos_ros.params import ParameterError, datum_llh_rad, declare_config, format_config
-from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_core.attitude import attitude_error, quat_to_dcm
+from dpos_core.config import ConfigError, load_aircraft, scenario_aircraft
+from dpos_core.earth import geodetic_to_enu
+from dpos_core.errors import NumericalFailure, RejectedInput
+from dpos_core.ifa.mechanization import body_rate_eb, stamp_s
+from dpos_core.ifa.model import IDX13, GnssFix, check_fix
+from dpos_core.ifa.pipeline import EpochRecord, InFlightAligner
+from dpos_core.ifa.states import AlignmentState
+from dpos_core.strapdown import NavState
+from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
+from dpos_ros.contract import cdr
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_ros.runtime.node_main import run_node
+from dpos_ros.runtime.params import ParameterError, datum_llh_rad, declare_config, format_config
 from ifa_node.params import IfaConfig
 
 NODE_NAME = "ifa_node"
@@ -78,15 +102,15 @@ NAV_CACHE = 2000
 #: pos_master_node at rate_factor 0 keeps at most ``max_lead_s`` ahead of the corrections, so it
 #: does not fall 5000 samples behind; a loss would show as an IMU gap (warned, counted).
 INPUT_QOS = SENSOR_QOS
-_LEVELS = {"WAITING": DiagnosticStatus.STALE, "ALIGNING": DiagnosticStatus.WARN, "ALIGNED": DiagnosticStatus.OK,
-           "DEGRADED": DiagnosticStatus.WARN}
+_LEVELS = {AlignmentState.WAITING.name: DiagnosticStatus.STALE, AlignmentState.ALIGNING.name: DiagnosticStatus.WARN,
+           AlignmentState.ALIGNED.name: DiagnosticStatus.OK, AlignmentState.DEGRADED.name: DiagnosticStatus.WARN}
 
 
 def _stamp_ns(header: Any) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def _sigma(variances: Sequence[float]) -> np.ndarray:
+def _sigma(variances: ArrayLike) -> np.ndarray:
     v = np.asarray(variances, dtype=float)
     return np.sqrt(np.where(v < 0.0, np.nan, v))
 
@@ -104,8 +128,6 @@ class IfaNode(Node):
             raise
 
     def _setup(self) -> None:
-        from dpos_core.config import ConfigError, load_aircraft, scenario_aircraft
-
         cfg = self.config
         if not cfg.aircraft_config and not cfg.scenario:
             raise ParameterError("aircraft_config", "", "required: the aircraft file of your installation (its gnss_lever_arm_m "
@@ -117,14 +139,16 @@ class IfaNode(Node):
             raise ParameterError(name, value, str(e)) from None
         try:
             self.core_config = cfg.core_config()
+        except ParameterError:
+            raise  # names its parameter already
         except ValueError as e:
             raise ParameterError("window", cfg.window, str(e)) from None
         self.aircraft = aircraft
         self.lever_arm_m = np.asarray(aircraft.gnss_lever_arm_m, dtype=float)
         datum = datum_llh_rad(cfg.datum)
-        self.datum_llh = None if datum is None else np.asarray(datum, dtype=float)
-        self.al = None  # InFlightAligner, once the initial state is known
-        self.origin_ns: int | None = None
+        self.datum_llh: FloatArray | None = None if datum is None else np.asarray(datum, dtype=float)
+        self.al: InFlightAligner | None = None  # once the initial state is known (_maybe_start)
+        self.origin_ns: int | None = None  # the stamp of the first /master/nav (t_s = 0), set with al
         self._first_nav: bytes | None = None
         self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
         self._last_imu_ns: int | None = None
@@ -137,25 +161,29 @@ class IfaNode(Node):
         self._pre: OrderedDict[int, Any] = OrderedDict()  # shadow state at epochs before the update
         self.epochs = 0
         self.rejected = 0
+        self.rejected_by_reason: dict[str, int] = {}  # reason code -> rejected fixes
         self.unpaired = 0
         self.last_rejection = ""
+        self.numerical_failures = 0
+        self.last_failure = ""
+        self._failed = False  # the last epoch failed numerically (status level ERROR until one succeeds)
         self.imu_samples = 0
         self.imu_dropped = 0
         self.imu_gaps = 0
         self.discrepancy = (float("nan"), float("nan"))
-        self.last_record = None
+        self.last_record: EpochRecord | None = None
         self.corrections_published = 0
         self._warned_unknown_cov = False
 
-        self.pub_correction = self.create_publisher(Odometry, "/ifa/correction", NAV_QOS)
-        self.pub_bias = self.create_publisher(Imu, "/ifa/imu_bias", NAV_QOS)
-        self.pub_status = self.create_publisher(DiagnosticArray, "/ifa/status", STATUS_QOS)
-        self.create_subscription(Imu, "/master/imu", self._on_imu, INPUT_QOS, raw=True)
-        self.create_subscription(Odometry, "/master/nav", self._on_nav, INPUT_QOS, raw=True)
-        self.create_subscription(NavSatFix, "/gnss/fix", self._on_fix, INPUT_QOS)
-        self.create_subscription(TwistWithCovarianceStamped, "/gnss/vel", self._on_vel, INPUT_QOS)
+        self.pub_correction = self.create_publisher(Odometry, T.IFA_CORRECTION, NAV_QOS)
+        self.pub_bias = self.create_publisher(Imu, T.IFA_IMU_BIAS, NAV_QOS)
+        self.pub_status = self.create_publisher(DiagnosticArray, T.IFA_STATUS, STATUS_QOS)
+        self.create_subscription(Imu, T.MASTER_IMU, self._on_imu, INPUT_QOS, raw=True)
+        self.create_subscription(Odometry, T.MASTER_NAV, self._on_nav, INPUT_QOS, raw=True)
+        self.create_subscription(NavSatFix, T.GNSS_FIX, self._on_fix, INPUT_QOS)
+        self.create_subscription(TwistWithCovarianceStamped, T.GNSS_VEL, self._on_vel, INPUT_QOS)
         if self.datum_llh is None:
-            self.create_subscription(NavSatFix, "/dpos/datum", self._on_datum, DATUM_QOS)
+            self.create_subscription(NavSatFix, T.DATUM, self._on_datum, DATUM_QOS)
         self.get_logger().info(
             f"{NODE_NAME}: {format_config(cfg, ('method', 'window', 'use_reported_sigma', 'aligned_heading_sigma_deg'))}"
             f" aircraft={aircraft.name} lever_arm_m={list(self.lever_arm_m)}: subscribing /master/nav, /master/imu,"
@@ -209,7 +237,7 @@ class IfaNode(Node):
     def _on_fix(self, msg: NavSatFix) -> None:
         t_ns = _stamp_ns(msg.header)
         if t_ns in self._fixes:
-            self._reject(t_ns, f"duplicate GNSS stamp {t_ns} ns (a fix with this stamp is already waiting): dropped")
+            self._reject(t_ns, f"duplicate GNSS stamp {t_ns} ns (a fix with this stamp is already waiting): dropped", "duplicate")
             return
         self._fixes[t_ns] = msg
         self._newest_gnss_ns = max(self._newest_gnss_ns, t_ns)
@@ -227,9 +255,6 @@ class IfaNode(Node):
     # ------------------------------------------------------------------ start
     def _maybe_start(self) -> None:
         """Start the aligner from the first /master/nav once the datum and two IMU samples are known."""
-        from dpos_core.ifa.pipeline import InFlightAligner
-        from dpos_core.strapdown import NavState
-
         if self.al is not None or self._first_nav is None or self.datum_llh is None:
             return
         t0_ns, v = cv.decode_raw(self._first_nav, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
@@ -251,16 +276,46 @@ class IfaNode(Node):
         self._publish_status()
         self._process()
 
+    def _aligner(self) -> InFlightAligner:
+        """The aligner; RuntimeError before the start (:meth:`_maybe_start`)."""
+        if self.al is None:
+            raise RuntimeError(f"{NODE_NAME}: the aligner is used before it started (first /master/nav, datum and IMU)")
+        return self.al
+
+    def _origin(self) -> int:
+        """The time origin [ns] (the first /master/nav's stamp); RuntimeError before the start."""
+        if self.origin_ns is None:
+            raise RuntimeError(f"{NODE_NAME}: the time origin is used before the start (first /master/nav)")
+        return self.origin_ns
+
+    def _datum(self) -> FloatArray:
+        """The ``enu`` datum [lat_rad, lon_rad, h_m]; RuntimeError while it is not known (neither the
+        ``datum`` parameter nor /dpos/datum)."""
+        if self.datum_llh is None:
+            raise RuntimeError(f"{NODE_NAME}: the datum is used before it is known (datum parameter or /dpos/datum)")
+        return self.datum_llh
+
     # ------------------------------------------------------------------ epochs
-    def _reject(self, t_ns: int, reason: str) -> None:
+    def _reject(self, t_ns: int, reason: str, code: str, what: str = "GNSS fix") -> None:
+        """Count and warn about a rejected fix (``code``: the short reason for ``rejected/<code>``)."""
         self.rejected += 1
+        self.rejected_by_reason[code] = self.rejected_by_reason.get(code, 0) + 1
         self.last_rejection = reason
-        self.get_logger().warning(f"GNSS fix rejected: {reason}")
+        self.get_logger().warning(f"{what} rejected ({code}) at stamp {t_ns} ns: {reason}")
+        self._publish_status()
+
+    def _rejected(self, t_ns: int, e: RejectedInput) -> None:
+        self._reject(t_ns, str(e), e.reason, e.what)
+
+    def _numerical_failure(self, t_ns: int, e: NumericalFailure) -> None:
+        """The core's update failed numerically (its state is restored): ERROR, counted, status ERROR."""
+        self.numerical_failures += 1
+        self.last_failure = str(e)
+        self._failed = True
+        self.get_logger().error(f"{e.what} failed numerically at the GNSS fix of stamp {t_ns} ns, the fix is dropped: {e}")
         self._publish_status()
 
     def _gnss_fix(self, t_ns: int, fix: NavSatFix, vel: TwistWithCovarianceStamped | None):
-        from dpos_core.ifa.model import GnssFix
-
         cov = np.asarray(fix.position_covariance, dtype=float).reshape(3, 3)
         if fix.position_covariance_type == NavSatFix.COVARIANCE_TYPE_UNKNOWN:
             pos_sigma = np.asarray(self.config.gnss_pos_sigma_m, dtype=float)
@@ -276,7 +331,7 @@ class IfaNode(Node):
             v = np.array([lin.x, lin.y, lin.z], dtype=float)
             v_sigma = _sigma(np.diag(np.asarray(vel.twist.covariance, dtype=float).reshape(6, 6))[:3])
         llh = np.array([np.deg2rad(fix.latitude), np.deg2rad(fix.longitude), fix.altitude], dtype=float)
-        return GnssFix(float(stamp_s(t_ns, self.origin_ns)), llh, pos_sigma, v, v_sigma)
+        return GnssFix(float(stamp_s(t_ns, self._origin())), llh, pos_sigma, v, v_sigma)
 
     def _pair(self, t_ns: int) -> int | None:
         tol = int(round(self.config.pair_tolerance_s * 1e9))
@@ -285,28 +340,25 @@ class IfaNode(Node):
 
     def _process(self) -> None:
         """Apply every GNSS epoch the buffered IMU has reached (stamp order)."""
-        from dpos_core.ifa.model import check_fix
-
-        al = self.al
-        if al is None:
+        al, origin_ns, imu_dt_s = self.al, self.origin_ns, self._imu_dt_s
+        if al is None or origin_ns is None or imu_dt_s is None:  # not started (all three are set by _maybe_start)
             return
         timeout_ns = int(round(self.config.pair_timeout_s * 1e9))
-        half = 0.5 * self._imu_dt_s
+        half = 0.5 * imu_dt_s
         half_ns = int(round(half * 1e9))
         while self._fixes:
             t_ns = min(self._fixes)
             fix_msg = self._fixes[t_ns]
-            t_s = float(stamp_s(t_ns, self.origin_ns))
+            t_s = float(stamp_s(t_ns, origin_ns))
             if al.last_fix_t is not None and t_s <= al.last_fix_t + 1e-9:  # no need to wait for its velocity
                 del self._fixes[t_ns]
                 kv = self._pair(t_ns)
                 vel = self._vels.pop(kv) if kv is not None else None
                 try:
                     check_fix(self._gnss_fix(t_ns, fix_msg, vel), al.last_fix_t)
-                    reason = f"GNSS fix at t={t_s} is before the navigation time"
-                except ValueError as e:
-                    reason = str(e)
-                self._reject(t_ns, reason)
+                    self._reject(t_ns, f"GNSS fix at t={t_s} is before the navigation time", "stale")
+                except RejectedInput as e:
+                    self._rejected(t_ns, e)
                 continue
             kv = self._pair(t_ns)
             if kv is None:
@@ -322,15 +374,16 @@ class IfaNode(Node):
             del self._fixes[t_ns]
             vel = self._vels.pop(kv)
             if fix_msg.status.status == NavSatStatus.STATUS_NO_FIX:
-                self._reject(t_ns, f"GNSS message at t={t_s} reports no fix (status {fix_msg.status.status})")
+                self._reject(t_ns, f"GNSS message at t={t_s} reports no fix (status {fix_msg.status.status})", "no_fix")
                 continue
             fix = self._gnss_fix(t_ns, fix_msg, vel)
             try:
                 check_fix(fix, al.last_fix_t)
                 if t_s < al.model.t_s - half:
-                    raise ValueError(f"GNSS fix at t={t_s} is older than the navigation (t={al.model.t_s})")
-            except ValueError as e:
-                self._reject(t_ns, str(e))
+                    raise RejectedInput(f"GNSS fix at t={t_s} is older than the navigation (t={al.model.t_s})", what="GNSS fix",
+                                        reason="stale", t_s=t_s)
+            except RejectedInput as e:
+                self._rejected(t_ns, e)
                 continue
             self._propagate_to(t_s + half)
             self._epoch(t_ns, fix)
@@ -349,7 +402,8 @@ class IfaNode(Node):
     def _propagate_to(self, t_end_s: float) -> None:
         """Decode the buffered samples up to ``t_end_s`` (one vectorized decode), drop non-finite
         ones with a warning, propagate the rest."""
-        end_ns = self.origin_ns + int(round(t_end_s * 1e9))
+        al, origin_ns = self._aligner(), self._origin()
+        end_ns = origin_ns + int(round(t_end_s * 1e9))
         n = 0
         while n < len(self._imu) and self._imu[n][0] <= end_ns:
             n += 1
@@ -365,18 +419,28 @@ class IfaNode(Node):
         if not ok.any():
             return
         t_ns, om, f = t_ns[ok], om[ok], f[ok]
-        self.al.propagate(stamp_s(t_ns, self.origin_ns), om, f)
+        al.propagate(stamp_s(t_ns, origin_ns), om, f)
         self._last_sample = (int(t_ns[-1]), om[-1])
 
     def _epoch(self, t_fix_ns: int, fix: Any) -> None:
-        al = self.al
-        sample_ns = self._last_sample[0] if self._last_sample is not None else self.origin_ns
+        al = self._aligner()
+        sample_ns = self._last_sample[0] if self._last_sample is not None else self._origin()
         pre = al.nav
         try:
             rec = al.update(fix)
-        except ValueError as e:
-            self._reject(t_fix_ns, str(e))
+        except RejectedInput as e:  # bad data: skipped; anything else but a numerical failure is a bug
+            self._rejected(t_fix_ns, e)
             return
+        except NumericalFailure as e:
+            self._numerical_failure(t_fix_ns, e)
+            return
+        log = self.get_logger()
+        for ev in rec.events:  # what the bank of heading hypotheses did (the core returns it, we log it)
+            if ev.kind == "failed":
+                log.warning(f"{ev}")
+            else:
+                log.info(f"{ev} ({rec.hypotheses} left)")
+        self._failed = False
         self.epochs += 1
         self.last_record = rec
         if sample_ns in self._navs:
@@ -389,19 +453,15 @@ class IfaNode(Node):
         self._publish_status()
 
     def _compare(self, shadow: Any, raw: bytes) -> None:
-        from dpos_core.attitude import attitude_error, quat_to_dcm
-        from dpos_core.earth import geodetic_to_enu
-
         t_ns, v = cv.decode_raw(raw, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
-        blk = cv.odometry_from_values(np.array([t_ns]), v[None], self.datum_llh)
-        d_enu = geodetic_to_enu(*blk.llh[0], shadow.llh)
+        blk = cv.odometry_from_values(np.array([t_ns]), v[None], self._datum())
+        lat, lon, h = blk.llh[0]
+        d_enu = geodetic_to_enu(lat, lon, h, shadow.llh)
         phi = attitude_error(quat_to_dcm(blk.q_nb[0]), shadow.C_nb)
         self.discrepancy = (float(np.linalg.norm(d_enu)), float(np.linalg.norm(phi) / DEG))
 
     # ------------------------------------------------------------------ outputs
     def _cov15(self, P: np.ndarray) -> np.ndarray:
-        from dpos_core.ifa.model import IDX13
-
         if P.shape[0] == 15:
             return P
         P15 = np.zeros((15, 15))
@@ -411,38 +471,41 @@ class IfaNode(Node):
         return P15
 
     def _publish_epoch(self, t_ns: int, rec: Any) -> None:
-        al = self.al
+        al = self._aligner()
         s = al.nav
         P = self._cov15(al.cov)
         omega = self._last_sample[1] if self._last_sample is not None else np.zeros(3)
         w_eb = body_rate_eb(s.q_nb[None], s.llh[None], s.vel_n_mps[None], (omega - al.model.gyro_bias_comp)[None])
-        vals = cv.odometry_values_cov(s.llh[None], s.vel_n_mps[None], s.q_nb[None], self.datum_llh, w_eb,
+        vals = cv.odometry_values_cov(s.llh[None], s.vel_n_mps[None], s.q_nb[None], self._datum(), w_eb,
                                       P[0:3, 0:3], P[6:9, 6:9], P[3:6, 3:6])
         stamp = np.array([t_ns], dtype=np.int64)
         self.pub_correction.publish(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, stamp, vals)[0]))
         self.corrections_published += 1
         if al.model.feed_biases:
-            from dpos_ros import cdr
-
             bv = cv.imu_bias_values(al.model.gyro_bias_comp, al.model.accel_bias_comp, P[9:12, 9:12], P[12:15, 12:15])
             self.pub_bias.publish(bytes(cdr.encode(cdr.layout("imu", cv.MASTER_FRAME), stamp, bv)[0]))
 
     def state_name(self) -> str:
-        from dpos_core.ifa.pipeline import ALIGNED, DEGRADED
-
-        if self.al is None or self.last_record is None:
-            return "WAITING" if self.al is None else "ALIGNING"
-        return {ALIGNED: "ALIGNED", DEGRADED: "DEGRADED"}.get(self.al.status, "ALIGNING")
+        al = self.al
+        if al is None or self.last_record is None:
+            return (AlignmentState.WAITING if al is None else AlignmentState.ALIGNING).name
+        if self._failed and al.status.aligned:
+            return AlignmentState.DEGRADED.name
+        return al.status.name
 
     def _publish_status(self) -> None:
         name = self.state_name()
         st_name, level, message = STATUS_NAME, _LEVELS[name], name
-        values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected,
-                                  "last_rejection": self.last_rejection, "unpaired": self.unpaired,
-                                  "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps}
+        if self._failed:  # the last epoch failed numerically (the filter kept its previous state)
+            level = DiagnosticStatus.ERROR
+        values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected}
+        values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
+        values.update({"last_rejection": self.last_rejection, "unpaired": self.unpaired,
+                       "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
+                       "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
         al, rec = self.al, self.last_record
         if al is not None:
-            from dpos_core.units import DEG_PER_H, UG_MPS2
+            values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs})
 
             sig = al.attitude_sigma_rad / DEG
             gb, ab = al.bias_estimates()

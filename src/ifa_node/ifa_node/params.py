@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from dpos_core.ifa.pipeline import METHODS
-from dpos_ros.params import aircraft_config_param, datum_param, param, scenario_param
+from dpos_ros.runtime.params import ParameterError, aircraft_config_param, datum_param, param, scenario_param
 
+if TYPE_CHECKING:
+    from dpos_core.ifa.model import IfaFilterConfig
 
 
 @dataclass(frozen=True)
 class IfaConfig:
-    """Validated parameters of ifa_node (mapped into :class:`dpos_core.ifa.model.IfaConfig` by
+    """Validated parameters of ifa_node (mapped into :class:`dpos_core.ifa.model.IfaFilterConfig` by
     :meth:`core_config`).
 
     Attributes:
@@ -48,10 +51,18 @@ class IfaConfig:
     pair_tolerance_s: float = param(0.001, "a /gnss/fix and /gnss/vel closer than this [s] form one epoch", minimum=0.0)
     pair_timeout_s: float = param(2.0, "drop a fix without velocity once GNSS data this much [s] newer arrived", minimum=0.0)
 
-    def core_config(self):
-        """The :class:`dpos_core.ifa.model.IfaConfig` of these parameters."""
-        from dpos_core.ifa.model import IfaConfig as CoreConfig
+    def core_config(self) -> IfaFilterConfig:
+        """The :class:`dpos_core.ifa.model.IfaFilterConfig` of these parameters."""
+        from dpos_core.ifa.model import IfaFilterConfig
 
-        return CoreConfig(vertical=self.vertical, window=self.window, gnss_pos_sigma_m=tuple(self.gnss_pos_sigma_m),
-                          gnss_vel_sigma_mps=tuple(self.gnss_vel_sigma_mps), use_reported_sigma=self.use_reported_sigma,
-                          aligned_heading_sigma_deg=self.aligned_heading_sigma_deg, heading_sigma_deg=self.heading_sigma_deg)
+        return IfaFilterConfig(vertical=self.vertical, window=self.window,
+                               gnss_pos_sigma_m=_enu3("gnss_pos_sigma_m", self.gnss_pos_sigma_m),
+                               gnss_vel_sigma_mps=_enu3("gnss_vel_sigma_mps", self.gnss_vel_sigma_mps), use_reported_sigma=self.use_reported_sigma,
+                               aligned_heading_sigma_deg=self.aligned_heading_sigma_deg, heading_sigma_deg=self.heading_sigma_deg)
+
+
+def _enu3(name: str, value: tuple[float, ...]) -> tuple[float, float, float]:
+    """The (E, N, U) triple of an array parameter (the parameter layer does not check a fixed tuple's length)."""
+    if len(value) != 3:
+        raise ParameterError(name, list(value), "expected 3 elements")
+    return (float(value[0]), float(value[1]), float(value[2]))

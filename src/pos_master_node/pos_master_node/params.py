@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from dpos_ros.params import (
+from dpos_ros.devices.relay import input_reliability_param, input_rotation_param
+from dpos_ros.runtime.params import (
     DEVICES,
     aircraft_config_param,
     datum_param,
@@ -14,7 +15,6 @@ from dpos_ros.params import (
     scenario_param,
     wait_subscribers_param,
 )
-from dpos_ros.relay import input_reliability_param, input_rotation_param
 
 ALIGNMENTS = ("ifa", "given", "reference")
 
@@ -37,7 +37,7 @@ class PosMasterConfig:
         aircraft_config: aircraft configuration, built-in name or YAML path; '' = the scenario's own.
         device: sensor data source: ``sim`` (built-in simulator) or ``ros`` (relay real drivers'
             sensor_msgs/Imu, NavSatFix and TwistWithCovarianceStamped from the remappable topics
-            ``imu_in``, ``fix_in``, ``vel_in``; dpos_ros.relay).
+            ``imu_in``, ``fix_in``, ``vel_in``; dpos_ros.devices.relay).
         scenario: simulator scenario (``device: sim``).
         seed: simulator random seed; all nodes with the same seed see one flight.
         duration: simulated session length [s], 0 = the whole scenario.

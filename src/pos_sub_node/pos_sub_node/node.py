@@ -1,12 +1,12 @@
 """pos_sub_node — one sub-IMU device per node instance.
 
-``device: sim`` (default) publishes the simulated sub-IMU ``name`` live (dpos_ros.sim_device):
+``device: sim`` (default) publishes the simulated sub-IMU ``name`` live (dpos_ros.devices.sim_device):
 /sub_imu/<name>/imu and, with ``publish_truth``, /truth/sub_imu/<name> and
 /truth/antenna/<its antennas> — byte for byte what ``dpos-sim`` writes for the same scenario,
 aircraft, seed, duration and datum, so that it and pos_master_node show one flight. When
 everything is published the node stays up until SIGINT/SIGTERM.
 
-``device: ros`` relays a real IMU driver (dpos_ros.relay.DeviceRelay): every good
+``device: ros`` relays a real IMU driver (dpos_ros.devices.relay.DeviceRelay): every good
 sensor_msgs/Imu on the relative topic ``imu_in`` (remap it to the driver's topic) is republished
 on /sub_imu/<name>/imu with frame ``sub_imu_<name>``, its stamp kept, rotated into our FLU body axes
 by ``input_rotation_rpy_deg``; NaN, duplicate or out-of-order stamps and unavailable fields are
@@ -25,15 +25,22 @@ Run one instance per sub-IMU, each with its own ``name`` and node name::
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 
-from dpos_ros.node_main import run_node
-from dpos_ros.params import ParameterError, datum_llh_rad, declare_config, format_config
-from dpos_ros.relay import DeviceRelay, Route, rotation_from_rpy_deg
-from dpos_ros.sim_device import SimDevice, load_sim_session, use_device_fastdds_profile
+from dpos_core.config import ConfigError, load_aircraft
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.conversions import sub_imu_frame
+from dpos_ros.devices.relay import DeviceRelay, Route, rotation_from_rpy_deg
+from dpos_ros.devices.sim_device import SimDevice, load_sim_session
+from dpos_ros.devices.sim_streams import device_streams, session_id
+from dpos_ros.io.flow import use_device_fastdds_profile
+from dpos_ros.runtime.node_main import run_node
+from dpos_ros.runtime.params import ParameterError, datum_llh_rad, declare_config, format_config
 from pos_sub_node.params import PosSubConfig
 
 NODE_NAME = "pos_sub_node"
@@ -81,18 +88,12 @@ class PosSubNode(Node):
 
     @staticmethod
     def _load_aircraft(aircraft_config: str) -> Any:
-        from dpos_core.config import ConfigError, load_aircraft
-
         try:
             return load_aircraft(aircraft_config)
         except ConfigError as exc:
             raise ParameterError("aircraft_config", aircraft_config, str(exc)) from None
 
     def _start_relay(self) -> None:
-        import dataclasses
-
-        from dpos_ros.conversions import sub_imu_frame
-
         cfg = self.config
         log = self.get_logger()
         defaults = PosSubConfig(name=cfg.name)
@@ -101,7 +102,7 @@ class PosSubNode(Node):
         if overridden:
             log.info(f"device: ros ignores the simulator parameters {format_config(cfg, tuple(overridden))}")
         rotation = None if not any(cfg.input_rotation_rpy_deg) else rotation_from_rpy_deg(cfg.input_rotation_rpy_deg)
-        route = Route("imu", IMU_INPUT, f"/sub_imu/{cfg.name}/imu", sub_imu_frame(cfg.name))
+        route = Route("imu", IMU_INPUT, T.sub_imu(cfg.name), sub_imu_frame(cfg.name))
         self.relay = DeviceRelay(self, [route], input_reliability=cfg.input_reliability, R_out_in=rotation)
         log.info(
             f"{NODE_NAME}: {format_config(cfg, ('name', 'device', 'aircraft_config', 'input_reliability', 'input_rotation_rpy_deg'))}"
@@ -109,16 +110,15 @@ class PosSubNode(Node):
         )
 
     def _start_sim(self) -> None:
-        from dpos_ros.sim_streams import device_streams, session_id
-
         cfg = self.config
         session = self.session
         log = self.get_logger()
-        topics = [f"/sub_imu/{cfg.name}/imu"]
+        topics = [T.sub_imu(cfg.name)]
         if cfg.publish_truth:
-            topics.append(f"/truth/sub_imu/{cfg.name}")
-            topics += [f"/truth/antenna/{a.name}" for a in session.scenario.aircraft.antennas if a.sub_imu == cfg.name]
-        datum = datum_llh_rad(cfg.datum)
+            topics.append(T.truth_sub_imu(cfg.name))
+            topics += [T.truth_antenna(a.name) for a in session.scenario.aircraft.antennas if a.sub_imu == cfg.name]
+        datum_rad = datum_llh_rad(cfg.datum)
+        datum = None if datum_rad is None else np.asarray(datum_rad, dtype=float)
         log.info(
             f"{NODE_NAME}: {format_config(cfg, ('name', 'device', 'scenario', 'aircraft_config', 'seed', 'duration', 'rate_factor', 'publish_truth'))}"
             f" datum={list(cfg.datum) if cfg.datum else 'scenario start'}: session {session_id(session)},"

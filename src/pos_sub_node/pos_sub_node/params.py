@@ -5,7 +5,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from dpos_ros.params import (
+from dpos_ros.devices.relay import input_reliability_param, input_rotation_param
+from dpos_ros.runtime.params import (
     DEVICES,
     aircraft_config_param,
     datum_param,
@@ -15,7 +16,6 @@ from dpos_ros.params import (
     scenario_param,
     wait_subscribers_param,
 )
-from dpos_ros.relay import input_reliability_param, input_rotation_param
 
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
@@ -37,7 +37,7 @@ class PosSubConfig:
         name: sub-IMU name (required), one of the aircraft's sub-IMUs: topic /sub_imu/<name>/imu,
             frame sub_imu_<name>; mount and lever arm come from the aircraft configuration.
         device: sensor data source: ``sim`` (the built-in simulator) or ``ros`` (relay a driver's
-            sensor_msgs/Imu from the remappable topic ``imu_in``, dpos_ros.relay).
+            sensor_msgs/Imu from the remappable topic ``imu_in``, dpos_ros.devices.relay).
         scenario: simulator scenario; must match pos_master_node's.
         seed: simulator random seed; must match pos_master_node's (one flight).
         duration: simulated session length [s], 0 = the whole scenario; must match pos_master_node's.

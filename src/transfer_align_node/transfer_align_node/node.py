@@ -4,7 +4,7 @@ and writes a smoothed pose for every antenna (design.md "Nodes").
 Buffering
     Every message of ``/master/nav``, ``/dpos/datum``, each configured ``/sub_imu/<name>/imu`` and,
     when present, the ``/truth/*`` topics of the aircraft is appended to a crash-safe spill
-    (:mod:`dpos_ros.spill`) as it arrives: memory stays bounded, a killed process loses nothing,
+    (:mod:`dpos_ros.io.spill`) as it arrives: memory stays bounded, a killed process loses nothing,
     and ``dpos-process <spill dir>`` gives the same products.  Stamps, gaps and counts per topic
     are reported on ``/transfer_align/status`` (DiagnosticArray, latched, 1 Hz).
 
@@ -16,25 +16,53 @@ Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     the smoother for each sub-IMU in worker processes (in parallel on the available cores) while
     the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
+
+Errors
+    A sub-IMU whose smoother fails - bad data (:class:`~dpos_core.errors.RejectedInput`), a
+    numerical failure (:class:`~dpos_core.errors.NumericalFailure`), a bug or a dead worker -
+    costs that sub-IMU only: the failure is logged at ERROR with the exception (with the
+    traceback unless it is a rejected input), its antennas get the status ``failed: <reason>``
+    in the products (and a warning in ``status.json``), the other antennas are processed,
+    published and written as usual, and ``/transfer_align/status`` goes to level ERROR naming
+    the sub-IMU (keys ``failed``, ``last_error``) until the next session is finalized.  A
+    failure of the finalize itself is logged with its traceback and reported the same way.
+    Cholesky jitter repairs of the smoothers are counted (``chol_jitter_repairs`` in the status
+    and in ``status.json``).
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import multiprocessing as mp
 import os
 import threading
 import time
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import Imu, NavSatFix
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from dpos_ros.node_main import run_node
-from dpos_ros.params import ParameterError, declare_config, format_config
-from dpos_ros.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_core.config import ConfigError, config_text, load_aircraft
+from dpos_core.errors import RejectedInput
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_ros.devices.sim_device import SimDevice
+from dpos_ros.io.session import read_session
+from dpos_ros.io.spill import SpillWriter
+from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, solve, write
+from dpos_ros.runtime.node_main import run_node
+from dpos_ros.runtime.params import ParameterError, declare_config, format_config
 from transfer_align_node.params import TransferAlignConfig
 
 NODE_NAME = "transfer_align_node"
@@ -53,10 +81,6 @@ def _stamp_ns(data: bytes) -> int:
 def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
                   filter_rate_hz: float, output_rate_hz: float):
     """One sub-IMU in a worker process: read the spill, align, return the antenna solutions."""
-    from dpos_core.config import load_aircraft
-    from dpos_ros.products import solve
-    from dpos_ros.session_io import read_session
-
     sess = read_session(Path(spill_dir))
     aircraft = load_aircraft("session", text=aircraft_yaml)
     ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub],
@@ -64,35 +88,45 @@ def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, par
     return ants, timing, sess.warnings
 
 
-def _keep_all(qos):
-    from rclpy.qos import HistoryPolicy, QoSProfile
+def _pool(n_workers: int) -> cf.Executor:
+    """The executor of the smoothers: spawned worker processes (one sub-IMU each).  A module
+    function so that tests can run the smoothers in-process (and inject failures)."""
+    return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn"))
 
+
+def _describe(e: BaseException) -> str:
+    """``<type>: <message>`` of an exception (a KeyError's message alone says little)."""
+    return f"{type(e).__name__}: {e}"
+
+
+def _keep_all(qos):
     if qos.durability.name == "TRANSIENT_LOCAL":
         return qos
     return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=qos.reliability, durability=qos.durability)
 
 
 class _Stream:
+    """What arrived on one topic: created with its first message (stamp ``t`` [ns])."""
+
     __slots__ = ("count", "last_ns", "min_dt", "gaps", "arrived")
 
-    def __init__(self) -> None:
-        self.count = 0
-        self.last_ns: int | None = None
+    def __init__(self, t: int) -> None:
+        self.count = 1
+        self.last_ns: int = t  # the newest stamp
         self.min_dt: int | None = None
         self.gaps = 0
         self.arrived = time.monotonic()  # wall time of the last message
 
     def add(self, t: int) -> None:
         self.arrived = time.monotonic()
-        if self.last_ns is not None:
-            dt = t - self.last_ns
-            if dt > 0:
-                if self.min_dt is None or dt < self.min_dt:
-                    self.min_dt = dt
-                elif dt > 2 * self.min_dt:
-                    self.gaps += 1
+        dt = t - self.last_ns
+        if dt > 0:
+            if self.min_dt is None or dt < self.min_dt:
+                self.min_dt = dt
+            elif dt > 2 * self.min_dt:
+                self.gaps += 1
         self.count += 1
-        self.last_ns = t if self.last_ns is None else max(self.last_ns, t)
+        self.last_ns = max(self.last_ns, t)
 
 
 class TransferAlignNode(Node):
@@ -107,8 +141,6 @@ class TransferAlignNode(Node):
 
     # ------------------------------------------------------------------ setup
     def _setup(self) -> None:
-        from dpos_core.config import ConfigError, config_text, load_aircraft
-
         cfg = self.config
         ref = cfg.aircraft_config or "paper_su"
         try:
@@ -123,38 +155,37 @@ class TransferAlignNode(Node):
         self.sub_names = list(cfg.sub_imus) or known
         self.output_dir = Path(cfg.output_dir)
         self._lock = threading.Lock()
-        self._spill = None
+        self._spill: SpillWriter | None = None
         self._spill_dir: Path | None = None
         self._streams: dict[str, _Stream] = {}
         self._end: tuple[int, str] | None = None
         self._finalizing = False
         self._finalize_thread: threading.Thread | None = None
         self._progress = "waiting for data"
+        self._errors: dict[str, str] = {}  # sub-IMU (or "finalize") -> what failed, for the session being / last finalized
+        self._chol_jitter_repairs = 0  # in the smoothers of the last finalized session
         self._sessions_done = 0
         self._closed_end_ns: int | None = None  # end stamp of the last closed session
         self._end_on_shutdown = False
         self._late: dict[str, int] = {}  # messages of a closed session that arrived after it closed
-        self._device = None
-        topics = {"/master/nav": ("nav_msgs/msg/Odometry", NAV_QOS), "/dpos/datum": ("sensor_msgs/msg/NavSatFix", DATUM_QOS),
-                  "/truth/master": ("nav_msgs/msg/Odometry", NAV_QOS)}
+        self._device: SimDevice | None = None  # publishing the antenna poses of the last session
+        topics = {T.MASTER_NAV: (T.ODOMETRY, NAV_QOS), T.DATUM: (T.NAVSATFIX, DATUM_QOS),
+                  T.TRUTH_MASTER: (T.ODOMETRY, NAV_QOS)}
         for n in self.sub_names:
-            topics[f"/sub_imu/{n}/imu"] = ("sensor_msgs/msg/Imu", SENSOR_QOS)
-            topics[f"/truth/sub_imu/{n}"] = ("nav_msgs/msg/Odometry", NAV_QOS)
+            topics[T.sub_imu(n)] = (T.IMU, SENSOR_QOS)
+            topics[T.truth_sub_imu(n)] = (T.ODOMETRY, NAV_QOS)
         for a in self.aircraft.antennas:
             if a.sub_imu is None or a.sub_imu in self.sub_names:
-                topics[f"/truth/antenna/{a.name}"] = ("nav_msgs/msg/Odometry", NAV_QOS)
-        from nav_msgs.msg import Odometry
-        from sensor_msgs.msg import Imu, NavSatFix
-        from std_msgs.msg import Header
+                topics[T.truth_antenna(a.name)] = (T.ODOMETRY, NAV_QOS)
 
-        types = {"nav_msgs/msg/Odometry": Odometry, "sensor_msgs/msg/Imu": Imu, "sensor_msgs/msg/NavSatFix": NavSatFix}
+        types = {T.ODOMETRY: Odometry, T.IMU: Imu, T.NAVSATFIX: NavSatFix}
         # KEEP_ALL (design.md allows it): a reader that falls behind makes reliable writers wait
         # instead of losing the oldest samples, as a deep KEEP_LAST queue would
         self._subs = [self.create_subscription(types[mt], topic, self._make_cb(topic, mt), _keep_all(qos), raw=True)
                       for topic, (mt, qos) in topics.items()]
-        self._subs.append(self.create_subscription(Header, "/session/end", self._on_end, NAV_QOS))
+        self._subs.append(self.create_subscription(Header, T.SESSION_END, self._on_end, NAV_QOS))
         self.create_service(Trigger, "~/finalize", self._on_finalize)
-        self._status_pub = self.create_publisher(DiagnosticArray, "/transfer_align/status", STATUS_QOS)
+        self._status_pub = self.create_publisher(DiagnosticArray, T.TRANSFER_ALIGN_STATUS, STATUS_QOS)
         self.create_timer(1.0, self._publish_status)
         self.get_logger().info(
             f"{NODE_NAME}: {format_config(cfg, ('method', 'particles', 'output_dir', 'sub_imus'))} aircraft={self.aircraft.name} "
@@ -178,18 +209,21 @@ class TransferAlignNode(Node):
                 self._closed_end_ns = None
                 sp = self._ensure_spill()
                 sp.write(topic, msgtype, t, bytes(data))
-                self._streams.setdefault(topic, _Stream()).add(t)
+                st = self._streams.get(topic)
+                if st is None:
+                    self._streams[topic] = _Stream(t)
+                else:
+                    st.add(t)
         return cb
 
-    def _ensure_spill(self):
-        from dpos_ros.spill import SpillWriter
-
-        if self._spill is None:
+    def _ensure_spill(self) -> SpillWriter:
+        sp = self._spill
+        if sp is None:
             sid = time.strftime("session_%Y%m%d_%H%M%S")
             self._spill_dir = self.output_dir / "spill" / f"{sid}_{os.getpid()}"
-            self._spill = SpillWriter(self._spill_dir, sid, {"dpos.session_id": sid, "dpos.aircraft_yaml": self.aircraft_yaml})
+            sp = self._spill = SpillWriter(self._spill_dir, sid, {"dpos.session_id": sid, "dpos.aircraft_yaml": self.aircraft_yaml})
             self.get_logger().info(f"new session: spilling to {self._spill_dir}")
-        return self._spill
+        return sp
 
     def _on_end(self, msg) -> None:
         t = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
@@ -199,7 +233,7 @@ class TransferAlignNode(Node):
     def _on_finalize(self, _req, resp):
         with self._lock:
             has_data = self._spill is not None
-            last = max((s.last_ns for s in self._streams.values() if s.last_ns is not None), default=None)
+            last = max((s.last_ns for s in self._streams.values()), default=None)
         if not has_data or last is None:
             resp.success = False
             resp.message = "no data buffered: nothing to finalize"
@@ -216,6 +250,7 @@ class TransferAlignNode(Node):
             self._finalizing = True
             self._end = (end_ns, session_id)
             self._end_on_shutdown = shutdown
+            self._errors = {}
         self._finalize_thread = threading.Thread(target=self._finalize, name="finalize", daemon=True)
         self._finalize_thread.start()
         return True
@@ -224,9 +259,11 @@ class TransferAlignNode(Node):
     def _finalize(self) -> None:
         log = self.get_logger()
         cfg = self.config
-        end_ns, sid = self._end
         try:
-            needed = ["/master/nav"] + [f"/sub_imu/{n}/imu" for n in self.sub_names]
+            if self._end is None:
+                raise RuntimeError("finalize started without the session's end (_start_finalize sets it)")
+            end_ns, sid = self._end
+            needed = [T.MASTER_NAV] + [T.sub_imu(n) for n in self.sub_names]
             deadline = time.monotonic() + cfg.finalize_timeout_s
             while True:
                 # the streams the smoother needs, and every other stream of the session (truth,
@@ -238,7 +275,7 @@ class TransferAlignNode(Node):
                     behind = [t for t in needed if (self._streams.get(t) is None and not self._end_on_shutdown)
                               or (t in self._streams and self._streams[t].last_ns < end_ns - 20_000_000
                                   and not stalled(self._streams[t]))]
-                    behind += [t for t, st in self._streams.items() if t not in needed and t != "/dpos/datum"
+                    behind += [t for t, st in self._streams.items() if t not in needed and t != T.DATUM
                                and st.last_ns < end_ns - 20_000_000 and now - st.arrived < STALL_S]
                 if not behind or now > deadline:
                     break
@@ -250,7 +287,7 @@ class TransferAlignNode(Node):
                 if sp is not None and sid:
                     sp.session_id = sid
                     sp.set_custom("dpos.session_id", sid)
-                if sp is not None and "/dpos/datum" not in self._streams and cfg.datum:
+                if sp is not None and T.DATUM not in self._streams and cfg.datum:
                     self._spill_datum(sp)
                 self._spill = None  # new messages (stamped after the end) start the next session
                 self._spill_dir = None
@@ -265,34 +302,27 @@ class TransferAlignNode(Node):
                             f"({end_ns} ns); processing what arrived")
             if missing:
                 log.warning(f"finalize: no data at all on {missing}")
-            if sp is None:
+            if sp is None or spill_dir is None:  # (both are set together by _ensure_spill)
                 log.error("finalize: nothing buffered")
                 return
             sp.close()
             self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()})
-        except Exception as e:  # noqa: BLE001 - reported, the node stays up for the next session
-            log.error(f"finalize failed: {type(e).__name__}: {e}")
-            self._progress = f"failed: {e}"
+        except Exception as e:  # noqa: BLE001 - logged with its traceback, status ERROR; the node stays up for the next session
+            log.error(f"finalize failed: {_describe(e)}\n{''.join(traceback.format_exception(e)).rstrip()}")
+            with self._lock:
+                self._errors["finalize"] = _describe(e)
+            self._progress = f"failed: {_describe(e)}"
         finally:
             with self._lock:
                 self._finalizing = False
 
     def _spill_datum(self, sp) -> None:
-        import numpy as np
-        from rclpy.serialization import serialize_message
-
-        from dpos_ros import conversions as cv
-
         lat, lon, h = self.config.datum
         msg = cv.datum_msg(0, np.array([np.deg2rad(lat), np.deg2rad(lon), h]))
-        sp.write("/dpos/datum", "sensor_msgs/msg/NavSatFix", 0, serialize_message(msg))
+        sp.write(T.DATUM, T.NAVSATFIX, 0, serialize_message(msg))
         self.get_logger().warning("no /dpos/datum received: using the datum parameter")
 
     def _process(self, spill_dir: Path, counts: dict) -> None:
-        from dpos_ros.products import AntennaSolution, antenna_streams, evaluate, write
-        from dpos_ros.session_io import read_session
-        from dpos_ros.sim_device import SimDevice
-
         cfg = self.config
         log = self.get_logger()
         t0 = time.perf_counter()
@@ -302,21 +332,44 @@ class TransferAlignNode(Node):
         antennas: dict[str, AntennaSolution] = {}
         timing = {"processing_s": 0.0, "data_s": 0.0}
         warnings: list[str] = []
-        import multiprocessing as mp
+        failed: dict[str, str] = {}
+        repairs = 0
 
-        with cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn")) as ex:
+        with _pool(n_workers) as ex:
             futs = {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
                               cfg.initial_attitude_error_deg, cfg.filter_rate_hz, cfg.output_rate_hz): n for n in self.sub_names}
             done = 0
             for f in cf.as_completed(futs):
-                ants, tm, warns = f.result()
-                antennas.update(ants)
-                timing["processing_s"] = time.perf_counter() - t0
-                timing["data_s"] += tm["data_s"]
-                warnings += [w for w in warns if w not in warnings]
+                sub = futs[f]
                 done += 1
-                self._progress = f"processed {done}/{len(futs)} sub-IMU(s)"
-                log.info(f"{self._progress} ({futs[f]})")
+                try:
+                    ants, tm, warns = f.result()
+                except RejectedInput as e:  # the sub-IMU's data cannot be used: no traceback needed
+                    failed[sub] = _describe(e)
+                    log.error(f"sub-IMU {sub}: the {cfg.method} smoother rejected its input ({e.what}, {e.reason}): {e}; "
+                              "its antennas are not estimated")
+                except Exception as e:  # noqa: BLE001 - NumericalFailure, a bug or a dead worker: this sub-IMU only, with the traceback
+                    failed[sub] = _describe(e)
+                    log.error(f"sub-IMU {sub}: the {cfg.method} smoother failed: {_describe(e)}; its antennas are not estimated\n"
+                              f"{''.join(traceback.format_exception(e)).rstrip()}")
+                else:
+                    antennas.update(ants)
+                    timing["data_s"] += tm["data_s"]
+                    warnings += [w for w in warns if w not in warnings]
+                    repairs += max((a.chol_jitter_repairs for a in ants.values()), default=0)  # one smoother per sub-IMU
+                timing["processing_s"] = time.perf_counter() - t0
+                self._progress = f"processed {done}/{len(futs)} sub-IMU(s)" + (f", {len(failed)} failed" if failed else "")
+                log.info(f"{self._progress} ({sub}{': FAILED' if sub in failed else ''})")
+        with self._lock:
+            self._errors.update(failed)
+        self._chol_jitter_repairs = repairs
+        if repairs:
+            log.warning(f"the smoothers repaired {repairs} covariance(s) with a diagonal jitter (chol_jitter_repairs)")
+        for sub, why in failed.items():
+            warnings.append(f"sub-IMU {sub}: the {cfg.method} smoother failed ({why}); its antennas are not estimated")
+            for a in self.aircraft.antennas:
+                if a.sub_imu == sub:
+                    antennas[a.name] = AntennaSolution(a.name, a.sub_imu, f"failed: {why}")
         for a in self.aircraft.antennas:
             if a.name not in antennas and (a.sub_imu is None or a.sub_imu in self.sub_names):
                 antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
@@ -328,16 +381,18 @@ class TransferAlignNode(Node):
             self._device = None
         if streams:
             self._progress = f"publishing {sum(len(s) for s in streams)} antenna poses"
-            self._device = SimDevice(self, streams, 0.0).start()
-            self._device.finished.wait()
+            device = self._device = SimDevice(self, streams, 0.0).start()
+            device.finished.wait()
         else:
             log.warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
         out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
         self._sessions_done += 1
-        for name, a in antennas.items():
-            log.info(f"antenna {name}: {a.status}")
-        self._progress = f"session {sess.session_id} done: products in {out}; ready for the next session"
-        log.info(f"{self._progress} (processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data)")
+        for name, sol in antennas.items():
+            log.info(f"antenna {name}: {sol.status}")
+        errors = ", ".join(f"{sub} ({' '.join(a.name for a in self.aircraft.antennas if a.sub_imu == sub)})" for sub in sorted(failed))
+        errors = f" with failed sub-IMU(s) {errors}" if failed else ""
+        self._progress = f"session {sess.session_id} done{errors}: products in {out}; ready for the next session"
+        (log.error if failed else log.info)(f"{self._progress} (processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data)")
 
     # ------------------------------------------------------------------ status
     def _publish_status(self) -> None:
@@ -355,10 +410,18 @@ class TransferAlignNode(Node):
                      KeyValue(key="sessions_done", value=str(self._sessions_done))]
         with self._lock:
             late = dict(self._late)
+            errors = dict(self._errors)
+        st.values.append(KeyValue(key="chol_jitter_repairs", value=str(self._chol_jitter_repairs)))
+        if errors:  # a sub-IMU's smoother (or the finalize) failed in the session being / last finalized
+            st.level = DiagnosticStatus.ERROR
+            names = " ".join(sorted(errors))
+            st.values += [KeyValue(key="failed", value=names), KeyValue(key="last_error", value="; ".join(f"{k}: {v}" for k, v in sorted(errors.items())))]
+            if not st.message.startswith(("failed", "session")):  # those name the failures already
+                st.message = f"{st.message} ({'' if finalizing else 'last session: '}failed {names})"
         for topic, n in sorted(late.items()):
             st.values.append(KeyValue(key=f"{topic}/late_after_finalize", value=str(n)))
             st.level = max(st.level, DiagnosticStatus.WARN)
-        for topic, (c, g, last) in sorted(streams.items()):
+        for topic, (c, g, _last) in sorted(streams.items()):
             st.values.append(KeyValue(key=f"{topic}/count", value=str(c)))
             st.values.append(KeyValue(key=f"{topic}/gaps", value=str(g)))
             if g:
@@ -374,15 +437,16 @@ class TransferAlignNode(Node):
                 return
             with lock:
                 pending = self._spill is not None and not self._finalizing
-                last = max((s.last_ns for s in self._streams.values() if s.last_ns is not None), default=None)
+                last = max((s.last_ns for s in self._streams.values()), default=None)
             if pending and last is not None:
                 self.get_logger().info("shutdown: finalizing the buffered session")
                 self._start_finalize(last, "", shutdown=True)
             t = getattr(self, "_finalize_thread", None)
             if t is not None and t.is_alive():
                 t.join()
-            if getattr(self, "_device", None) is not None:
-                self._device.stop()
+            device = getattr(self, "_device", None)
+            if device is not None:
+                device.stop()
         finally:
             super().destroy_node()
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from dpos_core.ta.pipeline import METHODS
-from dpos_ros.params import aircraft_config_param, datum_param, param
-
+from dpos_ros.runtime.params import aircraft_config_param, datum_param, param
 
 
 def _check_sub_imus(names: tuple[str, ...]) -> str | None:

@@ -55,25 +55,27 @@ bound (which would freeze the gain).
 AEKF (Mohamed & Schwarz 1999, innovation-based adaptive estimation; [Fang2012]'s baseline): the
 EKF whose measurement noise is ``R_hat = C_v - H P^- H^T`` from the same windowed innovation
 covariance ``C_v``, guarded the same way.  Jacobians are central differences of ``f`` and
-``h`` at the current estimate (step ``1e-6`` relative to the state's sigma).
+``h`` at the current estimate (:mod:`.jacobian`, step ``1e-6`` relative to the state's sigma).
 """
 
 from __future__ import annotations
-
-from dpos_core.units import FloatArray
 
 from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import cho_solve, solve_triangular
 
+from dpos_core.errors import NumericalFailure
+from dpos_core.units import FloatArray
+
+from .jacobian import central_difference_jacobian, steps_from_cov
 from .linalg import chol, gain, householder_tria, symmetrize
+from .points import CENTRAL_DIFFERENCE_STEP, symmetric_points
 
 Fn = Callable[[FloatArray], FloatArray]
 Residual = Callable[[FloatArray, FloatArray], FloatArray]
-H_STEP = float(np.sqrt(3.0))
+H_STEP = CENTRAL_DIFFERENCE_STEP
 
 
 class DD2Prediction(NamedTuple):
@@ -104,12 +106,6 @@ class DD2Factors(NamedTuple):
     S2: FloatArray
 
 
-def _points(x: FloatArray, S: FloatArray, h: float) -> FloatArray:
-    """``[x, x + h s_1 .. x + h s_n, x - h s_1 .. x - h s_n]`` (..., 2n + 1, n)."""
-    d = h * np.swapaxes(S, -1, -2)
-    return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
-
-
 def divided_differences(x: FloatArray, S: FloatArray, fn: Fn, h: float = H_STEP,
                         residual: Residual | None = None) -> DD2Factors:
     """Mean and the first/second-order divided-difference matrices of ``fn`` (eq. 3, 5, 7, 11).
@@ -121,7 +117,7 @@ def divided_differences(x: FloatArray, S: FloatArray, fn: Fn, h: float = H_STEP,
         ``(mean (..., p), S1 (..., p, n), S2 (..., p, n))``.
     """
     n = x.shape[-1]
-    Y = fn(_points(x, S, h))
+    Y = fn(symmetric_points(x, S, h))
     y0, yp, ym = Y[..., 0, :], Y[..., 1:n + 1, :], Y[..., n + 1:, :]
     h2 = h * h
     res = residual or (lambda a, b: a - b)
@@ -216,10 +212,12 @@ class InnovationWindow:
 
     def push(self, nu: FloatArray, P_state: FloatArray | None = None) -> None:
         """Add an innovation (..., p) and, optionally, the part ``H P H^T`` (..., p, p) of its
-        covariance that the state uncertainty explains (for :meth:`noise_cov`)."""
+        covariance that the state uncertainty explains (for :meth:`noise_cov`).  A non-finite
+        innovation (the measurements are checked before, so the prediction diverged) raises
+        :class:`~dpos_core.errors.NumericalFailure`."""
         nu = np.asarray(nu, dtype=float)
         if not np.all(np.isfinite(nu)):
-            raise ValueError("innovation is not finite")
+            raise NumericalFailure("innovation is not finite (the prediction diverged)", what="innovation window")
         self._buf.append(nu.copy())
         self._pst.append(None if P_state is None else np.asarray(P_state, dtype=float).copy())
         if len(self._buf) > self.N:
@@ -245,12 +243,13 @@ class InnovationWindow:
         (pushed with it).  Equals ``cov() - H P H^T`` when that part is constant over the window;
         unlike it, an innovation that was large because the state was uncertain then (the first
         turn of a 180 deg heading error) is not mistaken for measurement noise later."""
-        if not self._buf or any(p is None for p in self._pst):
+        pst = [p for p in self._pst if p is not None]
+        if not self._buf or len(pst) != len(self._pst):
             raise ValueError("noise_cov needs every innovation pushed with its P_state")
         Z = self.values()
-        return symmetrize((np.einsum("k...i,k...j->...ij", Z, Z) - np.sum(self._pst, axis=0)) / Z.shape[0])
+        return symmetrize((np.einsum("k...i,k...j->...ij", Z, Z) - np.sum(pst, axis=0)) / Z.shape[0])
 
-    def copy(self) -> "InnovationWindow":
+    def copy(self) -> InnovationWindow:
         w = InnovationWindow(self.N, self.centered)
         w._buf = [b.copy() for b in self._buf]
         w._pst = [None if p is None else p.copy() for p in self._pst]
@@ -329,20 +328,11 @@ def add2_update(x: FloatArray, S: FloatArray, y: FloatArray, h: Fn, SR: FloatArr
     return DD2Update(xn, Sn, nu, Sy, K), R_eff
 
 
-def numerical_jacobian(fn: Fn, x: FloatArray, step: FloatArray) -> FloatArray:
-    """Central-difference Jacobian (m, n) of ``fn`` (vectorized, (..., n) -> (..., m)) at x (n,),
-    with per-component steps (n,)."""
-    n = x.shape[0]
-    D = np.diag(step)
-    Y = fn(np.concatenate([x[None] + D, x[None] - D]))
-    return ((Y[:n] - Y[n:]) / (2.0 * step[None, :].T)).T
-
-
 def aekf_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, rel_step: float = 1e-6) -> tuple[FloatArray, FloatArray, FloatArray]:
     """EKF time update: ``x_pred = f(x)``, ``P_pred = F P F^T + Q`` with the central-difference
     Jacobian ``F`` at x.  Returns ``(x_pred (n,), P_pred (n, n), F (n, n))``."""
-    step = rel_step * np.maximum(np.sqrt(np.diag(P)), 1e-12)
-    F = numerical_jacobian(f, x, step)
+    step = steps_from_cov(P, rel_step)
+    F = central_difference_jacobian(f, x, step)
     xp = f(x[None])[0]
     return xp, symmetrize(F @ P @ F.T + Q), F
 
@@ -358,8 +348,8 @@ def aekf_update(x: FloatArray, P: FloatArray, y: FloatArray, h: Fn, R: FloatArra
     Returns ``(x (n,), P (n, n), nu (p,), S_nu (p, p), K (n, p), R_used (p, p))``.
     """
     res = residual or (lambda a, b: a - b)
-    step = rel_step * np.maximum(np.sqrt(np.diag(P)), 1e-12)
-    H = numerical_jacobian(h, x, step)
+    step = steps_from_cov(P, rel_step)
+    H = central_difference_jacobian(h, x, step)
     nu = res(np.asarray(y, dtype=float), h(x[None])[0])
     HPH = symmetrize(H @ P @ H.T)
     window.push(nu, HPH)

@@ -13,13 +13,12 @@ cross-covariance) URTSS.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import FloatArray
 
 from .linalg import gain, symmetrize
 from .points import UnscentedPoints

@@ -1,12 +1,109 @@
-"""Small dense linear algebra shared by the filters (batched over leading axes)."""
+"""Small dense linear algebra shared by the filters (batched over leading axes).
+
+Repairs are counted, not silent: :func:`chol` may add a small diagonal jitter to a covariance
+that is positive semi-definite only up to rounding.  Every such repair increments the process
+total (:func:`total_jitter_repairs`) and every active :class:`JitterRepairs` counter of the
+calling thread (an estimator wraps its work in ``with counter:`` and reports
+``counter.count``, e.g. ``chol_jitter_repairs`` in ``/ifa/status`` and the session products); the
+first repair per call site is also warned (:class:`~dpos_core.errors.NumericalRepairWarning`,
+with the jitter's magnitude).  A matrix that even the largest jitter does not make positive
+definite raises :class:`~dpos_core.errors.NumericalFailure`.
+"""
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
+import sys
+import threading
+import warnings
+from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
-from numpy.typing import NDArray
 
+from dpos_core.errors import NumericalFailure, NumericalRepairWarning
+from dpos_core.units import FloatArray
+
+#: the largest relative diagonal jitter :func:`chol` tries (of the matrix's largest diagonal element)
+MAX_RELATIVE_JITTER = 1e-6
+
+
+@dataclass
+class JitterRepairs:
+    """Counter of :func:`chol` jitter repairs (module docstring).
+
+    Active in the thread that enters it (``with counter: ...``), nestable (every active counter
+    of the thread counts), re-enterable; ``count`` keeps adding up over several ``with`` blocks.
+
+    Attributes:
+        count: repairs made (one per :func:`chol` call that needed a jitter; a batched call
+            counts once).
+        max_relative: the largest relative jitter used (of the largest diagonal element).
+        max_absolute: the largest absolute jitter added to a diagonal element.
+    """
+
+    count: int = 0
+    max_relative: float = 0.0
+    max_absolute: float = 0.0
+
+    def __enter__(self) -> JitterRepairs:
+        _active().append(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        stack = _active()
+        for i in range(len(stack) - 1, -1, -1):  # the innermost entry of this counter
+            if stack[i] is self:
+                del stack[i]
+                break
+
+    def add(self, relative: float, absolute: float) -> None:
+        self.count += 1
+        self.max_relative = max(self.max_relative, relative)
+        self.max_absolute = max(self.max_absolute, absolute)
+
+
+_local = threading.local()
+_total = JitterRepairs()
+_total_lock = threading.Lock()
+_warned_sites: set[tuple[str, int]] = set()
+
+
+def _active() -> list[JitterRepairs]:
+    stack = getattr(_local, "stack", None)
+    if stack is None:
+        stack = _local.stack = []
+    return stack
+
+
+def total_jitter_repairs() -> int:
+    """Jitter repairs made by :func:`chol` in this process so far (every thread)."""
+    return _total.count
+
+
+def reset_repair_warnings() -> None:
+    """Forget which call sites were warned (the next repair at each is warned again; tests)."""
+    _warned_sites.clear()
+
+
+def _record_repair(relative: float, absolute: float, n: int) -> None:
+    """Count a repair in the process total and the thread's active counters; warn the first one
+    of each call site (the first frame outside this module)."""
+    with _total_lock:
+        _total.add(relative, absolute)
+    for c in _active():
+        c.add(relative, absolute)
+    frame = sys._getframe(0)
+    level = 1
+    while frame.f_back is not None and frame.f_code.co_filename == __file__:
+        frame = frame.f_back
+        level += 1
+    site = (frame.f_code.co_filename, frame.f_lineno)
+    if site in _warned_sites:
+        return
+    _warned_sites.add(site)
+    warnings.warn(f"chol: a {n}x{n} covariance is not positive definite to rounding; repaired with a relative diagonal "
+                  f"jitter of {relative:.0e} (absolute {absolute:.3g}); later repairs at this call site are only counted",
+                  NumericalRepairWarning, stacklevel=level)
 
 
 def symmetrize(P: FloatArray) -> FloatArray:
@@ -17,23 +114,46 @@ def symmetrize(P: FloatArray) -> FloatArray:
 def chol(P: FloatArray, jitter: float = 1e-12) -> FloatArray:
     """Lower Cholesky factor of (a batch of) SPD matrices.
 
-    A matrix that is PSD up to rounding gets a relative diagonal jitter (up to 1e-6 of its
-    largest diagonal element); anything worse raises ``np.linalg.LinAlgError``.
+    A matrix that is PSD up to rounding gets a relative diagonal jitter (``jitter``, then x100
+    steps up to ``MAX_RELATIVE_JITTER`` of its largest diagonal element): the repair is counted
+    and warned once per call site (module docstring).  Anything worse - an indefinite matrix,
+    non-finite entries (which LAPACK would pass through as a NaN factor) - raises
+    :class:`~dpos_core.errors.NumericalFailure`.
     """
     P = symmetrize(np.asarray(P, dtype=float))
     try:
-        return np.linalg.cholesky(P)
+        L = np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
         pass
+    else:
+        if np.all(np.isfinite(L)):
+            return cast(FloatArray, L)  # float64 in, float64 out (numpy's stub says floating[Any])
+        raise NumericalFailure(f"a {P.shape[-1]}x{P.shape[-1]} covariance has non-finite entries (the filter diverged)",
+                               what="covariance")
     scale = np.max(np.abs(np.diagonal(P, axis1=-2, axis2=-1)), axis=-1)[..., None, None]
     eye = np.eye(P.shape[-1])
     eps = jitter
-    while eps <= 1e-6:
+    while eps <= MAX_RELATIVE_JITTER:
         try:
-            return np.linalg.cholesky(P + eps * scale * eye)
+            L = np.linalg.cholesky(P + eps * scale * eye)
         except np.linalg.LinAlgError:
             eps *= 100.0
-    raise np.linalg.LinAlgError("covariance is not positive definite")
+            continue
+        _record_repair(eps, float(eps * np.max(scale)), P.shape[-1])
+        return cast(FloatArray, L)
+    raise NumericalFailure(f"a {P.shape[-1]}x{P.shape[-1]} covariance is not positive definite, even with a relative "
+                           f"diagonal jitter of {MAX_RELATIVE_JITTER:g} ({_why_not_pd(P)})", what="covariance")
+
+
+def _why_not_pd(P: FloatArray) -> str:
+    """A short diagnosis of a matrix that has no Cholesky factor (for the error message)."""
+    if not np.all(np.isfinite(P)):
+        return "it has non-finite entries"
+    try:
+        ev = np.linalg.eigvalsh(P)
+    except np.linalg.LinAlgError:
+        return "its eigenvalues do not converge"
+    return f"smallest eigenvalue {float(np.min(ev)):.3g}, largest {float(np.max(ev)):.3g}"
 
 
 def solve_spd(S: FloatArray, B: FloatArray) -> FloatArray:
@@ -46,11 +166,6 @@ def solve_spd(S: FloatArray, B: FloatArray) -> FloatArray:
 def gain(Pxy: FloatArray, Pyy: FloatArray) -> FloatArray:
     """Kalman gain ``Pxy Pyy^-1`` (..., n, p) without forming an inverse."""
     return np.swapaxes(solve_spd(Pyy, np.swapaxes(Pxy, -1, -2)), -1, -2)
-
-
-def logdet_spd(S: FloatArray) -> FloatArray:
-    L = chol(S)
-    return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
 def gauss_logpdf(r: FloatArray, S: FloatArray) -> FloatArray:
@@ -68,7 +183,7 @@ def whitener(S: FloatArray) -> tuple[FloatArray, float]:
     so that ``log N(r; 0, S) = log_norm - |r W^T|^2 / 2`` for any number of residuals r (..., p)."""
     L = chol(S)
     p = S.shape[-1]
-    W = np.linalg.solve(L, np.eye(p))
+    W = np.asarray(np.linalg.solve(L, np.eye(p)), dtype=np.float64)
     return W, float(-np.sum(np.log(np.diag(L))) - 0.5 * p * np.log(2.0 * np.pi))
 
 

@@ -13,13 +13,11 @@ Open-loop models return ``None`` from ``feedback``.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from typing import Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 
+from dpos_core.units import FloatArray
 
 
 class StateSpaceModel(Protocol):

@@ -7,19 +7,42 @@
 * :class:`CentralDifferencePoints`: Stirling's interpolation (Norgaard, Poulsen, Ravn 2000;
   [Fang2012] eq. 2-14): points ``x +- h s_j`` of a square root ``S``, step ``h = sqrt(3)`` for a
   Gaussian prior; mean weights ``(h^2 - n)/h^2`` and ``1/(2 h^2)``.  Used by CDKF and DD2.
+
+Both are :func:`symmetric_points` of a square root of the covariance, with different scales.
 """
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import FloatArray
 
 from .linalg import chol
 
+#: the central-difference step ``h = sqrt(3)`` (``h^2`` = 3, the kurtosis of a Gaussian prior; Norgaard 2000)
+CENTRAL_DIFFERENCE_STEP: float = float(np.sqrt(3.0))
+
+
+def symmetric_points(x: FloatArray, S: FloatArray, scale: float) -> FloatArray:
+    """``[x, x + scale s_1 .. x + scale s_n, x - scale s_1 .. x - scale s_n]``, shape (..., 2n + 1, n).
+
+    Args:
+        x: mean (..., n).
+        S: a square root (..., n, n) of the covariance, ``P = S S^T``; ``s_j`` its columns.
+        scale: ``sqrt(n + lambda)`` for the unscented transform ([Gong2018] eq. 2), the step
+            ``h`` for central differences ([Fang2012] eq. 2-14, Norgaard 2000).
+    """
+    d = scale * np.swapaxes(S, -1, -2)  # rows = scaled columns of S
+    return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
+
+
+def _required_cov(P: FloatArray | None) -> FloatArray:
+    """``P`` of a ``points(x, P)`` call given no square root ``S``: it must be given then."""
+    if P is None:
+        raise ValueError("points() needs the covariance P or its square root S")
+    return P
 
 
 @dataclass(frozen=True)
@@ -44,14 +67,13 @@ class UnscentedPoints:
         """Sigma points (..., 2n + 1, n) of mean x (..., n) and covariance P (or square root S)."""
         n = x.shape[-1]
         if S is None:
-            S = chol(P)
-        d = np.sqrt(n + self.lam(n)) * np.swapaxes(S, -1, -2)  # rows = scaled columns of S
-        return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
+            S = chol(_required_cov(P))
+        return symmetric_points(x, S, np.sqrt(n + self.lam(n)))
 
 
 @dataclass(frozen=True)
 class CentralDifferencePoints:
-    h: float = np.sqrt(3.0)
+    h: float = CENTRAL_DIFFERENCE_STEP
 
     def weights(self, n: int) -> tuple[FloatArray, FloatArray]:
         """Mean weights (2n + 1,) and, for the first-order covariance of CDKF, the same."""
@@ -61,8 +83,7 @@ class CentralDifferencePoints:
         return wm, wm
 
     def points(self, x: FloatArray, P: FloatArray | None = None, *, S: FloatArray | None = None) -> FloatArray:
-        n = x.shape[-1]
+        """Points (..., 2n + 1, n) of mean x (..., n) and covariance P (or square root S)."""
         if S is None:
-            S = chol(P)
-        d = self.h * np.swapaxes(S, -1, -2)
-        return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
+            S = chol(_required_cov(P))
+        return symmetric_points(x, S, self.h)

@@ -5,80 +5,41 @@
 * :func:`run_upf` -> :class:`ParticleTrack`: the unscented particle filter ([Gong2018] eq. 2-8;
   van der Merwe et al. 2000), Rao-Blackwellized: every particle carries a UKF over the whole
   state and its posterior is the particle's proposal; importance weights in logs; SIR
-  resampling when the effective sample size drops below a threshold.  All particles and their
+  resampling (a scheme of :data:`~.particle.RESAMPLING`, systematic by default) when the
+  effective sample size drops below a threshold.  All particles and their
   sigma points are processed in one vectorized call.
 * :func:`ffbsm` ([Gong2018] eq. 9): forward-filtering backward-smoothing reweighting,
   ``w_{k|K}^i = w_k^i sum_j w_{k+1|K}^j p(x_{k+1}^j|x_k^i) / sum_m w_k^m p(x_{k+1}^j|x_k^m)``;
   :func:`rb_smooth` (the UPS) adds, along the same backward kernel, an RTS step for the states
   each particle carries as a Gaussian.
 
-Which states are sampled, and the degenerate transition density.  Eq. 6 and eq. 9 need the
-transition density ``p(x_{k+1} | x_k)``.  In the transfer-alignment model only the wing flexure
-is driven by a noise of consequence (eq. 13); biases and the misalignment rho have none, and the
-attitude, velocity and position errors only the sensors' white noise (1e-8 rad and 3e-5 m per
-1 s epoch, far below their posterior spread).  So in those directions the density is a point
-mass: a particle drawn from a UKF posterior has weight zero (or, regularized, an arbitrary one).
-What was measured here (paper_su, seed 1, 100 particles): sampling all 24 states from each
-particle's UKF, the paper's literal UPF, the ESS was 1.0 at every one of the 1300 epochs and
-the smoother ended at 45x the oracle (baseline 12-17 mm); regularizing the density with a
-Silverman kernel in the noise-free directions did not change that (the kernel is built from a
-cloud that has already collapsed); kernel-regularized transitions with Liu-West shrinkage
-kept the ESS near 50 but let the cloud's static parameters random-walk away from the data
-(rho 3-6 sigma off the UKF's after 1000 epochs; heading 4.6x, baseline 2.1x the oracle).
-
-So the density is restricted to the noise-driven subspace (the issue's second option), in
-the Rao-Blackwellized form (Chen and Liu 2000; Schon, Gustafsson and Nordlund 2005, cited by
-[Yan2016]): the particles sample only the components ``model.sampled`` (the flexure rate, where
-eq. 13's noise enters); each particle's UKF carries every other state as a Gaussian conditioned
-on the particle's sampled path (exact Gaussian conditioning after each draw).  Then, for
-particle i at epoch k:
-
-* proposal (eq. 6): the sampled components from the UKF posterior of particle i;
-* weight (eq. 7-8): ``p(y_k | x) p(x | x_{k-1}) / q(x)`` integrated over the carried states is
-  the predictive likelihood ``N(y_k; y_hat^i, S^i)`` of particle i's UKF (the proposal is the
-  locally optimal one, so the weight does not depend on the draw);
-* backward pass (eq. 9): ``p(x_{k+1}^j | x_{0:k}^i)`` is particle i's predicted Gaussian of the
-  sampled components, with the carried states marginalized: proper and non-degenerate.  When
-  every component is sampled the FFBSm weights give the smoothed moments.  When some are
-  carried, reweighting the sampled components alone is biased (measured on a linear model with
-  2000 particles: 10x the RTS error; the marginal of the sampled components is not Markov, the
-  carried states hold the memory - the exact Rao-Blackwellized backward pass needs backward
-  information filters, Lindsten et al. 2013), so the smoothed moments come from the RTS
-  recursion (the URTSS code) run on the moments of the particles' mixture: filtered and
-  predicted means and covariances and the cross-covariance, each including the spread of the
-  particles' means.  On a linear-Gaussian model that recursion is the RTS smoother up to Monte
-  Carlo error (test_filters_particle.py), and no per-particle covariance is stored (memory
-  O(K N n + K n^2)).
-
-Two engines run the particles' UKFs: :class:`PerParticleUKF` (each particle its own sigma
-points, covariance and gain - [Gong2018] as written) and :class:`SharedLinearizationUKF` (the
-default: one unscented transform per step at the particles' weighted mean, shared covariance
-and gain, each particle's mean through the model).  They agree to 1e-9 on a linear model
-(test_filters_particle.py) and within Monte Carlo noise on paper_su (test_ta_model.py); the
-shared one is ~2.8x faster on paper_su (measured in one process: 4.2-4.7 s vs 11.3-13.4 s
-for one sub-IMU and 1300 s of data).
-
-With the flexure rate sampled, 100 particles give the URTSS's accuracy on every row of seed
-000 Table 1 (README); sampling the flexure angle too made the position estimate 3x noisier
-(the angle moves the 5 m lever arm; its posterior spread then enters each particle's position).
+The UPS here is [Gong2018]'s in the Rao-Blackwellized form (Chen and Liu 2000; Schon, Gustafsson
+and Nordlund 2005): the particles sample only ``model.sampled`` (in the transfer-alignment model
+the flexure rate, the one state driven by a noise of consequence), and each particle's UKF carries
+every other state as a Gaussian conditioned on the particle's sampled path; the weights are the
+UKFs' predictive likelihoods, eq. 9 reweights the sampled components, and the carried states are
+smoothed by the RTS recursion on the moments of the particles' mixture.  Sampling all 24 states,
+as the paper writes it, collapses on this model (the transition density is a point mass in the
+noise-free directions: ESS 1.0 at every epoch).  Two engines run the particles' UKFs:
+:class:`PerParticleUKF` ([Gong2018] as written) and :class:`SharedLinearizationUKF` (the
+default, one shared unscented transform per step, ~2.8x faster).  docs/ups.md has the design,
+the variants tried and the measurements.
 """
 
 from __future__ import annotations
-
-from dpos_core.units import FloatArray
 
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core.units import FloatArray
+
 from .gaussian import rts_smooth, ut_predict, ut_update
 from .linalg import chol, gain, gauss_logpdf, symmetrize
 from .model import StateSpaceModel
-from .particle import ess, log_normalize, systematic_resample
+from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .points import UnscentedPoints
-
-
 
 # ------------------------------------------------------------------------------------ Gaussian
 
@@ -108,7 +69,8 @@ def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArra
     x_f, P_f = np.empty((K, n)), np.empty((K, n, n))
     x_p, P_p, C = np.empty((K - 1, n)), np.empty((K - 1, n, n)), np.empty((K - 1, n, n))
     corr = np.zeros((K, n))
-    nus, Ss = [], []
+    nus: list[FloatArray | None] = []
+    Ss: list[FloatArray | None] = []
     for k in range(K):
         if k > 0:
             pr = ut_predict(x, P, lambda X: model.f(k - 1, X), model.Q(k - 1), points)
@@ -118,9 +80,11 @@ def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArra
         if y is not None:
             up = ut_update(x, P, y, lambda X: model.h(k, X), model.R(k), points, model.residual)
             x, P = up.x, up.P
-            nus.append(up.nu), Ss.append(up.S)
+            nus.append(up.nu)
+            Ss.append(up.S)
         else:
-            nus.append(None), Ss.append(None)
+            nus.append(None)
+            Ss.append(None)
         c = model.feedback(k, x)
         if c is not None:
             corr[k] = c
@@ -292,6 +256,7 @@ def run_upf(
     ess_threshold: float = 0.5,
     sampled=None,
     engine: PerParticleUKF | SharedLinearizationUKF | None = None,
+    resample: str = RESAMPLING[0],
 ) -> ParticleTrack:
     """Rao-Blackwellized unscented particle filter (module docstring).
 
@@ -299,18 +264,21 @@ def run_upf(
     the proposal (eq. 6): the sampled components are drawn from the UKF posterior, the particle's
     Gaussian is conditioned on them, and the weight is multiplied by the particle's predictive
     likelihood ``N(y_k; y_hat^i, S^i)`` (eq. 7-8 with this proposal: ``p(y|x) p(x|x_prev) / q``
-    integrates to it).  SIR (systematic) resampling when ESS < ``ess_threshold`` N.
+    integrates to it).  SIR resampling when ESS < ``ess_threshold`` N.
 
     Args:
         x0, P0: prior mean (n,) and covariance (n, n) of every particle's UKF ([Gong2018] step 1).
         sampled: indices or slice of the sampled components; default ``model.sampled`` or all.
         engine: :class:`SharedLinearizationUKF` (default) or :class:`PerParticleUKF`.
+        resample: the resampling scheme, one of :data:`~.particle.RESAMPLING` (default systematic).
     """
     rng = np.random.default_rng() if rng is None else rng
     engine = SharedLinearizationUKF() if engine is None else engine
     K, n, N = model.n_epochs, model.n, int(n_particles)
     if N < 1:
         raise ValueError(f"n_particles must be >= 1, got {n_particles}")
+    if resample not in RESAMPLING:
+        raise ValueError(f"unknown resampling scheme {resample!r}; choose one of {RESAMPLING}")
     S = sampled_indices(model, n, sampled)
     s = S.size
     parts = np.empty((K, N, n))
@@ -361,7 +329,7 @@ def run_upf(
         dm, dp = m_k - mix_x_f[k], m - mix_x_p[k]
         mix_C[k] = (C if C.ndim == 2 else np.einsum("n,nij->ij", w, C)) + (dm * w[:, None]).T @ dp
         if ess_k[k] < ess_threshold * N:
-            idx = systematic_resample(logw, rng)
+            idx = resample_indices(logw, rng, resample)
             m, P = m[idx], engine.take(P, idx)
             logw = np.full(N, -np.log(N))
             res_k[k] = True

@@ -44,7 +44,7 @@ Measurement (eq. 25 with the lever arm ``l`` from the IMU to the GNSS antenna, I
 in local ENU (metres, m/s).  ``(C_est - C_true) l = (I - E) C_est l`` is the lever-arm term the
 attitude error leaves after compensation (about 1 m for this aircraft at a 180 deg heading
 error).  By default it is left out, i.e. the paper's linear ``H = [I 0]``
-(``IfaConfig.lever_arm_coupling``): in level flight it makes the heading weakly and multimodally
+(``IfaFilterConfig.lever_arm_coupling``): in level flight it makes the heading weakly and multimodally
 observable through 1.5 m GNSS noise, and the Gaussian filters then pull a 100 deg-sigma heading
 prior far off before the first turn (measured: ADD2 diverged on paper_ifa seed 2 from 30 deg with
 it, converged without it); the neglected term is at most ~1 m at the start and vanishes as the
@@ -61,30 +61,32 @@ it to their covariance too (divided differences / Jacobian), not only to the mea
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray, DEG
-
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
 from .. import earth
-from ..attitude import rotvec_to_dcm
-from dpos_core.units import DEG_PER_H, UG_MPS2
-from ..strapdown import NavState, NavTrajectory, Strapdown
-from ..ins_errors import Interval, IntervalIntegrals, propagate_nav_errors
-from ..attitude import compose_rotvec
-
+from ..attitude import compose_rotvec, rotvec_to_dcm
+from ..errors import RejectedInput
+from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors
+from ..series import NavSeries
+from ..strapdown import NavState, Strapdown
 
 # indices into the full 15-state vector
 DP, DV, PHI, EPS, NAB = (slice(i, i + 3) for i in range(0, 15, 3))
 N_FULL = 15
 #: the paper's 13 states inside the 15 (no dh, dv_U)
 IDX13 = np.array([0, 1, 3, 4, 6, 7, 8, 9, 10, 11, 12, 13, 14])
+#: the 15-state indices of (phi, dv, dp), the order of ins_errors.nav_process_noise
+_NAV_ORDER = np.r_[PHI, DV, DP]
 
 
 @dataclass(frozen=True)
-class IfaConfig:
+class IfaFilterConfig:
     """Alignment settings.  Defaults: [Fang2012] Table 1 sensors, N = 10 (sec. 4).
 
     Attributes:
@@ -152,7 +154,7 @@ class IfaConfig:
                self.velocity_sigma_mps, self.level_sigma_deg, self.heading_sigma_deg, self.q_scale,
                self.aligned_heading_sigma_deg)
         if not all(np.isfinite(v) and v > 0 for v in pos):
-            raise ValueError("IfaConfig: sigmas, r_floor, q_scale and thresholds must be finite and > 0")
+            raise ValueError("IfaFilterConfig: sigmas, r_floor, q_scale and thresholds must be finite and > 0")
         if not 0.0 < self.nis_quantile < 1.0:
             raise ValueError(f"nis_quantile must be in (0, 1), got {self.nis_quantile}")
 
@@ -178,24 +180,28 @@ class GnssFix:
 
 
 def check_fix(fix: GnssFix, last_t_s: float | None) -> None:
-    """Raise ``ValueError`` with the reason if a fix cannot be used (nothing is modified)."""
+    """Raise :class:`~dpos_core.errors.RejectedInput` (``what="GNSS fix"``, ``reason`` code) if a
+    fix cannot be used; nothing is modified.  A wrong array shape is a programming error (plain
+    ``ValueError``), not a rejected fix."""
     t = fix.t_s
     if not np.isfinite(t):
-        raise ValueError(f"GNSS fix stamp is not finite: {t}")
+        raise RejectedInput(f"GNSS fix stamp is not finite: {t}", what="GNSS fix", reason="nan")
     if last_t_s is not None and t <= last_t_s:
         kind = "duplicate" if t == last_t_s else "out-of-order"
-        raise ValueError(f"{kind} GNSS stamp t={t} (last accepted fix at t={last_t_s})")
+        raise RejectedInput(f"{kind} GNSS stamp t={t} (last accepted fix at t={last_t_s})", what="GNSS fix",
+                            reason=kind.replace("-", "_"), t_s=t)
     for name in ("llh", "pos_sigma_m", "vel_n_mps", "vel_sigma_mps"):
         a = np.asarray(getattr(fix, name), dtype=float)
         if a.shape != (3,):
             raise ValueError(f"GNSS fix {name} must have shape (3,), got {a.shape}")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"GNSS fix at t={t}: {name} is not finite: {a}")
+            raise RejectedInput(f"GNSS fix at t={t}: {name} is not finite: {a}", what="GNSS fix", reason="nan", t_s=t)
     if not (np.all(np.asarray(fix.pos_sigma_m) > 0) and np.all(np.asarray(fix.vel_sigma_mps) > 0)):
-        raise ValueError(f"GNSS fix at t={t}: zero or negative covariance (pos_sigma {fix.pos_sigma_m}, "
-                         f"vel_sigma {fix.vel_sigma_mps}) is not a measurement")
+        raise RejectedInput(f"GNSS fix at t={t}: zero or negative covariance (pos_sigma {fix.pos_sigma_m}, "
+                            f"vel_sigma {fix.vel_sigma_mps}) is not a measurement", what="GNSS fix", reason="zero_cov", t_s=t)
     if abs(fix.llh[0]) > np.pi / 2 + 1e-9:
-        raise ValueError(f"GNSS fix at t={t}: latitude {fix.llh[0]} rad out of range")
+        raise RejectedInput(f"GNSS fix at t={t}: latitude {fix.llh[0]} rad out of range", what="GNSS fix",
+                            reason="out_of_range", t_s=t)
 
 
 _Linearization = Interval  # the interval constants of ``f`` (dpos_core.ins_errors)
@@ -209,7 +215,7 @@ class IfaModel:
     (checked) fix, :meth:`feedback` applies a correction and :meth:`shift` re-expresses states.
     """
 
-    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaConfig = IfaConfig(), imu_dt_s: float = 0.01) -> None:
+    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(), imu_dt_s: float = 0.01) -> None:
         self.cfg = cfg
         self.n, self.p = cfg.n, cfg.p
         self.lever_arm_m = np.asarray(lever_arm_m, dtype=float).reshape(3)
@@ -222,7 +228,7 @@ class IfaModel:
         self.feed_biases = False
         self._iv = IntervalIntegrals(initial.copy())
         self._omega_last = np.zeros(3)  # last bias-compensated IMU rate (lever-arm velocity)
-        self.chunks: list[NavTrajectory] = []
+        self.chunks: list[NavSeries] = []
 
     # ------------------------------------------------------------------ embedding 13 <-> 15
     def full(self, x: FloatArray) -> FloatArray:
@@ -278,20 +284,17 @@ class IfaModel:
 
     def Q(self, lin: _Linearization) -> FloatArray:
         """Process noise (n, n) of one interval: gyro / accelerometer white noise per IMU sample
-        integrated over T (angle / velocity random walk), times ``q_scale``."""
-        cfg, T, dt = self.cfg, lin.T, self.imu_dt_s
-        qg = (cfg.gyro_noise_deg_h * DEG_PER_H) ** 2 * dt * T
-        qa = (cfg.accel_noise_ug * UG_MPS2) ** 2 * dt * T
+        integrated over T (angle / velocity random walk, :func:`~dpos_core.ins_errors.nav_process_noise`),
+        times ``q_scale``."""
+        cfg = self.cfg
         Q = np.zeros((N_FULL, N_FULL))
-        Q[PHI, PHI] = np.eye(3) * qg
-        Q[DV, DV] = np.eye(3) * qa
-        Q[DP, DP] = np.eye(3) * qa * T * T / 3.0
-        Q[DV, DP] = Q[DP, DV] = np.eye(3) * qa * T / 2.0
+        Q[np.ix_(_NAV_ORDER, _NAV_ORDER)] = nav_process_noise(lin.T, self.imu_dt_s, cfg.gyro_noise_deg_h * DEG_PER_H,
+                                                              cfg.accel_noise_ug * UG_MPS2)
         Q *= cfg.q_scale
         return Q[np.ix_(IDX13, IDX13)] if self.n != N_FULL else Q
 
     # ------------------------------------------------------------------ measurement
-    def measurement(self, fix: GnssFix) -> tuple[FloatArray, callable, FloatArray]:
+    def measurement(self, fix: GnssFix) -> tuple[FloatArray, Callable[[FloatArray], FloatArray], FloatArray]:
         """``(y (p,), h: (..., n) -> (..., p), R (p, p))`` for a fix at the current nominal time
         (the fix must have passed :func:`check_fix`; a stamp up to one IMU step before/after the
         nominal is bridged with the velocity)."""
@@ -301,10 +304,7 @@ class IfaModel:
         a_p = C @ l
         w_eb = self._omega_last - C.T @ (earth.earth_rate_n(nom.llh[0]) + earth.transport_rate_n(nom.llh[0], nom.llh[2], nom.vel_n_mps))
         a_v = C @ np.cross(w_eb, l)
-        pe_i = earth.geodetic_to_ecef(*nom.llh)
-        pe_g = earth.geodetic_to_ecef(*np.asarray(fix.llh, dtype=float))
-        C_en = earth.C_en(nom.llh[0], nom.llh[1])
-        d_pos = C_en.T @ (pe_i - pe_g) + a_p + nom.vel_n_mps * (fix.t_s - nom.t_s)
+        d_pos = earth.enu_between(nom.llh, fix.llh) + a_p + nom.vel_n_mps * (fix.t_s - nom.t_s)
         d_vel = nom.vel_n_mps + a_v - np.asarray(fix.vel_n_mps, dtype=float)
         cfg = self.cfg
         sp = np.asarray(fix.pos_sigma_m if cfg.use_reported_sigma else cfg.gnss_pos_sigma_m, dtype=float)
@@ -339,9 +339,7 @@ class IfaModel:
             C15[EPS], C15[NAB] = X[EPS], X[NAB]
             self.gyro_bias_comp = self.gyro_bias_comp + X[EPS]
             self.accel_bias_comp = self.accel_bias_comp + X[NAB]
-        nom = self.strapdown.state
-        r_m, r_n = earth.radii_of_curvature(nom.llh[0])
-        dllh = np.array([C15[1] / (r_m + nom.llh[2]), C15[0] / ((r_n + nom.llh[2]) * np.cos(nom.llh[0])), C15[2]])
+        dllh = earth.enu_to_dllh(C15[DP], self.strapdown.state.llh)
         self.strapdown.correct(phi_n_rad=C15[PHI], dvel_n_mps=C15[DV], dllh=dllh)
         if not self.cfg.vertical and fix is not None:
             s = self.strapdown.state

@@ -4,9 +4,20 @@ large-heading-error model of :mod:`.model`, the master strapdown in closed loop 
 * :class:`InFlightAligner` is the online engine (the node's core): :meth:`~InFlightAligner.propagate`
   IMU samples, :meth:`~InFlightAligner.update` with a GNSS fix.  A fix that cannot be used
   (non-finite values, zero covariance, duplicate or out-of-order stamp, stamp not at the
-  navigation time) raises ``ValueError`` before anything changes.
+  navigation time) raises :class:`~dpos_core.errors.RejectedInput` before anything changes; an
+  update that fails numerically in every hypothesis raises
+  :class:`~dpos_core.errors.NumericalFailure` with the state restored.  Anything else (a wrong
+  shape, a wrong type) is a bug and propagates as it is.
 * :func:`run` drives it over recorded series; unusable fixes are skipped with a warning and listed
   in the result.
+
+Errors are returned, not logged: the core has no logger.  What the bank of hypotheses does at an
+epoch (a hypothesis dropped because its update failed numerically, pruned by likelihood, merged
+into a likelier one) is returned as :class:`HypothesisEvent` s in the epoch's record (and kept in
+:attr:`InFlightAligner.events`), so that the caller logs them with its own logger (ifa_node:
+the ROS logger, so they reach ``/rosout``; :func:`run`: ``warnings``) and counts them
+(``hypotheses_failed``); Cholesky jitter repairs are counted in
+:attr:`InFlightAligner.chol_jitter_repairs` (:mod:`dpos_core.filters.linalg`).
 
 Alignment decision (not a timer): at each epoch the heading 1-sigma of the filter and the
 innovation consistency over the last N epochs are checked.  The normalized innovation squared
@@ -14,18 +25,16 @@ innovation consistency over the last N epochs are checked.  The normalized innov
 it detects GNSS noise the model does not explain; its window mean over N epochs is
 ``chi^2(N p) / N`` when consistent.  The alignment is declared (and latched) at the first epoch
 with ``sigma_heading < cfg.aligned_heading_sigma_deg`` and window-mean NIS below the
-``cfg.nis_quantile`` quantile (window full).  Status per epoch: 0 ALIGNING, 1 ALIGNED,
-2 DEGRADED (aligned, but the current window is inconsistent).
+``cfg.nis_quantile`` quantile (window full).  Status per epoch (:class:`~.states.AlignmentState`):
+ALIGNING (0), ALIGNED (1), DEGRADED (2: aligned, but the current window is inconsistent).
 
 Large heading errors: :class:`InFlightAligner` is a bank of ``cfg.heading_hypotheses`` filters
 (class docstring) pruned by their accumulated innovation likelihood; each filter has a coarse and
-a fine phase (``IfaConfig.coarse_heading_sigma_deg``).  The alignment is declared only once one
+a fine phase (``IfaFilterConfig.coarse_heading_sigma_deg``).  The alignment is declared only once one
 hypothesis is left.
 """
 
 from __future__ import annotations
-
-from dpos_core.units import FloatArray, DEG
 
 import time
 import warnings
@@ -35,23 +44,49 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
+from dpos_core.units import DEG, FloatArray
+
 from ..attitude import dcm_to_quat, quat_to_dcm
-from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..errors import NumericalFailure, RejectedInput
 from ..filters.dd2 import (
     InnovationWindow,
+    add2_update,
     aekf_predict,
     aekf_update,
-    add2_update,
     dd2_predict,
     dd2_update,
     divided_differences,
 )
-from ..filters.linalg import chol, householder_tria, solve_spd, symmetrize
-from ..strapdown import NavState, NavTrajectory
-from .model import GnssFix, IfaConfig, IfaModel, check_fix
+from ..filters.linalg import JitterRepairs, chol, householder_tria, solve_spd, symmetrize
+from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..series import GnssSeries, ImuSeries, NavSeries
+from ..strapdown import NavState
+from .model import GnssFix, IfaFilterConfig, IfaModel, check_fix
+from .states import AlignmentState
 
 METHODS = ("add2", "dd2", "aekf")
-ALIGNING, ALIGNED, DEGRADED = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class HypothesisEvent:
+    """Something the bank of heading hypotheses did at an epoch (module docstring).
+
+    Attributes:
+        t_s: the epoch (GNSS fix time) [s].
+        offset_deg: the hypothesis' initial heading offset from the given heading [deg].
+        kind: ``failed`` (its update failed numerically: dropped), ``pruned`` (its accumulated
+            log-likelihood fell too far below the best), ``merged`` (it converged to the heading of
+            a likelier one).
+        reason: what happened, for people.
+    """
+
+    t_s: float
+    offset_deg: float
+    kind: str
+    reason: str
+
+    def __str__(self) -> str:
+        return f"heading hypothesis {self.offset_deg:+.0f} deg {self.kind} at t={self.t_s:.3f} s: {self.reason}"
 
 
 @dataclass
@@ -64,9 +99,10 @@ class EpochRecord:
     nis: float
     nis_window: float
     R_diag: FloatArray  # diagonal of the R the gain used
-    status: int
+    status: AlignmentState
     loglik: float = 0.0  #: log-likelihood of this epoch's innovation (model covariance)
     hypotheses: int = 1  #: heading hypotheses still alive after this epoch
+    events: list[HypothesisEvent] = field(default_factory=list)  #: what the bank did at this epoch
 
 
 class _Engine:
@@ -75,12 +111,12 @@ class _Engine:
     Args:
         initial: navigation state at the start (t_s, attitude with the heading error, ...).
         lever_arm_m: IMU -> GNSS antenna in IMU (FLU) axes (3,).
-        cfg: :class:`~.model.IfaConfig`.
+        cfg: :class:`~.model.IfaFilterConfig`.
         method: ``add2``, ``dd2`` or ``aekf``.
         imu_dt_s: IMU sample interval (process noise per sample, stamp tolerance).
     """
 
-    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaConfig = IfaConfig(),
+    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(),
                  method: str = "add2", imu_dt_s: float = 0.01) -> None:
         if method not in METHODS:
             raise ValueError(f"unknown IFA method {method!r}; choose one of {METHODS}")
@@ -94,7 +130,7 @@ class _Engine:
         self.window = InnovationWindow(cfg.window)  # adaptation (ADD2 / AEKF)
         self.nis_hist: list[float] = []
         self.last_fix_t: float | None = None
-        self.status = ALIGNING
+        self.status = AlignmentState.ALIGNING
         self.aligned_t_s: float | None = None
         self.may_align = True  #: False while other heading hypotheses are alive
         self.fine = False  #: coarse (False) / fine (True) phase
@@ -118,7 +154,7 @@ class _Engine:
 
     @property
     def aligned(self) -> bool:
-        return self.status != ALIGNING
+        return self.status.aligned
 
     def bias_estimates(self) -> tuple[FloatArray, FloatArray]:
         """Total gyro [rad/s] and accelerometer [m/s^2] bias estimates (compensation + state)."""
@@ -133,24 +169,27 @@ class _Engine:
                              np.asarray(f_mps2, dtype=float))
 
     def check(self, fix: GnssFix) -> None:
-        """Raise ``ValueError`` if ``fix`` cannot be used now (nothing changes)."""
+        """Raise :class:`~dpos_core.errors.RejectedInput` if ``fix`` cannot be used now (nothing changes)."""
         check_fix(fix, self.last_fix_t)
         t_nav = self.model.t_s
         if abs(fix.t_s - t_nav) > 0.5 * self.model.imu_dt_s + 1e-9:
-            raise ValueError(f"GNSS fix at t={fix.t_s} but the navigation is at t={t_nav}: "
-                             "propagate the IMU to the fix first")
+            raise RejectedInput(f"GNSS fix at t={fix.t_s} but the navigation is at t={t_nav}: "
+                                "propagate the IMU to the fix first", what="GNSS fix", reason="not_at_nav_time", t_s=fix.t_s)
 
     def update(self, fix: GnssFix) -> EpochRecord:
         """One filter epoch at a GNSS fix: time update since the last epoch, measurement update
-        (method), closed-loop feedback, alignment decision.  Raises ``ValueError`` (state
-        untouched) for an unusable fix; a numerical failure restores the previous state too."""
+        (method), closed-loop feedback, alignment decision.  Raises
+        :class:`~dpos_core.errors.RejectedInput` (state untouched) for an unusable fix, and
+        :class:`~dpos_core.errors.NumericalFailure` (previous state restored) when the update
+        fails numerically (a covariance beyond repair, a singular matrix, a non-finite state)."""
         self.check(fix)
         saved = (self.x.copy(), self.S.copy(), self.P.copy(), self.window.copy(), list(self.nis_hist))
         try:
             return self._epoch(fix)
-        except (np.linalg.LinAlgError, FloatingPointError) as e:
+        except (NumericalFailure, np.linalg.LinAlgError, FloatingPointError) as e:
             self.x, self.S, self.P, self.window, self.nis_hist = saved
-            raise ValueError(f"GNSS fix at t={fix.t_s} rejected: filter update failed ({e})") from e
+            raise NumericalFailure(f"GNSS fix at t={fix.t_s}: the {self.method.upper()} update failed numerically "
+                                   f"({type(e).__name__}: {e}); the previous state is restored", what="IFA filter", t_s=fix.t_s) from e
 
     # ------------------------------------------------------------------ one epoch
     def _epoch(self, fix: GnssFix) -> EpochRecord:
@@ -188,7 +227,7 @@ class _Engine:
             Py_model = symmetrize(up.S_y @ up.S_y.T)
             R_used = R
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
-            raise FloatingPointError("non-finite state after the update")
+            raise NumericalFailure("non-finite state after the update", what="IFA filter", t_s=fix.t_s)
         nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
         loglik = -0.5 * (nis + float(np.linalg.slogdet(2.0 * np.pi * Py_model)[1]))
         self.nis_hist = (self.nis_hist + [nis])[-cfg.window:]
@@ -198,12 +237,12 @@ class _Engine:
         # alignment decision
         sig_h = float(np.sqrt(P_hat[m.phi_index][:, m.phi_index][2, 2]))
         consistent = len(self.nis_hist) >= cfg.window and nis_w < self._nis_limit
-        if self.status == ALIGNING and self.may_align and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
-            self.status = ALIGNED
+        if self.status == AlignmentState.ALIGNING and self.may_align and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
+            self.status = AlignmentState.ALIGNED
             self.aligned_t_s = fix.t_s
             m.feed_biases = True
-        elif self.status != ALIGNING:
-            self.status = ALIGNED if consistent else DEGRADED
+        elif self.status != AlignmentState.ALIGNING:
+            self.status = AlignmentState.ALIGNED if consistent else AlignmentState.DEGRADED
         # closed loop (eq. 24 reset): feedback, then re-express the state and its covariance
         c = m.feedback(x, fix)
         shift = lambda X: m.shift(X, c)  # noqa: E731
@@ -236,7 +275,7 @@ class InFlightAligner:
     Args:
         initial: navigation state at the start (t_s, attitude with the heading error, ...).
         lever_arm_m: IMU -> GNSS antenna in IMU (FLU) axes (3,).
-        cfg: :class:`~.model.IfaConfig` (``heading_hypotheses``, ``hypothesis_prune_log``).
+        cfg: :class:`~.model.IfaFilterConfig` (``heading_hypotheses``, ``hypothesis_prune_log``).
         method: ``add2``, ``dd2`` or ``aekf``.
         imu_dt_s: IMU sample interval (process noise per sample, stamp tolerance).
 
@@ -247,21 +286,31 @@ class InFlightAligner:
     the reported one (``.nav``, ``.x``, records, ...) is the given heading until it is dropped, then
     the best survivor.  Two hypotheses whose headings agree within ``coarse_heading_sigma_deg``
     converged to the same solution: the less likely one is dropped.  No hypothesis may declare the
-    alignment while others are alive.
+    alignment while others are alive.  A hypothesis whose update fails numerically is dropped
+    while others remain.  Each epoch's record lists these events (:class:`HypothesisEvent`);
+    :attr:`events` keeps them all, :attr:`hypotheses_failed` counts the numerical failures and
+    :attr:`chol_jitter_repairs` the Cholesky jitter repairs made by the bank.
     """
 
-    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaConfig = IfaConfig(),
+    def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(),
                  method: str = "add2", imu_dt_s: float = 0.01) -> None:
         if method not in METHODS:
             raise ValueError(f"unknown IFA method {method!r}; choose one of {METHODS}")
         self.method, self.cfg = method, cfg
+        #: Cholesky jitter repairs made by this bank (dpos_core.filters.linalg)
+        self.jitter = JitterRepairs()
+        #: every hypothesis event so far (module docstring), oldest first
+        self.events: list[HypothesisEvent] = []
+        #: hypotheses dropped because their update failed numerically
+        self.hypotheses_failed = 0
         M = cfg.heading_hypotheses
-        if M == 1:
-            self.hyps = [_Engine(initial, lever_arm_m, cfg, method, imu_dt_s)]
-        else:
-            sub = replace(cfg, heading_sigma_deg=min(cfg.heading_sigma_deg, 180.0 / M))
-            self.hyps = [_Engine(_rotate_heading(initial, k * 2.0 * np.pi / M), lever_arm_m, sub, method, imu_dt_s)
-                         for k in range(M)]
+        with self.jitter:
+            if M == 1:
+                self.hyps = [_Engine(initial, lever_arm_m, cfg, method, imu_dt_s)]
+            else:
+                sub = replace(cfg, heading_sigma_deg=min(cfg.heading_sigma_deg, 180.0 / M))
+                self.hyps = [_Engine(_rotate_heading(initial, k * 2.0 * np.pi / M), lever_arm_m, sub, method, imu_dt_s)
+                             for k in range(M)]
         self.loglik = np.zeros(M)
         self.offsets_deg = [k * 360.0 / M for k in range(M)]
         self._cur = 0
@@ -281,6 +330,11 @@ class InFlightAligner:
     def hypotheses(self) -> int:
         return len(self.hyps)
 
+    @property
+    def chol_jitter_repairs(self) -> int:
+        """Cholesky jitter repairs made by this bank so far (counted, not silent)."""
+        return self.jitter.count
+
     def __getattr__(self, name: str):
         """``status``, ``aligned``, ``aligned_t_s``, ``nav``, ``cov``, ``attitude_sigma_rad``,
         ``bias_estimates()``, ``x``, ``S``, ``P``, ``window``, ``model``, ``last_fix_t``, ``fine``:
@@ -295,26 +349,37 @@ class InFlightAligner:
             h.propagate(t_s, omega_radps, f_mps2)
 
     def check(self, fix: GnssFix) -> None:
-        """Raise ``ValueError`` if ``fix`` cannot be used now (nothing changes)."""
+        """Raise :class:`~dpos_core.errors.RejectedInput` if ``fix`` cannot be used now (nothing changes)."""
         self.engine.check(fix)
 
     def update(self, fix: GnssFix) -> EpochRecord:
-        """One filter epoch in every hypothesis, then pruning (class docstring).  Raises
-        ``ValueError`` (nothing changed) for an unusable fix; a hypothesis whose update fails
-        numerically is dropped while others remain."""
+        """One filter epoch in every hypothesis, then pruning (class docstring).
+
+        Raises :class:`~dpos_core.errors.RejectedInput` (nothing changed) for an unusable fix and
+        :class:`~dpos_core.errors.NumericalFailure` (every hypothesis restored) when the update
+        fails numerically in every hypothesis.  A hypothesis whose update fails while others
+        succeed is dropped; the returned record's ``events`` say so (and what was pruned)."""
         self.check(fix)
         recs: dict[int, EpochRecord] = {}
-        err: ValueError | None = None
-        for i, h in enumerate(self.hyps):
-            try:
-                recs[i] = h.update(fix)
-            except ValueError as e:
-                err = e
+        failed: dict[int, NumericalFailure] = {}
+        with self.jitter:
+            for i, h in enumerate(self.hyps):
+                try:
+                    recs[i] = h.update(fix)
+                except NumericalFailure as e:
+                    failed[i] = e
         if not recs:
-            raise err  # type: ignore[misc]
+            first = next(iter(failed.values()))
+            raise NumericalFailure(f"GNSS fix at t={fix.t_s}: the update failed numerically in every heading hypothesis "
+                                   f"({len(failed)}), the previous state is kept: {first}", what="IFA filter", t_s=fix.t_s) from first
+        events = [HypothesisEvent(fix.t_s, self.offsets_deg[i], "failed", f"dropped: {e}") for i, e in failed.items()]
         keep = sorted(recs)
         ll = np.array([self.loglik[i] + recs[i].loglik for i in keep])
-        alive = [k for k, i in enumerate(keep) if ll[k] >= ll.max() - self.cfg.hypothesis_prune_log]
+        limit = self.cfg.hypothesis_prune_log
+        alive = [k for k, i in enumerate(keep) if ll[k] >= ll.max() - limit]
+        events += [HypothesisEvent(fix.t_s, self.offsets_deg[keep[k]], "pruned",
+                                   f"log-likelihood {ll[k] - ll.max():.1f} below the best (limit -{limit:g})")
+                   for k in range(len(keep)) if k not in alive]
         if len(alive) > 1:  # hypotheses that converged to the same heading: keep the likelier one
             yaw = np.array([hpr_from_C_nb(quat_to_dcm(self.hyps[keep[k]].nav.q_nb))[0] for k in alive])
             order = sorted(range(len(alive)), key=lambda j: -ll[alive[j]])
@@ -322,6 +387,9 @@ class InFlightAligner:
             for j in order:
                 if all(abs(np.angle(np.exp(1j * (yaw[j] - yaw[q])))) >= self.cfg.coarse_heading_sigma_deg * DEG for q in kept):
                     kept.append(j)
+            events += [HypothesisEvent(fix.t_s, self.offsets_deg[keep[alive[j]]], "merged",
+                                       f"converged to the heading of a likelier hypothesis (within {self.cfg.coarse_heading_sigma_deg:g} deg)")
+                       for j in range(len(alive)) if j not in kept]
             alive = [alive[j] for j in sorted(kept)]
         cur = self._cur if self._cur in [keep[k] for k in alive] else keep[alive[int(np.argmax(ll[alive]))]]
         rec = recs[cur]
@@ -331,6 +399,9 @@ class InFlightAligner:
         self._cur = [keep[k] for k in alive].index(cur)
         self._sync()
         rec.hypotheses = len(self.hyps)
+        rec.events = events
+        self.events += events
+        self.hypotheses_failed += len(failed)
         self.records.append(rec)
         return rec
 
@@ -342,9 +413,9 @@ def _rotate_heading(s: NavState, dpsi_rad: float) -> NavState:
 
 
 def _jac(fn, x: FloatArray, P: FloatArray) -> FloatArray:
-    from ..filters.dd2 import numerical_jacobian
+    from ..filters.jacobian import central_difference_jacobian, steps_from_cov
 
-    return numerical_jacobian(fn, x, 1e-6 * np.maximum(np.sqrt(np.diag(P)), 1e-12))
+    return central_difference_jacobian(fn, x, steps_from_cov(P))
 
 
 # ---------------------------------------------------------------------------------- batch
@@ -358,8 +429,10 @@ class IfaResult:
     strapdown; the sample at each epoch is the corrected state).  Epochs (K filter updates):
     epochs_s (K,), x (K, n) estimates before feedback, att_sigma_rad (K, 3) 1-sigma of the
     attitude error about E, N, U, heading_sigma_deg (K,), nis (K,), nis_window (K,),
-    R_diag (K, p), status (K,).  aligned / aligned_t_s: the decision; gyro_bias_radps (3,),
-    accel_bias_mps2 (3,): final bias estimates; rejected: [(t_s, reason)]; runtime_s.
+    R_diag (K, p), status (K,) (:class:`~.states.AlignmentState` values).  aligned / aligned_t_s: the decision; gyro_bias_radps (3,),
+    accel_bias_mps2 (3,): final bias estimates; rejected: [(t_s, reason)] (rejected fixes and
+    epochs that failed numerically in every hypothesis); runtime_s; events: the bank's
+    :class:`HypothesisEvent` s; hypotheses_failed, chol_jitter_repairs: counters.
     """
 
     method: str
@@ -381,6 +454,9 @@ class IfaResult:
     final: NavState
     rejected: list[tuple[float, str]] = field(default_factory=list)
     runtime_s: float = 0.0
+    events: list[HypothesisEvent] = field(default_factory=list)
+    hypotheses_failed: int = 0
+    chol_jitter_repairs: int = 0
 
     @property
     def heading_sigma_deg(self) -> FloatArray:
@@ -391,35 +467,43 @@ class IfaResult:
         return quat_to_dcm(self.q_nb)
 
 
-def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: str = "add2",
+def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(), method: str = "add2",
         initial: NavState | None = None) -> IfaResult:
     """Align the main POS over recorded series.
 
     Args:
-        imu: ImuSeries-like (t_s (N,), omega_radps (N, 3), f_mps2 (N, 3)), mean rates over
-            ``(t_{i-1}, t_i]``, strictly increasing stamps.
-        gnss: GnssSeries-like (t_s (M,), llh (M, 3), pos_sigma_m (M, 3), vel_n_mps (M, 3),
-            vel_sigma_mps (M, 3)) at the antenna.
+        imu: the main IMU's samples (:class:`~dpos_core.series.ImuSeries`: t_s (N,), omega_radps
+            (N, 3), f_mps2 (N, 3), mean rates over ``(t_{i-1}, t_i]``), strictly increasing stamps.
+        gnss: the fixes at the antenna (:class:`~dpos_core.series.GnssSeries`: t_s (M,), llh (M, 3),
+            pos_sigma_m (M, 3), vel_n_mps (M, 3), vel_sigma_mps (M, 3)).
         lever_arm: IMU -> antenna (3,) in IMU axes.
         method: ``add2`` (default), ``dd2`` or ``aekf``.
         initial: the navigation state at the start (required: position, velocity and an attitude
             whose heading may be far off).
+
+    Raises :class:`~dpos_core.errors.RejectedInput` for unusable IMU series (fewer than two
+    samples, non-finite values, stamps not strictly increasing); bad fixes and failed epochs are
+    skipped with a warning (``IfaResult.rejected``), a dropped hypothesis is warned about.
     """
     if initial is None:
         raise ValueError("run() needs the initial navigation state")
     t_imu = np.asarray(imu.t_s, dtype=float)
-    if t_imu.ndim != 1 or t_imu.size < 2 or not np.all(np.isfinite(t_imu)) or np.any(np.diff(t_imu) <= 0):
-        raise ValueError("IMU stamps must be finite and strictly increasing")
+    if t_imu.ndim != 1:
+        raise ValueError(f"IMU stamps must have shape (N,), got {t_imu.shape}")
+    if t_imu.size < 2:
+        raise RejectedInput(f"IMU series of {t_imu.size} sample(s): at least 2 are needed", what="IMU samples", reason="too_short")
+    if not np.all(np.isfinite(t_imu)) or np.any(np.diff(t_imu) <= 0):
+        raise RejectedInput("IMU stamps must be finite and strictly increasing", what="IMU samples", reason="out_of_order")
     om, fb = np.asarray(imu.omega_radps, dtype=float), np.asarray(imu.f_mps2, dtype=float)
     if not (np.all(np.isfinite(om)) and np.all(np.isfinite(fb))):
-        raise ValueError("IMU samples contain non-finite values")
+        raise RejectedInput("IMU samples contain non-finite values", what="IMU samples", reason="nan")
     dt = float(np.median(np.diff(t_imu)))
     t0 = time.perf_counter()
     al = InFlightAligner(initial, lever_arm, cfg, method, dt)
     first = int(np.searchsorted(t_imu, initial.t_s + 1e-9))  # samples after the initial state
     i = first
     rejected: list[tuple[float, str]] = []
-    out: list[NavTrajectory] = []  # navigation of the hypothesis reported at each interval (as a node follows it)
+    out: list[NavSeries] = []  # navigation of the hypothesis reported at each interval (as a node follows it)
     g_t = np.asarray(gnss.t_s, dtype=float)
     for j in range(g_t.size):
         fix = GnssFix(float(g_t[j]), np.asarray(gnss.llh[j], dtype=float), np.asarray(gnss.pos_sigma_m[j], dtype=float),
@@ -427,8 +511,9 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
         try:
             check_fix(fix, al.last_fix_t)
             if fix.t_s > t_imu[-1] + 0.5 * dt or fix.t_s < al.model.t_s - 0.5 * dt:
-                raise ValueError(f"GNSS fix at t={fix.t_s} is outside the IMU data still to come")
-        except ValueError as e:
+                raise RejectedInput(f"GNSS fix at t={fix.t_s} is outside the IMU data still to come", what="GNSS fix",
+                                    reason="stale", t_s=fix.t_s)
+        except RejectedInput as e:
             rejected.append((fix.t_s, str(e)))
             warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
             continue
@@ -438,11 +523,14 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
             out.append(al.engine.model.chunks[-1])  # the reported hypothesis' navigation
             i = i1
         try:
-            al.update(fix)
-        except ValueError as e:
+            rec = al.update(fix)
+        except (RejectedInput, NumericalFailure) as e:
             rejected.append((fix.t_s, str(e)))
             warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
             continue
+        for ev in rec.events:
+            if ev.kind == "failed":
+                warnings.warn(f"IFA: {ev}", stacklevel=2)
         # the epoch sample of the output is the corrected state (of the hypothesis reported now)
         ch = out[-1] if out else None
         if ch is not None and abs(ch.t_s[-1] - al.model.t_s) < 1e-12:
@@ -452,8 +540,8 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
         al.propagate(t_imu[i:], om[i:], fb[i:])
         out.append(al.engine.model.chunks[-1])
     runtime = time.perf_counter() - t0
-    chunks = [NavTrajectory(np.array([initial.t_s]), initial.q_nb[None], initial.vel_n_mps[None], initial.llh[None])]
-    nav = NavTrajectory.concatenate(chunks + out)
+    chunks = [NavSeries(np.array([initial.t_s]), initial.q_nb[None], initial.vel_n_mps[None], initial.llh[None])]
+    nav = NavSeries.concatenate(chunks + out)
     recs = al.records
     n, p = al.model.n, al.model.p
     gb, ab = al.bias_estimates()
@@ -463,7 +551,8 @@ def run(imu, gnss, lever_arm: ArrayLike, cfg: IfaConfig = IfaConfig(), method: s
         np.array([np.sqrt(np.diag(r.P)[al.model.phi_index]) for r in recs]).reshape(-1, 3),
         np.array([r.nis for r in recs]), np.array([r.nis_window for r in recs]),
         np.array([r.R_diag for r in recs]).reshape(-1, p), np.array([r.status for r in recs], dtype=int),
-        al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime,
+        al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime, list(al.events), al.hypotheses_failed,
+        al.chol_jitter_repairs,
     )
 
 
@@ -475,4 +564,4 @@ def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray
     return hpr_error(hpr_from_C_nb(result.C_nb), hpr_from_C_nb(quat_to_dcm(truth_q_nb))) / DEG
 
 
-__all__ = ["METHODS", "InFlightAligner", "IfaResult", "run", "attitude_errors_deg"]
+__all__ = ["METHODS", "InFlightAligner", "IfaResult", "HypothesisEvent", "run", "attitude_errors_deg"]

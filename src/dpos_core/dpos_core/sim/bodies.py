@@ -21,22 +21,23 @@ Antennas are rigid on their carrier (a sub-IMU, or a wing section for antennas w
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
+from collections.abc import Callable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.units import FloatArray
 
 from ..attitude import mount_dcm, right_jacobian, rotvec_to_dcm, skew  # noqa: F401 (mount_dcm re-exported)
 from ..config.flexure import K_BEND
 from ..kinematics import Motion
 
 
-
 def flexed_body_motion(
     carrier: Motion,
     lever_arm_b_m: ArrayLike,
     C_b_s0: ArrayLike,
-    flexure: "callable[[FloatArray], tuple[FloatArray, FloatArray]] | None",
+    flexure: Callable[[FloatArray], tuple[FloatArray, FloatArray]] | None,
     k_bend: float = K_BEND,
 ) -> Motion:
     """Motion of a body on the (flexing) wing of ``carrier`` (see module docstring).

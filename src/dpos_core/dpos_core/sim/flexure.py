@@ -15,16 +15,15 @@ independent realisations.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray, DEG
-
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.units import FloatArray
 
 from .._strapdown_kernel import linear_recursion
 from ..config.flexure import FlexureModel
-
 
 
 @dataclass(frozen=True)
@@ -44,7 +43,7 @@ class FlexureRealization:
     theta_dot: FloatArray
 
     @classmethod
-    def sample(cls, model: FlexureModel, duration_s: float, dt_s: float, rng: np.random.Generator, t0_s: float = 0.0) -> "FlexureRealization":
+    def sample(cls, model: FlexureModel, duration_s: float, dt_s: float, rng: np.random.Generator, t0_s: float = 0.0) -> FlexureRealization:
         n = int(np.ceil(duration_s / dt_s)) + 2
         Phi, Q = model.discrete(dt_s)
         P0 = model.stationary_cov()

@@ -20,17 +20,16 @@ interpolated with cubic Hermite polynomials.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray, DEG, G0_MPS2
-
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from dpos_core.units import DEG, G0_MPS2, FloatArray
 
 from .. import earth
 from .._strapdown_kernel import rk4_llh
 from ..frames import C_nb_from_hpr
-
 
 
 @dataclass(frozen=True)

@@ -8,21 +8,18 @@ name; any other argument is a path.  The aircraft and sensor models are those of
 
 from __future__ import annotations
 
-from dpos_core.units import DEG
-
 from dataclasses import dataclass, field, fields
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+
+from dpos_core.units import DEG
 
 from ..config.aircraft import AircraftConfig, load_aircraft, scenario_aircraft_ref
 from ..config.files import ConfigError, build, builtin_names, config_text, read_yaml, vec3  # noqa: F401 (re-export)
 from ..config.sensors import GnssModel, ImuErrorModel, NavNoiseModel, NoiseInterval
 from .flight import Flight, FlightStart, Segment
-
 
 
 @dataclass(frozen=True)
@@ -76,7 +73,7 @@ class Scenario:
         """The truth flight, optionally cut to ``duration_s``."""
         return Flight(self.start, list(_cut(self.segments, duration_s)), grid_hz=max(100.0, self.rates.master_imu_hz))
 
-    def with_duration(self, duration_s: float | None) -> "Scenario":
+    def with_duration(self, duration_s: float | None) -> Scenario:
         if duration_s is None:
             return self
         if not duration_s > 0:

@@ -13,68 +13,23 @@ Times are scenario seconds from the start; ``scenario.start_time_s`` is the stam
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 import zlib
-from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import dcm_to_quat, quat_to_dcm
-from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..attitude import dcm_to_quat, mount_dcm, quat_to_dcm
+from ..frames import C_nb_from_hpr, hpr_from_C_nb, hpr_sigma_to_rotation_cov
 from ..kinematics import Motion, increments_from_motion, nav_from_ecef
-from ..attitude import mount_dcm
+from ..series import GnssSeries, ImuSeries, NavSeries
 from .bodies import flexed_body_motion, rigid_offset_motion
 from .flexure import FlexureRealization
 from .flight import Flight
 from .scenario import Scenario
 from .sensors import draw_biases, measure
-from dpos_core.units import DEG
-
-
-
-@dataclass(frozen=True)
-class ImuSeries:
-    """IMU samples: t_s (N,), omega_radps (N, 3), f_mps2 (N, 3) in the IMU's FLU axes."""
-
-    t_s: FloatArray
-    omega_radps: FloatArray
-    f_mps2: FloatArray
-
-
-@dataclass(frozen=True)
-class NavSeries:
-    """Navigation samples: t_s (N,), llh (N, 3) [rad, rad, m], vel_n_mps (N, 3) local ENU,
-    q_nb (N, 4) body FLU -> local ENU; 1-sigma attitude [rad] (heading, pitch, roll), velocity
-    [m/s] and position [m] (ENU) of the series (zeros for truth); the body rate w.r.t. the Earth
-    (N, 3) when known."""
-
-    t_s: FloatArray
-    llh: FloatArray
-    vel_n_mps: FloatArray
-    q_nb: FloatArray
-    att_sigma_rad: FloatArray
-    vel_sigma_mps: FloatArray
-    pos_sigma_m: FloatArray
-    omega_eb_b_radps: FloatArray | None = None  #: (N, 3) body rate w.r.t. the Earth, when known
-
-    @property
-    def C_nb(self) -> FloatArray:
-        return quat_to_dcm(self.q_nb)
-
-
-@dataclass(frozen=True)
-class GnssSeries:
-    """GNSS fixes at the antenna: t_s (N,), llh (N, 3), pos_sigma_m (N, 3) ENU, vel_n_mps (N, 3), vel_sigma_mps (N, 3)."""
-
-    t_s: FloatArray
-    llh: FloatArray
-    pos_sigma_m: FloatArray
-    vel_n_mps: FloatArray
-    vel_sigma_mps: FloatArray
 
 
 class SimulatedSession:
@@ -165,8 +120,7 @@ class SimulatedSession:
         t = np.asarray(t_s, dtype=float)
         p, v, C, w = self.motion(body)(t)
         llh, vel, C_nb = nav_from_ecef(p, v, C)
-        z = np.zeros(3)
-        return NavSeries(t, llh, vel, dcm_to_quat(C_nb), z, z, z, w)
+        return NavSeries(t, dcm_to_quat(C_nb), vel, llh, omega_eb_b_radps=w)
 
     # ------------------------------------------------------------------ sensors
     def _rate(self, body: str) -> float:
@@ -201,7 +155,9 @@ class SimulatedSession:
         return draw_biases(model, self.rng(f"imu/{name}"))
 
     def master_nav_reference(self) -> NavSeries:
-        """Main-system navigation = truth + white noise (``alignment: reference``, [Gong2018])."""
+        """Main-system navigation = truth + white noise (``alignment: reference``, [Gong2018]), with
+        the body rate (truth) and the noise's covariances: heading, pitch and roll sigmas as a
+        rotation covariance (frames.hpr_sigma_to_rotation_cov), diagonal velocity and position."""
         nz = self.scenario.master_nav_noise
         tr = self.truth("master", self.sample_times(self.scenario.rates.master_nav_hz, include_start=True))
         rng = self.rng("nav/master")
@@ -211,9 +167,12 @@ class SimulatedSession:
         vel_sig = np.full(3, nz.vel_mps)
         vel = tr.vel_n_mps + rng.normal(0.0, 1.0, (n, 3)) * vel_sig
         pos_sig = np.full(3, nz.pos_m)
-        llh = tr.llh + _enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
+        llh = tr.llh + earth.enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
         q = dcm_to_quat(C_nb_from_hpr(hpr[:, 0], hpr[:, 1], hpr[:, 2]))
-        return NavSeries(tr.t_s, llh, vel, q, att_sig, vel_sig, pos_sig, tr.omega_eb_b_radps)
+        return NavSeries(tr.t_s, q, vel, llh, omega_eb_b_radps=tr.omega_eb_b_radps,
+                         att_cov=hpr_sigma_to_rotation_cov(quat_to_dcm(q), att_sig),
+                         vel_cov=np.broadcast_to(np.diag(vel_sig**2), (n, 3, 3)).copy(),
+                         pos_cov=np.broadcast_to(np.diag(pos_sig**2), (n, 3, 3)).copy())
 
     def gnss(self) -> GnssSeries:
         g = self.scenario.gnss
@@ -224,13 +183,7 @@ class SimulatedSession:
         n = t.shape[0]
         pos_sig = scale[:, None] * np.asarray(g.pos_sigma_m)
         vel_sig = scale[:, None] * np.asarray(g.vel_sigma_mps)
-        llh = tr.llh + _enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
+        llh = tr.llh + earth.enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
         vel = tr.vel_n_mps + rng.normal(0.0, 1.0, (n, 3)) * vel_sig
         return GnssSeries(t[ok], llh[ok], pos_sig[ok], vel[ok], vel_sig[ok])
 
-
-def _enu_to_dllh(d_enu_m: FloatArray, llh: FloatArray) -> FloatArray:
-    """Small ENU displacements (N, 3) -> (dlat, dlon, dh) at positions llh (N, 3)."""
-    r_m, r_n = earth.radii_of_curvature(llh[:, 0])
-    h = llh[:, 2]
-    return np.stack([d_enu_m[:, 1] / (r_m + h), d_enu_m[:, 0] / ((r_n + h) * np.cos(llh[:, 0])), d_enu_m[:, 2]], axis=-1)

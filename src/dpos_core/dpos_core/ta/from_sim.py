@@ -2,26 +2,19 @@
 
 from __future__ import annotations
 
-import numpy as np
-
-from ..frames import hpr_sigma_to_rotation_cov
+from ..series import ImuSeries, NavSeries
 from ..sim.session import SimulatedSession
-from .model import ImuData, Installation, MasterNav
+from .model import Installation
 
 
 def installation(session: SimulatedSession, name: str) -> Installation:
     return Installation.from_aircraft(session.scenario.aircraft, name)
 
 
-def master_nav(session: SimulatedSession) -> MasterNav:
-    nav = session.master_nav_reference()
-    n = nav.t_s.size
-    C = nav.C_nb
-    return MasterNav(nav.t_s, nav.llh, nav.vel_n_mps, C, nav.omega_eb_b_radps,
-                     hpr_sigma_to_rotation_cov(C, nav.att_sigma_rad), np.broadcast_to(np.diag(nav.vel_sigma_mps**2), (n, 3, 3)).copy(),
-                     np.broadcast_to(np.diag(nav.pos_sigma_m**2), (n, 3, 3)).copy())
+def master_nav(session: SimulatedSession) -> NavSeries:
+    """The main-system navigation with its body rate and covariances (``alignment: reference``)."""
+    return session.master_nav_reference()
 
 
-def sub_imu(session: SimulatedSession, name: str) -> ImuData:
-    imu = session.sub_imu(name)
-    return ImuData(imu.t_s, imu.omega_radps, imu.f_mps2)
+def sub_imu(session: SimulatedSession, name: str) -> ImuSeries:
+    return session.sub_imu(name)

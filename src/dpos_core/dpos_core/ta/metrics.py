@@ -9,31 +9,18 @@ baseline (master-to-antenna distance) [m]; then means over the segments and over
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
-from dataclasses import dataclass
-
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import FloatArray
 
 from .. import earth
 from ..frames import hpr_error, hpr_from_C_nb
-
+from ..series import NavSeries
 
 KEYS = ("heading_deg", "pitch_deg", "roll_deg", "vel_e_mps", "vel_n_mps", "vel_u_mps", "lat_m", "lon_m", "h_m", "baseline_m")
 
 
-@dataclass(frozen=True)
-class Trajectory:
-    """t_s (N,), llh (N, 3), vel_n_mps (N, 3), C_nb (N, 3, 3)."""
-
-    t_s: FloatArray
-    llh: FloatArray
-    vel_n_mps: FloatArray
-    C_nb: FloatArray
-
-
-def errors(est: Trajectory, truth: Trajectory, master_est: FloatArray | None = None, master_true: FloatArray | None = None) -> dict[str, FloatArray]:
+def errors(est: NavSeries, truth: NavSeries, master_est: FloatArray | None = None, master_true: FloatArray | None = None) -> dict[str, FloatArray]:
     """Error series (N,) per key, est - truth at the same stamps.
 
     ``master_est`` / ``master_true``: master positions (N, 3) llh for the baseline error
@@ -42,16 +29,15 @@ def errors(est: Trajectory, truth: Trajectory, master_est: FloatArray | None = N
     if est.t_s.shape != truth.t_s.shape or np.max(np.abs(est.t_s - truth.t_s), initial=0.0) > 1e-6:
         raise ValueError("estimate and truth must be sampled at the same stamps")
     e_hpr = np.rad2deg(hpr_error(hpr_from_C_nb(est.C_nb), hpr_from_C_nb(truth.C_nb)))
-    r_m, r_n = earth.radii_of_curvature(truth.llh[:, 0])
-    d = est.llh - truth.llh
+    d_enu = earth.dllh_to_enu(est.llh - truth.llh, truth.llh)
     out = {
         "heading_deg": e_hpr[:, 0], "pitch_deg": e_hpr[:, 1], "roll_deg": e_hpr[:, 2],
         "vel_e_mps": est.vel_n_mps[:, 0] - truth.vel_n_mps[:, 0],
         "vel_n_mps": est.vel_n_mps[:, 1] - truth.vel_n_mps[:, 1],
         "vel_u_mps": est.vel_n_mps[:, 2] - truth.vel_n_mps[:, 2],
-        "lat_m": d[:, 0] * (r_m + truth.llh[:, 2]),
-        "lon_m": d[:, 1] * (r_n + truth.llh[:, 2]) * np.cos(truth.llh[:, 0]),
-        "h_m": d[:, 2],
+        "lat_m": d_enu[:, 1],
+        "lon_m": d_enu[:, 0],
+        "h_m": d_enu[:, 2],
     }
     if master_est is not None and master_true is not None:
         def dist(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -71,7 +57,7 @@ def rmse_std(e: FloatArray) -> tuple[float, float]:
 
 def segment_stats(err: dict[str, FloatArray], t_s: FloatArray, segments: dict[str, tuple[float, float]]) -> dict:
     """``{"rmse": {key: mean over segments}, "std": {...}, "segments": {name: {"rmse": ..., "std": ...}}}``."""
-    per = {}
+    per: dict[str, dict[str, dict[str, float]]] = {}
     for name, (a, b) in segments.items():
         sel = (t_s >= a) & (t_s <= b)
         per[name] = {"rmse": {}, "std": {}}

@@ -45,50 +45,24 @@ strapdown and the error states shifted by the applied correction.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray, DEG
-
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import DEG, FloatArray
 
 from .. import earth
 from ..attitude import compose_rotvec, mount_dcm, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
 from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
-from ..ins_errors import Interval, IntervalIntegrals, propagate_nav_errors, right_jacobian_inv  # noqa: F401 (re-export)
-from ..strapdown import NavState, NavTrajectory, Strapdown
-
+from ..errors import RejectedInput
+from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors, right_jacobian_inv  # noqa: F401 (re-export)
+from ..series import ImuSeries, NavSeries
+from ..strapdown import NavState, Strapdown
 
 N_STATES = 24
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
 NAV = slice(0, 9)
-
-
-@dataclass(frozen=True)
-class ImuData:
-    """Sub-IMU samples: t_s (N,), omega_radps (N, 3), f_mps2 (N, 3), the mean over (t_{k-1}, t_k]."""
-
-    t_s: FloatArray
-    omega_radps: FloatArray
-    f_mps2: FloatArray
-
-
-@dataclass(frozen=True)
-class MasterNav:
-    """Main-system navigation: t_s (M,), llh (M, 3), vel_n_mps (M, 3), C_nb (M, 3, 3), omega_b_radps (M, 3)
-    (body rate w.r.t. the Earth, master axes); att_cov (M, 3, 3): covariance of its attitude error
-    as a rotation about the local ENU axes [rad^2]; vel_cov (M, 3, 3) local ENU [m^2/s^2];
-    pos_cov (M, 3, 3) local ENU [m^2]."""
-
-    t_s: FloatArray
-    llh: FloatArray
-    vel_n_mps: FloatArray
-    C_nb: FloatArray
-    omega_b_radps: FloatArray
-    att_cov: FloatArray
-    vel_cov: FloatArray
-    pos_cov: FloatArray  #: (M, 3, 3) local ENU [m^2]
 
 
 @dataclass(frozen=True)
@@ -103,7 +77,7 @@ class Installation:
     k_bend: float = K_BEND
 
     @classmethod
-    def from_aircraft(cls, aircraft, name: str) -> "Installation":
+    def from_aircraft(cls, aircraft, name: str) -> Installation:
         """Sub-IMU ``name`` as the aircraft configuration describes it: the flexure scaled to its
         span; the rigid misalignment rho is what the filter estimates, so only the nominal mount
         enters."""
@@ -155,8 +129,8 @@ class TransferAlignmentModel:
     available for the backward pass and the output.
     """
 
-    imu: ImuData
-    master: MasterNav
+    imu: ImuSeries  #: the sub-IMU's samples
+    master: NavSeries  #: main-system navigation with omega_eb_b_radps, att_cov, vel_cov and pos_cov
     install: Installation
     cfg: TAConfig
     initial: NavState
@@ -168,19 +142,26 @@ class TransferAlignmentModel:
     n_epochs: int = field(init=False)
 
     def __post_init__(self) -> None:
+        # the master's body rate and covariances (ValueError without them)
+        self._w_m, self._cov_att, self._cov_vel, self._cov_pos = self.master.required("omega_eb_b_radps", "att_cov", "vel_cov", "pos_cov")
         t_imu = self.imu.t_s
-        if t_imu.ndim != 1 or t_imu.size < 2 or np.any(np.diff(t_imu) <= 0):
-            raise ValueError("sub-IMU stamps must be strictly increasing")
+        if t_imu.ndim != 1:
+            raise ValueError(f"sub-IMU stamps must have shape (N,), got {t_imu.shape}")
+        if t_imu.size < 2:
+            raise RejectedInput(f"{t_imu.size} sub-IMU sample(s): at least 2 are needed", what="sub-IMU samples", reason="too_short")
+        if np.any(np.diff(t_imu) <= 0):
+            raise RejectedInput("sub-IMU stamps must be strictly increasing", what="sub-IMU samples", reason="out_of_order")
         if not np.all(np.isfinite(self.imu.omega_radps)) or not np.all(np.isfinite(self.imu.f_mps2)):
-            raise ValueError("sub-IMU samples contain NaN or infinite values")
+            raise RejectedInput("sub-IMU samples contain NaN or infinite values", what="sub-IMU samples", reason="nan")
         after = t_imu > self.initial.t_s + 1e-9  # samples before the first master epoch cannot be aligned
         if not after.all():
-            self.imu = ImuData(t_imu[after], self.imu.omega_radps[after], self.imu.f_mps2[after])
+            self.imu = self.imu.select(after)
             t_imu = self.imu.t_s
             if t_imu.size < 2:
-                raise ValueError("the sub-IMU data ends before the main-system navigation starts")
+                raise RejectedInput("the sub-IMU data ends before the main-system navigation starts", what="sub-IMU samples",
+                                    reason="too_short")
         if np.any(np.diff(self.master.t_s) <= 0):
-            raise ValueError("master navigation stamps must be strictly increasing")
+            raise RejectedInput("master navigation stamps must be strictly increasing", what="master navigation", reason="out_of_order")
         t0 = self.initial.t_s
         t_end = min(t_imu[-1], self.master.t_s[-1])
         step = 1.0 / self.cfg.filter_rate_hz
@@ -193,7 +174,7 @@ class TransferAlignmentModel:
         self.strapdown = Strapdown(self.initial)
         self._intervals: list[Interval] = []
         self._epochs: list[_Epoch | None] = [None] * self.n_epochs
-        self._chunks: list[NavTrajectory] = []
+        self._chunks: list[NavSeries] = []
         self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
         self._flex = self.install.flexure
         self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
@@ -202,11 +183,13 @@ class TransferAlignmentModel:
         self._build_epoch(0)
 
     # ------------------------------------------------------------------ nominal / epochs
-    def _master_at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    def _master_at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+        """Master llh, velocity, C_nb, body rate, attitude / velocity / position covariance at t."""
         m = self.master
+        w, ca, cv, cp = self._w_m, self._cov_att, self._cov_vel, self._cov_pos
         j = int(np.searchsorted(m.t_s, t))
         if j < m.t_s.size and abs(m.t_s[j] - t) < 1e-6:
-            return m.llh[j], m.vel_n_mps[j], m.C_nb[j], m.omega_b_radps[j], m.att_cov[j], m.vel_cov[j], m.pos_cov[j]
+            return m.llh[j], m.vel_n_mps[j], m.C_nb[j], w[j], ca[j], cv[j], cp[j]
         if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > 0.5:
             return None  # outside the master data or inside a gap: no measurement
         a = (t - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
@@ -215,7 +198,7 @@ class TransferAlignmentModel:
         C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
         lerp = lambda u, v: (1 - a) * u + a * v  # noqa: E731
         return (lerp(m.llh[j - 1], m.llh[j]), lerp(m.vel_n_mps[j - 1], m.vel_n_mps[j]), C,
-                lerp(m.omega_b_radps[j - 1], m.omega_b_radps[j]), m.att_cov[j], m.vel_cov[j], m.pos_cov[j])
+                lerp(w[j - 1], w[j]), ca[j], cv[j], cp[j])
 
     def _build_epoch(self, k: int) -> None:
         nom = self._nominal_at[k]
@@ -238,10 +221,7 @@ class TransferAlignmentModel:
         z = [z_att, z_vel]
         if self.cfg.use_position:
             # p_est - p_m - C_m r0 in local ENU metres at the sub-IMU
-            pe_s = earth.geodetic_to_ecef(*nom.llh)
-            pe_m = earth.geodetic_to_ecef(*llh_m)
-            C_en_s = earth.C_en(nom.llh[0], nom.llh[1])
-            z.append(C_en_s.T @ (pe_s - pe_m) - C_m @ ins.lever_arm_m)
+            z.append(earth.enu_between(nom.llh, llh_m) - C_m @ ins.lever_arm_m)
             R[6:, 6:] = cov_p + np.eye(3) * self.cfg.pos_noise_floor_m**2
         self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m)
 
@@ -257,7 +237,10 @@ class TransferAlignmentModel:
         self._chunks.append(chunk)
         acc = IntervalIntegrals(start)
         acc.add(start, chunk, f, dt[:, 0])
-        self._intervals.append(acc.close())
+        interval = acc.close()
+        if interval is None:  # the epochs are distinct sub-IMU sample times: some time always passes
+            raise RuntimeError(f"no time passed between epochs {k} and {k + 1} (t = {self.epochs_s[k]:.6f} s)")
+        self._intervals.append(interval)
         self._nominal_at.append(self.strapdown.state)
         self._build_epoch(k + 1)
 
@@ -290,31 +273,32 @@ class TransferAlignmentModel:
 
     def _process_noise(self, T: float) -> FloatArray:
         """Process noise (24, 24) of an interval of length T (module docstring)."""
-        imu = self.install.imu
-        dt = self._imu_dt_s
         from dpos_core.units import DEG_PER_H, UG_MPS2
 
-        qg = (imu.gyro_noise_deg_h * DEG_PER_H) ** 2 * dt * T
-        qa = (imu.accel_noise_ug * UG_MPS2) ** 2 * dt * T
+        imu = self.install.imu
         Q = np.zeros((N_STATES, N_STATES))
-        Q[PHI, PHI] = np.eye(3) * qg
-        Q[DV, DV] = np.eye(3) * qa
-        Q[DP, DP] = np.eye(3) * qa * T * T / 3.0
-        Q[DV, DP] = Q[DP, DV] = np.eye(3) * qa * T / 2.0
+        Q[NAV, NAV] = nav_process_noise(T, self._imu_dt_s, imu.gyro_noise_deg_h * DEG_PER_H, imu.accel_noise_ug * UG_MPS2)  # PHI, DV, DP
         Qf = self._flex_discrete(T)[1]
         for i in range(3):
             ii = [18 + i, 21 + i]
             Q[np.ix_(ii, ii)] = Qf[i]
         return Q
 
+    def _epoch(self, k: int) -> _Epoch:
+        """The measurement data of epoch k (built when the nominal reaches it: by the feedback of epoch k - 1)."""
+        ep = self._epochs[k]
+        if ep is None:
+            raise RuntimeError(f"epoch {k} is not built yet: the filter has not fed back epoch {k - 1}")
+        return ep
+
     def y(self, k: int) -> FloatArray | None:
-        return self._epochs[k].y
+        return self._epoch(k).y
 
     def R(self, k: int) -> FloatArray:
-        return self._epochs[k].R
+        return self._epoch(k).R
 
     def h(self, k: int, x: FloatArray) -> FloatArray:
-        ep = self._epochs[k]
+        ep = self._epoch(k)
         A, C_m, w_m = ep.A, ep.C_m, ep.w_m
         ins = self.install
         q = quat_mul(quat_conj(rotvec_to_quat(x[..., TH] @ A.T)),
@@ -335,9 +319,7 @@ class TransferAlignmentModel:
     def feedback(self, k: int, mean: FloatArray) -> FloatArray:
         c = np.zeros(N_STATES)
         c[NAV] = mean[..., NAV]
-        nom = self.strapdown.state
-        r_m, r_n = earth.radii_of_curvature(nom.llh[0])
-        dllh = np.array([c[7] / (r_m + nom.llh[2]), c[6] / ((r_n + nom.llh[2]) * np.cos(nom.llh[0])), c[8]])
+        dllh = earth.enu_to_dllh(c[DP], self.strapdown.state.llh)
         self.strapdown.correct(phi_n_rad=c[PHI], dvel_n_mps=c[DV], dllh=dllh)
         if k + 1 < self.n_epochs:
             self._propagate(k)
@@ -370,7 +352,7 @@ class TransferAlignmentModel:
             P[np.ix_(ii, ii)] = Pf[i] + np.diag([1e-16, 1e-16])
         return np.zeros(N_STATES), P
 
-    def nominal_chunks(self) -> list[NavTrajectory]:
+    def nominal_chunks(self) -> list[NavSeries]:
         return self._chunks
 
     def nominal_at_epochs(self) -> list[NavState]:

@@ -14,21 +14,21 @@ k and its end error is the estimate at k + 1 before that epoch's correction.
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray, DEG
-
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import dcm_to_quat, quat_to_dcm, rotvec_to_dcm
+from ..attitude import compose_rotvec, dcm_to_quat, quat_to_dcm, rotvec_to_dcm
+from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
 from ..filters.runners import rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
-from ..attitude import compose_rotvec
-from .model import DP, DV, PHI, Installation, ImuData, MasterNav, TAConfig, TransferAlignmentModel
+from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel
 
 METHODS = ("ukf", "urtss", "upf", "ups")
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
@@ -40,7 +40,8 @@ class TAResult:
 
     t_s (N,), llh (N, 3), vel_n_mps (N, 3), q_nb (N, 4); sigma (N, 9): 1-sigma of
     [phi (3, rad), dv (3, m/s), dp (3, m, ENU)]; epochs_s (K,), x (K, 24), P (K, 24, 24): the
-    state estimates at the epochs (after their correction); method; particles; ess (K,) for PF.
+    state estimates at the epochs (after their correction); method; particles; ess (K,) for PF;
+    chol_jitter_repairs: Cholesky factors that needed a diagonal jitter (dpos_core.filters.linalg).
     """
 
     method: str
@@ -53,13 +54,14 @@ class TAResult:
     x: FloatArray
     P: FloatArray
     ess: FloatArray | None = None
+    chol_jitter_repairs: int = 0
 
     @property
     def C_nb(self) -> FloatArray:
         return quat_to_dcm(self.q_nb)
 
 
-def initial_from_master(master: MasterNav, install: Installation, attitude_error_hpr_deg=(0.0, 0.0, 0.0)) -> NavState:
+def initial_from_master(master: NavSeries, install: Installation, attitude_error_hpr_deg=(0.0, 0.0, 0.0)) -> NavState:
     """Sub-IMU start state at the first master epoch: master position + lever arm, master velocity
     + lever-arm velocity, master attitude x nominal mount, optionally rotated by an initial
     attitude error (aviation heading/pitch/roll offsets, as in [Gong2018]'s 40 deg test)."""
@@ -69,15 +71,14 @@ def initial_from_master(master: MasterNav, install: Installation, attitude_error
     if np.any(np.asarray(attitude_error_hpr_deg) != 0.0):
         hpr = hpr_from_C_nb(C_s) + np.asarray(attitude_error_hpr_deg, dtype=float) * DEG
         C_s = C_nb_from_hpr(*hpr)
-    p_e = earth.geodetic_to_ecef(*master.llh[0]) + earth.C_en(master.llh[0, 0], master.llh[0, 1]) @ (C_m @ r)
-    lat, lon, h = earth.ecef_to_geodetic(p_e)
-    v = master.vel_n_mps[0] + C_m @ np.cross(master.omega_b_radps[0], r)
-    return NavState(master.t_s[0], dcm_to_quat(C_s), v, [float(lat), float(lon), float(h)])
+    (w_m,) = master.required("omega_eb_b_radps")
+    v = master.vel_n_mps[0] + C_m @ np.cross(w_m[0], r)
+    return NavState(master.t_s[0], dcm_to_quat(C_s), v, earth.offset_llh(master.llh[0], C_m @ r))
 
 
 def run(
-    imu: ImuData,
-    master: MasterNav,
+    imu: ImuSeries,
+    master: NavSeries,
     install: Installation,
     cfg: TAConfig = TAConfig(),
     method: str = "ups",
@@ -90,14 +91,28 @@ def run(
 ) -> TAResult:
     """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` with ``oracle_truth =
     (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
-    the particles' UKFs for upf/ups (filters.runners; default the shared linearization)."""
+    the particles' UKFs for upf/ups (filters.runners; default the shared linearization).
+
+    Unusable data raise :class:`~dpos_core.errors.RejectedInput` (NaN samples, stamps out of
+    order, no sub-IMU data after the master starts); a filter or smoother that fails beyond
+    repair raises :class:`~dpos_core.errors.NumericalFailure`.  The Cholesky jitter repairs made
+    on the way are counted in ``TAResult.chol_jitter_repairs``."""
+    repairs = JitterRepairs()
+    with repairs:
+        res = _run(imu, master, install, cfg, method, particles, seed, initial, points, oracle_truth, upf_engine)
+    res.chol_jitter_repairs = repairs.count
+    return res
+
+
+def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig, method: str, particles: int, seed: int,
+         initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine) -> TAResult:
     if method not in METHODS + (ORACLE,):
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
         initial = initial_from_master(master, install)
     model = TransferAlignmentModel(imu, master, install, cfg, initial)
     x0, P0 = model.prior()
-    ess = None
+    ess: FloatArray | None = None
     if method == ORACLE:
         from .oracle import LinearizedAboutTruth
 
@@ -105,7 +120,7 @@ def run(
             raise ValueError("the oracle needs the truth (evaluation of simulations only)")
         lin = LinearizedAboutTruth(model, *oracle_truth)
         tr = run_sigma_point_filter(lin, x0, P0, points)
-        x, P = smooth_gaussian(tr)
+        x, P = lin.to_model(*smooth_gaussian(tr))
         return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None)
     if method in ("ukf", "urtss"):
         tr = run_sigma_point_filter(model, x0, P0, points)
@@ -115,21 +130,26 @@ def run(
         else:
             x, P = tr.x_f, tr.P_f
     else:
-        tr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine)
-        corr = tr.corrections
-        ess = tr.ess
+        ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine)
+        corr = ptr.corrections
+        ess = ptr.ess
         if method == "ups":
-            _, x, P = rb_smooth(tr)
+            _, x, P = rb_smooth(ptr)
         else:
-            x, P = tr.mixture.x_f, tr.mixture.P_f
+            x, P = ptr.mixture.x_f, ptr.mixture.P_f
     out = _apply(model, x, P, corr)
     return TAResult(method, *out, model.epochs_s, x, P, ess)
 
 
-def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray):
-    """The trajectory at the IMU rate from the epoch errors (module docstring)."""
+def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
+           corr: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``."""
     chunks = model.nominal_chunks()
-    ts, llhs, vels, qs, sigs = [], [], [], [], []
+    ts: list[FloatArray] = []
+    llhs: list[FloatArray] = []
+    vels: list[FloatArray] = []
+    qs: list[FloatArray] = []
+    sigs: list[FloatArray] = []
     for k, ch in enumerate(chunks):
         e0 = x[k]
         e1 = x[k + 1].copy()
@@ -142,8 +162,10 @@ def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: Fl
         s = np.sqrt(np.maximum((1.0 - a) * np.diagonal(P[k])[None, :9] + a * np.diagonal(P[k + 1])[None, :9], 0.0))
         C = rotvec_to_dcm(err[:, PHI]) @ ch.C_nb
         v = ch.vel_n_mps - err[:, DV]
-        r_m, r_n = earth.radii_of_curvature(ch.llh[:, 0])
-        h = ch.llh[:, 2]
-        dllh = np.stack([err[:, 7] / (r_m + h), err[:, 6] / ((r_n + h) * np.cos(ch.llh[:, 0])), err[:, 8]], -1)
-        ts.append(ch.t_s), llhs.append(ch.llh - dllh), vels.append(v), qs.append(dcm_to_quat(C)), sigs.append(s)
+        dllh = earth.enu_to_dllh(err[:, DP], ch.llh)
+        ts.append(ch.t_s)
+        llhs.append(ch.llh - dllh)
+        vels.append(v)
+        qs.append(dcm_to_quat(C))
+        sigs.append(s)
     return (np.concatenate(ts), np.concatenate(llhs), np.concatenate(vels), np.concatenate(qs), np.concatenate(sigs))

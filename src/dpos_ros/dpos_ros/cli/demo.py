@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from dpos_core.ta.pipeline import METHODS
-
-from ..graph import Graph, GraphError, GraphSpec, NodeSpec
+from dpos_ros.contract import topics as T
+from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec, NodeSpec
 
 
 def parser() -> argparse.ArgumentParser:
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     spec = GraphSpec(nodes=[
         NodeSpec("transfer_align_node", "transfer_align_node",
                  {"method": args.method, "aircraft_config": "paper_su_pair", "output_dir": str(out), "initial_attitude_error_deg": 1.0},
-                 ready_subscribes=("/master/nav", "/sub_imu/sub_r/imu", "/sub_imu/sub_l/imu")),
+                 ready_subscribes=(T.MASTER_NAV, "/sub_imu/sub_r/imu", "/sub_imu/sub_l/imu")),
         NodeSpec("ifa_node", "ifa_node", {"method": "add2", "aircraft_config": "paper_su_pair", "use_reported_sigma": True}),
         NodeSpec("pos_master_node", "pos_master_node", {**sim, "alignment": args.alignment,
                                                         **({"initial_heading_error_deg": [args.initial_heading_error]} if args.alignment == "ifa" else {})}),

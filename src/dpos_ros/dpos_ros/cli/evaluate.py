@@ -20,16 +20,15 @@ from pathlib import Path
 import numpy as np
 
 from dpos_core.config import ConfigError, config_text
+from dpos_core.ifa.evaluate import is_ifa_scenario
+from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import metrics as M
-from dpos_core.ifa.evaluate import is_ifa_scenario
-from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.ta.pipeline import METHODS, ORACLE
-
-from ..products import evaluate, metrics_json, report_md, solve
-from ..session_io import session_from_streams
-from ..sim_streams import session_custom_data, session_streams
+from dpos_ros.devices.sim_streams import session_custom_data, session_streams
+from dpos_ros.io.session import session_from_streams
+from dpos_ros.products.ta import evaluate, metrics_json, report_md, solve
 
 
 def _oracle_truth(ss: SimulatedSession, name: str):
@@ -100,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         ap.error(str(e))
     if is_ifa_scenario(scenario):
-        from ..ifa_eval import main_ifa
+        from dpos_ros.products.ifa import main_ifa
 
         return main_ifa(ap, args, scenario, methods)
     if args.runs < 1:

@@ -15,8 +15,8 @@ import time
 from importlib import resources
 from pathlib import Path
 
-from ..graph import Graph, GraphError, GraphSpec
-from ..node_main import install_stop_handlers
+from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec
+from dpos_ros.runtime.node_main import install_stop_handlers
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..node_main import install_stop_handlers, restore_handlers
+from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
 EXIT_INTERRUPTED = 1
@@ -37,7 +37,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--min-subscribers", type=int, default=0, help="wait for this many subscribers on every non-latched topic (default 0)")
     ap.add_argument("--wait-subscribers", type=float, default=30.0, metavar="S", help="longest wait for --min-subscribers [s] (default 30)")
     ap.add_argument("--flow-window", type=int, default=None, metavar="N",
-                    help="unacknowledged messages over all topics (default 1000, see dpos_ros.play)")
+                    help="unacknowledged messages over all topics (default 1000, see dpos_ros.io.play)")
     args = ap.parse_args(argv)
     if not args.rate >= 0:
         ap.error("--rate must be >= 0")
@@ -54,8 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import remove_ros_args
 
-    from ..play import BagError, BagPlayer
-    from ..sim_device import use_device_fastdds_profile
+    from dpos_ros.io.flow import use_device_fastdds_profile
+    from dpos_ros.io.play import BagError, BagPlayer
 
     full = list(sys.argv if argv is None else ["dpos-play", *argv])
     args = _parse(remove_ros_args(full)[1:])

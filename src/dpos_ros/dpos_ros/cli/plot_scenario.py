@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from dpos_core import earth
-from dpos_core.attitude import attitude_error
-from dpos_core.attitude import mount_dcm
+from dpos_core.attitude import attitude_error, mount_dcm
 from dpos_core.config import ConfigError
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession

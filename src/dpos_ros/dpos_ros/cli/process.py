@@ -15,9 +15,8 @@ from pathlib import Path
 
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS
-
-from ..products import evaluate, solve, write
-from ..session_io import SessionError, read_session
+from dpos_ros.io.session import SessionError, read_session
+from dpos_ros.products.ta import evaluate, solve, write
 
 
 def parser() -> argparse.ArgumentParser:

@@ -20,7 +20,7 @@ import threading
 import time
 from pathlib import Path
 
-from ..node_main import install_stop_handlers, restore_handlers
+from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
 EXIT_MISSING = 1
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     full = list(sys.argv if argv is None else ["dpos-record", *argv])
     args = _parse(remove_ros_args(full)[1:])
 
-    from ..record import BagRecorder
+    from dpos_ros.io.record import BagRecorder
 
     stop = threading.Event()
     reason = ["interrupted"]
@@ -137,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     if close_error is not None:
         print(f"dpos-record: error: {close_error}", file=sys.stderr)
         status = EXIT_ERROR
+    for kind, n in sorted(recorder.problems.items()):
+        print(f"dpos-record: warning: {n} x {kind} (see the warnings above)", file=sys.stderr)
     missing = recorder.missing()
     if missing:
         for topic in missing:

@@ -19,10 +19,9 @@ import numpy as np
 from dpos_core.config import ConfigError, config_text
 from dpos_core.sim.scenario import builtin_scenarios, load_scenario
 from dpos_core.sim.session import SimulatedSession
-
-from ..bag import write_streams
-from ..sim_streams import session_custom_data, session_id, session_streams
-from .progress import Progress
+from dpos_ros.cli.progress import Progress
+from dpos_ros.devices.sim_streams import session_custom_data, session_id, session_streams
+from dpos_ros.io.bag import write_streams
 
 
 def main(argv: list[str] | None = None) -> int:

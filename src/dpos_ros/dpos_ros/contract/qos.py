@@ -57,3 +57,18 @@ STATUS_QOS = QoSProfile(
 )
 
 __all__ = ["STREAM_DEPTH", "SENSOR_QOS", "NAV_QOS", "DATUM_QOS", "STATUS_QOS"]
+
+_QOS = {
+    "sensor": SENSOR_QOS,
+    "nav": NAV_QOS,
+    "datum": DATUM_QOS,
+    "status": STATUS_QOS,
+}
+
+
+def qos_profile(kind: str) -> QoSProfile:
+    """The QoS profile of a stream's ``qos`` kind (``sensor``, ``nav``, ``datum``, ``status``)."""
+    try:
+        return _QOS[kind]
+    except KeyError:
+        raise ValueError(f"unknown stream QoS kind {kind!r}; known: {sorted(_QOS)}") from None

@@ -14,7 +14,7 @@ Discovery
     ``all_topics`` records every topic discovered except ``ALL_EXCLUDED`` (``/rosout``,
     ``/parameter_events``, ``/clock``), which must be named explicitly.
 
-QoS (docs/design.md, ``dpos_ros.qos``)
+QoS (docs/design.md, ``dpos_ros.contract.qos``)
     ``/dpos/datum`` and ``*/status``: TRANSIENT_LOCAL (late joiners get the latched message),
     everything else RELIABLE KEEP_ALL (see "Threading"), VOLATILE. Adapted to the publishers like ``ros2 bag``:
     BEST_EFFORT when every publisher is best effort (a reliable reader would match none), VOLATILE
@@ -44,6 +44,13 @@ Log time
     (``MessageInfo['received_timestamp']``, system clock), or the wall clock when the middleware
     gives none; per topic made non-decreasing so that readers that sort by log time keep the
     arrival order. The header stamps (sampling times) stay inside the unchanged message bytes.
+
+Recoverable problems
+    are counted in :attr:`BagRecorder.problems` (kind -> count) and logged as a warning (the first
+    of each kind and topic): ``offered_qos`` (a publisher's QoS profile that cannot be stored in
+    the metadata; the messages are recorded all the same), ``take`` (taking the further waiting
+    samples failed, e.g. the subscription is being destroyed at shutdown; the executor delivers
+    the rest), ``destroy`` (a timer or subscription already gone at :meth:`BagRecorder.close`).
 """
 
 from __future__ import annotations
@@ -57,9 +64,10 @@ from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from . import qos as dpos_qos
-from .bag import ROSBAG2_VERSION, typestore
-from .sim_device import END_TOPIC, message_class
+from dpos_ros.contract import qos as dpos_qos
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.topics import message_class
+from dpos_ros.io.bag import ROSBAG2_VERSION, typestore
 
 __all__ = ["BagRecorder", "topic_qos_kind", "subscription_qos", "ALL_EXCLUDED", "DISCOVERY_PERIOD_S"]
 
@@ -77,7 +85,7 @@ _INFINITE_NS = (2**63 - 1)
 
 def topic_qos_kind(topic: str) -> str:
     """The design's QoS kind of a topic: ``datum``, ``status`` (both latched) or ``sensor``."""
-    if topic == "/dpos/datum":
+    if topic == T.DATUM:
         return "datum"
     if topic.endswith("/status"):
         return "status"
@@ -183,6 +191,9 @@ class BagRecorder:
         self.last_receive = 0.0
         self.session_end_at: float | None = None
         self.error: BaseException | None = None
+        #: recoverable problems (module docstring): kind -> count
+        self.problems: dict[str, int] = {}
+        self._warned_problems: set[tuple[str, str]] = set()
         self._subs: dict[str, Any] = {}
         self._last_t: dict[str, int] = {}
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
@@ -192,12 +203,19 @@ class BagRecorder:
         self._timer = node.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.discover()
 
+    def _problem(self, kind: str, topic: str, text: str, exc: BaseException) -> None:
+        """Count a recoverable problem; warn the first one of each kind and topic."""
+        self.problems[kind] = self.problems.get(kind, 0) + 1
+        if (kind, topic) not in self._warned_problems:
+            self._warned_problems.add((kind, topic))
+            self._log.warning(f"{topic}: {text} ({type(exc).__name__}: {exc}); counted as '{kind}', later ones on this topic are not logged")
+
     # ------------------------------------------------------------------ discovery
 
     def _wanted(self, topic: str) -> bool:
         if topic in self.requested:
             return True
-        if self.watch_session_end and topic == END_TOPIC:
+        if self.watch_session_end and topic == T.SESSION_END:
             return True
         return self.all_topics and topic not in ALL_EXCLUDED
 
@@ -206,8 +224,8 @@ class BagRecorder:
         if self._closed:
             return
         pending = [t for t in self.requested if t not in self._subs and t not in self.failed]
-        if self.watch_session_end and END_TOPIC not in self._subs:
-            pending.append(END_TOPIC)
+        if self.watch_session_end and T.SESSION_END not in self._subs:
+            pending.append(T.SESSION_END)
         if not pending and not self.all_topics:
             return
         for topic, types in self.node.get_topic_names_and_types():
@@ -238,8 +256,9 @@ class BagRecorder:
             for p in offered:
                 try:
                     qos_list.append(_rosbags_qos(p))
-                except Exception:  # noqa: BLE001 - metadata only
-                    pass
+                except (AttributeError, TypeError, ValueError) as exc:  # an rclpy profile rosbags cannot express
+                    self._problem("offered_qos", topic, "a publisher's QoS profile is not stored in the bag metadata "
+                                  "(dpos-play cannot restore it); recording anyway", exc)
             self.types[topic] = msgtype
             self.counts[topic] = 0
             self.received[topic] = 0
@@ -261,7 +280,7 @@ class BagRecorder:
                 self._last_t[topic] = t
                 self.received[topic] += 1
                 self._queue.put((topic, t, raw))
-            if topic == END_TOPIC and not self.session_ended.is_set():
+            if topic == T.SESSION_END and not self.session_ended.is_set():
                 self.session_end_at = now
                 self.session_ended.set()
 
@@ -272,15 +291,18 @@ class BagRecorder:
             handle = getattr(sub, "handle", None)
             if handle is None or self._closed:
                 return
+            batch = []
             try:
                 with handle:
                     for _ in range(TAKE_BATCH):
                         taken = handle.take_message(cls, True)
                         if taken is None:
                             break
-                        on_message(taken[0], taken[1] if len(taken) > 1 else None)
-            except Exception:  # noqa: BLE001 - rclpy internals changed or shutting down: the executor takes the rest
-                pass
+                        batch.append(taken)
+            except RuntimeError as exc:  # rclpy's InvalidHandle / RCLError: being destroyed (shutdown); the executor takes the rest
+                self._problem("take", topic, "taking the waiting samples failed; the executor delivers them", exc)
+            for taken in batch:  # outside the try: a failure here is a bug and propagates
+                on_message(taken[0], taken[1] if len(taken) > 1 else None)
 
         sub = self.node.create_subscription(cls, topic, callback, qos, raw=True)
         self._subs[topic] = sub
@@ -291,13 +313,9 @@ class BagRecorder:
     def missing(self) -> list[str]:
         """Requested topics without a subscription (no publisher seen, or an unusable type)."""
         out = [t for t in self.requested if t not in self._subs]
-        if self.watch_session_end and END_TOPIC not in self._subs and END_TOPIC not in out:
-            out.append(END_TOPIC)
+        if self.watch_session_end and T.SESSION_END not in self._subs and T.SESSION_END not in out:
+            out.append(T.SESSION_END)
         return out
-
-    @property
-    def total_received(self) -> int:
-        return sum(self.received.values())
 
     # ------------------------------------------------------------------ writing
 
@@ -334,13 +352,13 @@ class BagRecorder:
         self._closed = True
         try:
             self.node.destroy_timer(self._timer)
-        except Exception:  # noqa: BLE001 - the node may already be gone
-            pass
-        for sub in self._subs.values():
+        except RuntimeError as exc:  # rclpy's InvalidHandle: the node may already be gone
+            self._problem("destroy", "discovery timer", "could not be destroyed at close", exc)
+        for topic, sub in self._subs.items():
             try:
                 self.node.destroy_subscription(sub)
-            except Exception:  # noqa: BLE001
-                pass
+            except RuntimeError as exc:  # rclpy's InvalidHandle
+                self._problem("destroy", topic, "subscription could not be destroyed at close", exc)
         self._queue.put(None)
         self._thread.join()
         self._writer.close()

@@ -7,8 +7,6 @@ median) counted; each as a warning naming the topic.  A missing ``/master/nav`` 
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,14 +14,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from dpos_core import earth
-from dpos_core.attitude import quat_to_dcm
-from dpos_core.ta.metrics import Trajectory
-from dpos_core.ta.model import ImuData, MasterNav
-
-from . import bag, cdr
-from . import conversions as cv
-
+from dpos_core.series import ImuSeries, NavSeries
+from dpos_core.units import FloatArray
+from dpos_ros.contract import cdr
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.io import bag
 
 
 class SessionError(ValueError):
@@ -34,7 +30,8 @@ class SessionError(ValueError):
 class RecordedSession:
     """Inputs of a session, times in seconds since ``t0_ns``.
 
-    sub_imus: {name: ImuData}; truth: {"master" | "sub_imu/<name>" | "antenna/<name>": Trajectory};
+    master: the main-system navigation with its body rate and covariances (local ENU);
+    sub_imus: {name: ImuSeries}; truth: {"master" | "sub_imu/<name>" | "antenna/<name>": NavSeries};
     custom: the recording's dpos.* metadata; warnings: what was wrong with the data.
     """
 
@@ -42,9 +39,9 @@ class RecordedSession:
     session_id: str
     t0_ns: int
     datum_llh: FloatArray
-    master: MasterNav
-    sub_imus: dict[str, ImuData]
-    truth: dict[str, Trajectory]
+    master: NavSeries
+    sub_imus: dict[str, ImuSeries]
+    truth: dict[str, NavSeries]
     custom: dict[str, str]
     end_s: float | None
     warnings: list[str] = field(default_factory=list)
@@ -96,7 +93,7 @@ def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str) -> tup
 def read_session(path: Path) -> RecordedSession:
     """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring)."""
     path = Path(path)
-    from .spill import is_spill, read_spill
+    from dpos_ros.io.spill import is_spill, read_spill
 
     if is_spill(path):  # the crash-safe spill of transfer_align_node
         try:
@@ -124,44 +121,40 @@ def session_from_streams(streams, custom: dict[str, str], name: str = "memory") 
 
 def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedSession:
     warnings: list[str] = []
-    if "/master/nav" not in raw or not raw["/master/nav"][2]:
+    if T.MASTER_NAV not in raw or not raw[T.MASTER_NAV][2]:
         raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
     # datum: the latched /dpos/datum, else the first master position
-    if "/dpos/datum" in raw and raw["/dpos/datum"][2]:
+    if T.DATUM in raw and raw[T.DATUM][2]:
         from rclpy.serialization import deserialize_message
         from sensor_msgs.msg import NavSatFix
 
-        datum = cv.datum_from_msg(deserialize_message(raw["/dpos/datum"][2][0], NavSatFix))
+        datum = cv.datum_from_msg(deserialize_message(raw[T.DATUM][2][0], NavSatFix))
     else:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
-    t_nav, v_nav = _decode_rows("/master/nav", raw["/master/nav"][0], raw["/master/nav"][2], "odometry")
-    t_nav, v_nav = _clean("/master/nav", t_nav, v_nav, warnings)
+    t_nav, v_nav = _decode_rows(T.MASTER_NAV, raw[T.MASTER_NAV][0], raw[T.MASTER_NAV][2], "odometry")
+    t_nav, v_nav = _clean(T.MASTER_NAV, t_nav, v_nav, warnings)
     t0_ns = int(round(float(custom["dpos.start_time_s"]) * 1e9)) if "dpos.start_time_s" in custom else int(t_nav[0])
     od = cv.odometry_from_values(t_nav, v_nav, datum)
-    # covariances: the message's are in the enu (datum) frame; the model wants local ENU
-    R = earth.C_datum_n(od.llh[:, 0], od.llh[:, 1], datum)
-    Rt = np.swapaxes(R, 1, 2)
-    att_cov = Rt @ od.pose_cov[:, 3:, 3:] @ R
-    C_nb = quat_to_dcm(od.q_nb)
-    vel_cov = C_nb @ od.twist_cov[:, :3, :3] @ np.swapaxes(C_nb, 1, 2)
-    pos_cov = Rt @ od.pose_cov[:, :3, :3] @ R
+    # covariances: the message's are in the enu (datum) frame (pose) and the body (twist); the model wants local ENU
+    pos_cov, att_cov, vel_cov = cv.odometry_cov_n(od, datum)
     ts = lambda t: (t - t0_ns) * 1e-9  # noqa: E731
-    master = MasterNav(ts(t_nav), od.llh, od.vel_n_mps, C_nb, od.omega_b_radps, att_cov, vel_cov, pos_cov)
+    master = NavSeries(ts(t_nav), od.q_nb, od.vel_n_mps, od.llh, omega_eb_b_radps=od.omega_b_radps,
+                       att_cov=att_cov, vel_cov=vel_cov, pos_cov=pos_cov)
 
-    subs: dict[str, ImuData] = {}
-    truth: dict[str, Trajectory] = {}
+    subs: dict[str, ImuSeries] = {}
+    truth: dict[str, NavSeries] = {}
     for topic, (msgtype, _, blobs) in sorted(raw.items()):
         parts = topic.strip("/").split("/")
         if len(parts) == 3 and parts[0] == "sub_imu" and parts[2] == "imu":
             t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "imu"), warnings)
             blk = cv.imu_from_values(t, v)
-            subs[parts[1]] = ImuData(ts(t), blk.omega_radps, blk.f_mps2)
-        elif parts[0] == "truth" and msgtype == "nav_msgs/msg/Odometry":
+            subs[parts[1]] = ImuSeries(ts(t), blk.omega_radps, blk.f_mps2)
+        elif parts[0] == "truth" and msgtype == T.ODOMETRY:
             t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "odometry"), warnings)
             o = cv.odometry_from_values(t, v, datum)
-            truth["/".join(parts[1:])] = Trajectory(ts(t), o.llh, o.vel_n_mps, quat_to_dcm(o.q_nb))
+            truth["/".join(parts[1:])] = NavSeries(ts(t), o.q_nb, o.vel_n_mps, o.llh)
     end_s = None
-    if "/session/end" in raw and raw["/session/end"][1]:
-        end_s = ts(max(raw["/session/end"][1]))
+    if T.SESSION_END in raw and raw[T.SESSION_END][1]:
+        end_s = ts(max(raw[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
     return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings)

@@ -10,8 +10,6 @@
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 import json
 import time
 from dataclasses import dataclass
@@ -22,28 +20,31 @@ from numpy.typing import NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat
-from dpos_core.frames import hpr_from_C_nb
 from dpos_core.config import AircraftConfig
+from dpos_core.frames import hpr_from_C_nb
+from dpos_core.series import NavSeries
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
-from dpos_core.ta.metrics import Trajectory
+from dpos_core.ta.antenna import antenna_motion
 from dpos_core.ta.model import Installation, TAConfig
-
-from . import conversions as cv
-from .session_io import RecordedSession
-
+from dpos_core.units import FloatArray
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.io.session import RecordedSession
 
 
 @dataclass
 class AntennaSolution:
     """An antenna's smoothed trajectory (``traj``) with 1-sigma (N, 9): attitude (rad, rotation
-    about local ENU), velocity (m/s, ENU), position (m, ENU); or a status saying why there is none."""
+    about local ENU), velocity (m/s, ENU), position (m, ENU); or a status saying why there is none.
+    ``chol_jitter_repairs``: Cholesky jitter repairs made by its sub-IMU's smoother (counted, not silent)."""
 
     name: str
     sub_imu: str | None
     status: str
-    traj: Trajectory | None = None
+    traj: NavSeries | None = None
     sigma: FloatArray | None = None
+    chol_jitter_repairs: int = 0
 
 
 def solve(
@@ -99,16 +100,11 @@ def solve(
             out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
             continue
         imu = sess.sub_imus[a.sub_imu]
-        omega = np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int)
-        w_b = imu.omega_radps[np.clip(omega, 0, imu.t_s.size - 1)] - np.einsum("nji,nj->ni", r.C_nb, earth.earth_rate_n(r.llh[:, 0]))
-        l_a = np.asarray(a.lever_arm_m, dtype=float)
-        d_n = r.C_nb @ l_a
-        p_e = earth.geodetic_to_ecef(r.llh[:, 0], r.llh[:, 1], r.llh[:, 2]) + np.einsum("nij,nj->ni", earth.C_en(r.llh[:, 0], r.llh[:, 1]), d_n)
-        lat, lon, h = earth.ecef_to_geodetic(p_e)
-        v = r.vel_n_mps + np.einsum("nij,nj->ni", r.C_nb, np.cross(w_b, l_a))
+        nearest = np.clip(np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
+        llh, v = antenna_motion(r.C_nb, r.vel_n_mps, r.llh, imu.omega_radps[nearest], a.lever_arm_m)
         keep = _decimate(r.t_s, output_rate_hz)
-        llh = np.stack([lat, lon, h], -1)
-        out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", Trajectory(r.t_s[keep], llh[keep], v[keep], r.C_nb[keep]), r.sigma[keep])
+        out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
+                                      r.chol_jitter_repairs)
     return out, timing
 
 
@@ -119,10 +115,9 @@ def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1):
     is.  Transfer alignment against an unaligned main POS (e.g. a 30 deg heading error with a
     100 deg sigma) would start the sub-IMUs from a wrong attitude; their poses start when the main
     POS is aligned instead, and a warning says so."""
-    from dataclasses import fields, replace
-
     m = sess.master
-    sig = np.rad2deg(np.sqrt(np.max(np.diagonal(m.att_cov, axis1=1, axis2=2), axis=1)))
+    (att_cov,) = m.required("att_cov")
+    sig = np.rad2deg(np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1)))
     ok = np.nonzero(sig < sigma_deg)[0]
     if ok.size == 0:
         sess.warnings.append(f"/master/nav is never aligned (attitude 1-sigma >= {sigma_deg:g} deg throughout, "
@@ -133,7 +128,7 @@ def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1):
         return m
     sess.warnings.append(f"/master/nav is unaligned (attitude 1-sigma >= {sigma_deg:g} deg) for its first "
                          f"{m.t_s[i] - m.t_s[0]:.1f} s: the antenna poses start at t = {m.t_s[i]:.2f} s")
-    return replace(m, **{f.name: getattr(m, f.name)[i:] for f in fields(m)})
+    return m.select(slice(i, None))
 
 
 def _decimate(t_s: FloatArray, rate_hz: float) -> NDArray[np.intp]:
@@ -159,8 +154,8 @@ def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution]) -> dic
         idx = np.searchsorted(tr.t_s, t)
         ok = (idx < tr.t_s.size) & (np.abs(tr.t_s[np.clip(idx, 0, tr.t_s.size - 1)] - t) < 1e-6)
         i = idx[ok]
-        est = Trajectory(t[ok], a.traj.llh[ok], a.traj.vel_n_mps[ok], a.traj.C_nb[ok])
-        tru = Trajectory(tr.t_s[i], tr.llh[i], tr.vel_n_mps[i], tr.C_nb[i])
+        est = a.traj.select(ok)
+        tru = tr.select(i)
         m_est = m_true = None
         if tm is not None:
             m_est = _interp_llh(sess.master.t_s, sess.master.llh, est.t_s)
@@ -183,7 +178,7 @@ def write(
     evaluation: dict[str, dict] | None = None,
 ) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory."""
-    from .bag import write_streams
+    from dpos_ros.io.bag import write_streams
 
     out = Path(out_root) / sess.session_id
     out.mkdir(parents=True, exist_ok=True)
@@ -191,6 +186,7 @@ def write(
     for st in streams:
         name = st.topic.split("/")[2]
         a = antennas[name]
+        assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
         _write_csv(out / f"{name}.csv", st.t_ns, a.traj, a.sigma)
     bag_dir = out / "antennas"
     if streams:
@@ -200,8 +196,10 @@ def write(
             shutil.rmtree(bag_dir)
         write_streams(bag_dir, streams, custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
     status = {name: a.status for name, a in antennas.items()}
+    repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.traj is not None}
     (out / "status.json").write_text(json.dumps({"session_id": sess.session_id, "method": method, "antennas": status,
-                                                 "warnings": sess.warnings, "timing": timing}, indent=2) + "\n")
+                                                 "warnings": sess.warnings, "timing": timing, "chol_jitter_repairs": repairs},
+                                                indent=2) + "\n")
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
@@ -213,11 +211,11 @@ def write(
 def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
     """``/antenna/<name>/odom`` TopicStreams (pose in ``enu`` with the smoother's covariance; twist
     in the antenna frame with the velocity covariance; angular rate not estimated)."""
-    from .sim_streams import ODOMETRY, TopicStream
+    from dpos_ros.io.streams import TopicStream
 
     streams = []
     for name, a in antennas.items():
-        if a.traj is None:
+        if a.traj is None or a.sigma is None:
             continue
         tr, s = a.traj, a.sigma
         t_ns = sess.t0_ns + np.round(tr.t_s * 1e9).astype(np.int64)
@@ -234,11 +232,11 @@ def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution])
         twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
         vals[:, 7:43] = pose.reshape(n, 36)
         vals[:, 49:85] = twist.reshape(n, 36)
-        streams.append(TopicStream(f"/antenna/{name}/odom", ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav"))
+        streams.append(TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav"))
     return streams
 
 
-def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: Trajectory, s: FloatArray) -> None:
+def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray) -> None:
     hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
     cols = np.column_stack([
         t_ns * 1e-9, np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
@@ -254,10 +252,11 @@ def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: Trajectory, s: FloatArra
 def metrics_json(sess: RecordedSession | None, per_method: dict[str, tuple[dict, dict]], runs: int, scenario: str | None = None) -> dict:
     """design.md's metrics.json: per method the mean over antennas (and runs) and per antenna."""
     segs = list((sess.imaging_segments() if sess else {}).keys()) or ["session"]
-    out = {"scenario": scenario or (sess.custom.get("dpos.scenario", "") if sess else ""), "runs": runs, "segments": segs, "methods": {}}
+    methods: dict[str, dict] = {}
+    out = {"scenario": scenario or (sess.custom.get("dpos.scenario", "") if sess else ""), "runs": runs, "segments": segs, "methods": methods}
     for method, (ev, timing) in per_method.items():
         ants = {name: {"rmse": e["rmse"], "std": e["std"]} for name, e in ev.items()}
-        out["methods"][method] = {"mean": M.average(list(ants.values())) if ants else {}, "antennas": ants, "timing": timing}
+        methods[method] = {"mean": M.average(list(ants.values())) if ants else {}, "antennas": ants, "timing": timing}
     return out
 
 

@@ -22,17 +22,17 @@ QoS
     ``/dpos/datum`` and ``*/status`` - and any topic whose recorded publishers offered
     TRANSIENT_LOCAL (bag metadata) - are latched: RELIABLE, TRANSIENT_LOCAL, the design's depth
     (1 for the datum, 10 for status). Everything else RELIABLE, VOLATILE, KEEP_LAST with the
-    shallow depths of :func:`dpos_ros.sim_device.writer_depths`: ``flow_window`` messages
+    shallow depths of :func:`dpos_ros.devices.sim_device.writer_depths`: ``flow_window`` messages
     (``PLAY_FLOW_WINDOW`` = 1000, ten times a device's window: one player feeds the whole graph)
     shared in proportion to the topics' message counts.
 
-Flow control (as :mod:`dpos_ros.sim_device`, whose docstring explains the Fast DDS behaviour)
+Flow control (as :mod:`dpos_ros.devices.sim_device`, whose docstring explains the Fast DDS behaviour)
     Before a message would make a topic's unacknowledged count exceed its writer depth, the player
     waits (``wait_for_all_acked``) until every matched reliable subscription acknowledged that
     topic; before ``/session/end`` every topic is waited for, and at the end everything is
     acknowledged before :meth:`BagPlayer.run` returns. With ``rate`` 0 this is what "as fast as
     subscribers keep up, no loss" means. The CLI applies the device nodes' Fast DDS profile
-    (:func:`~dpos_ros.sim_device.use_device_fastdds_profile`, 20 ms writer heartbeat) so that
+    (:func:`~dpos_ros.devices.sim_device.use_device_fastdds_profile`, 20 ms writer heartbeat) so that
     acknowledgements are prompt. Measured on 2 cores, 300 s paired paper_su bag (270k messages)
     into ``dpos-record`` in another process, lossless in every case: window 100: 3.2k msg/s,
     1000: 18k msg/s, 3000: 31k msg/s (the window exceeds the shared-memory port queue of 512;
@@ -58,9 +58,12 @@ from typing import Any
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .bag import typestore
-from .record import topic_qos_kind
-from .sim_device import ACK_WARN_S, END_TOPIC, POLL_S, message_class, qos_profile, writer_depths
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.qos import qos_profile
+from dpos_ros.contract.topics import message_class
+from dpos_ros.io.bag import typestore
+from dpos_ros.io.flow import ACK_WARN_S, POLL_S, writer_depths
+from dpos_ros.io.record import topic_qos_kind
 
 __all__ = ["BagPlayer", "BagError", "PlayTopic", "CLOCK_TOPIC", "CLOCK_QOS", "open_bag"]
 
@@ -80,7 +83,7 @@ class BagError(Exception):
 @dataclass
 class PlayTopic:
     """One topic to replay. ``qos``: ``sensor`` or a latched kind (``datum``, ``status``);
-    ``len()`` is the message count (as :func:`~dpos_ros.sim_device.writer_depths` expects)."""
+    ``len()`` is the message count (as :func:`~dpos_ros.devices.sim_device.writer_depths` expects)."""
 
     topic: str
     msgtype: str
@@ -245,6 +248,7 @@ class BagPlayer:
     def _publish_clock(self, t_ns: int) -> None:
         msg = self._clock_cls()
         msg.clock.sec, msg.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
+        assert self.clock_publisher is not None  # called only when /clock is published
         self.clock_publisher.publish(msg)
         self.clock_published += 1
 
@@ -260,7 +264,7 @@ class BagPlayer:
         if not self._wait_for_subscribers(others, self.wait_subscribers_s):
             return False
         unacked = [0] * n_topics
-        end_index = self.index.get(END_TOPIC)
+        end_index = self.index.get(T.SESSION_END)
         rate = self.rate
         clock = self.clock_publisher is not None
         total = self.total

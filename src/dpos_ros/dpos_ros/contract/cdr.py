@@ -13,12 +13,12 @@ Alignment in CDR is relative to the payload after the 4-byte encapsulation heade
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
+from dpos_core.units import FloatArray
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
 

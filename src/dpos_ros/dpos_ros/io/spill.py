@@ -12,7 +12,7 @@ dies (killed, crashed) loses nothing it received: the bytes are in the kernel's 
 crash is detected on reading, reported, and dropped; everything before it is kept.  Memory stays
 bounded: nothing is kept in the process.
 
-:func:`read_spill` returns the same ``{topic: (msgtype, times, blobs)}`` as :func:`dpos_ros.bag.read_raw`,
+:func:`read_spill` returns the same ``{topic: (msgtype, times, blobs)}`` as :func:`dpos_ros.io.bag.read_raw`,
 so ``dpos-process`` on a spill runs exactly the code that processes a bag.
 """
 

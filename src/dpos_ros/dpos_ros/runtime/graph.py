@@ -109,7 +109,7 @@ class GraphSpec:
     base_dir: Path = Path(".")
 
     @classmethod
-    def from_yaml(cls, path: str | Path, text: str | None = None) -> "GraphSpec":
+    def from_yaml(cls, path: str | Path, text: str | None = None) -> GraphSpec:
         p = Path(path)
         label = str(p)
         try:
@@ -174,7 +174,7 @@ class Graph:
         self.exit_codes: dict[str, int] = {}
 
     @classmethod
-    def from_yaml(cls, path: str | Path, log: Callable[[str, str], None] | None = None, **overrides: Any) -> "Graph":
+    def from_yaml(cls, path: str | Path, log: Callable[[str, str], None] | None = None, **overrides: Any) -> Graph:
         spec = GraphSpec.from_yaml(path)
         for k, v in overrides.items():
             setattr(spec, k, v)
@@ -253,7 +253,7 @@ class Graph:
             p.thread.join(timeout=2.0)
         return dict(self.exit_codes)
 
-    def __enter__(self) -> "Graph":
+    def __enter__(self) -> Graph:
         try:
             self.start()
             self.wait_ready()

@@ -2,7 +2,7 @@
 
 Bags are written with zstd chunk compression (rosbags ``CompressionMode.STORAGE``), messages in
 stamp order, log time = ``header.stamp``.  Reading returns raw CDR per topic so the vectorized
-decoder of :mod:`dpos_ros.cdr` (or ``rclpy.serialization``) can be used.
+decoder of :mod:`dpos_ros.contract.cdr` (or ``rclpy.serialization``) can be used.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
-from .sim_streams import TopicStream, merged_order
+from dpos_ros.io.streams import TopicStream, merged_order
 
 ROSBAG2_VERSION = 9
 
@@ -82,7 +82,7 @@ def read_raw(path: Path, topics: Iterable[str] | None = None) -> dict[str, tuple
 
 
 def rows(blobs: list[bytes]) -> np.ndarray:
-    """Fixed-size CDR messages as an (N, size) uint8 array (for :func:`dpos_ros.cdr.decode`)."""
+    """Fixed-size CDR messages as an (N, size) uint8 array (for :func:`dpos_ros.contract.cdr.decode`)."""
     if not blobs:
         return np.zeros((0, 0), dtype=np.uint8)
     size = len(blobs[0])

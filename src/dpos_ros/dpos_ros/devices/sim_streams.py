@@ -13,48 +13,15 @@ Devices:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 from rclpy.serialization import serialize_message
 
-from dpos_core.sim.session import NavSeries, SimulatedSession
-
-from . import cdr
-from . import conversions as cv
-
-IMU = "sensor_msgs/msg/Imu"
-ODOMETRY = "nav_msgs/msg/Odometry"
-NAVSATFIX = "sensor_msgs/msg/NavSatFix"
-TWIST_COV = "geometry_msgs/msg/TwistWithCovarianceStamped"
-HEADER = "std_msgs/msg/Header"
-
-
-@dataclass(frozen=True)
-class TopicStream:
-    """One topic: ``t_ns`` (N,) stamps and N serialized CDR messages.
-
-    ``rows`` holds fixed-size messages as a (N, size) uint8 array, ``blobs`` variable ones.
-    ``qos`` is ``sensor``, ``nav``, ``datum`` (latched) or ``status``.
-    """
-
-    topic: str
-    msgtype: str
-    t_ns: NDArray[np.int64]
-    rows: NDArray[np.uint8] | None = None
-    blobs: tuple[bytes, ...] | None = None
-    qos: str = "sensor"
-
-    def __post_init__(self) -> None:
-        if self.blobs is not None:  # reproducible bytes (see cdr.canonical)
-            object.__setattr__(self, "blobs", tuple(cdr.canonical(b, self.msgtype) for b in self.blobs))
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
-
-    def message(self, i: int) -> bytes:
-        return bytes(self.rows[i]) if self.rows is not None else self.blobs[i]
+from dpos_core.series import NavSeries
+from dpos_core.sim.session import SimulatedSession
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.io.streams import TopicStream, merged_order  # noqa: F401 (merged_order: the devices' order)
 
 
 def session_id(session: SimulatedSession) -> str:
@@ -64,13 +31,12 @@ def session_id(session: SimulatedSession) -> str:
 
 def _odometry_stream(topic: str, child: str, series: NavSeries, session: SimulatedSession, datum_llh: NDArray[np.float64], *, with_cov: bool) -> TopicStream:
     t_ns = cv.stamps_ns(session.scenario.start_time_s, series.t_s)
-    vals = cv.odometry_values(
-        series.llh, series.vel_n_mps, series.q_nb, datum_llh, series.omega_eb_b_radps,
-        pos_sigma_m=series.pos_sigma_m if with_cov else None,
-        att_sigma_hpr_rad=series.att_sigma_rad if with_cov else None,
-        vel_sigma_mps=series.vel_sigma_mps if with_cov else None,
-    )
-    return TopicStream(topic, ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, child, t_ns, vals), qos="nav")
+    if with_cov:
+        vals = cv.odometry_values_cov(series.llh, series.vel_n_mps, series.q_nb, datum_llh, series.omega_eb_b_radps,
+                                      *series.required("pos_cov", "att_cov", "vel_cov"))
+    else:
+        vals = cv.odometry_values(series.llh, series.vel_n_mps, series.q_nb, datum_llh, series.omega_eb_b_radps)
+    return TopicStream(topic, T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, child, t_ns, vals), qos="nav")
 
 
 def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) -> TopicStream:
@@ -82,7 +48,7 @@ def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) ->
     t_ns = cv.stamps_ns(session.scenario.start_time_s, imu.t_s)
     # the Imu covariance carries the white-noise variance of one sample
     rows = cv.imu_rows(frame, t_ns, imu.omega_radps, imu.f_mps2, model.gyro_noise_deg_h * DEG_PER_H, model.accel_noise_ug * UG_MPS2)
-    return TopicStream(topic, IMU, t_ns, rows=rows)
+    return TopicStream(topic, T.IMU, t_ns, rows=rows)
 
 
 def device_streams(
@@ -100,33 +66,33 @@ def device_streams(
     out: list[TopicStream] = []
     if device == "master":
         t_start = cv.stamps_ns(t0, np.array([0.0]))
-        out.append(TopicStream("/dpos/datum", NAVSATFIX, t_start, blobs=(serialize_message(cv.datum_msg(int(t_start[0]), datum)),), qos="datum"))
-        out.append(_imu_stream("/master/imu", cv.MASTER_FRAME, session, "master"))
+        out.append(TopicStream(T.DATUM, T.NAVSATFIX, t_start, blobs=(serialize_message(cv.datum_msg(int(t_start[0]), datum)),), qos="datum"))
+        out.append(_imu_stream(T.MASTER_IMU, cv.MASTER_FRAME, session, "master"))
         g = session.gnss()
         g_ns = cv.stamps_ns(t0, g.t_s)
-        out.append(TopicStream("/gnss/fix", NAVSATFIX, g_ns, blobs=tuple(
+        out.append(TopicStream(T.GNSS_FIX, T.NAVSATFIX, g_ns, blobs=tuple(
             serialize_message(cv.navsatfix_msg(int(t), cv.GNSS_FRAME, g.llh[i], g.pos_sigma_m[i])) for i, t in enumerate(g_ns))))
-        out.append(TopicStream("/gnss/vel", TWIST_COV, g_ns, blobs=tuple(
+        out.append(TopicStream(T.GNSS_VEL, T.TWIST_COV, g_ns, blobs=tuple(
             serialize_message(cv.gnss_vel_msg(int(t), g.vel_n_mps[i], g.vel_sigma_mps[i])) for i, t in enumerate(g_ns))))
-        out.append(_odometry_stream("/master/nav", cv.MASTER_FRAME, session.master_nav_reference(), session, datum, with_cov=True))
+        out.append(_odometry_stream(T.MASTER_NAV, cv.MASTER_FRAME, session.master_nav_reference(), session, datum, with_cov=True))
         if truth:
-            out.append(_odometry_stream("/truth/master", cv.MASTER_FRAME, session.truth("master"), session, datum, with_cov=False))
+            out.append(_odometry_stream(T.TRUTH_MASTER, cv.MASTER_FRAME, session.truth("master"), session, datum, with_cov=False))
             for a in ac.antennas:
                 if a.sub_imu is None:
-                    out.append(_odometry_stream(f"/truth/antenna/{a.name}", cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, datum, with_cov=False))
+                    out.append(_odometry_stream(T.truth_antenna(a.name), cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, datum, with_cov=False))
         t_end = cv.stamps_ns(t0, np.array([session.duration_s]))
-        out.append(TopicStream("/session/end", HEADER, t_end, blobs=(serialize_message(cv.session_end_msg(int(t_end[0]), session_id(session))),), qos="nav"))
+        out.append(TopicStream(T.SESSION_END, T.HEADER, t_end, blobs=(serialize_message(cv.session_end_msg(int(t_end[0]), session_id(session))),), qos="nav"))
         return out
     kind, _, name = device.partition("/")
     if kind != "sub_imu":
         raise ValueError(f"unknown device {device!r}: 'master' or 'sub_imu/<name>'")
     ac.sub_imu(name)  # KeyError naming the configured sub-IMUs
-    out.append(_imu_stream(f"/sub_imu/{name}/imu", cv.sub_imu_frame(name), session, name))
+    out.append(_imu_stream(T.sub_imu(name), cv.sub_imu_frame(name), session, name))
     if truth:
-        out.append(_odometry_stream(f"/truth/sub_imu/{name}", cv.sub_imu_frame(name), session.truth(f"sub_imu/{name}"), session, datum, with_cov=False))
+        out.append(_odometry_stream(T.truth_sub_imu(name), cv.sub_imu_frame(name), session.truth(f"sub_imu/{name}"), session, datum, with_cov=False))
         for a in ac.antennas:
             if a.sub_imu == name:
-                out.append(_odometry_stream(f"/truth/antenna/{a.name}", cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, datum, with_cov=False))
+                out.append(_odometry_stream(T.truth_antenna(a.name), cv.antenna_frame(a.name), session.truth(f"antenna/{a.name}"), session, datum, with_cov=False))
     return out
 
 
@@ -138,16 +104,7 @@ def session_streams(session: SimulatedSession, *, truth: bool = True, datum_llh:
     return out
 
 
-def merged_order(streams: list[TopicStream]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Publication order of all messages by stamp: ``(t_ns, stream index, message index)``.
 
-    Equal stamps keep the order of the streams (the datum first, /session/end last)."""
-    t = np.concatenate([s.t_ns for s in streams])
-    si = np.concatenate([np.full(len(s), i) for i, s in enumerate(streams)])
-    mi = np.concatenate([np.arange(len(s)) for s in streams])
-    end = np.array([s.topic == "/session/end" for s in streams])[si]
-    order = np.lexsort((si, end, t))
-    return t[order], si[order], mi[order]
 
 
 def session_custom_data(session: SimulatedSession, aircraft_text: str) -> dict[str, str]:

@@ -16,8 +16,6 @@
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray
-
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -26,10 +24,8 @@ from numpy.typing import NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
-from dpos_core.frames import hpr_sigma_to_rotation_cov
-
-from . import cdr
-
+from dpos_core.units import FloatArray
+from dpos_ros.contract import cdr
 
 WORLD_FRAME = "enu"
 MASTER_FRAME = "master_imu"
@@ -104,32 +100,20 @@ def odometry_values(
     q_nb: FloatArray,
     datum_llh: FloatArray,
     omega_b_radps: FloatArray | None = None,
-    pos_sigma_m: FloatArray | None = None,
-    att_sigma_hpr_rad: FloatArray | None = None,
-    vel_sigma_mps: FloatArray | None = None,
     omega_sigma_radps: float = 0.0,
 ) -> FloatArray:
-    """Double block (N, 85) of ``nav_msgs/Odometry`` (pose in ``enu``, twist in the body)."""
+    """Double block (N, 85) of ``nav_msgs/Odometry`` (pose in ``enu``, twist in the body) with zero
+    pose and velocity covariances (:func:`odometry_values_cov` fills them)."""
     n = llh.shape[0]
     C_nb = quat_to_dcm(q_nb)
     p, v_w, C_wb = earth.nav_to_datum(llh, vel_n_mps, C_nb, datum_llh)
-    R = earth.C_datum_n(llh[:, 0], llh[:, 1], datum_llh)
     out = np.zeros((n, cdr.ODOM_DOUBLES))
     out[:, 0:3] = p
     out[:, 3:7] = quat_xyzw(dcm_to_quat(C_wb))
-    pose_cov = np.zeros((n, 6, 6))
-    if pos_sigma_m is not None:
-        pose_cov[:, :3, :3] = R @ ((np.asarray(pos_sigma_m, dtype=float) ** 2)[:, None] * np.swapaxes(R, 1, 2))
-    if att_sigma_hpr_rad is not None:
-        pose_cov[:, 3:, 3:] = R @ hpr_sigma_to_rotation_cov(C_nb, att_sigma_hpr_rad) @ np.swapaxes(R, 1, 2)
-    out[:, 7:43] = pose_cov.reshape(n, 36)
     out[:, 43:46] = np.einsum("nji,nj->ni", C_wb, v_w)
     if omega_b_radps is not None:
         out[:, 46:49] = omega_b_radps
     twist_cov = np.zeros((n, 6, 6))
-    if vel_sigma_mps is not None:
-        C_bn = np.swapaxes(C_nb, 1, 2)
-        twist_cov[:, :3, :3] = C_bn @ ((np.asarray(vel_sigma_mps, dtype=float) ** 2)[:, None] * C_nb)
     twist_cov[:, 3:, 3:] = np.eye(3) * omega_sigma_radps**2
     out[:, 49:85] = twist_cov.reshape(n, 36)
     return out

@@ -23,8 +23,6 @@ simulator's ``k / rate`` bit for bit, so the nodes integrate the very step lengt
 
 from __future__ import annotations
 
-from dpos_core.units import FloatArray, DEG
-
 import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,7 +32,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
-from dpos_core.strapdown import NavState, NavTrajectory, Strapdown
+from dpos_core.series import NavSeries
+from dpos_core.strapdown import NavState, Strapdown
+from dpos_core.units import DEG, FloatArray
 
 #: two stamps closer than this are the same sample [s]
 STAMP_TOL_S = 1e-6
@@ -86,14 +86,14 @@ class _Ring:
     llh: FloatArray
 
     @classmethod
-    def empty(cls) -> "_Ring":
+    def empty(cls) -> _Ring:
         z3 = np.empty((0, 3))
         return cls(np.empty(0), z3, z3, z3, z3, z3, np.empty((0, 4)), z3, z3)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
 
-    def append(self, other: "_Ring") -> None:
+    def append(self, other: _Ring) -> None:
         for k in self.__dataclass_fields__:
             setattr(self, k, np.concatenate([getattr(self, k), getattr(other, k)]))
 
@@ -102,7 +102,7 @@ class _Ring:
         for k in self.__dataclass_fields__:
             setattr(self, k, getattr(self, k)[start:].copy())
 
-    def replace_from(self, j: int, other: "_Ring") -> None:
+    def replace_from(self, j: int, other: _Ring) -> None:
         """Samples ``j:`` := other (same times)."""
         for k in self.__dataclass_fields__:
             getattr(self, k)[j:] = getattr(other, k)
@@ -144,13 +144,13 @@ class MasterMechanization:
         i = bisect.bisect_left(self._bias_t, t_s - STAMP_TOL_S) - 1
         return self._bias[i] if i >= 0 else (np.zeros(3), np.zeros(3))
 
-    def nav(self) -> NavTrajectory:
+    def nav(self) -> NavSeries:
         """The stored navigation (ring), as currently corrected."""
         r = self.ring
-        return NavTrajectory(r.t_s.copy(), r.q_nb.copy(), r.vel.copy(), r.llh.copy())
+        return NavSeries(r.t_s.copy(), r.q_nb.copy(), r.vel.copy(), r.llh.copy())
 
     # ------------------------------------------------------------------ input
-    def add(self, t_s: ArrayLike, omega_radps: ArrayLike, f_mps2: ArrayLike) -> tuple[NavTrajectory, NDArray[np.bool_], list[str]]:
+    def add(self, t_s: ArrayLike, omega_radps: ArrayLike, f_mps2: ArrayLike) -> tuple[NavSeries, NDArray[np.bool_], list[str]]:
         """Integrate new IMU samples (mean rates over ``(t_{i-1}, t_i]``: t_s (N,), (N, 3), (N, 3)).
 
         Returns ``(nav of the kept samples, keep mask (N,), warnings)``: samples with non-finite
@@ -184,9 +184,9 @@ class MasterMechanization:
             new = self._integrate(t, om, fb)
             self.ring.append(new)
             self._trim()
-            nav = NavTrajectory(new.t_s, new.q_nb, new.vel, new.llh)
+            nav = NavSeries(new.t_s, new.q_nb, new.vel, new.llh)
         else:
-            nav = NavTrajectory(np.empty(0), np.empty((0, 4)), np.empty((0, 3)), np.empty((0, 3)))
+            nav = NavSeries(np.empty(0), np.empty((0, 4)), np.empty((0, 3)), np.empty((0, 3)))
         return nav, keep, warnings
 
     def _trim(self) -> None:
@@ -211,7 +211,7 @@ class MasterMechanization:
             dth[lo:hi] = (om[lo:hi] - g) * steps[lo:hi]
             dvl[lo:hi] = (fb[lo:hi] - a) * steps[lo:hi]
             parts.append(sd.run_increments(t[lo:hi], dth[lo:hi], dvl[lo:hi]))
-        nav = NavTrajectory.concatenate(parts) if len(parts) > 1 else parts[0]
+        nav = NavSeries.concatenate(parts) if len(parts) > 1 else parts[0]
         dv_step = np.diff(np.concatenate([v_start[None], nav.vel_n_mps]), axis=0)
         return _Ring(t.copy(), om.copy(), fb.copy(), dth, dvl, dv_step, nav.q_nb, nav.vel_n_mps, nav.llh)
 

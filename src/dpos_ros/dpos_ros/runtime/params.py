@@ -17,7 +17,7 @@ read-only: a config is frozen when the node starts. ``float`` parameters also ac
 (``-p rate_factor:=0`` works like ``0.0``).
 
 Any invalid value raises :class:`ParameterError`, whose message names the parameter and the
-value; :func:`dpos_ros.node_main.run_node` logs it and exits with a non-zero status.
+value; :func:`dpos_ros.runtime.node_main.run_node` logs it and exits with a non-zero status.
 
 :func:`config_from_values` is the pure part (no rclpy), usable on a params YAML file.
 """
@@ -165,7 +165,7 @@ def _field_kind(tp: Any) -> tuple[type, bool]:
 
 
 def _fields(cls: type) -> list[tuple[dataclasses.Field, type, bool, _Spec]]:
-    if not (dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen):
+    if not (dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen):  # type: ignore[attr-defined]
         raise TypeError(f"{cls!r} is not a frozen dataclass")
     hints = typing.get_type_hints(cls)
     out = []
@@ -329,7 +329,7 @@ def declare_config(node: Any, cls: type[C]) -> C:
         )
         if not dynamic:
             descriptor.type = ptype.value
-        default = list(f.default) if is_array else f.default
+        default = list(f.default) if is_array else f.default  # type: ignore[arg-type]
         # An empty array default has no inferable type: declare it typed and uninitialised
         # (dynamically typed doubles: untyped and unset, so that [] and integer arrays pass).
         initial = default
@@ -376,7 +376,7 @@ def duration_param() -> Any:
 
 
 def min_subscribers_param() -> Any:
-    """The ``min_subscribers`` parameter of the simulated devices (see dpos_ros.sim_device)."""
+    """The ``min_subscribers`` parameter of the simulated devices (see dpos_ros.devices.sim_device)."""
     return param(
         0,
         "device: sim waits until every published topic but the latched datum has this many "
@@ -386,7 +386,7 @@ def min_subscribers_param() -> Any:
 
 
 def wait_subscribers_param() -> Any:
-    """The ``wait_subscribers_s`` parameter of the simulated devices (see dpos_ros.sim_device)."""
+    """The ``wait_subscribers_s`` parameter of the simulated devices (see dpos_ros.devices.sim_device)."""
     return param(
         30.0,
         "longest wait [s] for min_subscribers before the simulated device starts anyway",

@@ -16,7 +16,7 @@ arrives while the node or executor is still being built then makes rclpy raise `
 SIGTERM at any moment ends the process with status 0 and no traceback; the spin loop notices
 it within ``POLL_PERIOD_S``.
 
-A :class:`~dpos_ros.params.ParameterError` while the node is constructed is logged as one
+A :class:`~dpos_ros.runtime.params.ParameterError` while the node is constructed is logged as one
 error line naming the parameter and value, and gives exit status 2.
 """
 
@@ -33,7 +33,7 @@ import rclpy.logging
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-from dpos_ros.params import ParameterError
+from dpos_ros.runtime.params import ParameterError
 
 __all__ = ["run_node", "install_stop_handlers", "restore_handlers", "EXIT_OK", "EXIT_BAD_PARAMETER", "POLL_PERIOD_S"]
 

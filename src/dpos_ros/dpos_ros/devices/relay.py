@@ -43,11 +43,11 @@ QoS
     driver publishers; most drivers publish with the sensor-data profile), ``reliable`` on request
     (then only reliable publishers match, and the driver's writer retransmits what was lost);
     KEEP_LAST with the contract's deep queue, VOLATILE. Outputs: the contract's
-    :data:`dpos_ros.qos.SENSOR_QOS`.
+    :data:`dpos_ros.contract.qos.SENSOR_QOS`.
 
 Status
     The relay itself publishes a ``diagnostic_msgs/DiagnosticArray`` on ``~/status`` (i.e.
-    ``/<node name>/status``, :data:`dpos_ros.qos.STATUS_QOS`, latched) every ``status_period_s``
+    ``/<node name>/status``, :data:`dpos_ros.contract.qos.STATUS_QOS`, latched) every ``status_period_s``
     (1 s), one DiagnosticStatus per route with its counts; pass ``status_period_s=None`` to publish
     :meth:`DeviceRelay.diagnostics` yourself. :attr:`DeviceRelay.stats` gives the same counts.
 
@@ -56,8 +56,6 @@ called in the subscription callback, after the message is published.
 """
 
 from __future__ import annotations
-
-from dpos_core.units import FloatArray
 
 import copy
 import math
@@ -72,13 +70,13 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistWithCovarianceStamped
-from numpy.typing import NDArray
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from .params import param
-from .qos import SENSOR_QOS, STATUS_QOS, STREAM_DEPTH
+from dpos_core.units import FloatArray
+from dpos_ros.contract.qos import SENSOR_QOS, STATUS_QOS, STREAM_DEPTH
+from dpos_ros.runtime.params import param
 
 __all__ = [
     "Route", "RouteStats", "DeviceRelay", "KINDS", "REASONS", "INPUT_RELIABILITIES", "input_qos",
@@ -181,7 +179,7 @@ def input_qos(reliability: str) -> QoSProfile:
 
 
 def input_reliability_param() -> Any:
-    """The ``input_reliability`` parameter of a ``device: ros`` node (a :func:`~dpos_ros.params.param` field)."""
+    """The ``input_reliability`` parameter of a ``device: ros`` node (a :func:`~dpos_ros.runtime.params.param` field)."""
     return param(
         "best_effort",
         "device: ros: QoS reliability of the driver subscriptions; best_effort matches every driver, "

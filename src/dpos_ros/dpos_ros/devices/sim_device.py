@@ -1,4 +1,4 @@
-"""Live simulated device: publish a device's :class:`~dpos_ros.sim_streams.TopicStream` s on DDS.
+"""Live simulated device: publish a device's :class:`~dpos_ros.devices.sim_streams.TopicStream` s on DDS.
 
 A ``device: sim`` node (pos_master_node, pos_sub_node) hands its streams to :class:`SimDevice`,
 which creates one publisher per topic and publishes every message **byte for byte** as
@@ -8,7 +8,7 @@ carries exactly the samples that ``dpos-sim`` writes to a bag.
 Order and pacing
     Streams with ``qos == 'datum'`` (the latched ``/dpos/datum``, TRANSIENT_LOCAL) are published
     first, at once, before any waiting: late joiners get them anyway. All other messages follow in
-    :func:`~dpos_ros.sim_streams.merged_order` (by stamp; ``/session/end`` last). With
+    :func:`~dpos_ros.devices.sim_streams.merged_order` (by stamp; ``/session/end`` last). With
     ``rate_factor > 0`` the message with stamp ``t`` is published when
     ``(now - wall_start) * rate_factor >= t - t_first``, ``now`` read from the node's clock
     (``wall_start`` = when publishing starts; with ``use_sim_time`` the node's clock follows
@@ -35,7 +35,7 @@ Flow control (never overrun the KEEP_LAST history)
     means. Before ``/session/end`` every topic is waited for, so that a subscriber receives the end
     of the session after the last sample of every topic.
 
-    The writers use the stream's QoS (``dpos_ros.qos``: RELIABLE, VOLATILE) with a shallower depth
+    The writers use the stream's QoS (``dpos_ros.contract.qos``: RELIABLE, VOLATILE) with a shallower depth
     (:func:`writer_depths`): ``FLOW_WINDOW`` = 100 messages shared among the topics in proportion to
     their message counts (>= 1 each, preferably a divisor of the count). Two Fast DDS behaviours
     set this (both measured here):
@@ -97,88 +97,30 @@ Progress is logged every ~10 % and at the end: ``published N messages on M topic
 
 from __future__ import annotations
 
-import importlib
-import math
-import os
-import tempfile
 import threading
 import time
-from collections.abc import Callable, MutableMapping, Sequence
-from pathlib import Path
-from typing import Any
-
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile
 
-from . import qos as dpos_qos
-from .sim_streams import TopicStream, merged_order
+from dpos_ros.contract.qos import qos_profile
+from dpos_ros.contract.topics import SESSION_END, message_class
+from dpos_ros.io.flow import (
+    ACK_POLL_S,
+    ACK_WARN_S,
+    POLL_S,
+    use_device_fastdds_profile,
+    writer_depths,
+    writer_qos,
+)
+from dpos_ros.io.streams import TopicStream, merged_order
 
-__all__ = ["SimDevice", "Tap", "message_class", "qos_profile", "writer_depths", "writer_qos", "load_sim_session",
-           "use_device_fastdds_profile", "END_TOPIC"]
-
-#: The topic that ends a session; everything else is acknowledged before it is published.
-END_TOPIC = "/session/end"
-#: Longest sleep of the publishing thread between two checks of the stop flag [s].
-POLL_S = 0.05
-#: Unacknowledged messages per device over all topics (see "Flow control").
-FLOW_WINDOW = 100
-#: Writer heartbeat period of the device processes' Fast DDS profile [ms].
-HEARTBEAT_PERIOD_MS = 20
-#: A flow-control wait is logged after this many seconds, and again every as many.
-ACK_WARN_S = 10.0
-#: Poll period of a flow-control wait [s] (see _wait_acked: the GIL).
-ACK_POLL_S = 0.001
-
-_QOS = {
-    "sensor": dpos_qos.SENSOR_QOS,
-    "nav": dpos_qos.NAV_QOS,
-    "datum": dpos_qos.DATUM_QOS,
-    "status": dpos_qos.STATUS_QOS,
-}
-
-
-_PROFILE_XML = """<?xml version="1.0" encoding="UTF-8" ?>
-<!-- written by dpos_ros.sim_device.use_device_fastdds_profile: writer heartbeat period of the
-     simulated device nodes (flow control waits for acknowledgements, which follow heartbeats) -->
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <data_writer profile_name="dpos_sim_device_writer" is_default_profile="true">
-    <times>
-      <heartbeatPeriod>
-        <sec>0</sec>
-        <nanosec>{nanosec}</nanosec>
-      </heartbeatPeriod>
-    </times>
-  </data_writer>
-</profiles>
-"""
-_PROFILE_ENV = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
-
-
-def use_device_fastdds_profile(environ: MutableMapping[str, str] | None = None) -> str | None:
-    """Point Fast DDS at the device writer profile (see "Flow control"); call before ``rclpy.init``.
-
-    Returns the profile path, or None when not applied (another RMW, or the user configures Fast
-    DDS). The file is written to the temporary directory (no package data needed).
-    """
-    env = os.environ if environ is None else environ
-    if not env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps"):
-        return None
-    if any(env.get(k) for k in _PROFILE_ENV) or Path("DEFAULT_FASTRTPS_PROFILES.xml").exists():
-        return None
-    text = _PROFILE_XML.format(nanosec=HEARTBEAT_PERIOD_MS * 1_000_000)
-    path = Path(tempfile.gettempdir()) / f"dpos_sim_device_fastdds_{os.getuid()}_{HEARTBEAT_PERIOD_MS}ms.xml"
-    if not path.is_file() or path.read_text() != text:
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    for k in _PROFILE_ENV:
-        env[k] = str(path)
-    return str(path)
-
+__all__ = ["SimDevice", "Tap", "load_sim_session", "use_device_fastdds_profile"]
 
 @dataclass(frozen=True)
 class Tap:
@@ -200,73 +142,17 @@ class Tap:
     max_batch: int = 100
 
 
-def qos_profile(kind: str) -> QoSProfile:
-    """The QoS profile of a stream's ``qos`` kind (``sensor``, ``nav``, ``datum``, ``status``)."""
-    try:
-        return _QOS[kind]
-    except KeyError:
-        raise ValueError(f"unknown stream QoS kind {kind!r}; known: {sorted(_QOS)}") from None
-
-
-def _depth_for(n: int, target: float) -> int:
-    """A depth near ``target`` that divides ``n`` when one lies in [target/4, 3 target/2], else round(target)."""
-    if n <= max(1.0, target):
-        return max(1, n)
-    lo, hi = max(1, math.ceil(target / 4)), max(1, math.floor(1.5 * target))
-    best = None
-    for d in range(1, math.isqrt(n) + 1):
-        if n % d == 0:
-            for c in (d, n // d):
-                if lo <= c <= hi and (best is None or abs(c - target) < abs(best - target)):
-                    best = c
-    return best if best is not None else max(1, round(target))
-
-
-def writer_depths(streams: Sequence[TopicStream], window: int = FLOW_WINDOW) -> list[int]:
-    """History depth of the device's writer of each stream (see "Flow control").
-
-    Latched streams keep their profile's depth. The others share ``window`` in proportion to their
-    message counts, each at least 1 and at most its own length, preferably a divisor of it (so that
-    the last batch fills the history too and its acknowledgement is prompt).
-    """
-    total = sum(len(s) for s in streams if s.qos not in ("datum", "status")) or 1
-    out = []
-    for s in streams:
-        if s.qos in ("datum", "status"):
-            out.append(qos_profile(s.qos).depth)
-        else:
-            out.append(_depth_for(len(s), window * len(s) / total))
-    return out
-
-
-def writer_qos(stream: TopicStream, depth: int) -> QoSProfile:
-    """The stream's QoS profile with the device writer's ``depth``."""
-    p = qos_profile(stream.qos)
-    return QoSProfile(history=p.history, depth=depth, reliability=p.reliability, durability=p.durability)
-
-
-def message_class(msgtype: str) -> type:
-    """The Python message class of ``pkg/msg/Name`` (rosidl_runtime_py when installed)."""
-    try:
-        from rosidl_runtime_py.utilities import get_message
-    except ImportError:
-        pkg, kind, name = msgtype.split("/")
-        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
-    return get_message(msgtype)
-
-
 def load_sim_session(scenario: str, aircraft_config: str, seed: int, duration_s: float) -> Any:
     """The :class:`~dpos_core.sim.session.SimulatedSession` of a device node's parameters.
 
     ``aircraft_config`` '' = the scenario's own aircraft; ``duration_s`` 0 = the whole scenario.
-    Cheap: samples are generated lazily. Raises :class:`~dpos_ros.params.ParameterError` naming
+    Cheap: samples are generated lazily. Raises :class:`~dpos_ros.runtime.params.ParameterError` naming
     the parameter (``scenario``, ``aircraft_config``, ``duration`` or ``seed``).
     """
     from dpos_core.config import ConfigError, load_aircraft
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
-
-    from .params import ParameterError
+    from dpos_ros.runtime.params import ParameterError
 
     if aircraft_config:
         try:
@@ -312,7 +198,7 @@ class SimDevice:
         *,
         min_subscribers: int = 0,
         wait_subscribers_s: float = 0.0,
-        on_finished: Callable[["SimDevice"], None] | None = None,
+        on_finished: Callable[[SimDevice], None] | None = None,
         taps: Sequence[Tap] = (),
     ) -> None:
         if not rate_factor >= 0.0:
@@ -342,7 +228,7 @@ class SimDevice:
 
     # ------------------------------------------------------------------ control
 
-    def start(self) -> "SimDevice":
+    def start(self) -> SimDevice:
         self._thread.start()
         return self
 
@@ -425,7 +311,7 @@ class SimDevice:
         unacked = [0] * len(self.publishers)
         tap_out: dict[int, dict[int, Sequence[bytes]]] = {i: {} for i in tap_source}  # derived messages per source message
         tap_next = {i: 0 for i in tap_source}  # first source message not handed to produce yet
-        end_index = {i for i, s in enumerate(streams) if s.topic == END_TOPIC}
+        end_index = {i for i, s in enumerate(streams) if s.topic == SESSION_END}
         rate = self.rate_factor
         t_first = int(t_all[0]) if n else 0
         wall_start = self._now_ns()
@@ -450,13 +336,13 @@ class SimDevice:
             m = int(mi_all[k])
             if i in tap_source and m >= tap_next[i]:
                 tap = self.taps[tap_source[i]]
-                src = streams[i]
-                hi = min(len(src), m + max(1, tap.max_batch))
+                fed = streams[i]
+                hi = min(len(fed), m + max(1, tap.max_batch))
                 if rate > 0.0:  # only what is due now (at least this message)
                     due_until = t_first + now_rel
-                    hi = max(m + 1, min(hi, int(np.searchsorted(src.t_ns, due_until, side="right"))))
+                    hi = max(m + 1, min(hi, int(np.searchsorted(fed.t_ns, due_until, side="right"))))
                 idx = np.arange(m, hi)
-                out = tap.produce(src, idx)
+                out = tap.produce(fed, idx)
                 if len(out) != idx.size:
                     raise ValueError(f"tap {tap.topic}: produce returned {len(out)} entries for {idx.size} messages")
                 tap_out[i].update(zip(idx.tolist(), out))

@@ -1,0 +1,63 @@
+"""Topic names and message types of the interface contract (docs/design.md "Topics").
+
+The one place that spells them: nodes, devices, recorder, player and products import these.
+Frame names are in :mod:`dpos_ros.contract.conversions` (``WORLD_FRAME``, ``MASTER_FRAME``, ...).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# --------------------------------------------------------------------------- message types
+IMU = "sensor_msgs/msg/Imu"
+ODOMETRY = "nav_msgs/msg/Odometry"
+NAVSATFIX = "sensor_msgs/msg/NavSatFix"
+TWIST_COV = "geometry_msgs/msg/TwistWithCovarianceStamped"
+HEADER = "std_msgs/msg/Header"
+DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
+
+# --------------------------------------------------------------------------- topics
+DATUM = "/dpos/datum"
+MASTER_IMU = "/master/imu"
+GNSS_FIX = "/gnss/fix"
+GNSS_VEL = "/gnss/vel"
+MASTER_NAV = "/master/nav"
+SESSION_END = "/session/end"
+IFA_CORRECTION = "/ifa/correction"
+IFA_IMU_BIAS = "/ifa/imu_bias"
+IFA_STATUS = "/ifa/status"
+POS_MASTER_STATUS = "/pos_master/status"
+TRANSFER_ALIGN_STATUS = "/transfer_align/status"
+TRUTH_MASTER = "/truth/master"
+#: service of transfer_align_node (std_srvs/Trigger): ends the session as /session/end does
+FINALIZE_SERVICE = "/transfer_align_node/finalize"
+
+
+def sub_imu(name: str) -> str:
+    """``/sub_imu/<name>/imu``: one sub-IMU's samples."""
+    return f"/sub_imu/{name}/imu"
+
+
+def antenna_odom(name: str) -> str:
+    """``/antenna/<name>/odom``: one antenna's smoothed pose."""
+    return f"/antenna/{name}/odom"
+
+
+def truth_sub_imu(name: str) -> str:
+    """``/truth/sub_imu/<name>`` (simulated devices only)."""
+    return f"/truth/sub_imu/{name}"
+
+
+def truth_antenna(name: str) -> str:
+    """``/truth/antenna/<name>`` (simulated devices only)."""
+    return f"/truth/antenna/{name}"
+
+
+def message_class(msgtype: str) -> type:
+    """The Python message class of ``pkg/msg/Name`` (rosidl_runtime_py when installed)."""
+    try:
+        from rosidl_runtime_py.utilities import get_message
+    except ImportError:
+        pkg, kind, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+    return get_message(msgtype)

@@ -1,0 +1,576 @@
+"""The navigators of pos_master_node: /master/nav by ``alignment``.
+
+/master/nav is nav_msgs/Odometry, frame ``enu``, child ``master_imu``:
+
+``reference`` (:class:`ReferenceNavigator`)
+    simulation only: the device's stream, truth + the paper's main-system noise.
+``ifa`` (:class:`IfaNavigator`)
+    the node mechanizes the master IMU itself (dpos_core.ifa.mechanization.MasterMechanization, numba,
+    batches of up to 100 samples handed over by the device thread as a SimDevice tap, so the
+    navigation keeps up with ``rate_factor`` 0 and is flow-controlled like the device's streams).
+    It starts in simulation from truth at the session start with ``initial_heading_error_deg``
+    (default: the scenario's ``ifa.initial_heading_error_deg``, else 0) and level errors 0, and
+    publishes that initial state first (stamp = session start: the ifa_node starts its shadow
+    strapdown from the first /master/nav), then one message per IMU sample with the IMU's stamp.
+    ``/ifa/correction`` for epoch ``t_k`` resets the state at the sample ``t_k`` and re-integrates
+    the samples stored after it (``ring_s``); ``/ifa/imu_bias`` stamped ``t_k`` is removed from
+    the samples after ``t_k``; both as the ifa_node's closed loop does, so the navigation equals
+    its strapdown (dpos_core.ifa.pipeline) to rounding. Already published messages are not
+    re-published: a message reflects the corrections received before it was computed.
+    Unaligned flag: until ``/ifa/status`` reports ALIGNED (or DEGRADED, i.e. aligned but
+    inconsistent), the covariance is the filter's (from the latest correction; before the first
+    one ``initial_sigma``, heading 100 deg) and ``/pos_master/status`` (DiagnosticArray,
+    TRANSIENT_LOCAL, level WARN, message UNALIGNED) says so; ALIGNED: level OK.
+``given`` (:class:`GivenNavigator`)
+    the same mechanization from a configured ``initial_state`` (default in simulation: truth at
+    the session start), flagged aligned (message GIVEN) from the start. Decision: corrections and
+    bias estimates of an ifa_node are applied here too when one runs (the shadow loop works from
+    any start state; an ifa_node then refines a given state); without an ifa_node it is
+    free-inertial. /ifa/status does not change the flag.
+
+``ifa`` and ``given`` share :class:`Mechanizer` (the mechanization, the feedback subscriptions,
+the encoding of /master/nav and the status); they differ in their initial state and their flag.
+The source hands a mechanizer the IMU samples (:meth:`Mechanizer.mechanize`) and starts it: in
+simulation at once from the session (:meth:`Mechanizer.start_simulated`); with ``device: ros``
+once the drivers' data give the initial state (:meth:`Mechanizer.try_start_live`, from the
+:class:`DriverInput` the relay fills):
+
+    Initial state (its stamp is the time origin; the first /master/nav carries it, then one message
+    per later IMU stamp; IMU samples up to it are not integrated, counted as ``imu_before_start``):
+
+    ``given``: ``initial_state`` (required) is the state at the first IMU sample relayed once the
+    datum is known (with the ``datum`` parameter: the first IMU sample; without it: the first one
+    after the first valid fix - set ``datum`` when the epoch matters).
+    ``ifa``: the first valid /gnss/fix with a /gnss/vel of the same stamp (within
+    ``FIX_VEL_MATCH_NS``): position = the fix, moved from the antenna to the IMU by the aircraft's
+    ``gnss_lever_arm_m`` with the initial attitude when ``aircraft_config`` is set (else the
+    antenna position: a lever arm of a few m is well inside the initial position sigma);
+    velocity = the GNSS velocity (the antenna's; the rotation term is ignored); heading = course
+    over ground ``atan2(vE, vN)`` (aviation heading, clockwise from north; a crab angle in wind
+    is part of the initial heading error the IFA removes); pitch = roll = 0; covariance
+    ``initial_sigma`` (heading 100 deg by default). Below ``min_course_speed_mps`` ground speed
+    the course is meaningless: the ``initial_state`` heading is used when given, else the fix is
+    skipped with a warning and the node waits for a faster one.
+
+Threading: :meth:`Mechanizer.mechanize` runs in the simulated device's thread (or the relay's
+timer), the feedback callbacks in the executor; a lock serializes their use of the mechanization.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from abc import ABC, abstractmethod
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from numpy.typing import NDArray
+from rclpy.node import Node
+
+from dpos_core import earth
+from dpos_core.errors import RejectedInput
+from dpos_core.frames import C_nb_from_hpr
+from dpos_core.ifa.mechanization import (
+    MasterMechanization,
+    body_rate_eb,
+    initial_state_from_list,
+    initial_state_from_truth,
+    stamp_s,
+)
+from dpos_core.ifa.states import AlignmentState
+from dpos_core.strapdown import NavState
+from dpos_core.units import DEG, FloatArray
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
+from dpos_ros.runtime.params import ParameterError
+from pos_master_node import NODE_NAME
+from pos_master_node.params import PosMasterConfig
+
+__all__ = ["Navigator", "ReferenceNavigator", "Mechanizer", "GivenNavigator", "IfaNavigator", "DriverInput", "NavRows",
+           "LEAD_WAIT_S", "FIX_VEL_MATCH_NS", "GNSS_KEEP", "WARN_THROTTLE_S"]
+
+#: longest wait for an /ifa/correction before the device runs on (max_lead_s) [s]
+LEAD_WAIT_S = 5.0
+#: ``device: ros``, ``alignment: ifa``: a /gnss/vel belongs to a /gnss/fix within this [ns]
+FIX_VEL_MATCH_NS = 50_000_000
+#: recent fixes / velocities kept while waiting for the initial state
+GNSS_KEEP = 20
+#: repeated "waiting" warnings at most this often [s]
+WARN_THROTTLE_S = 5.0
+#: ``hardware_id`` of the /pos_master/status entry
+STATUS_HARDWARE_ID = "master_imu"
+
+#: a relayed IMU sample: (stamp [ns], omega [rad/s] (3), f [m/s^2] (3)), body axes
+ImuSample = tuple[int, tuple[float, ...], tuple[float, ...]]
+#: /master/nav covariances (3, 3) each: position [m^2], attitude [rad^2] (ENU axes), velocity [m^2/s^2]
+NavCov = tuple[FloatArray, FloatArray, FloatArray]
+#: what :meth:`Mechanizer.mechanize` returns: (the initial state's /master/nav or None, the
+#: /master/nav rows of the kept samples (K, size), keep mask (N,))
+NavRows = tuple[bytes | None, NDArray[np.uint8], NDArray[np.bool_]]
+
+
+@dataclass
+class DriverInput:
+    """``device: ros``: what the relay has received towards the start (sources.RelaySource fills it).
+
+    Attributes:
+        datum_llh: [lat_rad, lon_rad, h_m] of /dpos/datum once known (the ``datum`` parameter or the
+            first valid fix), else None.
+        lever_arm_b_m: the aircraft's GNSS lever arm [m] (body axes) when ``aircraft_config`` is set.
+        imu: relayed IMU samples not integrated yet, in arrival order.
+        fixes, vels: (stamp [ns], llh [rad, rad, m] / ENU velocity [m/s]) of the recent valid fixes and
+            velocities, kept until the mechanization starts.
+    """
+
+    datum_llh: FloatArray | None
+    lever_arm_b_m: FloatArray | None
+    imu: deque[ImuSample] = field(default_factory=deque)
+    fixes: deque[tuple[int, FloatArray]] = field(default_factory=lambda: deque(maxlen=GNSS_KEEP))
+    vels: deque[tuple[int, FloatArray]] = field(default_factory=lambda: deque(maxlen=GNSS_KEEP))
+
+
+@dataclass
+class _Started:
+    """A started mechanization: its time origin [ns], the datum of /master/nav and how it started."""
+
+    mech: MasterMechanization
+    origin_ns: int
+    datum_llh: FloatArray
+    initial_text: str
+    #: the initial state's /master/nav is still to be published (with the first batch)
+    head_due: bool = True
+
+
+class ReferenceNavigator:
+    """``alignment: reference`` (simulation only): /master/nav is the simulated device's own stream.
+
+    Nothing to mechanize: no feedback subscriptions, no /pos_master/status; the source publishes
+    the stream (sources.SimSource) or refuses the alignment (sources.RelaySource).
+    """
+
+    alignment: ClassVar[str] = "reference"
+
+    def __init__(self, node: Node, cfg: PosMasterConfig) -> None:
+        self.config = cfg
+        #: always 0 (no mechanization; the attribute mirrors :class:`Mechanizer`)
+        self.imu_before_start = 0
+
+    @property
+    def mech(self) -> MasterMechanization | None:
+        """None: the reference is not mechanized."""
+        return None
+
+    @property
+    def aligned(self) -> bool:
+        """True: truth + the main-system noise."""
+        return True
+
+    def attach(self) -> None:
+        """Nothing to subscribe to or publish."""
+
+
+class Mechanizer(ABC):
+    """``alignment: ifa | given``: the master IMU mechanized with the ifa_node's feedback.
+
+    Construction reads the parameters only; :meth:`attach` creates the /ifa/* subscriptions and the
+    /pos_master/status publisher and publishes the first status; a source starts the mechanization
+    (:meth:`start_simulated` or :meth:`try_start_live`) and feeds it (:meth:`mechanize`).
+    """
+
+    alignment: ClassVar[str]
+    #: /master/nav is flagged aligned before any /ifa/status
+    initially_aligned: ClassVar[bool]
+    #: the end of the ``device: ros`` start log line
+    live_start_note: ClassVar[str]
+
+    def __init__(self, node: Node, cfg: PosMasterConfig) -> None:
+        self.node = node
+        self.config = cfg
+        self.log = node.get_logger()
+        s = cfg.initial_sigma
+        #: the /master/nav covariance: ``initial_sigma`` until the first correction, then the filter's
+        self.nav_cov: NavCov = (np.eye(3) * s[0] ** 2, np.diag([s[3], s[4], s[2]]) ** 2 * DEG**2, np.eye(3) * s[1] ** 2)
+        self._lock = threading.Lock()
+        self._corrected = threading.Condition(self._lock)
+        self._started: _Started | None = None
+        #: /master/nav messages produced
+        self.nav_published = 0
+        #: relayed IMU samples not integrated: stamped up to the start, or dropped while waiting for it
+        self.imu_before_start = 0
+        #: the ifa_node's last status message ("none" before the first)
+        self.ifa_status = "none"
+        #: the flag of /master/nav (/pos_master/status)
+        self.aligned = self.initially_aligned
+        self._status_pub: Any = None  # attach()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def mech(self) -> MasterMechanization | None:
+        """The mechanization, None before the start."""
+        return None if self._started is None else self._started.mech
+
+    @property
+    def started(self) -> bool:
+        return self._started is not None
+
+    @property
+    def origin_ns(self) -> int:
+        """The stamp of the initial state [ns] (time origin of the mechanization); after the start only."""
+        return self._run().origin_ns
+
+    def _run(self) -> _Started:
+        if self._started is None:
+            raise RuntimeError(f"alignment {self.alignment}: the mechanization has not started")
+        return self._started
+
+    # ------------------------------------------------------------------ wiring
+    def attach(self) -> None:
+        """Subscribe to /ifa/correction, /ifa/imu_bias and /ifa/status; publish /pos_master/status."""
+        node = self.node
+        node.create_subscription(T.message_class(T.ODOMETRY), T.IFA_CORRECTION, self.on_correction, NAV_QOS, raw=True)
+        node.create_subscription(T.message_class(T.IMU), T.IFA_IMU_BIAS, self.on_bias, NAV_QOS, raw=True)
+        node.create_subscription(DiagnosticArray, T.IFA_STATUS, self.on_ifa_status, STATUS_QOS)
+        self._status_pub = node.create_publisher(DiagnosticArray, T.POS_MASTER_STATUS, STATUS_QOS)
+        self.publish_status()
+
+    # ------------------------------------------------------------------ start
+    def start(self, initial: NavState, origin_ns: int, datum_llh: FloatArray, initial_text: str) -> None:
+        """Start the mechanization from ``initial`` (stamped ``origin_ns``) in the ``enu`` frame of ``datum_llh``."""
+        mech = MasterMechanization(initial, self.config.ring_s)
+        with self._lock:
+            self._started = _Started(mech, origin_ns, datum_llh, initial_text)
+
+    def start_simulated(self, session: Any, origin_ns: int, datum_llh: FloatArray) -> None:
+        """``device: sim``: start at the session start (``origin_ns``) from :meth:`initial_in_simulation`.
+
+        Raises:
+            ParameterError: an invalid ``initial_state``.
+        """
+        initial, text = self.initial_in_simulation(session)
+        self.start(initial, origin_ns, datum_llh, text)
+
+    @abstractmethod
+    def initial_in_simulation(self, session: Any) -> tuple[NavState, str]:
+        """The initial state at the session start (t_s 0) and how it was chosen (log text)."""
+
+    @abstractmethod
+    def announce_simulated(self) -> None:
+        """Log how /master/nav is made in simulation (after the device's plan line)."""
+
+    def check_live(self) -> None:
+        """``device: ros``: the parameters the live start needs.
+
+        Raises:
+            ParameterError: an invalid ``initial_state``.
+        """
+        cfg = self.config
+        if cfg.initial_state:
+            try:
+                initial_state_from_list(cfg.initial_state, 0.0)
+            except ValueError as e:
+                raise ParameterError("initial_state", list(cfg.initial_state), str(e)) from None
+
+    @abstractmethod
+    def live_plan(self) -> str:
+        """``device: ros``: what /master/nav is mechanized from (for the node's plan line)."""
+
+    @abstractmethod
+    def live_initial(self, inp: DriverInput) -> tuple[int, NavState, str] | None:
+        """``device: ros``: ``(stamp [ns], initial state, log text)`` once ``inp`` gives it, else None
+        (dropping, and counting, what will not be integrated while waiting)."""
+
+    def try_start_live(self, inp: DriverInput) -> bool:
+        """``device: ros``: start the mechanization once the initial state is known (module docstring).
+
+        The IMU samples stamped up to the start are dropped from ``inp.imu`` (``imu_before_start``),
+        the kept fixes and velocities are cleared.
+        """
+        start = self.live_initial(inp)
+        if start is None:
+            return False
+        t0_ns, initial, text = start
+        datum = inp.datum_llh
+        if datum is None:  # not reached: the given start waits for it, a fix sets it before it is kept
+            return False
+        before = len(inp.imu)
+        inp.imu = deque(s for s in inp.imu if s[0] > t0_ns)
+        self.imu_before_start += before - len(inp.imu)
+        self.start(initial, t0_ns, datum, text)
+        inp.fixes.clear()
+        inp.vels.clear()
+        hpr = initial.hpr_rad / DEG
+        self.log.info(f"{NODE_NAME}: {T.MASTER_NAV} starts at stamp {t0_ns} ns from {text}: lat {initial.llh[0] / DEG:.8f} "
+                      f"lon {initial.llh[1] / DEG:.8f} deg h {initial.llh[2]:.3f} m, vel ENU {np.round(initial.vel_n_mps, 3).tolist()} m/s, "
+                      f"heading {hpr[0]:.3f} pitch {hpr[1]:.3f} roll {hpr[2]:.3f} deg{self.live_start_note}")
+        self.publish_status()
+        return True
+
+    # ------------------------------------------------------------------ mechanization
+    def mechanize(self, t_ns: NDArray[np.int64], om: FloatArray, fb: FloatArray) -> NavRows:
+        """Integrate IMU samples (t_ns (N,), omega [rad/s] (N, 3), f [m/s^2] (N, 3), body axes).
+
+        Returns ``(the initial state's /master/nav or None, the /master/nav rows of the kept
+        samples (K, size), keep mask (N,))``.
+        """
+        with self._lock:
+            run = self._run()
+            mech = run.mech
+            first = run.head_due
+            run.head_due = False
+            nav, keep, warnings = mech.add(stamp_s(t_ns, run.origin_ns), om, fb)
+            gyro = np.array([mech.bias_at(t)[0] for t in nav.t_s]).reshape(-1, 3)
+            cov = self.nav_cov
+        for w in warnings:
+            self.log.warning(w)
+        head = None
+        if first:
+            s = mech.initial
+            v0 = cv.odometry_values_cov(s.llh[None], s.vel_n_mps[None], s.q_nb[None], run.datum_llh, None, *cov)
+            head = bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([run.origin_ns]), v0)[0])
+        rows = np.empty((0, 0), dtype=np.uint8)
+        if len(nav):
+            w_eb = body_rate_eb(nav.q_nb, nav.llh, nav.vel_n_mps, om[keep] - gyro)
+            v = cv.odometry_values_cov(nav.llh, nav.vel_n_mps, nav.q_nb, run.datum_llh, w_eb, *cov)
+            rows = cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, t_ns[keep], v)
+        self.nav_published += int(len(nav)) + int(first)
+        return head, rows, keep
+
+    def wait_for_corrections(self, t_s: float, max_lead_s: float, stopping: Callable[[], bool]) -> None:
+        """Flow control of the IFA loop: wait while the mechanization at ``t_s`` is more than
+        ``max_lead_s`` ahead of the last correction (bounded waits of LEAD_WAIT_S, or until
+        ``stopping()``; the caller's thread waits on a condition, which releases the GIL)."""
+        mech = self._run().mech
+        deadline = time.monotonic() + LEAD_WAIT_S
+        with self._corrected:
+            while t_s - (mech.last_correction_t_s or 0.0) > max_lead_s:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0 or stopping():
+                    self.log.warning(
+                        f"no {T.IFA_CORRECTION} for {LEAD_WAIT_S:g} s (mechanization at t={t_s:.2f} s, last correction "
+                        f"{mech.last_correction_t_s}); continuing without waiting for the IFA loop")
+                    return
+                self._corrected.wait(min(remaining, 0.05))
+
+    # ------------------------------------------------------------------ feedback
+    def on_correction(self, raw: bytes) -> None:
+        """/ifa/correction: reset the state at its stamp and re-integrate; its covariance is the nav's from now on."""
+        t_ns, v = cv.decode_raw(raw, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+        run = self._started
+        if run is None:
+            self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns before the mechanization started: ignored")
+            return
+        blk = cv.odometry_from_values(np.array([t_ns]), v[None], run.datum_llh)
+        pos, att, vel = cv.odometry_cov_n(blk, run.datum_llh)
+        try:
+            state = NavState(float(stamp_s(t_ns, run.origin_ns)), blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0])
+        except RejectedInput as e:
+            self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {e}: ignored")
+            return
+        with self._lock:
+            warning = run.mech.correct(state)
+            if warning is None:
+                self.nav_cov = (pos[0], att[0], vel[0])
+            self._corrected.notify_all()
+        if warning is not None:
+            self.log.warning(f"{T.IFA_CORRECTION}: {warning}")
+        self.publish_status()
+
+    def on_bias(self, raw: bytes) -> None:
+        """/ifa/imu_bias: remove the estimate from the samples after its stamp."""
+        t_ns, v = cv.decode_raw(raw, "imu", cv.MASTER_FRAME)
+        run = self._started
+        if run is None:
+            self.log.warning(f"{T.IFA_IMU_BIAS} at stamp {t_ns} ns before the mechanization started: ignored")
+            return
+        g, a, _, _ = cv.imu_bias_from_values(v[None])
+        with self._lock:
+            warning = run.mech.set_bias(float(stamp_s(t_ns, run.origin_ns)), g[0], a[0])
+        if warning is not None:
+            self.log.warning(f"{T.IFA_IMU_BIAS}: {warning}")
+
+    def on_ifa_status(self, msg: DiagnosticArray) -> None:
+        """/ifa/status: the ifa_node's state; :meth:`aligned_by` sets the flag."""
+        for st in msg.status:
+            if st.name.startswith("ifa_node"):
+                was = self.aligned
+                self.ifa_status = st.message
+                self.aligned = self.aligned_by(st.message)
+                if self.aligned != was:
+                    self.log.info(f"{T.IFA_STATUS} {st.message}: {T.MASTER_NAV} is {'aligned' if self.aligned else 'UNALIGNED'}")
+                self.publish_status()
+
+    @abstractmethod
+    def aligned_by(self, ifa_message: str) -> bool:
+        """The flag after an /ifa/status with this message."""
+
+    @abstractmethod
+    def status_message(self) -> str:
+        """The message of /pos_master/status."""
+
+    def publish_status(self) -> None:
+        """/pos_master/status: the flag (level OK when aligned, else WARN) and the mechanization's counts."""
+        if self._status_pub is None:  # before attach(): not wired yet
+            return
+        level = DiagnosticStatus.OK if self.aligned else DiagnosticStatus.WARN
+        message = self.status_message()
+        with self._lock:
+            mech = self.mech
+            values = {
+                "alignment": self.config.alignment,
+                "device": self.config.device,
+                "started": mech is not None,
+                "ifa_status": self.ifa_status,
+                "corrections": 0 if mech is None else mech.corrections,
+                "last_correction_t_s": "none" if mech is None or mech.last_correction_t_s is None else f"{mech.last_correction_t_s:.3f}",
+                "imu_dropped": 0 if mech is None else mech.dropped,
+                "imu_before_start": self.imu_before_start,
+                "nav_t_s": "none" if mech is None else f"{mech.t_s:.3f}",
+                "heading_sigma_deg": f"{np.sqrt(self.nav_cov[1][2, 2]) / DEG:.6g}",
+            }
+        self._status_pub.publish(cv.diagnostic_array(self.node.get_clock().now().to_msg(), NODE_NAME, STATUS_HARDWARE_ID,
+                                                      level, message, values))
+
+
+class GivenNavigator(Mechanizer):
+    """``alignment: given``: mechanized from the configured ``initial_state``, flagged aligned (GIVEN)."""
+
+    alignment: ClassVar[str] = "given"
+    initially_aligned: ClassVar[bool] = True
+    live_start_note: ClassVar[str] = ""
+
+    def initial_in_simulation(self, session: Any) -> tuple[NavState, str]:
+        cfg = self.config
+        if cfg.initial_state:
+            try:
+                initial = initial_state_from_list(cfg.initial_state, 0.0)
+            except ValueError as e:
+                raise ParameterError("initial_state", list(cfg.initial_state), str(e)) from None
+            return initial, f"the given state {list(cfg.initial_state)}"
+        tr = session.truth("master", np.array([0.0]))
+        return initial_state_from_truth(tr.q_nb[0], tr.vel_n_mps[0], tr.llh[0], 0.0, 0.0), "truth at the session start"
+
+    def announce_simulated(self) -> None:
+        self.log.info(f"alignment 'given': {T.MASTER_NAV} is mechanized from {self._run().initial_text}")
+
+    def check_live(self) -> None:
+        """``initial_state`` is required (and valid).
+
+        Raises:
+            ParameterError: ``initial_state`` missing or invalid.
+        """
+        cfg = self.config
+        if not cfg.initial_state:
+            raise ParameterError("initial_state", list(cfg.initial_state),
+                                 "required with device:=ros and alignment:=given: [lat_deg, lon_deg, h_m, vE, vN, vU, "
+                                 "heading_deg, pitch_deg, roll_deg] at the first IMU sample")
+        super().check_live()
+
+    def live_plan(self) -> str:
+        return "the given initial_state at the first IMU sample"
+
+    def live_initial(self, inp: DriverInput) -> tuple[int, NavState, str] | None:
+        """The first IMU sample relayed once the datum is known; before, the samples are dropped."""
+        cfg = self.config
+        if not inp.imu:
+            return None
+        if inp.datum_llh is None:
+            self.imu_before_start += len(inp.imu)
+            inp.imu.clear()
+            self.log.warning(f"alignment given: waiting for the first valid {T.GNSS_FIX} (the datum) before starting "
+                             "(set the datum parameter to start at the first IMU sample)", throttle_duration_sec=WARN_THROTTLE_S)
+            return None
+        t0_ns = inp.imu.popleft()[0]
+        return t0_ns, initial_state_from_list(cfg.initial_state, 0.0), f"the given state {list(cfg.initial_state)}"
+
+    def aligned_by(self, ifa_message: str) -> bool:
+        return self.aligned  # /ifa/status does not change the flag
+
+    def status_message(self) -> str:
+        return "GIVEN"
+
+
+class IfaNavigator(Mechanizer):
+    """``alignment: ifa``: mechanized from a coarse initial state, flagged UNALIGNED until /ifa/status ALIGNED."""
+
+    alignment: ClassVar[str] = "ifa"
+    initially_aligned: ClassVar[bool] = False
+    live_start_note: ClassVar[str] = f" (UNALIGNED until {T.IFA_STATUS} ALIGNED)"
+
+    def initial_in_simulation(self, session: Any) -> tuple[NavState, str]:
+        cfg = self.config
+        sc = session.scenario
+        err = cfg.initial_heading_error_deg[0] if cfg.initial_heading_error_deg else float(sc.ifa.get("initial_heading_error_deg", 0.0))
+        tr = session.truth("master", np.array([0.0]))
+        initial = initial_state_from_truth(tr.q_nb[0], tr.vel_n_mps[0], tr.llh[0], 0.0, err)
+        return initial, f"truth at the session start with a heading error of {err:g} deg"
+
+    def announce_simulated(self) -> None:
+        self.log.warning(
+            f"alignment 'ifa': {T.MASTER_NAV} is mechanized from {self._run().initial_text} and flagged UNALIGNED "
+            f"(filter covariance, {T.POS_MASTER_STATUS}) until {T.IFA_STATUS} reports ALIGNED; corrections come from an ifa_node"
+        )
+
+    def live_plan(self) -> str:
+        cfg = self.config
+        return (f"the first {T.GNSS_FIX} + {T.GNSS_VEL} (heading = course over ground from {cfg.min_course_speed_mps:g} m/s"
+                f"{', else the initial_state heading' if cfg.initial_state else ''}), flagged UNALIGNED until {T.IFA_STATUS} ALIGNED")
+
+    def live_initial(self, inp: DriverInput) -> tuple[int, NavState, str] | None:
+        """The course start (:meth:`course_start`); while waiting, at most ``ring_s`` of IMU samples are kept."""
+        start = self.course_start(inp)
+        if start is None and inp.imu:  # keep at most ring_s of samples while waiting
+            t_min = inp.imu[-1][0] - int(self.config.ring_s * 1e9)
+            while inp.imu[0][0] < t_min:
+                inp.imu.popleft()
+                self.imu_before_start += 1
+        return start
+
+    def course_start(self, inp: DriverInput) -> tuple[int, NavState, str] | None:
+        """The initial state from the oldest fix with a matching velocity, or None."""
+        cfg = self.config
+        fixes, vels = inp.fixes, inp.vels
+        while fixes:
+            t_fix, llh = fixes[0]
+            vel = next((v for t, v in vels if abs(t - t_fix) <= FIX_VEL_MATCH_NS), None)
+            if vel is None:
+                if vels and vels[-1][0] > t_fix + FIX_VEL_MATCH_NS:  # its velocity will not come
+                    fixes.popleft()
+                    continue
+                return None
+            fixes.popleft()
+            speed = math.hypot(vel[0], vel[1])
+            if speed >= cfg.min_course_speed_mps:
+                heading = math.atan2(vel[0], vel[1]) % (2.0 * math.pi)
+                text = f"the fix and velocity at {t_fix} ns, heading = course over ground ({speed:.1f} m/s)"
+            elif cfg.initial_state:
+                heading = cfg.initial_state[6] * DEG
+                text = (f"the fix and velocity at {t_fix} ns, the initial_state heading (ground speed {speed:.2f} m/s < "
+                        f"min_course_speed_mps {cfg.min_course_speed_mps:g})")
+            else:
+                self.log.warning(
+                    f"alignment ifa: ground speed {speed:.2f} m/s at {t_fix} ns is below min_course_speed_mps "
+                    f"{cfg.min_course_speed_mps:g}: the course is no heading; waiting for a faster fix (or set initial_state "
+                    f"for its heading)", throttle_duration_sec=WARN_THROTTLE_S)
+                continue
+            if inp.lever_arm_b_m is not None:  # antenna -> IMU with the initial attitude
+                p_enu = -C_nb_from_hpr(heading, 0.0, 0.0) @ inp.lever_arm_b_m
+                llh = np.array(earth.enu_to_geodetic(p_enu, llh), dtype=float)
+                text += f", lever arm {inp.lever_arm_b_m.tolist()} m removed"
+            return t_fix, NavState.from_hpr(0.0, [heading, 0.0, 0.0], vel, llh), text
+        return None
+
+    def aligned_by(self, ifa_message: str) -> bool:
+        return AlignmentState.message_is_aligned(ifa_message)
+
+    def status_message(self) -> str:
+        return "ALIGNED" if self.aligned else "UNALIGNED"
+
+
+#: what makes /master/nav (chosen by ``alignment``)
+Navigator = ReferenceNavigator | GivenNavigator | IfaNavigator

@@ -1,0 +1,296 @@
+"""The sources of pos_master_node: where the master device's data come from, by ``device``.
+
+``device: sim`` (:class:`SimSource`)
+    publishes the simulated master device live (dpos_ros.devices.sim_device): the latched
+    /dpos/datum, /master/imu, /gnss/fix, /gnss/vel, /truth/master and /truth/antenna/<antennas
+    without IMU> (``publish_truth``), and /session/end after the last sample. The bytes are those of
+    ``dpos-sim`` for the same scenario, aircraft, seed, duration and datum. When everything is
+    published the node stays up (late subscribers of the latched datum still get it) until
+    SIGINT/SIGTERM. /master/nav is the device's own stream with ``alignment: reference``; else a
+    tap of /master/imu (batches of up to ``TAP_MAX_BATCH`` samples) hands the IMU to the
+    navigator, which starts at the session start; with ``rate_factor`` 0, ``max_lead_s`` > 0 and
+    an ifa_node publishing /ifa/correction the device thread waits while the mechanization is more
+    than ``max_lead_s`` ahead of the last correction (at most ``LEAD_WAIT_S`` per wait).
+
+``device: ros`` (:class:`RelaySource`; real drivers; issue #5)
+    A dpos_ros.devices.relay.DeviceRelay relays the drivers' standard topics, relative names to remap:
+    ``imu_in`` (sensor_msgs/Imu) -> /master/imu (frame ``master_imu``, rotated into our FLU body
+    axes by ``input_rotation_rpy_deg``), ``fix_in`` (NavSatFix) -> /gnss/fix and ``vel_in``
+    (TwistWithCovarianceStamped, ENU) -> /gnss/vel (frame ``gnss``), stamps kept; bad messages
+    (NaN, duplicate / out-of-order / zero stamps, NO_FIX, unknown covariance) are rejected and
+    counted, gaps counted, on the DiagnosticArray ``/<node name>/status`` (``input_reliability``
+    selects the input QoS). Every relayed IMU message is queued for the mechanization
+    (``alignment: ifa | given``); a timer (``RELAY_TICK_S``) integrates the queue in batches of at
+    most ``MAX_BATCH`` samples (``MAX_PER_TICK`` per tick, so the executor stays responsive) and
+    publishes /master/nav for every IMU stamp - what the simulated device's tap does in its thread;
+    /ifa/correction, /ifa/imu_bias and the UNALIGNED / ALIGNED / GIVEN flag as in simulation
+    (pos_master_node.navigators, which also says how the initial state is found). No flow
+    control (``max_lead_s``): a real device runs in real time.
+
+    ``/dpos/datum`` (latched): the ``datum`` parameter when set (stamped with the node's clock at
+    start), else the first valid /gnss/fix (the antenna position, the fix's stamp). /master/nav is not
+    published before the datum is known. ``/session/end`` is never published by a live device:
+    the operator (or dpos-record) ends the session. ``alignment: reference`` is simulation only
+    (ParameterError); the simulator parameters (scenario, seed, duration, rate_factor,
+    publish_truth, min_subscribers, wait_subscribers_s, initial_heading_error_deg, max_lead_s) are
+    ignored with an info line naming those that were set.
+
+A source is built from the validated parameters and the navigator (checking what the device
+needs, raising ParameterError) and :meth:`start` ed once the navigator is attached.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from numpy.typing import NDArray
+from rclpy.node import Node
+from sensor_msgs.msg import NavSatFix
+
+from dpos_core.config import ConfigError, load_aircraft
+from dpos_core.ifa.mechanization import stamp_s
+from dpos_core.units import DEG
+from dpos_ros.contract import cdr
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS
+from dpos_ros.devices.relay import DeviceRelay, Route, rotation_from_rpy_deg
+from dpos_ros.devices.sim_device import SimDevice, Tap, load_sim_session
+from dpos_ros.devices.sim_streams import device_streams, session_id
+from dpos_ros.io.streams import TopicStream
+from dpos_ros.runtime.params import ParameterError, datum_llh_rad, format_config
+from pos_master_node import NODE_NAME
+from pos_master_node.navigators import DriverInput, Mechanizer, Navigator
+from pos_master_node.params import PosMasterConfig
+
+__all__ = ["SimSource", "RelaySource", "Source", "IMU_INPUT", "FIX_INPUT", "VEL_INPUT", "SIM_ONLY", "RELAY_TICK_S",
+           "MAX_BATCH", "MAX_PER_TICK", "TAP_MAX_BATCH"]
+
+#: The driver topics of ``device: ros`` (relative: remap them, ``-r imu_in:=/driver/imu``).
+IMU_INPUT, FIX_INPUT, VEL_INPUT = "imu_in", "fix_in", "vel_in"
+#: Parameters of the simulated device only (ignored by ``device: ros``).
+SIM_ONLY = ("scenario", "seed", "duration", "rate_factor", "publish_truth", "min_subscribers", "wait_subscribers_s",
+            "initial_heading_error_deg", "max_lead_s")
+#: ``device: ros``: period of the mechanization timer [s], samples per batch, samples per tick
+RELAY_TICK_S = 0.02
+MAX_BATCH = 100
+MAX_PER_TICK = 1000
+#: ``device: sim``: most /master/imu messages handed to the mechanization at once (SimDevice tap)
+TAP_MAX_BATCH = 100
+
+
+class SimSource:
+    """``device: sim``: the simulated master device (module docstring).
+
+    Attributes:
+        session: the simulated session (dpos_core.sim.session.SimulatedSession).
+        device: the SimDevice publishing it (started by :meth:`start`).
+        relay, nav_pub: None (``device: ros`` only).
+
+    Raises:
+        ParameterError: an unknown scenario/aircraft, a duration longer than the scenario, an
+            invalid ``initial_state`` (``alignment: given``).
+    """
+
+    def __init__(self, node: Node, cfg: PosMasterConfig, navigator: Navigator) -> None:
+        self.node = node
+        self.config = cfg
+        self.log = node.get_logger()
+        self.session: Any = load_sim_session(cfg.scenario, cfg.aircraft_config, cfg.seed, cfg.duration)
+        self.relay: DeviceRelay | None = None
+        self.nav_pub: Any = None
+        datum = datum_llh_rad(cfg.datum)
+        #: the ``datum`` parameter [lat_rad, lon_rad, h_m]; None = the session's
+        self.datum_param = None if datum is None else np.asarray(datum, dtype=float)
+        #: the navigator when it mechanizes the IMU, None when /master/nav is the device's (reference)
+        self.mechanizer = navigator if isinstance(navigator, Mechanizer) else None
+        taps = []
+        if self.mechanizer is not None:
+            origin_ns = int(cv.stamps_ns(self.session.scenario.start_time_s, np.array([0.0]))[0])
+            datum_llh = np.asarray(self.session.datum_llh if self.datum_param is None else self.datum_param, dtype=float)
+            self.mechanizer.start_simulated(self.session, origin_ns, datum_llh)
+            taps.append(Tap(T.MASTER_IMU, T.MASTER_NAV, T.ODOMETRY, self._produce_nav, qos="nav", max_batch=TAP_MAX_BATCH))
+        self.device = SimDevice(node, self._streams, cfg.rate_factor, min_subscribers=cfg.min_subscribers,
+                                wait_subscribers_s=cfg.wait_subscribers_s, on_finished=self._finished, taps=taps)
+
+    def topics(self) -> list[str]:
+        """The topics published, in the order of the plan line."""
+        cfg = self.config
+        topics = [T.DATUM, T.MASTER_IMU, T.GNSS_FIX, T.GNSS_VEL, T.MASTER_NAV]
+        if cfg.publish_truth:
+            topics.append(T.TRUTH_MASTER)
+            topics += [T.truth_antenna(a.name) for a in self.session.scenario.aircraft.antennas if a.sub_imu is None]
+        topics.append(T.SESSION_END)
+        if self.mechanizer is not None:
+            topics.append(T.POS_MASTER_STATUS)
+        return topics
+
+    def start(self) -> None:
+        """Log the plan and start the device thread."""
+        cfg = self.config
+        session = self.session
+        self.log.info(
+            f"{NODE_NAME}: {format_config(cfg, ('device', 'scenario', 'aircraft_config', 'seed', 'duration', 'rate_factor', 'alignment', 'publish_truth'))}"
+            f" datum={list(cfg.datum) if cfg.datum else 'scenario start'}: session {session_id(session)},"
+            f" aircraft {session.scenario.aircraft.name}, {session.duration_s:g} s -> publishing {', '.join(self.topics())}"
+        )
+        if self.mechanizer is not None:
+            self.mechanizer.announce_simulated()
+        self.device.start()
+
+    def stop(self) -> None:
+        self.device.stop()
+
+    def _streams(self) -> list[TopicStream]:
+        """The device's streams (generated in the device thread); without /master/nav when mechanized."""
+        out = device_streams(self.session, "master", truth=self.config.publish_truth, datum_llh=self.datum_param)
+        return [s for s in out if self.mechanizer is None or s.topic != T.MASTER_NAV]
+
+    def _finished(self, device: SimDevice) -> None:
+        self.log.info(
+            f"session {session_id(self.session)} ended ({device.published} messages published); staying up so that "
+            f"late subscribers get the latched {T.DATUM} (SIGINT/SIGTERM to stop)"
+        )
+
+    def _produce_nav(self, stream: TopicStream, idx: NDArray[np.int64]) -> list[list[bytes]]:
+        """SimDevice tap: /master/nav for a batch of /master/imu messages (device thread)."""
+        mech = self.mechanizer
+        if mech is None or stream.rows is None:  # not reached: tapped only when mechanized; the IMU stream has rows
+            raise RuntimeError(f"{T.MASTER_IMU} tap without a mechanization or fixed-size messages")
+        t_ns, vals = cdr.decode(cdr.layout("imu", cv.MASTER_FRAME), stream.rows[idx])
+        self._wait_for_corrections(mech, float(stamp_s(t_ns[0], mech.origin_ns)))
+        head, rows, keep = mech.mechanize(t_ns, vals[:, 13:16], vals[:, 25:28])
+        out: list[list[bytes]] = [[] for _ in range(idx.size)]
+        if head is not None:
+            out[0].append(head)
+        for r, k in zip(rows, np.flatnonzero(keep)):
+            out[k].append(bytes(r))
+        return out
+
+    def _wait_for_corrections(self, mech: Mechanizer, t_s: float) -> None:
+        """Flow control of the IFA loop (``rate_factor`` 0, ``max_lead_s``): while an ifa_node
+        publishes corrections, do not run more than max_lead_s ahead of the last one."""
+        cfg = self.config
+        if cfg.rate_factor != 0.0 or cfg.max_lead_s <= 0.0 or self.node.count_publishers(T.IFA_CORRECTION) == 0:
+            return
+        mech.wait_for_corrections(t_s, cfg.max_lead_s, lambda: self.device.stopping)
+
+
+class RelaySource:
+    """``device: ros``: relays the real drivers and feeds the relayed IMU to the navigator (module docstring).
+
+    Attributes:
+        relay: the DeviceRelay; nav_pub: the /master/nav publisher; datum_pub: /dpos/datum's.
+        input: what the navigator starts from (datum, lever arm, queued IMU, recent fixes / velocities).
+        session, device: None (``device: sim`` only).
+
+    Raises:
+        ParameterError: ``alignment: reference``; ``alignment: given`` without ``initial_state``;
+            an invalid ``initial_state``; an unknown ``aircraft_config``.
+    """
+
+    def __init__(self, node: Node, cfg: PosMasterConfig, navigator: Navigator) -> None:
+        if not isinstance(navigator, Mechanizer):
+            raise ParameterError("alignment", cfg.alignment,
+                                 "simulation only (truth + main-system noise): with device:=ros use ifa or given")
+        navigator.check_live()
+        lever_arm_b_m = None
+        if cfg.aircraft_config:
+            try:
+                lever_arm_b_m = np.asarray(load_aircraft(cfg.aircraft_config).gnss_lever_arm_m, dtype=float)
+            except ConfigError as exc:
+                raise ParameterError("aircraft_config", cfg.aircraft_config, str(exc)) from None
+        self.node = node
+        self.config = cfg
+        self.log = node.get_logger()
+        self.navigator: Mechanizer = navigator
+        self.session: Any = None
+        self.device: SimDevice | None = None
+        datum = datum_llh_rad(cfg.datum)
+        self.input = DriverInput(None if datum is None else np.asarray(datum, dtype=float), lever_arm_b_m)
+        # the executor runs none of the callbacks before the node is constructed (and start()ed)
+        self.datum_pub = node.create_publisher(NavSatFix, T.DATUM, DATUM_QOS)
+        self.nav_pub = node.create_publisher(Odometry, T.MASTER_NAV, NAV_QOS)
+        rotation = None if not any(cfg.input_rotation_rpy_deg) else rotation_from_rpy_deg(cfg.input_rotation_rpy_deg)
+        routes = [Route("imu", IMU_INPUT, T.MASTER_IMU, cv.MASTER_FRAME), Route("fix", FIX_INPUT, T.GNSS_FIX, cv.GNSS_FRAME),
+                  Route("vel", VEL_INPUT, T.GNSS_VEL, cv.GNSS_FRAME)]
+        self.relay = DeviceRelay(node, routes, input_reliability=cfg.input_reliability, R_out_in=rotation,
+                                 on_message=self._on_driver_message)
+        self._tick_timer = node.create_timer(RELAY_TICK_S, self._tick)
+
+    def start(self) -> None:
+        """Name the ignored simulator parameters, publish the configured datum, log the plan."""
+        cfg = self.config
+        log = self.log
+        defaults = PosMasterConfig()
+        overridden = [f.name for f in dataclasses.fields(cfg)
+                      if f.name in SIM_ONLY and getattr(cfg, f.name) != getattr(defaults, f.name)]
+        if overridden:
+            log.info(f"device: ros ignores the simulator parameters {format_config(cfg, tuple(overridden))}")
+        datum = self.input.datum_llh
+        if datum is not None:
+            self.datum_pub.publish(cv.datum_msg(self.node.get_clock().now().nanoseconds, datum))
+        log.info(
+            f"{NODE_NAME}: {format_config(cfg, ('device', 'alignment', 'aircraft_config', 'datum', 'input_reliability', 'input_rotation_rpy_deg'))}"
+            f" -> relaying {self.relay.describe()}; {T.MASTER_NAV} mechanized from {self.navigator.live_plan()}; {T.DATUM} "
+            f"{'from the datum parameter' if datum is not None else 'from the first valid fix'};"
+            f" relay status on {self.node.get_fully_qualified_name()}/status, nav status on {T.POS_MASTER_STATUS}"
+        )
+
+    def stop(self) -> None:
+        """Nothing to stop: the relay's subscriptions and timers end with the node."""
+
+    def _on_driver_message(self, topic: str, msg: Any) -> None:
+        """DeviceRelay hook (subscription callback): queue a validated IMU sample (body axes) or
+        keep a validated fix / velocity; the first fix sets the datum when none is configured."""
+        t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        inp = self.input
+        if topic == T.MASTER_IMU:
+            w, f = msg.angular_velocity, msg.linear_acceleration
+            inp.imu.append((t_ns, (w.x, w.y, w.z), (f.x, f.y, f.z)))
+        elif topic == T.GNSS_FIX:
+            llh = np.array([msg.latitude * DEG, msg.longitude * DEG, msg.altitude])
+            if inp.datum_llh is None:
+                inp.datum_llh = llh
+                self.datum_pub.publish(cv.datum_msg(t_ns, llh))
+                self.log.info(
+                    f"{T.DATUM} = the first valid fix: lat {msg.latitude:.8f} lon {msg.longitude:.8f} deg, "
+                    f"h {msg.altitude:.3f} m (stamp {t_ns} ns)")
+            if not self.navigator.started:
+                inp.fixes.append((t_ns, llh))
+        elif not self.navigator.started:  # /gnss/vel (ENU)
+            v = msg.twist.twist.linear
+            inp.vels.append((t_ns, np.array([v.x, v.y, v.z])))
+
+    def _tick(self) -> None:
+        """Timer: start the mechanization when possible, then integrate the queued IMU samples in
+        batches of MAX_BATCH (at most MAX_PER_TICK per tick) and publish /master/nav."""
+        nav = self.navigator
+        if not nav.started and not nav.try_start_live(self.input):
+            return
+        origin_ns = nav.origin_ns
+        pending = self.input.imu  # after the start: it replaces the queue
+        done = 0
+        while pending and done < MAX_PER_TICK:
+            batch = [pending.popleft() for _ in range(min(MAX_BATCH, len(pending)))]
+            done += len(batch)
+            t_ns = np.array([b[0] for b in batch], dtype=np.int64)
+            late = t_ns <= origin_ns  # arrived after the start but stamped before it
+            if late.any():
+                nav.imu_before_start += int(late.sum())
+                batch = [b for b, k in zip(batch, late) if not k]
+                t_ns = t_ns[~late]
+                if not batch:
+                    continue
+            head, rows, _ = nav.mechanize(t_ns, np.array([b[1] for b in batch]), np.array([b[2] for b in batch]))
+            if head is not None:
+                self.nav_pub.publish(head)
+            for r in rows:
+                self.nav_pub.publish(bytes(r))
+
+
+#: where the master device's data come from (chosen by ``device``)
+Source = SimSource | RelaySource
