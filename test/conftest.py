@@ -66,3 +66,7 @@ def ros_executor(ros_context: Any) -> Iterator[Any]:
         yield executor
     finally:
         executor.shutdown(timeout_sec=5.0)
+
+
+# the node-process fixture of the tests that start nodes as console scripts (test/support/node_process.py)
+from node_process import start_node  # noqa: E402,F401

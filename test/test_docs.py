@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-import pathlib
 import re
 
 import pytest
+from repo_paths import REPO
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = REPO
 DOCS = ROOT / "docs"
 DESIGN = DOCS / "design.md"
 REFERENCES = DOCS / "references.md"

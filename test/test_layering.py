@@ -16,8 +16,9 @@ import ast
 from pathlib import Path
 
 import pytest
+from repo_paths import REPO
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = REPO / "src"
 NODE_PACKAGES = ("pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node")
 
 

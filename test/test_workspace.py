@@ -12,8 +12,9 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 import pytest
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 SRC = ROOT / "src"
 PACKAGES = ["dpos_core", "dpos_ros", "pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node"]
 NODE_PACKAGES = ["pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node"]

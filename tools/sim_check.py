@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Integrate every scenario's truth IMU outputs with the dpos strapdown and print the largest
 errors against the simulator's truth (markdown table).  The simulator's main self-check
-(design.md); test_sim_scenarios.py asserts the same with bounds.
+(design.md); test_scenario.py asserts the same with bounds.
 
     .venv/bin/python tools/sim_check.py [--seed 1]
 """

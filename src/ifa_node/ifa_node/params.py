@@ -38,7 +38,7 @@ class IfaConfig:
     """
 
     datum: tuple[float, ...] = datum_param()
-    aircraft_config: str = aircraft_config_param()
+    aircraft_config: str = aircraft_config_param("the aircraft of scenario; one of the two is required")
     scenario: str = scenario_param("a simulated session's scenario: its aircraft gives the GNSS lever arm when aircraft_config is ''", default="")
     method: str = param("add2", "in-flight alignment filter", choices=METHODS)
     window: int = param(10, "window length of the adaptive estimation (GNSS epochs)", minimum=2)

@@ -76,7 +76,7 @@ class PosMasterConfig:
     """
 
     datum: tuple[float, ...] = datum_param()
-    aircraft_config: str = aircraft_config_param()
+    aircraft_config: str = aircraft_config_param("the aircraft of the scenario; device ros: no GNSS lever arm")
     device: str = param("sim", "sensor data source", choices=DEVICES)
     scenario: str = scenario_param()
     seed: int = param(1, "simulator random seed (same seed in every node = one flight)", minimum=0)

@@ -57,7 +57,7 @@ class PosSubConfig:
     """
 
     datum: tuple[float, ...] = datum_param()
-    aircraft_config: str = aircraft_config_param()
+    aircraft_config: str = aircraft_config_param("the aircraft of the scenario")
     name: str = param("", "sub-IMU name (required)", non_empty=True, check=_check_name)
     device: str = param("sim", "sensor data source", choices=DEVICES)
     scenario: str = scenario_param()

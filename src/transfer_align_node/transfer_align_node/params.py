@@ -32,11 +32,13 @@ class TransferAlignConfig:
         finalize_timeout_s: how long finalizing waits for data up to the end stamp.
         workers: worker processes for the smoother, 0 = one per core.
         seed: random seed of the particle methods.
-        initial_attitude_error_deg: prior 1-sigma of the sub-IMU attitude errors (0 = 1 deg).
+        initial_attitude_error_deg: the papers' initial-error experiment ([Gong2018]: 40 deg): the
+            sub-IMUs start from the master's attitude x mount rotated by this many degrees in
+            heading, pitch and roll, and the prior 1-sigma is this (at least 1 deg). 0 for real data.
     """
 
     datum: tuple[float, float, float] = datum_param()
-    aircraft_config: str = aircraft_config_param()
+    aircraft_config: str = aircraft_config_param("the built-in paper_su")
     method: str = param("ups", "transfer-alignment smoother / filter", choices=METHODS)
     particles: int = param(100, "number of particles (particle methods)", minimum=1)
     filter_rate_hz: float = param(1.0, "filter measurement update rate [Hz]", minimum=0.0, exclusive_minimum=True)
@@ -46,4 +48,5 @@ class TransferAlignConfig:
     finalize_timeout_s: float = param(10.0, "bounded wait for data up to the end stamp [s]", minimum=0.0)
     workers: int = param(0, "smoother worker processes (0 = one per core)", minimum=0)
     seed: int = param(0, "random seed of the particle methods", minimum=0)
-    initial_attitude_error_deg: float = param(0.0, "prior 1-sigma of the sub-IMU attitude errors [deg]", minimum=0.0)
+    initial_attitude_error_deg: float = param(
+        0.0, "simulation experiment: initial sub-IMU attitude offset per axis [deg] (also its prior sigma, >= 1 deg); 0 for real data", minimum=0.0)

@@ -1,7 +1,7 @@
 """``dpos-process``: transfer alignment of a recorded session, offline, through the same code as
 transfer_align_node; writes the session products (design.md) and metrics when truth is recorded.
 
-    dpos-process /tmp/paper_su_s1 --out /tmp/products                 # URTSS
+    dpos-process /tmp/paper_su_s1 --out /tmp/products                 # UPS (the default)
     dpos-process /tmp/paper_su_s1 --method ups --particles 100 --out /tmp/products
     dpos-process BAG --method ups --aircraft my_aircraft.yaml --out DIR
 """

@@ -4,8 +4,8 @@
     dpos-record --out /tmp/rec --all --duration 60 --meta operator=alice
     dpos-record --out /tmp/rec /master/imu --ros-args -r __node:=my_recorder
 
-Topics are subscribed as soon as a publisher appears (QoS of docs/design.md: RELIABLE, KEEP_LAST
-5000; TRANSIENT_LOCAL for /dpos/datum and */status). Log time = receive time (like ros2 bag).
+Topics are subscribed as soon as a publisher appears (QoS of docs/design.md: RELIABLE, KEEP_ALL;
+TRANSIENT_LOCAL for /dpos/datum and */status). Log time = receive time (like ros2 bag).
 Stops on Ctrl-C / SIGTERM, after --duration seconds, or with --until-session-end when
 /session/end arrives (after a bounded drain of what is still in flight). Prints the messages
 recorded per topic. Exit status: 0; 1 when a requested topic never appeared (listed as missing,

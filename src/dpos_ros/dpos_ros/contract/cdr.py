@@ -4,7 +4,7 @@
 a block of float64 values with no gaps, so for fixed frame names every message has the same
 layout: a constant prefix, the stamp, the strings, padding, then ``N`` doubles.  Encoding a whole
 series is then a few numpy copies instead of one Python message object per sample, and the bag
-writer and the live devices emit the very same bytes.  ``test/ros/test_cdr.py`` checks that the
+writer and the live devices emit the very same bytes.  ``test/dpos_ros/contract/test_cdr.py`` checks that the
 bytes equal ``rclpy.serialization.serialize_message`` of the same content (except alignment
 padding, which Fast CDR leaves uninitialized and we write as zeros).
 

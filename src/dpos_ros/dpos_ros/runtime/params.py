@@ -143,9 +143,10 @@ def datum_llh_rad(datum: tuple[float, ...]) -> list[float] | None:
     return [math.radians(lat), math.radians(lon), float(h)]
 
 
-def aircraft_config_param() -> Any:
-    """The ``aircraft_config`` parameter every node has: path of the aircraft YAML."""
-    return param("", "path of the aircraft configuration YAML ('' = built-in default)")
+def aircraft_config_param(empty: str) -> Any:
+    """The ``aircraft_config`` parameter every node has: a built-in aircraft name or a YAML path;
+    ``empty`` says what '' means for that node."""
+    return param("", f"aircraft configuration: built-in name or YAML path ('' = {empty})")
 
 
 # ----------------------------------------------------------------------------- pure part

@@ -84,7 +84,7 @@ def test_linalg_helpers() -> None:
     np.testing.assert_allclose(gauss_logpdf(r, C), multivariate_normal(np.zeros(4), C).logpdf(r), rtol=1e-12)
     W, c = whitener(C)
     np.testing.assert_allclose(c - 0.5 * np.sum((r @ W.T) ** 2, axis=1), multivariate_normal(np.zeros(4), C).logpdf(r), rtol=1e-12)
-    # a PSD-by-rounding matrix gets a tiny jitter if needed (counted and warned: test/core/test_errors.py),
+    # a PSD-by-rounding matrix gets a tiny jitter if needed (counted and warned: test/dpos_core/test_errors.py),
     # an indefinite one is refused
     v = rng.normal(size=(4, 1))
     chol(v @ v.T + 1e-15 * np.eye(4))

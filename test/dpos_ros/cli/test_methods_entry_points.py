@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from repo_paths import REPO
 
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.ta.pipeline import METHODS as TA_METHODS
@@ -25,7 +26,7 @@ from transfer_align_node.params import TransferAlignConfig
 
 pytestmark = pytest.mark.ros
 
-SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
+SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 EXE = Path(sys.executable).parent
 
 

@@ -14,7 +14,7 @@ What it promises, and what is checked here:
 * on the same data its errors are no larger than the URTSS's.
 
 The truth functions mirror ``dpos-eval``'s (``_oracle_truth`` in the dpos_ros evaluation CLI,
-not imported here: test/core stays ROS-free).
+not imported here: test/dpos_core stays ROS-free).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from geometry_msgs.msg import TwistWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from ros_wait import spin_until  # test/support/ros_wait.py
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 

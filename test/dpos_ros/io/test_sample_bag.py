@@ -8,10 +8,10 @@ and strings (frame ids, status) must be identical.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+from repo_paths import REPO
 
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
@@ -19,7 +19,7 @@ from dpos_ros.contract import cdr
 from dpos_ros.devices.sim_streams import session_streams
 from dpos_ros.io import bag
 
-SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
+SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 
 # Relative tolerance for floats of the sample against a fresh simulation.  Round-off differs
 # between machines by a few ulp per operation (2.2e-16 relative) and accumulates over the 4500

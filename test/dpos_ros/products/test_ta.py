@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
+from repo_paths import REPO
 
 from dpos_core.config import load_aircraft
 from dpos_ros.io.session import read_session
 from dpos_ros.products.ta import solve
 
-BAG = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
+BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 
 
 def _session_with_unaligned_start(unaligned_s: float):

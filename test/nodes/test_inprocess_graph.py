@@ -24,7 +24,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from ros_wait import spin_until  # test/support/ros_wait.py
 
 from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, qos_profile
 from dpos_ros.contract.topics import message_class

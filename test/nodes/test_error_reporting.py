@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from repo_paths import REPO
 
 from dpos_core.errors import DposError, NumericalFailure
 from dpos_core.ifa.mechanization import initial_state_from_truth
@@ -166,7 +167,7 @@ def test_ifa_dropped_hypothesis_is_logged_and_counted(ifa, monkeypatch) -> None:
 # ----------------------------------------------------------------------------- transfer_align_node
 
 
-BAG = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
+BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 SECONDS = 10.0
 
 
@@ -180,7 +181,7 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile
-    from ros_wait import spin_until  # test/ros/ros_wait.py
+    from ros_wait import spin_until  # test/support/ros_wait.py
     from std_srvs.srv import Trigger
 
     import transfer_align_node.node as tan

@@ -28,7 +28,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from ros_wait import spin_until  # test/support/ros_wait.py
 from sensor_msgs.msg import Imu, NavSatFix
 
 from dpos_core.frames import hpr_error, hpr_from_C_nb

@@ -15,7 +15,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message, serialize_message
-from ros_wait import spin_until  # test/ros/ros_wait.py
+from repo_paths import REPO
+from ros_wait import spin_until  # test/support/ros_wait.py
 from std_srvs.srv import Trigger
 
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS
@@ -23,7 +24,7 @@ from dpos_ros.io import bag
 
 pytestmark = [pytest.mark.ros]
 
-BAG = Path(__file__).resolve().parents[2] / "bags" / "paper_su_pair_seed1_45s"
+BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 SECONDS = 10.0
 
 
