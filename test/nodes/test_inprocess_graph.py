@@ -107,7 +107,10 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
         counter = Counter(counter_node, streams)
         ta = TransferAlignNode(context=ros_context, parameter_overrides=[
             Parameter("method", value="urtss"), Parameter("aircraft_config", value=AIRCRAFT),
-            Parameter("output_dir", value=str(out)), Parameter("initial_attitude_error_deg", value=1.0)])
+            Parameter("output_dir", value=str(out)), Parameter("initial_attitude_error_deg", value=1.0),
+            # one process carries the whole graph (GIL): on a loaded machine the master's streams may
+            # reach the node seconds after /session/end; finalize must wait for them, not cut them off
+            Parameter("finalize_timeout_s", value=60.0)])
         nodes += [counter_node, ta]
         for name in SUBS:
             nodes.append(PosSubNode(context=ros_context, cli_args=["--ros-args", "-r", f"__node:={name}"],

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core.units import DEG_PER_H
+from dpos_core.units import DEG_PER_H, UG_MPS2
 
 from . import earth
 from .analytic_trajectory import CoordinatedTurnClimb
@@ -22,8 +22,6 @@ from .attitude import attitude_error, dcm_to_quat
 from .kinematics import integrate_increments
 from .series import NavSeries
 from .strapdown import NavState, Strapdown
-
-UG = 9.80665e-6
 
 
 def _errors(out: NavSeries, llh: np.ndarray, vel: np.ndarray, C: np.ndarray) -> dict[str, np.ndarray]:
@@ -59,9 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     T = 1.0 / args.rate
     gyro_bias = rng.normal(0.0, 0.01 * DEG_PER_H, 3)
-    acc_bias = rng.normal(0.0, 50 * UG, 3)
+    acc_bias = rng.normal(0.0, 50 * UG_MPS2, 3)
     dth_s = dth + gyro_bias * T + rng.normal(0.0, 0.01 * DEG_PER_H, dth.shape) * T
-    dv_s = dv + acc_bias * T + rng.normal(0.0, 50 * UG, dv.shape) * T
+    dv_s = dv + acc_bias * T + rng.normal(0.0, 50 * UG_MPS2, dv.shape) * T
     sensor = Strapdown(s0).run_increments(t[1:], dth_s, dv_s)
     e_sensor = _errors(sensor, llh[1:], vel[1:], C[1:])
 

@@ -22,7 +22,8 @@ DEG = math.pi / 180.0
 DEG_PER_H = DEG / 3600.0
 #: standard gravity [m/s^2] (CGPM 1901), the "g" of accelerometer datasheets.
 G0_MPS2 = 9.80665
-#: one micro-g in m/s^2 (accelerometer bias, datasheet unit).
-UG_MPS2 = G0_MPS2 * 1e-6
+#: one micro-g in m/s^2 (accelerometer bias, datasheet unit): G0_MPS2 * 1e-6, written out (the
+#: float product differs from the literal in its last bit, and the simulator's noise is seeded on it).
+UG_MPS2 = 9.80665e-6
 
 __all__ = ["FloatArray", "IntArray", "DEG", "DEG_PER_H", "G0_MPS2", "UG_MPS2"]

@@ -37,7 +37,7 @@ class TransferAlignConfig:
             heading, pitch and roll, and the prior 1-sigma is this (at least 1 deg). 0 for real data.
     """
 
-    datum: tuple[float, float, float] = datum_param()
+    datum: tuple[float, ...] = datum_param()
     aircraft_config: str = aircraft_config_param("the built-in paper_su")
     method: str = param("ups", "transfer-alignment smoother / filter", choices=METHODS)
     particles: int = param(100, "number of particles (particle methods)", minimum=1)

@@ -184,3 +184,27 @@ def test_datum_parameter_on_node(ros_context, override):
         assert declare_config(node, PosSubConfig).datum == tuple(float(x) for x in override)
     finally:
         node.destroy_node()
+
+
+def test_fixed_size_tuples_need_their_length() -> None:
+    """A ``tuple[float, float, float]`` field takes exactly 3 values (ifa_node's GNSS sigmas once
+    accepted 2 and crashed at the first fix)."""
+    from ifa_node.params import IfaConfig
+
+    with pytest.raises(ParameterError, match=r"'gnss_pos_sigma_m' = \[1.0, 2.0\]: expected 3 elements"):
+        config_from_values(IfaConfig, {"gnss_pos_sigma_m": [1.0, 2.0]})
+    assert config_from_values(IfaConfig, {"gnss_vel_sigma_mps": [0.1, 0.2, 0.3]}).gnss_vel_sigma_mps == (0.1, 0.2, 0.3)
+
+
+@pytest.mark.parametrize("package", sorted(CONFIGS))
+def test_unknown_node_parameter_is_an_error(package: str, ros_context) -> None:
+    """``-p rate_factr:=10.0`` is a typo: the node refuses to start and names it (never ignored)."""
+    node_module = importlib.import_module(f"{package}.node")
+    cls = next(v for k, v in vars(node_module).items() if isinstance(v, type) and k.endswith("Node") and v.__module__ == node_module.__name__)
+    overrides = [Parameter("rate_factr", value=10.0)]
+    if package == "pos_sub_node":
+        overrides.append(Parameter("name", value="sub_r"))
+    if package == "ifa_node":
+        overrides.append(Parameter("scenario", value="paper_su"))
+    with pytest.raises(ParameterError, match="'rate_factr' = 10.0: unknown parameter of this node"):
+        cls(context=ros_context, parameter_overrides=overrides)

@@ -25,6 +25,7 @@ value; :func:`dpos_ros.runtime.node_main.run_node` logs it and exits with a non-
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib.resources
 import math
 import pathlib
@@ -173,6 +174,9 @@ def _fields(cls: type) -> list[tuple[dataclasses.Field, type, bool, _Spec]]:
     for f in dataclasses.fields(cls):
         elem, is_array = _field_kind(hints[f.name])
         spec = f.metadata.get(_META_KEY) or _Spec(description="")
+        args = typing.get_args(hints[f.name]) if is_array else ()
+        if args and Ellipsis not in args and spec.length is None:  # tuple[float, float, float]: exactly 3
+            spec = dataclasses.replace(spec, length=len(args))
         out.append((f, elem, is_array, spec))
     return out
 
@@ -344,7 +348,22 @@ def declare_config(node: Any, cls: type[C]) -> C:
         if parameter.type_ == Parameter.Type.NOT_SET:
             value = f.default
         values[f.name] = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+    _refuse_unknown_overrides(node, cls)
     return config_from_values(cls, values)
+
+
+def _refuse_unknown_overrides(node: Any, cls: type) -> None:
+    """A parameter given to the node (``-p name:=value``, a params file) that it does not declare
+    is a typo or a parameter of another node: an error naming it, never silently ignored.
+    rclpy's own parameters (``use_sim_time``, ``qos_overrides.*``) are not ours to judge."""
+    overrides = getattr(node, "_parameter_overrides", {}) or {}  # rclpy keeps them here (Jazzy)
+    known = {f.name for f in dataclasses.fields(cls)}
+    for name in sorted(overrides):
+        if name in known or name.startswith("qos_overrides.") or node.has_parameter(name):
+            continue
+        close = difflib.get_close_matches(name, sorted(known), n=1)
+        hint = f"; did you mean '{close[0]}'?" if close else f"; {cls.__name__} has: {', '.join(sorted(known))}"
+        raise ParameterError(name, overrides[name].value, f"unknown parameter of this node{hint}")
 
 
 def _override_value(exc: Exception) -> Any:
