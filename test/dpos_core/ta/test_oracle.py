@@ -13,8 +13,7 @@ What it promises, and what is checked here:
   consistent with its own errors (NEES), also from [Gong2018]'s 40 deg initial errors;
 * on the same data its errors are no larger than the URTSS's.
 
-The truth functions mirror ``dpos-eval``'s (``_oracle_truth`` in the dpos_ros evaluation CLI,
-not imported here: test/dpos_core stays ROS-free).
+The truth functions are dpos-eval's own (:func:`dpos_core.ta.from_sim.oracle_truth`).
 """
 
 from __future__ import annotations
@@ -32,30 +31,11 @@ from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim, pipeline
 from dpos_core.ta import metrics as M
+from dpos_core.ta.from_sim import oracle_truth
 from dpos_core.ta.model import DP, DV, EPS, NAB, PHI, RHO, TAConfig, TransferAlignmentModel
 from dpos_core.ta.oracle import LinearizedAboutTruth
-from dpos_core.units import DEG
 
 POINTS = UnscentedPoints(alpha=0.1)  # pipeline.run's default
-
-
-def oracle_truth(ss: SimulatedSession, name: str):
-    """``(truth_nav, truth_other)`` of a simulated sub-IMU, as dpos-eval builds them."""
-    s = ss.scenario.aircraft.sub_imu(name)
-    gb, ab = ss.imu_biases(name)
-    rho = np.asarray(s.rho_deg) * DEG
-    flexing = np.any(np.asarray(ss.scenario.aircraft.flexure.variance_deg2) > 0)
-    fr = ss.flexure(1 if s.span_m > 0 else -1) if flexing else None
-
-    def nav(t: float):
-        tr = ss.truth(f"sub_imu/{name}", np.array([t]))
-        return tr.C_nb[0], tr.vel_n_mps[0], tr.llh[0]
-
-    def other(t: float):
-        th, thd = fr.at(np.array([t]), s.span_m) if fr is not None else (np.zeros((1, 3)), np.zeros((1, 3)))
-        return np.concatenate([gb, ab, rho, th[0], thd[0]])
-
-    return nav, other
 
 
 def quiet_scenario(*, flexure: bool, bias_scale: float = 1.0):

@@ -17,37 +17,17 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from dpos_core.config import ConfigError, config_text
 from dpos_core.ifa.evaluate import is_ifa_scenario
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
+from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import METHODS, ORACLE
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products.ta import evaluate, metrics_json, report_md, solve
-
-
-def _oracle_truth(ss: SimulatedSession, name: str):
-    from dpos_core.units import DEG
-
-    s = ss.scenario.aircraft.sub_imu(name)
-    gb, ab = ss.imu_biases(name)
-    rho = np.asarray(s.rho_deg) * DEG
-    fr = ss.flexure(1 if s.span_m > 0 else -1) if np.any(np.asarray(ss.scenario.aircraft.flexure.variance_deg2) > 0) else None
-
-    def nav(t: float):
-        tr = ss.truth(f"sub_imu/{name}", np.array([t]))
-        return tr.C_nb[0], tr.vel_n_mps[0], tr.llh[0]
-
-    def other(t: float):
-        th, thd = fr.at(np.array([t]), s.span_m) if fr is not None else (np.zeros((1, 3)), np.zeros((1, 3)))
-        return np.concatenate([gb, ab, rho, th[0], thd[0]])
-
-    return nav, other
 
 
 def methods_of(text: str | None, *, ifa: bool) -> list[str]:
@@ -114,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         ss = SimulatedSession(scenario, seed, args.duration)
         custom = session_custom_data(ss, ac_text or "")
         sess = session_from_streams(session_streams(ss), custom, f"{scenario.name}_seed{seed}")
-        truth = {s.name: _oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE in methods else None
+        truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE in methods else None
         for m in methods:
             t0 = time.perf_counter()
             ants, tm = solve(sess, scenario.aircraft, m, args.particles, seed, err0, oracle_truth=truth if m == ORACLE else None)
