@@ -150,3 +150,20 @@ def test_config_errors_name_the_problem(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="tau_s"):
         ac.write_text("name: y\nflexure: {tau_s: [1, -1, 1], variance_deg2: [0, 0, 0]}\n")
         load_aircraft(ac)
+
+
+def test_user_scenario_names_its_aircraft_relative_to_itself(tmp_path, monkeypatch) -> None:
+    """A user's scenario file may name its aircraft file beside it (``aircraft: my_ac.yaml``),
+    whatever the working directory (it was resolved from the working directory)."""
+    from dpos_core.config import config_text
+
+    d = tmp_path / "flight"
+    d.mkdir()
+    (d / "my_ac.yaml").write_text(config_text("aircraft", "paper_su_pair").replace("name: paper_su_pair", "name: my_ac"))
+    text = config_text("scenarios", "paper_su")
+    lines = [ln for ln in text.splitlines() if not ln.startswith(("aircraft:", "name:"))]
+    (d / "mine.yaml").write_text("\n".join(["name: mine", "aircraft: my_ac.yaml", *lines]) + "\n")
+    monkeypatch.chdir(tmp_path)  # not the scenario's folder
+    sc = load_scenario(str(d / "mine.yaml"))
+    assert sc.name == "mine" and sc.aircraft.name == "my_ac"
+    assert [s.name for s in sc.aircraft.sub_imus] == ["sub_r", "sub_l"]
