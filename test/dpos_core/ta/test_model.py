@@ -7,11 +7,12 @@ import pytest
 
 from dpos_core.attitude import compose_rotvec, right_jacobian
 from dpos_core.frames import hpr_error, hpr_from_C_nb
+from dpos_core.ins_errors import right_jacobian_inv
 from dpos_core.series import ImuSeries
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim, pipeline
-from dpos_core.ta.model import TAConfig, TransferAlignmentModel, right_jacobian_inv
+from dpos_core.ta.model import TAConfig, TransferAlignmentModel
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 
 from dpos_core.units import FloatArray
 
-from ..attitude import mount_dcm, right_jacobian, rotvec_to_dcm, skew  # noqa: F401 (mount_dcm re-exported)
+from ..attitude import right_jacobian, rotvec_to_dcm
 from ..config.flexure import K_BEND
 from ..kinematics import Motion
 

@@ -17,7 +17,7 @@ import numpy as np
 from dpos_core.units import DEG
 
 from ..config.aircraft import AircraftConfig, load_aircraft, scenario_aircraft_ref
-from ..config.files import ConfigError, build, builtin_names, config_text, read_yaml, vec3  # noqa: F401 (re-export)
+from ..config.files import ConfigError, build, builtin_names, read_yaml, vec3
 from ..config.sensors import GnssModel, ImuErrorModel, NavNoiseModel, NoiseInterval
 from .flight import Flight, FlightStart, Segment
 

@@ -56,7 +56,7 @@ from ..attitude import compose_rotvec, mount_dcm, quat_conj, quat_mul, quat_to_r
 from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
-from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors, right_jacobian_inv  # noqa: F401 (re-export)
+from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState, Strapdown
 

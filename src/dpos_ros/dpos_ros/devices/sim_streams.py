@@ -21,7 +21,7 @@ from dpos_core.series import NavSeries
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.io.streams import TopicStream, merged_order  # noqa: F401 (merged_order: the devices' order)
+from dpos_ros.io.streams import TopicStream
 
 
 def session_id(session: SimulatedSession) -> str:
