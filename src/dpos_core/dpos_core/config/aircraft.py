@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .files import ConfigError, build, parse_yaml, read_yaml, vec3
 from .flexure import FlexureModel
-from .sensors import ImuErrorModel
+from .sensors import ImuErrorModel, imu_model
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,9 @@ class AircraftConfig:
     flexure: FlexureModel
     sub_imus: tuple[SubImuConfig, ...]
     antennas: tuple[AntennaConfig, ...]
+    #: the main IMU's datasheet model (``master_imu:``, may name a ``preset``); None = not stated
+    #: (ifa_node then takes its ``imu_preset`` / parameters, or a simulated scenario's sensor)
+    master_imu: ImuErrorModel | None = None
 
     def sub_imu(self, name: str) -> SubImuConfig:
         for s in self.sub_imus:
@@ -71,17 +74,20 @@ class AircraftConfig:
 def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> AircraftConfig:
     """Load a built-in aircraft configuration by name, or a YAML file by path (or its ``text``)."""
     d, label = parse_yaml(text, f"aircraft {name_or_path}") if text is not None else read_yaml("aircraft", name_or_path)
-    allowed = {"name", "gnss_lever_arm_m", "flexure", "sub_imus", "antennas", "description"}
+    allowed = {"name", "gnss_lever_arm_m", "flexure", "sub_imus", "antennas", "description", "master_imu"}
     if set(d) - allowed:
         raise ConfigError(f"{label}: unknown key(s) {sorted(set(d) - allowed)}")
-    flex = build(FlexureModel, d.get("flexure"), f"{label}: flexure")
+    if d.get("flexure") is None and not d.get("sub_imus"):
+        flex = FlexureModel(tau_s=(5.0, 2.0, 2.0), variance_deg2=(0.0, 0.0, 0.0))  # no wing: a rigid vehicle
+    else:
+        flex = build(FlexureModel, d.get("flexure"), f"{label}: flexure")
     subs = []
     for i, s in enumerate(d.get("sub_imus") or []):
         where = f"{label}: sub_imus[{i}]"
         if not isinstance(s, dict) or not s.get("name"):
             raise ConfigError(f"{where}: needs a non-empty name")
         s = dict(s)
-        imu = build(ImuErrorModel, s.pop("imu", None), f"{where}.imu")
+        imu = imu_model(s.pop("imu", None), f"{where}.imu")
         for k in ("lever_arm_m", "mount_rpy_deg", "rho_deg"):
             if k in s:
                 s[k] = vec3(s[k], f"{where}.{k}")
@@ -113,6 +119,7 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         flexure=flex,
         sub_imus=tuple(subs),
         antennas=tuple(ants),
+        master_imu=imu_model(d["master_imu"], f"{label}: master_imu") if d.get("master_imu") is not None else None,
     )
 
 

@@ -81,8 +81,8 @@ class FlightStart:
     def __post_init__(self) -> None:
         if not -90.0 < self.lat_deg < 90.0:
             raise ValueError(f"start lat_deg must be in (-90, 90), got {self.lat_deg}")
-        if self.speed_mps <= 0.0:
-            raise ValueError(f"start speed_mps must be > 0, got {self.speed_mps}")
+        if not (np.isfinite(self.speed_mps) and self.speed_mps >= 0.0):
+            raise ValueError(f"start speed_mps must be >= 0 (0: a standstill, e.g. a vehicle before it moves), got {self.speed_mps}")
 
 
 # quintic smoothstep S(u) on [0, 1]: S, S', S'', and its integral
@@ -137,12 +137,16 @@ class Flight:
         dv = np.array([s.speed_change_mps for s in self.segments])
         self._psi0 = self.start.heading_deg * DEG + np.concatenate([[0.0], np.cumsum(dpsi)])
         self._v0 = self.start.speed_mps + np.concatenate([[0.0], np.cumsum(dv)])
-        if np.any(self._v0 <= 0.0):
-            raise ValueError("the speed changes make the speed non-positive")
+        if np.any(self._v0 < 0.0):
+            raise ValueError("the speed changes make the speed negative")
         eff = np.array([s.duration_s - s.ramp for s in self.segments])
         self._rpsi = dpsi / eff
         self._rv = dv / eff
-        sg = np.array([s.climb_rate_mps for s in self.segments]) / np.maximum(self._v0[:-1], self._v0[1:])
+        climb = np.array([s.climb_rate_mps for s in self.segments])
+        vmax = np.maximum(self._v0[:-1], self._v0[1:])
+        if np.any((climb != 0.0) & (vmax == 0.0)):
+            raise ValueError("climb_rate_mps needs a speed > 0 in the segment")
+        sg = np.divide(climb, vmax, out=np.zeros_like(climb), where=vmax > 0.0)
         if np.any(np.abs(sg) >= 0.5):
             raise ValueError("climb_rate_mps gives a flight-path angle above 30 deg")
         self._gmax = np.arcsin(sg)

@@ -18,15 +18,37 @@ from dpos_core.units import DEG
 
 from ..config.aircraft import AircraftConfig, load_aircraft, scenario_aircraft_ref
 from ..config.files import ConfigError, build, builtin_names, read_yaml, vec3
-from ..config.sensors import GnssModel, ImuErrorModel, NavNoiseModel, NoiseInterval
+from ..config.sensors import GnssModel, ImuErrorModel, NavNoiseModel, NoiseInterval, imu_model
 from .flight import Flight, FlightStart, Segment
 
 
 @dataclass(frozen=True)
 class Rates:
+    """Sample rates and the main IMU's real-device timing.
+
+    Attributes:
+        master_imu_hz, master_nav_hz, sub_imu_hz: nominal rates [Hz].
+        master_imu_jitter_s: each main IMU sample instant moves by U(-j, j) from its grid point
+            (a driver's timestamps jitter; j < half the interval).
+        master_imu_drop_fraction: fraction of main IMU samples lost (the sample after a lost one
+            still covers only its own interval: the motion of the lost one is missing, as when a
+            driver drops a message).
+    """
+
     master_imu_hz: float = 100.0
     master_nav_hz: float = 100.0
     sub_imu_hz: float = 100.0
+    master_imu_jitter_s: float = 0.0
+    master_imu_drop_fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        for k in ("master_imu_hz", "master_nav_hz", "sub_imu_hz"):
+            if not getattr(self, k) > 0:
+                raise ValueError(f"{k} must be > 0, got {getattr(self, k)}")
+        if not 0.0 <= self.master_imu_jitter_s < 0.5 / self.master_imu_hz:
+            raise ValueError(f"master_imu_jitter_s must be in [0, half the interval), got {self.master_imu_jitter_s}")
+        if not 0.0 <= self.master_imu_drop_fraction < 0.5:
+            raise ValueError(f"master_imu_drop_fraction must be in [0, 0.5), got {self.master_imu_drop_fraction}")
 
 
 @dataclass(frozen=True)
@@ -143,7 +165,7 @@ def load_scenario(name_or_path: str | Path, aircraft: str | Path | None = None) 
         segments=segs,
         start_time_s=float(d.get("start_time_s", 1.7e9)),
         rates=build(Rates, d.get("rates_hz"), f"{label}: rates_hz"),
-        master_imu=build(ImuErrorModel, d.get("master_imu"), f"{label}: master_imu"),
+        master_imu=imu_model(d.get("master_imu"), f"{label}: master_imu"),
         gnss=gnss,
         master_nav_noise=build(NavNoiseModel, d.get("master_nav_noise"), f"{label}: master_nav_noise"),
         imaging_segments=imaging,

@@ -29,7 +29,7 @@ from .bodies import flexed_body_motion, rigid_offset_motion
 from .flexure import FlexureRealization
 from .flight import Flight
 from .scenario import Scenario
-from .sensors import draw_biases, measure
+from .sensors import draw_axes_errors, draw_biases, measure
 
 
 class SimulatedSession:
@@ -134,16 +134,27 @@ class SimulatedSession:
         T = np.diff(t)[:, None]
         return ImuSeries(t[1:], dth / T, dv / T)
 
-    def _imu(self, body: str, rate_hz: float, model, component: str) -> ImuSeries:
+    def _imu(self, body: str, rate_hz: float, model, component: str, jitter_s: float = 0.0, drop_fraction: float = 0.0) -> ImuSeries:
         t = self.sample_times(rate_hz, include_start=True)
+        if jitter_s > 0.0:  # real timing (Rates): own generator, so the errors below are the same draws
+            t = t.copy()
+            t[1:] += self.rng(f"{component}/timing").uniform(-jitter_s, jitter_s, t.size - 1)
         dth, dv = increments_from_motion(self.motion(body), t)
         rng = self.rng(component)
         biases = draw_biases(model, rng)
-        om, f = measure(model, dth, dv, np.diff(t), biases, rng)
-        return ImuSeries(t[1:], om, f)
+        axes = draw_axes_errors(model, rng)
+        om, f = measure(model, dth, dv, np.diff(t), biases, rng, axes)
+        imu = ImuSeries(t[1:], om, f)
+        if drop_fraction > 0.0:
+            imu = imu.select(self.rng(f"{component}/drops").random(t.size - 1) >= drop_fraction)
+        return imu
 
     def master_imu(self) -> ImuSeries:
-        return self._imu("master", self.scenario.rates.master_imu_hz, self.scenario.master_imu, "imu/master")
+        """The main IMU's samples, with the scenario's real-device timing (``Rates``): jittered
+        stamps, lost samples."""
+        r = self.scenario.rates
+        return self._imu("master", r.master_imu_hz, self.scenario.master_imu, "imu/master", r.master_imu_jitter_s,
+                         r.master_imu_drop_fraction)
 
     def sub_imu(self, name: str) -> ImuSeries:
         s = self.scenario.aircraft.sub_imu(name)
@@ -177,6 +188,9 @@ class SimulatedSession:
     def gnss(self) -> GnssSeries:
         g = self.scenario.gnss
         t = self.sample_times(g.rate_hz)
+        if g.phase_s:
+            t = t + g.phase_s
+            t = t[t <= self.duration_s]
         scale, ok = g.scale_at(t)
         tr = self.truth("gnss", t)
         rng = self.rng("gnss")
@@ -185,5 +199,5 @@ class SimulatedSession:
         vel_sig = scale[:, None] * np.asarray(g.vel_sigma_mps)
         llh = tr.llh + earth.enu_to_dllh(rng.normal(0.0, 1.0, (n, 3)) * pos_sig, tr.llh)
         vel = tr.vel_n_mps + rng.normal(0.0, 1.0, (n, 3)) * vel_sig
-        return GnssSeries(t[ok], llh[ok], pos_sig[ok], vel[ok], vel_sig[ok])
+        return GnssSeries(t[ok] + g.stamp_offset_s, llh[ok], pos_sig[ok], vel[ok], vel_sig[ok])
 

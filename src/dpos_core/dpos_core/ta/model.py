@@ -273,11 +273,9 @@ class TransferAlignmentModel:
 
     def _process_noise(self, T: float) -> FloatArray:
         """Process noise (24, 24) of an interval of length T (module docstring)."""
-        from dpos_core.units import DEG_PER_H, UG_MPS2
-
         imu = self.install.imu
         Q = np.zeros((N_STATES, N_STATES))
-        Q[NAV, NAV] = nav_process_noise(T, self._imu_dt_s, imu.gyro_noise_deg_h * DEG_PER_H, imu.accel_noise_ug * UG_MPS2)  # PHI, DV, DP
+        Q[NAV, NAV] = nav_process_noise(T, self._imu_dt_s, *imu.white_sigma(self._imu_dt_s))  # PHI, DV, DP
         Qf = self._flex_discrete(T)[1]
         for i in range(3):
             ii = [18 + i, 21 + i]

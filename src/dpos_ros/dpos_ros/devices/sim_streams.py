@@ -40,14 +40,14 @@ def _odometry_stream(topic: str, child: str, series: NavSeries, session: Simulat
 
 
 def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) -> TopicStream:
-    from dpos_core.units import DEG_PER_H, UG_MPS2
 
     ac = session.scenario.aircraft
     model = session.scenario.master_imu if name == "master" else ac.sub_imu(name).imu
     imu = session.master_imu() if name == "master" else session.sub_imu(name)
     t_ns = cv.stamps_ns(session.scenario.start_time_s, imu.t_s)
     # the Imu covariance carries the white-noise variance of one sample
-    rows = cv.imu_rows(frame, t_ns, imu.omega_radps, imu.f_mps2, model.gyro_noise_deg_h * DEG_PER_H, model.accel_noise_ug * UG_MPS2)
+    rate = session.scenario.rates.master_imu_hz if name == "master" else session.scenario.rates.sub_imu_hz
+    rows = cv.imu_rows(frame, t_ns, imu.omega_radps, imu.f_mps2, *model.white_sigma(1.0 / rate))
     return TopicStream(topic, T.IMU, t_ns, rows=rows)
 
 
