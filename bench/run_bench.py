@@ -14,6 +14,9 @@ Keys (in order):
   sim_paper_su_time_ratio      simulating paper_su (1300 s, one sub-IMU, every topic) / data duration
   urtss_paper_su_time_ratio    UKF + URTSS of one sub-IMU over paper_su (40 deg initial errors) / duration
   ups_paper_su_time_ratio      UPF (100 particles) + FFBSm of one sub-IMU over paper_su / duration
+  ifa_add2_paper_ifa_time_ratio   in-flight alignment (ADD2, bank of 6 hypotheses) of paper_ifa / duration
+  ifa_add2_mems_vehicle_time_ratio  the same on the MEMS scenario (24 states, real-device timing)
+  ifa_add2_walk_0827_time_ratio   the same on the real recording walk_0827 (GNSS at 1 Hz)
   graph_loss_count             messages lost by transfer_align_node while the live graph carries master
                                IMU + nav and 6 sub-IMUs at 200 Hz in real time for 60 s (must be 0);
                                graph_cpu_percent: CPU per node over the run
@@ -41,6 +44,7 @@ from dpos_core.frames import hpr_from_C_nb  # noqa: E402
 from dpos_core.strapdown import NavState, Strapdown  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results.json")
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _best_of(fn: Callable[[], object], repeats: int) -> float:
@@ -146,6 +150,48 @@ def bench_ifa(results: dict, repeats: int) -> None:
     el = _best_of(lambda: ifa_run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, method="add2", initial=init), repeats)
     results["ifa_add2_paper_ifa_time_ratio"] = el / dur
     print(f"in-flight alignment add2: paper_ifa {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
+
+    # a MEMS unit (24 states: gyro scale / misalignment), real-device timing, started from the data
+    from dpos_core.ifa.evaluate import filter_config
+    from dpos_core.ifa.reference import initial_state as data_initial_state
+    from dpos_core.series import GnssSeries
+
+    sc = load_scenario("mems_vehicle")
+    ss = SimulatedSession(sc, 1)
+    imu, gnss = ss.master_imu(), ss.gnss()
+    cfg = filter_config(sc)
+    g = GnssSeries(gnss.t_s - cfg.gnss_time_offset_s, gnss.llh, gnss.pos_sigma_m, gnss.vel_n_mps, gnss.vel_sigma_mps)
+    init = data_initial_state(imu, g, 0.0)
+    dur = float(imu.t_s[-1] - init.t_s)
+    el = _best_of(lambda: ifa_run(imu, gnss, sc.aircraft.gnss_lever_arm_m, cfg, "add2", init), repeats)
+    results["ifa_add2_mems_vehicle_time_ratio"] = el / dur
+    print(f"in-flight alignment add2: mems_vehicle (24 states) {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
+
+    # the real recording walk_0827 (15 states), its ifa_node parameters
+    import yaml
+
+    from dpos_core.config import load_aircraft
+    from dpos_core.imports.logs import decimate_mask, read_imu_csv, read_pos, read_tag
+    from dpos_core.series import ImuSeries
+    from ifa_node.params import IfaConfig
+
+    walk = REPO / "data" / "real" / "walk_0827"
+    log = read_imu_csv(walk / "imu_1730.csv", tag=read_tag(walk / "imu_1730.csv.tag"))
+    pos = read_pos(walk / "gnss_1730_sf.pos")
+    origin = int(log.t_ns[0])
+    k = decimate_mask(pos.t_ns, 1.0)
+    sd = lambda c: np.sqrt(np.diagonal(c, axis1=1, axis2=2))  # noqa: E731
+    g = GnssSeries((pos.t_ns[k] - origin) * 1e-9, pos.llh[k], sd(pos.pos_cov_enu_m2[k]), pos.vel_n_mps[k], sd(pos.vel_cov_enu[k]))
+    w_imu = ImuSeries((log.t_ns - origin) * 1e-9, log.omega_radps, log.f_mps2)
+    params = yaml.safe_load((walk / "ifa_node.yaml").read_text())["ifa_node"]["ros__parameters"]
+    node_cfg = IfaConfig(**{a: tuple(b) if isinstance(b, list) else b for a, b in params.items()})
+    vehicle = load_aircraft(REPO / node_cfg.aircraft_config)
+    wcfg = node_cfg.core_config(vehicle.master_imu)
+    winit = data_initial_state(w_imu, g, 0.0)
+    dur = float(w_imu.t_s[-1] - winit.t_s)
+    el = _best_of(lambda: ifa_run(w_imu, g, vehicle.gnss_lever_arm_m, wcfg, "add2", winit), repeats)
+    results["ifa_add2_walk_0827_time_ratio"] = el / dur
+    print(f"in-flight alignment add2: real walk_0827 {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
 
 def _cpu_s(pid: int) -> float:

@@ -27,6 +27,8 @@ setup(
             'dpos-process = dpos_ros.cli.process:main',
             'dpos-eval = dpos_ros.cli.evaluate:main',
             'dpos-record = dpos_ros.cli.record:main',
+            'dpos-import = dpos_ros.cli.import_:main',
+            'dpos-ifa = dpos_ros.cli.ifa:main',
             'dpos-play = dpos_ros.cli.play:main',
             'dpos-graph = dpos_ros.cli.graph:main',
             'dpos-demo = dpos_ros.cli.demo:main',

@@ -96,9 +96,12 @@ def right_jacobian_inv(phi: FloatArray) -> FloatArray:
 
 
 def propagate_nav_errors(
-    phi: FloatArray, dv: FloatArray, dp: FloatArray, eps: FloatArray, nabla: FloatArray, it: Interval
+    phi: FloatArray, dv: FloatArray, dp: FloatArray, eps: FloatArray, nabla: FloatArray, it: Interval,
+    gyro_extra: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """One interval of the error dynamics (module docstring); every input (..., 3), vectorized."""
+    """One interval of the error dynamics (module docstring); every input (..., 3), vectorized.
+    ``gyro_extra`` (..., 3): a further integrated gyro error in ENU, ``int C_est delta_omega dt``
+    over the interval, beside the bias's ``C_int eps`` (the gyro axis errors of dpos_core.ifa.model)."""
     T = it.T
     E = rotvec_to_dcm(phi)
     Et = np.swapaxes(E, -1, -2)
@@ -117,7 +120,8 @@ def propagate_nav_errors(
     ], -1)
     w_in = it.w_in
     rate = (w_in - np.einsum("...ij,j->...i", Et, w_in)) + np.einsum("...ij,...j->...i", Et, dw_ie + dw_en)
-    phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - eps @ it.C_int.T)
+    gyro = eps @ it.C_int.T if gyro_extra is None else eps @ it.C_int.T + gyro_extra
+    phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - gyro)
     cor = np.cross(2.0 * it.w_ie + it.w_en, dv) + np.cross(2.0 * dw_ie + dw_en, it.v)
     dg = np.stack([np.zeros_like(dh), np.zeros_like(dh), 2.0 * it.g / (r_m + it.h) * dh], -1)
     dv_new = dv + np.einsum("...ij,j->...i", np.eye(3) - E, it.F_n) + np.einsum("...ij,...j->...i", E, nabla @ it.C_int.T) - (cor - dg) * T

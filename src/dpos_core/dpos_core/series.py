@@ -34,6 +34,12 @@ if TYPE_CHECKING:
 Selection = NDArray[Any] | slice
 
 
+#: a stamp step longer than this many nominal intervals is a gap (warned about, integrated across):
+#: real stamps jitter (a 100 Hz sensor read by a ~150 Hz logger gives 6 and 9 ms steps: 1.5x), one
+#: lost sample at a steady rate makes 2x
+GAP_FACTOR = 1.75
+
+
 @dataclass(frozen=True)
 class ImuSeries:
     """IMU samples, each the mean over ``(t_{k-1}, t_k]`` (increment / T, as a high-grade IMU

@@ -5,10 +5,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from dpos_core.config.sensors import IMU_PRESETS
+from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS
 from dpos_core.ifa.pipeline import METHODS
 from dpos_ros.runtime.params import ParameterError, aircraft_config_param, datum_param, param, scenario_param
 
 if TYPE_CHECKING:
+    from dpos_core.config.sensors import ImuErrorModel
     from dpos_core.ifa.model import IfaFilterConfig
 
 
@@ -32,6 +35,11 @@ class IfaConfig:
             consistent innovation window).
         heading_sigma_deg: prior heading 1 sigma [deg] (large: any initial heading).
         vertical: 15 states with the vertical channel (True) or the paper's 13.
+        imu_preset: main IMU model, a grade preset; '' = the aircraft file's ``master_imu``, else
+            [Fang2012] Table 1 (navigation grade).
+        level_sigma_deg: prior pitch / roll 1 sigma [deg].
+        gnss_time_offset_s, max_fix_bridge_s, predict_interval_s, restart_on_divergence,
+            bias_feedback, gyro_axis_errors: see :class:`dpos_core.ifa.model.IfaFilterConfig`.
         pair_tolerance_s: a /gnss/fix and a /gnss/vel closer than this are one epoch.
         pair_timeout_s: a fix (velocity) whose partner has not come when GNSS data this much newer
             has arrived is dropped with a warning.
@@ -48,14 +56,35 @@ class IfaConfig:
     aligned_heading_sigma_deg: float = param(0.1, "heading 1 sigma [deg] below which ALIGNED may be declared", minimum=0.0, exclusive_minimum=True)
     heading_sigma_deg: float = param(100.0, "prior heading 1 sigma [deg]", minimum=0.0, exclusive_minimum=True)
     vertical: bool = param(True, "15 states with the vertical channel (false: the paper's 13)")
+    imu_preset: str = param("", "main IMU model: a grade preset (dpos_core.config.sensors.IMU_PRESETS); '' = the aircraft's master_imu, else [Fang2012] Table 1",
+                            choices=("", *IMU_PRESETS))
+    level_sigma_deg: float = param(1.0, "prior pitch / roll 1 sigma [deg] (the levelling of the initial state)", minimum=0.0, exclusive_minimum=True)
+    gnss_time_offset_s: float = param(0.0, "GNSS stamps minus the IMU time of the same instant [s]")
+    max_fix_bridge_s: float = param(0.05, "a fix may lie this far [s] from the last IMU sample (bridged with the velocity)",
+                                    minimum=0.0, exclusive_minimum=True)
+    predict_interval_s: float = param(1.5, "time update alone after this long [s] without a fix (outages)", minimum=0.0, exclusive_minimum=True)
+    restart_on_divergence: bool = param(True, "restart the alignment when the innovations diverge")
+    bias_feedback: str = param("auto", "when bias estimates are fed back: auto (by the IMU grade), aligned, always", choices=BIAS_FEEDBACK)
+    gyro_axis_errors: str = param("auto", "gyro scale factor / misalignment as states or noise: auto (states for MEMS), states, noise",
+                                  choices=GYRO_AXIS_ERRORS)
     pair_tolerance_s: float = param(0.001, "a /gnss/fix and /gnss/vel closer than this [s] form one epoch", minimum=0.0)
     pair_timeout_s: float = param(2.0, "drop a fix without velocity once GNSS data this much [s] newer arrived", minimum=0.0)
 
-    def core_config(self) -> IfaFilterConfig:
-        """The :class:`dpos_core.ifa.model.IfaFilterConfig` of these parameters."""
-        from dpos_core.ifa.model import IfaFilterConfig
+    def core_config(self, master_imu: ImuErrorModel | None = None) -> IfaFilterConfig:
+        """The :class:`dpos_core.ifa.model.IfaFilterConfig` of these parameters; the IMU model is
+        ``imu_preset`` when set, else ``master_imu`` (the aircraft file's), else [Fang2012]'s."""
+        from dpos_core.config.sensors import imu_model
+        from dpos_core.ifa.model import PAPER_IFA_IMU, IfaFilterConfig
 
-        return IfaFilterConfig(vertical=self.vertical, window=self.window,
+        if self.imu_preset:
+            imu = imu_model({"preset": self.imu_preset}, "ifa_node imu_preset")
+        else:
+            imu = master_imu if master_imu is not None else PAPER_IFA_IMU
+        return IfaFilterConfig(imu=imu, level_sigma_deg=self.level_sigma_deg, gnss_time_offset_s=self.gnss_time_offset_s,
+                               max_fix_bridge_s=self.max_fix_bridge_s, predict_interval_s=self.predict_interval_s,
+                               restart_on_divergence=self.restart_on_divergence, bias_feedback=self.bias_feedback,
+                               gyro_axis_errors=self.gyro_axis_errors,
+                               vertical=self.vertical, window=self.window,
                                gnss_pos_sigma_m=_enu3("gnss_pos_sigma_m", self.gnss_pos_sigma_m),
                                gnss_vel_sigma_mps=_enu3("gnss_vel_sigma_mps", self.gnss_vel_sigma_mps), use_reported_sigma=self.use_reported_sigma,
                                aligned_heading_sigma_deg=self.aligned_heading_sigma_deg, heading_sigma_deg=self.heading_sigma_deg)

@@ -9,7 +9,9 @@ with an ``ifa:`` block and no sub-IMUs (paper_ifa).  Experiments (all determinis
 * ``sweep``: initial heading errors of both signs, final heading error and convergence time;
 * ``outage``: a GNSS outage ``[t0, t0 + dur)`` added to the scenario's schedule;
 * ``noise_jump``: the GNSS noise scaled by ``scale`` from ``t0`` to the end (appended to the
-  schedule, so it overrides it there).
+  schedule, so it overrides it there);
+* ``consistency``: started from the data as on a real recording, the datasheet filter and the
+  oracle (the simulated unit's model): NEES / NIS and errors before / during / after an outage.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -121,6 +124,61 @@ class Evaluator:
                          float(res.t_s[-1] - res.t_s[0]))
 
 
+def filter_config(scenario: Scenario, oracle: bool = False) -> IfaFilterConfig:
+    """The filter a user would configure for a scenario: the IMU model of its aircraft (vehicle)
+    file when it states one (the datasheet), else the simulated unit's (the papers: the filter knew
+    the sensors); the nominal GNSS sigmas of the scenario; the ``ifa`` block's keys that are
+    :class:`~dpos_core.ifa.model.IfaFilterConfig` fields.  ``oracle``: the simulated unit's own
+    model instead of the datasheet (the filter that knows what the truth did)."""
+    from dataclasses import fields as dc_fields
+
+    names = {f.name for f in dc_fields(IfaFilterConfig)} - {"imu"}
+    kw: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in scenario.ifa.items() if k in names}
+    imu = scenario.master_imu if (oracle or scenario.aircraft.master_imu is None) else scenario.aircraft.master_imu
+    kw.setdefault("gnss_pos_sigma_m", scenario.gnss.pos_sigma_m)
+    kw.setdefault("gnss_vel_sigma_mps", scenario.gnss.vel_sigma_mps)
+    return IfaFilterConfig(imu=imu, **kw)
+
+
+def consistency(scenario: Scenario, seeds: list[int], method: str = "add2", duration_s: float | None = None,
+                outage_s: tuple[float, float] | None = None) -> dict:
+    """Honest covariance on a simulated session started as on real data (the initial state by
+    pos_master_node's live rule, :func:`dpos_core.ifa.reference.initial_state`, with the ``ifa``
+    block's ``min_course_speed_mps``): per seed, the datasheet filter
+    (:func:`filter_config`) and the oracle (the simulated unit's model), NEES / NIS figures
+    (:func:`dpos_core.ifa.reference.consistency`) after the alignment, and the horizontal error
+    against the truth before / during / after ``outage_s`` with its 3-sigma coverage."""
+    from ..series import GnssSeries
+    from .reference import Reference, compare
+    from .reference import consistency as nees
+    from .reference import initial_state as data_initial_state
+
+    out: dict[str, list] = {"datasheet": [], "oracle": []}
+    for seed in seeds:
+        ss = SimulatedSession(scenario, seed, duration_s)
+        imu, gnss = ss.master_imu(), ss.gnss()
+        tr = ss.truth("master", np.arange(1.0, float(imu.t_s[-1]) - 1.0, 0.25))
+        ref = Reference(tr.t_s, tr.llh, tr.vel_n_mps, np.zeros((tr.t_s.size, 3)))
+        for kind in ("datasheet", "oracle"):
+            cfg = filter_config(scenario, oracle=kind == "oracle")
+            g = GnssSeries(gnss.t_s - cfg.gnss_time_offset_s, gnss.llh, gnss.pos_sigma_m, gnss.vel_n_mps, gnss.vel_sigma_mps)
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                init = data_initial_state(imu, g, float(scenario.ifa.get("min_course_speed_mps", 5.0)),
+                                          lever_arm_m=np.asarray(ss.scenario.aircraft.gnss_lever_arm_m))
+                res = run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, cfg, method, init)
+            proc = time.perf_counter() - t0
+            since = res.aligned_t_s if res.aligned_t_s is not None else float(res.t_s[-1])
+            rep = compare(res, ref, outage_s)
+            out[kind].append({"seed": seed, "aligned_t_s": res.aligned_t_s, "restarts": res.restarts,
+                              "rejected": len(res.rejected), "diverged_epochs": rep.diverged,
+                              "consistency": nees(res, lambda t: ss.truth("master", t), since).summary(),
+                              "horizontal_error_m": rep.horizontal_error_m, "inside_3sigma": rep.inside_3sigma,
+                              "processing_s": proc, "data_s": float(res.t_s[-1] - res.t_s[0])})
+    return out
+
+
 def _stats(finals: FloatArray) -> dict:
     """rmse / std / mean |.| / max |.| over runs of final errors (R, 3) -> dicts keyed by KEYS."""
     f = np.asarray(finals, dtype=float).reshape(-1, 3)
@@ -197,6 +255,26 @@ def noise_jump(ev: Evaluator, methods: list[str], seeds: list[int], heading0_deg
     return out
 
 
+def consistency_md(c: dict, outage_s: tuple[float, float] | None) -> list[str]:
+    """Markdown lines of :func:`consistency`."""
+    L = ["Honest covariance (start from the data: levelled at the first fix, any heading). NEES per 3-dof block "
+         "after the alignment (mean, 3 when consistent; fraction inside the two-sided 95 % chi-square bounds), NIS of "
+         "the 6 GNSS measurements (mean, 6 when consistent), horizontal error against the truth, errors inside the "
+         "reported 3 sigma (E, N, U).", "",
+         "| filter | seed | aligned (s) | NEES pos | NEES vel | NEES att | NIS | error before (m rms) | during (m max) | "
+         "after (m rms) | inside 3 sigma E/N/U |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for kind, rows in c.items():
+        for r in rows:
+            s, e, i = r["consistency"], r["horizontal_error_m"], r["inside_3sigma"]
+            ph = ("before", "during", "after") if outage_s else ("all", "all", "all")
+            L.append(f"| {kind} | {r['seed']} | {_f(r['aligned_t_s'], '.0f')} | {s['nees_pos_mean']:.2f} ({s['nees_pos_in95']:.2f}) | "
+                     f"{s['nees_vel_mean']:.2f} ({s['nees_vel_in95']:.2f}) | {s['nees_att_mean']:.2f} ({s['nees_att_in95']:.2f}) | "
+                     f"{s['nis_mean']:.2f} ({s['nis_in95']:.2f}) | {e[ph[0]]['rms']:.3f} | {e[ph[1]]['max']:.3f} | {e[ph[2]]['rms']:.3f} | "
+                     f"{i['E']:.3f}/{i['N']:.3f}/{i['U']:.3f} |")
+    L.append("")
+    return L
+
+
 def _f(v: float | None, fmt: str = ".4f") -> str:
     return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
 
@@ -241,6 +319,9 @@ def report_md(metrics: dict) -> str:
                 L.append(f"| {m} | {row['seed']} | {row['before_deg']:.4f} | {row['max_after_outage_30s_deg']:.4f} | "
                          f"{f['heading_deg']:+.4f} | {f['pitch_deg']:+.5f} | {f['roll_deg']:+.5f} | {_f(row['converged_t_s'], '.0f')} |")
         L.append("")
+    if "consistency" in metrics:
+        o = metrics["consistency"]
+        L += consistency_md(o["filters"], o.get("outage_s"))
     if "noise_jump" in metrics:
         o = metrics["noise_jump"]
         L += [f"GNSS noise x{o['scale']:g} from {o['t0_s']:.0f} s to the end: final error, mean |.| (max |.|) over seeds, deg.", "",
@@ -263,4 +344,4 @@ def metrics_json(scenario: str, seeds: list[int], heading0_deg: float, cfg: IfaF
 
 
 __all__ = ["Evaluator", "RunResult", "is_ifa_scenario", "with_gnss_interval", "initial_state", "table", "sweep",
-           "outage", "noise_jump", "report_md", "metrics_json", "PAPER_TABLE3"]
+           "outage", "noise_jump", "report_md", "metrics_json", "PAPER_TABLE3", "filter_config", "consistency", "consistency_md"]

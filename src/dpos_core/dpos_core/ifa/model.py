@@ -65,24 +65,50 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
 from .. import earth
 from ..attitude import compose_rotvec, rotvec_to_dcm
+from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
 from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors
 from ..series import NavSeries
 from ..strapdown import NavState, Strapdown
 
-# indices into the full 15-state vector
+# indices into the full 15-state vector (and the 24 of the extended layout)
 DP, DV, PHI, EPS, NAB = (slice(i, i + 3) for i in range(0, 15, 3))
 N_FULL = 15
+#: gyro scale factors (x, y, z) and misalignments (xy, xz, yx, yz, zx, zy) of the extended model
+GAM = slice(15, 24)
+N_EXT = 24
 #: the paper's 13 states inside the 15 (no dh, dv_U)
 IDX13 = np.array([0, 1, 3, 4, 6, 7, 8, 9, 10, 11, 12, 13, 14])
+
+
+def gyro_axis_matrix(omega_radps: FloatArray) -> FloatArray:
+    """``W(omega)`` (..., 3, 9) with ``Gamma omega = W(omega) gamma`` for the gyro axis errors
+    ``gamma = (s_x, s_y, s_z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy)`` (``Gamma = diag(s) + offdiag(m)``,
+    ``m_ij`` the rate of axis j seen by gyro i)."""
+    w = np.asarray(omega_radps, dtype=float)
+    W = np.zeros(w.shape[:-1] + (3, 9))
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    W[..., 0, 0], W[..., 1, 1], W[..., 2, 2] = x, y, z
+    W[..., 0, 3], W[..., 0, 4] = y, z
+    W[..., 1, 5], W[..., 1, 6] = x, z
+    W[..., 2, 7], W[..., 2, 8] = x, y
+    return W
 #: the 15-state indices of (phi, dv, dp), the order of ins_errors.nav_process_noise
 _NAV_ORDER = np.r_[PHI, DV, DP]
+
+
+#: how the gyro axis errors enter the filter (IfaFilterConfig.gyro_axis_errors; not YAML booleans such as on / off)
+GYRO_AXIS_ERRORS = ("auto", "states", "noise")
+#: when the bias estimates are fed back (IfaFilterConfig.bias_feedback)
+BIAS_FEEDBACK = ("auto", "aligned", "always")
+#: [Fang2012] Table 1: the main IMU of the seed's simulation
+PAPER_IFA_IMU = ImuErrorModel(gyro_bias_deg_h=0.02, gyro_noise_deg_h=0.01, accel_bias_ug=100.0, accel_noise_ug=50.0)
 
 
 @dataclass(frozen=True)
@@ -102,12 +128,18 @@ class IfaFilterConfig:
         gnss_pos_sigma_m, gnss_vel_sigma_mps: nominal (E, N, U) GNSS noise of the filter's R.
         use_reported_sigma: take R from each fix's own sigmas instead of the nominal ones.
         position_sigma_m, velocity_sigma_mps, level_sigma_deg, heading_sigma_deg: prior 1 sigma.
-        gyro_bias_deg_h, accel_bias_ug: prior bias sigma; gyro_noise_deg_h, accel_noise_ug:
-            white noise per IMU sample (process noise).
+        imu: the main IMU's datasheet model (:class:`~dpos_core.config.sensors.ImuErrorModel`;
+            default: [Fang2012] Table 1, 0.02 deg/h + 0.01 deg/h, 100 ug + 50 ug).  Turn-on biases
+            are the prior sigma of the bias states; white noise (``*_noise_*`` and ARW / VRW) the
+            process noise of attitude and velocity; the in-run bias instability a random walk of the
+            bias states (``2 sigma^2 T / tau`` per interval, the Gauss-Markov process for ``T << tau``);
+            gyro scale-factor and misalignment errors, which no state carries, attitude process
+            noise proportional to the rotation of the interval (:meth:`IfaModel.Q`), so that tight
+            turns of a MEMS unit widen the covariance instead of leaving it overconfident.
         q_scale: multiplies the process noise (model error of the discretization).
         coarse_heading_sigma_deg: heading 1 sigma that ends a filter's coarse phase (nominal R, no
             adaptation); the fine phase restarts the attitude / bias covariance from
-            ``fine_level_sigma_deg`` / ``fine_heading_sigma_deg`` and the sensor bias priors
+            ``fine_level_sigma_deg`` (at least :attr:`fine_level_sigma_rad`) / ``fine_heading_sigma_deg`` and the sensor bias priors
             (the coarse transient of the first turn leaves overconfident bias estimates), and
             ADD2 / AEKF adapt R only there.  Also the heading difference under which two
             hypotheses count as the same solution.
@@ -116,6 +148,36 @@ class IfaFilterConfig:
             this far below the best (pipeline.InFlightAligner).
         aligned_heading_sigma_deg: heading 1 sigma below which the alignment may be declared.
         nis_quantile: the windowed mean NIS must stay below this chi-square quantile.
+        max_fix_bridge_s: a fix may lie this far [s] from the navigation time (before or after):
+            real GNSS fixes fall anywhere between IMU samples (and samples get dropped), the
+            measurement bridges the difference with the velocity (:meth:`IfaModel.measurement`);
+            the error of that is ``|a| dt^2 / 2`` (4 mm at 3 m/s^2 over 50 ms).
+        gnss_time_offset_s: GNSS stamps minus the IMU's time of the same instant [s] (a constant
+            offset between the receiver's and the IMU's clock; subtracted from every fix stamp).
+        predict_interval_s: without a fix for this long [s] of IMU data (an outage, a fix rate
+            below 1 Hz), the filter makes a time update alone, so that its covariance (published
+            with the navigation) grows with what the IMU alone can do.
+        diverged_nis_factor, diverged_epochs: DIVERGED when the window-mean NIS, computed with the
+            GNSS noise at its ceiling (``r_ceiling`` x R: a receiver noisier than modelled is only
+            DEGRADED), stays above ``diverged_nis_factor`` times its consistency limit for
+            ``diverged_epochs`` epochs in a row: the estimate is farther from the GNSS than its
+            covariance and any plausible GNSS noise allow.
+        bias_feedback: ``aligned`` ([Fang2012] sec. 3.3: the bias estimates are removed from the IMU
+            samples from the alignment epoch on), ``always`` (from the first epoch: a MEMS unit's
+            turn-on bias of ~0.1 m/s^2 and ~0.2 deg/s, left in the samples while aligning, makes the
+            navigation drift ~5 cm and ~0.2 deg between 1 Hz fixes) or ``auto`` (the default:
+            ``always`` for an IMU whose turn-on gyro bias is 1 deg/h or more or accelerometer bias
+            1 mg or more (tactical grade and below), ``aligned`` for a navigation-grade one).
+        gyro_axis_errors: how the gyro scale factors and misalignments enter: ``states`` (9 more
+            states, 24 in all; estimated through the turns, not fed back), ``noise`` (attitude
+            process noise proportional to each interval's rotation only, :meth:`IfaModel.Q`) or
+            ``auto`` (the default: ``states`` when the IMU's ``gyro_scale_ppm`` or
+            ``gyro_misalignment_mrad`` is above 100 ppm / 0.1 mrad, a MEMS unit: 5000 ppm is 0.9 deg
+            of heading per half turn, which white process noise cannot represent: it is coherent).
+            The rotation-proportional noise is there in both cases (with states: what they do not
+            explain).
+        restart_on_divergence: restart the alignment after a divergence (the bank of heading
+            hypotheses again, from the latest fix's position and velocity and the current attitude).
     """
 
     vertical: bool = True
@@ -137,13 +199,18 @@ class IfaFilterConfig:
     velocity_sigma_mps: float = 0.5
     level_sigma_deg: float = 1.0
     heading_sigma_deg: float = 100.0
-    gyro_bias_deg_h: float = 0.02
-    accel_bias_ug: float = 100.0
-    gyro_noise_deg_h: float = 0.01
-    accel_noise_ug: float = 50.0
+    imu: ImuErrorModel = PAPER_IFA_IMU
     q_scale: float = 1.0
     aligned_heading_sigma_deg: float = 0.1
     nis_quantile: float = 0.999
+    max_fix_bridge_s: float = 0.05
+    gnss_time_offset_s: float = 0.0
+    predict_interval_s: float = 1.5
+    diverged_nis_factor: float = 10.0
+    diverged_epochs: int = 3
+    restart_on_divergence: bool = True
+    bias_feedback: str = "auto"
+    gyro_axis_errors: str = "auto"
 
     def __post_init__(self) -> None:
         if self.heading_hypotheses < 1:
@@ -155,12 +222,51 @@ class IfaFilterConfig:
                self.aligned_heading_sigma_deg)
         if not all(np.isfinite(v) and v > 0 for v in pos):
             raise ValueError("IfaFilterConfig: sigmas, r_floor, q_scale and thresholds must be finite and > 0")
+        if not (np.isfinite(self.max_fix_bridge_s) and self.max_fix_bridge_s > 0):
+            raise ValueError(f"max_fix_bridge_s must be finite and > 0, got {self.max_fix_bridge_s}")
+        if not (self.predict_interval_s > 0 and self.diverged_nis_factor > 1 and self.diverged_epochs >= 1):
+            raise ValueError("predict_interval_s must be > 0, diverged_nis_factor > 1 and diverged_epochs >= 1")
+        if self.gyro_axis_errors not in GYRO_AXIS_ERRORS:
+            raise ValueError(f"gyro_axis_errors must be one of {GYRO_AXIS_ERRORS}, got {self.gyro_axis_errors!r}")
+        if self.bias_feedback not in BIAS_FEEDBACK:
+            raise ValueError(f"bias_feedback must be one of {BIAS_FEEDBACK}, got {self.bias_feedback!r}")
+        if not np.isfinite(self.gnss_time_offset_s):
+            raise ValueError(f"gnss_time_offset_s must be finite, got {self.gnss_time_offset_s}")
         if not 0.0 < self.nis_quantile < 1.0:
             raise ValueError(f"nis_quantile must be in (0, 1), got {self.nis_quantile}")
 
     @property
+    def feeds_biases_while_aligning(self) -> bool:
+        """``bias_feedback`` resolved (``auto`` by the IMU's grade)."""
+        if self.bias_feedback == "auto":
+            return self.imu.gyro_bias_deg_h >= 1.0 or self.imu.accel_bias_ug >= 1000.0
+        return self.bias_feedback == "always"
+
+    @property
+    def fine_level_sigma_rad(self) -> float:
+        """Level prior of the fine phase: ``fine_level_sigma_deg``, at least twice the tilt the
+        accelerometer turn-on bias alone leaves (``2 asin(b / g)``: 2.3 deg for a 20 mg MEMS unit;
+        the coarse phase's level estimate is not better than that, and a tighter restart made the
+        MEMS filter overconfident: attitude NEES 20-80 instead of 3 on scenario mems_vehicle)."""
+        tilt = 2.0 * float(np.arcsin(min(self.imu.accel_bias_ug * 1e-6, 0.5)))
+        return max(self.fine_level_sigma_deg * DEG, tilt)
+
+    @property
+    def axis_states(self) -> bool:
+        """``gyro_axis_errors`` resolved."""
+        if self.gyro_axis_errors == "auto":
+            return self.imu.gyro_scale_ppm > 100.0 or self.imu.gyro_misalignment_mrad > 0.1
+        return self.gyro_axis_errors == "states"
+
+    @property
+    def layout(self) -> NDArray[np.intp]:
+        """Indices (n,) of this model's states in the extended 24-state layout."""
+        base = np.arange(N_FULL) if self.vertical else IDX13
+        return np.concatenate([base, np.arange(N_FULL, N_EXT)]) if self.axis_states else base
+
+    @property
     def n(self) -> int:
-        return 15 if self.vertical else 13
+        return int(self.layout.size)
 
     @property
     def p(self) -> int:
@@ -228,19 +334,29 @@ class IfaModel:
         self.feed_biases = False
         self._iv = IntervalIntegrals(initial.copy())
         self._omega_last = np.zeros(3)  # last bias-compensated IMU rate (lever-arm velocity)
+        self._rot_abs = np.zeros(3)  # sum of |rotation increment| per IMU axis over the interval [rad]
+        self._layout = cfg.layout
+        self._axis = cfg.axis_states
+        self._K_gam = np.zeros((3, 9))  # int C_est W(omega) dt over the interval (gyro axis errors -> attitude)
         self.chunks: list[NavSeries] = []
 
-    # ------------------------------------------------------------------ embedding 13 <-> 15
+    # ------------------------------------------------------------------ embedding n <-> 24
     def full(self, x: FloatArray) -> FloatArray:
-        """States (..., n) -> (..., 15) with zero vertical errors for the 13-state model."""
-        if self.n == N_FULL:
-            return x
-        out = np.zeros(x.shape[:-1] + (N_FULL,))
-        out[..., IDX13] = x
+        """States (..., n) -> (..., 24) of the extended layout (zeros for the states the model
+        does not carry: the vertical ones of the 13-state model, the gyro axis errors)."""
+        out = np.zeros(x.shape[:-1] + (N_EXT,))
+        out[..., self._layout] = x
         return out
 
     def reduce(self, x: FloatArray) -> FloatArray:
-        return x if self.n == N_FULL else x[..., IDX13]
+        """(..., 24) -> (..., n)."""
+        return x[..., self._layout]
+
+    def nav_cov15(self, P: FloatArray) -> FloatArray:
+        """The (15, 15) covariance of position, velocity, attitude and biases of a covariance (n, n)
+        (zero rows / columns for states the model does not carry)."""
+        E = self.full(np.eye(self.n))[:, :N_FULL]  # (n, 15)
+        return E.T @ P @ E
 
     # ------------------------------------------------------------------ nominal
     @property
@@ -260,7 +376,12 @@ class IfaModel:
         chunk = self.strapdown.run_increments(t, om * dt, fb * dt)
         self.chunks.append(chunk)
         self._iv.add(start, chunk, fb, dt[:, 0])
+        if self._axis:
+            C = np.concatenate([start.C_nb[None], chunk.C_nb])
+            C_mid = 0.5 * (C[1:] + C[:-1])
+            self._K_gam = self._K_gam + np.einsum("kij,kjl->il", C_mid, gyro_axis_matrix(om) * dt[:, :, None])
         self._omega_last = om[-1]
+        self._rot_abs = self._rot_abs + np.abs(om * dt).sum(axis=0)
 
     def interval(self) -> _Linearization | None:
         """Constants of ``f`` for the step since the last filter epoch (None if no time passed)."""
@@ -269,13 +390,16 @@ class IfaModel:
     def start_interval(self) -> None:
         """A filter epoch happened: the next interval starts at the current (corrected) state."""
         self._iv = IntervalIntegrals(self.strapdown.state)
+        self._rot_abs = np.zeros(3)
+        self._K_gam = np.zeros((3, 9))
 
     # ------------------------------------------------------------------ f, Q
     def f(self, lin: _Linearization, x: FloatArray) -> FloatArray:
         """Transition over one interval, x (..., n) -> (..., n) (eq. 24, module docstring)."""
         X = self.full(np.asarray(x, dtype=float))
-        phi_new, dv_new, dp_new = propagate_nav_errors(X[..., PHI], X[..., DV], X[..., DP], X[..., EPS], X[..., NAB], lin)
-        if self.n != N_FULL:  # 13 states: the vertical channel is slaved to the GNSS, not propagated
+        extra = X[..., GAM] @ self._K_gam.T if self._axis else None  # gyro axis errors: int C Gamma omega dt
+        phi_new, dv_new, dp_new = propagate_nav_errors(X[..., PHI], X[..., DV], X[..., DP], X[..., EPS], X[..., NAB], lin, extra)
+        if not self.cfg.vertical:  # 13 states: the vertical channel is slaved to the GNSS, not propagated
             dv_new[..., 2] = 0.0
             dp_new[..., 2] = X[..., DP][..., 2]
         out = X.copy()
@@ -283,21 +407,40 @@ class IfaModel:
         return self.reduce(out)
 
     def Q(self, lin: _Linearization) -> FloatArray:
-        """Process noise (n, n) of one interval: gyro / accelerometer white noise per IMU sample
-        integrated over T (angle / velocity random walk, :func:`~dpos_core.ins_errors.nav_process_noise`),
-        times ``q_scale``."""
-        cfg = self.cfg
-        Q = np.zeros((N_FULL, N_FULL))
-        Q[np.ix_(_NAV_ORDER, _NAV_ORDER)] = nav_process_noise(lin.T, self.imu_dt_s, cfg.gyro_noise_deg_h * DEG_PER_H,
-                                                              cfg.accel_noise_ug * UG_MPS2)
+        """Process noise (n, n) of one interval, times ``q_scale``:
+
+        * gyro / accelerometer white noise per IMU sample integrated over T (angle / velocity
+          random walk, :func:`~dpos_core.ins_errors.nav_process_noise`; ``ImuErrorModel.white_sigma``);
+        * bias random walk ``2 sigma_BI^2 T / tau`` on the bias states (in-run instability);
+        * gyro scale factor ``s`` and misalignment ``m``: an attitude error ``s r_i`` about IMU
+          axis ``i`` and ``m r_j`` from each other axis, for the rotations ``r`` (3,) [rad] the
+          axes made over the interval (sum of the absolute increments): variance
+          ``C diag(s^2 r_i^2 + m^2 (|r|^2 - r_i^2)) C^T`` in ENU.  Treating a per-session constant
+          as white over the intervals understates its correlation but bounds the filter's
+          confidence by what the unit can do in a turn.
+        """
+        cfg, imu = self.cfg, self.cfg.imu
+        g_sig, a_sig = imu.white_sigma(self.imu_dt_s)
+        Q = np.zeros((N_EXT, N_EXT))
+        Q[np.ix_(_NAV_ORDER, _NAV_ORDER)] = nav_process_noise(lin.T, self.imu_dt_s, g_sig, a_sig)
+        if imu.gyro_bias_instability_deg_h:
+            Q[EPS, EPS] += np.eye(3) * 2.0 * (imu.gyro_bias_instability_deg_h * DEG_PER_H) ** 2 * lin.T / imu.gyro_bias_tau_s
+        if imu.accel_bias_instability_ug:
+            Q[NAB, NAB] += np.eye(3) * 2.0 * (imu.accel_bias_instability_ug * UG_MPS2) ** 2 * lin.T / imu.accel_bias_tau_s
+        if (imu.gyro_scale_ppm or imu.gyro_misalignment_mrad):
+            r2 = self._rot_abs**2
+            v = (imu.gyro_scale_ppm * 1e-6) ** 2 * r2 + (imu.gyro_misalignment_mrad * 1e-3) ** 2 * (r2.sum() - r2)
+            C = self.strapdown.state.C_nb
+            Q[PHI, PHI] += (C * v) @ C.T
         Q *= cfg.q_scale
-        return Q[np.ix_(IDX13, IDX13)] if self.n != N_FULL else Q
+        L = self._layout
+        return Q[np.ix_(L, L)]
 
     # ------------------------------------------------------------------ measurement
     def measurement(self, fix: GnssFix) -> tuple[FloatArray, Callable[[FloatArray], FloatArray], FloatArray]:
         """``(y (p,), h: (..., n) -> (..., p), R (p, p))`` for a fix at the current nominal time
-        (the fix must have passed :func:`check_fix`; a stamp up to one IMU step before/after the
-        nominal is bridged with the velocity)."""
+        (the fix must have passed :func:`check_fix`; a stamp up to ``cfg.max_fix_bridge_s``
+        before/after the nominal is bridged with the velocity)."""
         nom = self.strapdown.state
         C = nom.C_nb
         l = self.lever_arm_m
@@ -333,7 +476,7 @@ class IfaModel:
         13-state model the height and vertical velocity are then set from the fix."""
         c = np.zeros(self.n)
         X = self.full(np.asarray(mean, dtype=float))
-        C15 = np.zeros(N_FULL)
+        C15 = np.zeros(N_EXT)  # the gyro axis errors are not fed back (0)
         C15[DP], C15[DV], C15[PHI] = X[DP], X[DV], X[PHI]
         if self.feed_biases:
             C15[EPS], C15[NAB] = X[EPS], X[NAB]
@@ -366,26 +509,34 @@ class IfaModel:
         """Prior mean (zeros) and covariance (n, n) from the configuration; with ``fine_from``
         (the current covariance (n, n)) the prior of the fine phase: position and velocity
         variances kept, attitude from ``fine_level_sigma_deg`` / ``fine_heading_sigma_deg``,
-        biases from the sensor priors, no correlations (module docstring)."""
+        biases from the sensor priors, no correlations (module docstring; the caller keeps the gyro
+        axis errors, which are not fed back)."""
         cfg = self.cfg
-        d = np.zeros(N_FULL)
+        d = np.zeros(N_EXT)
         d[DP] = cfg.position_sigma_m**2
         d[DV] = cfg.velocity_sigma_mps**2
         d[PHI] = np.array([cfg.level_sigma_deg, cfg.level_sigma_deg, cfg.heading_sigma_deg]) ** 2 * DEG**2
         if fine_from is not None:
             cur = self.full(np.diag(fine_from))
             d[DP], d[DV] = cur[DP], cur[DV]
-            d[PHI] = np.array([cfg.fine_level_sigma_deg, cfg.fine_level_sigma_deg, cfg.fine_heading_sigma_deg]) ** 2 * DEG**2
-        d[EPS] = (max(cfg.gyro_bias_deg_h, 1e-6) * DEG_PER_H) ** 2
-        d[NAB] = (max(cfg.accel_bias_ug, 1e-3) * UG_MPS2) ** 2
+            lvl = cfg.fine_level_sigma_rad
+            d[PHI] = np.array([lvl, lvl, cfg.fine_heading_sigma_deg * DEG]) ** 2
+        d[EPS] = (max(cfg.imu.gyro_bias_deg_h, 1e-6) * DEG_PER_H) ** 2
+        d[NAB] = (max(cfg.imu.accel_bias_ug, 1e-3) * UG_MPS2) ** 2
+        d[GAM] = np.r_[np.full(3, max(cfg.imu.gyro_scale_ppm, 1.0) * 1e-6), np.full(6, max(cfg.imu.gyro_misalignment_mrad, 1e-3) * 1e-3)] ** 2
         return np.zeros(self.n), np.diag(self.reduce(d))
 
     # ------------------------------------------------------------------ indices
     @property
     def phi_index(self) -> slice:
-        return slice(6, 9) if self.n == N_FULL else slice(4, 7)
+        return slice(6, 9) if self.cfg.vertical else slice(4, 7)
+
+    @property
+    def gam_index(self) -> NDArray[np.intp]:
+        """Indices of the gyro axis-error states in this model's state vector (empty without them)."""
+        return np.flatnonzero(self._layout >= N_FULL)
 
     @property
     def bias_index(self) -> tuple[slice, slice]:
-        o = 9 if self.n == N_FULL else 7
+        o = 9 if self.cfg.vertical else 7
         return slice(o, o + 3), slice(o + 3, o + 6)

@@ -64,6 +64,9 @@ from ..strapdown import NavState
 from .model import GnssFix, IfaFilterConfig, IfaModel, check_fix
 from .states import AlignmentState
 
+#: two stamps closer than this are the same instant [s] (as dpos_core.ifa.mechanization.STAMP_TOL_S)
+STAMP_TOL_S = 1e-6
+
 METHODS = ("add2", "dd2", "aekf")
 
 
@@ -76,7 +79,8 @@ class HypothesisEvent:
         offset_deg: the hypothesis' initial heading offset from the given heading [deg].
         kind: ``failed`` (its update failed numerically: dropped), ``pruned`` (its accumulated
             log-likelihood fell too far below the best), ``merged`` (it converged to the heading of
-            a likelier one).
+            a likelier one), ``diverged`` (the innovations left every bound: the alignment
+            restarts, offset 0).
         reason: what happened, for people.
     """
 
@@ -123,12 +127,14 @@ class _Engine:
         self.method = method
         self.cfg = cfg
         self.model = IfaModel(initial, lever_arm_m, cfg, imu_dt_s)
+        self.model.feed_biases = cfg.feeds_biases_while_aligning
         x0, P0 = self.model.prior()
         self.x = x0
         self.S = chol(P0)  # square-root form (DD2 / ADD2)
         self.P = P0  # covariance form (AEKF)
         self.window = InnovationWindow(cfg.window)  # adaptation (ADD2 / AEKF)
         self.nis_hist: list[float] = []
+        self.nis_used_hist: list[float] = []  #: NIS with r_ceiling x R (divergence), last ``window`` epochs
         self.last_fix_t: float | None = None
         self.status = AlignmentState.ALIGNING
         self.aligned_t_s: float | None = None
@@ -154,7 +160,8 @@ class _Engine:
 
     @property
     def aligned(self) -> bool:
-        return self.status.aligned
+        """The alignment has been declared (latched until a restart)."""
+        return self.aligned_t_s is not None
 
     def bias_estimates(self) -> tuple[FloatArray, FloatArray]:
         """Total gyro [rad/s] and accelerometer [m/s^2] bias estimates (compensation + state)."""
@@ -172,9 +179,10 @@ class _Engine:
         """Raise :class:`~dpos_core.errors.RejectedInput` if ``fix`` cannot be used now (nothing changes)."""
         check_fix(fix, self.last_fix_t)
         t_nav = self.model.t_s
-        if abs(fix.t_s - t_nav) > 0.5 * self.model.imu_dt_s + 1e-9:
-            raise RejectedInput(f"GNSS fix at t={fix.t_s} but the navigation is at t={t_nav}: "
-                                "propagate the IMU to the fix first", what="GNSS fix", reason="not_at_nav_time", t_s=fix.t_s)
+        if abs(fix.t_s - t_nav) > self.cfg.max_fix_bridge_s + 1e-9:
+            raise RejectedInput(f"GNSS fix at t={fix.t_s} but the navigation is at t={t_nav} (more than max_fix_bridge_s "
+                                f"= {self.cfg.max_fix_bridge_s} s apart): propagate the IMU to the fix first", what="GNSS fix",
+                                reason="not_at_nav_time", t_s=fix.t_s)
 
     def update(self, fix: GnssFix) -> EpochRecord:
         """One filter epoch at a GNSS fix: time update since the last epoch, measurement update
@@ -183,13 +191,36 @@ class _Engine:
         :class:`~dpos_core.errors.NumericalFailure` (previous state restored) when the update
         fails numerically (a covariance beyond repair, a singular matrix, a non-finite state)."""
         self.check(fix)
-        saved = (self.x.copy(), self.S.copy(), self.P.copy(), self.window.copy(), list(self.nis_hist))
+        saved = (self.x.copy(), self.S.copy(), self.P.copy(), self.window.copy(), list(self.nis_hist), list(self.nis_used_hist))
         try:
             return self._epoch(fix)
         except (NumericalFailure, np.linalg.LinAlgError, FloatingPointError) as e:
-            self.x, self.S, self.P, self.window, self.nis_hist = saved
+            self.x, self.S, self.P, self.window, self.nis_hist, self.nis_used_hist = saved
             raise NumericalFailure(f"GNSS fix at t={fix.t_s}: the {self.method.upper()} update failed numerically "
                                    f"({type(e).__name__}: {e}); the previous state is restored", what="IFA filter", t_s=fix.t_s) from e
+
+    def predict(self) -> None:
+        """Time update alone to the navigation time (no fix: an outage); the covariance grows
+        with the process noise, the next interval starts here.  Raises
+        :class:`~dpos_core.errors.NumericalFailure` (state restored) when it fails numerically."""
+        m = self.model
+        lin = m.interval()
+        if lin is None:
+            return
+        saved = (self.x.copy(), self.S.copy(), self.P.copy())
+        try:
+            f = lambda X: m.f(lin, X)  # noqa: E731
+            Q = m.Q(lin)
+            if self.method == "aekf":
+                self.x, self.P, _ = aekf_predict(self.x, self.P, f, Q)
+            else:
+                pr = dd2_predict(self.x, self.S, f, chol(Q + 1e-30 * np.eye(m.n)))
+                self.x, self.S = pr.x, pr.S
+        except (NumericalFailure, np.linalg.LinAlgError, FloatingPointError) as e:
+            self.x, self.S, self.P = saved
+            raise NumericalFailure(f"time update at t={m.t_s} failed numerically ({type(e).__name__}: {e})",
+                                   what="IFA filter", t_s=m.t_s) from e
+        m.start_interval()
 
     # ------------------------------------------------------------------ one epoch
     def _epoch(self, fix: GnssFix) -> EpochRecord:
@@ -229,20 +260,26 @@ class _Engine:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise NumericalFailure("non-finite state after the update", what="IFA filter", t_s=fix.t_s)
         nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
+        # divergence is judged against the largest R the adaptation may reach (r_ceiling x nominal): a
+        # GNSS noisier than modelled (up to 10x the sigma) is DEGRADED, innovations beyond even that are not noise
+        nis_used = float(nu @ solve_spd(symmetrize(Py_model + (cfg.r_ceiling - 1.0) * R), nu[:, None])[:, 0])
+        self.nis_used_hist = (self.nis_used_hist + [nis_used])[-cfg.window:]
         loglik = -0.5 * (nis + float(np.linalg.slogdet(2.0 * np.pi * Py_model)[1]))
         self.nis_hist = (self.nis_hist + [nis])[-cfg.window:]
         nis_w = float(np.mean(self.nis_hist))
         x_hat = x.copy()
         P_hat = symmetrize(P) if self.method == "aekf" else symmetrize(S @ S.T)
-        # alignment decision
+        # alignment decision (latched) and consistency (every epoch, before and after it)
         sig_h = float(np.sqrt(P_hat[m.phi_index][:, m.phi_index][2, 2]))
-        consistent = len(self.nis_hist) >= cfg.window and nis_w < self._nis_limit
-        if self.status == AlignmentState.ALIGNING and self.may_align and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
-            self.status = AlignmentState.ALIGNED
+        full = len(self.nis_hist) >= cfg.window
+        consistent = full and nis_w < self._nis_limit
+        if not self.aligned and self.may_align and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
             self.aligned_t_s = fix.t_s
             m.feed_biases = True
-        elif self.status != AlignmentState.ALIGNING:
-            self.status = AlignmentState.ALIGNED if consistent else AlignmentState.DEGRADED
+        if full and not consistent:
+            self.status = AlignmentState.DEGRADED
+        else:
+            self.status = AlignmentState.ALIGNED if self.aligned else AlignmentState.ALIGNING
         # closed loop (eq. 24 reset): feedback, then re-express the state and its covariance
         c = m.feedback(x, fix)
         shift = lambda X: m.shift(X, c)  # noqa: E731
@@ -258,7 +295,13 @@ class _Engine:
             # end of the coarse phase: restart from the coarse estimate (already fed back)
             self.fine = True
             self.fine_t_s = fix.t_s
-            x, P = m.prior(fine_from=P_hat)
+            x_fine, P_fine = m.prior(fine_from=P_hat)
+            gi = m.gam_index
+            if gi.size:  # the gyro axis errors are not fed back: keep their estimate and covariance
+                P_cur = P if self.method == "aekf" else symmetrize(S @ S.T)
+                x_fine[gi] = x[gi]
+                P_fine[np.ix_(gi, gi)] = P_cur[np.ix_(gi, gi)]
+            x, P = x_fine, P_fine
             S = chol(P)
             window = InnovationWindow(cfg.window)
         m.start_interval()
@@ -303,6 +346,23 @@ class InFlightAligner:
         self.events: list[HypothesisEvent] = []
         #: hypotheses dropped because their update failed numerically
         self.hypotheses_failed = 0
+        self._lever_arm_m, self._imu_dt_s = lever_arm_m, imu_dt_s
+        #: restarts after a divergence (class docstring)
+        self.restarts = 0
+        self._diverging = 0  # consecutive epochs beyond the divergence limit
+        self._diverged_now = False
+        self._limit = float(chi2.ppf(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window) * cfg.diverged_nis_factor
+        self.records: list[EpochRecord] = []
+        #: (t_s, covariance (9, 9) of the navigation errors: position E, N, U [m], velocity E, N, U [m/s],
+        #: attitude about E, N, U [rad]) after every filter epoch (updates and time updates alone), oldest first
+        self.track: list[tuple[float, FloatArray]] = []
+        self._build_bank(initial)
+        self.last_epoch_t_s = initial.t_s  #: time of the last filter epoch (update or time update alone)
+
+    def _build_bank(self, initial: NavState, keep_from: _Engine | None = None) -> None:
+        """The bank of heading hypotheses around ``initial`` (``keep_from``: carry its bias
+        compensation and last fix over, as after a restart)."""
+        cfg, method, lever_arm_m, imu_dt_s = self.cfg, self.method, self._lever_arm_m, self._imu_dt_s
         M = cfg.heading_hypotheses
         with self.jitter:
             if M == 1:
@@ -311,11 +371,59 @@ class InFlightAligner:
                 sub = replace(cfg, heading_sigma_deg=min(cfg.heading_sigma_deg, 180.0 / M))
                 self.hyps = [_Engine(_rotate_heading(initial, k * 2.0 * np.pi / M), lever_arm_m, sub, method, imu_dt_s)
                              for k in range(M)]
+        if keep_from is not None:
+            for h in self.hyps:
+                h.model.gyro_bias_comp = keep_from.model.gyro_bias_comp.copy()
+                h.model.accel_bias_comp = keep_from.model.accel_bias_comp.copy()
+                h.last_fix_t = keep_from.last_fix_t
         self.loglik = np.zeros(M)
         self.offsets_deg = [k * 360.0 / M for k in range(M)]
         self._cur = 0
-        self.records: list[EpochRecord] = []
         self._sync()
+
+    @property
+    def status(self) -> AlignmentState:
+        """DIVERGED at the epoch a divergence was detected, else the reported hypothesis' status."""
+        return AlignmentState.DIVERGED if self._diverged_now else self.engine.status
+
+    @property
+    def next_predict_t_s(self) -> float:
+        """IMU time at which a time update alone is due when no fix came (``cfg.predict_interval_s``)."""
+        return self.last_epoch_t_s + self.cfg.predict_interval_s
+
+    def predict(self) -> None:
+        """Time update alone in every hypothesis, at the navigation time (no fix since
+        ``predict_interval_s``).  A hypothesis whose time update fails numerically is dropped
+        while others remain; :class:`~dpos_core.errors.NumericalFailure` when all fail."""
+        failed: list[int] = []
+        with self.jitter:
+            for i, h in enumerate(self.hyps):
+                try:
+                    h.predict()
+                except NumericalFailure:
+                    failed.append(i)
+        if len(failed) == len(self.hyps):
+            raise NumericalFailure(f"time update at t={self.engine.model.t_s} failed in every heading hypothesis", what="IFA filter",
+                                   t_s=self.engine.model.t_s)
+        if failed:
+            keep = [i for i in range(len(self.hyps)) if i not in failed]
+            cur = self._cur if self._cur in keep else keep[0]
+            self.events += [HypothesisEvent(self.engine.model.t_s, self.offsets_deg[i], "failed", "time update failed numerically")
+                            for i in failed]
+            self.hypotheses_failed += len(failed)
+            self.hyps = [self.hyps[i] for i in keep]
+            self.offsets_deg = [self.offsets_deg[i] for i in keep]
+            self.loglik = self.loglik[keep]
+            self._cur = keep.index(cur)
+            self._sync()
+        self.last_epoch_t_s = self.engine.model.t_s
+        self._log_track()
+
+    def _log_track(self) -> None:
+        e = self.engine
+        n = e.model.n
+        E = e.model.full(np.eye(n))[:, :9] if n != 9 else np.eye(9)  # (n, 9): state -> the 15-state's first nine
+        self.track.append((e.model.t_s, symmetrize(E.T @ e.cov @ E)))
 
     def _sync(self) -> None:
         for h in self.hyps:
@@ -399,7 +507,29 @@ class InFlightAligner:
         self._cur = [keep[k] for k in alive].index(cur)
         self._sync()
         rec.hypotheses = len(self.hyps)
+        # divergence: the reported hypothesis' window far beyond its consistency limit, several epochs
+        rep = self.engine
+        self._diverged_now = False
+        nis_used_w = float(np.mean(rep.nis_used_hist)) if rep.nis_used_hist else 0.0
+        if len(rep.nis_used_hist) >= self.cfg.window and nis_used_w > self._limit:
+            self._diverging += 1
+        else:
+            self._diverging = 0
+        if self._diverging >= self.cfg.diverged_epochs:
+            self._diverged_now = True
+            self._diverging = 0
+            rec.status = AlignmentState.DIVERGED
+            what = (f"window-mean NIS (with r_ceiling x R) {nis_used_w:.3g} above {self._limit:.3g} for {self.cfg.diverged_epochs} epochs")
+            if self.cfg.restart_on_divergence:
+                nav = rep.nav
+                self.restarts += 1
+                self._build_bank(NavState(nav.t_s, nav.q_nb, np.asarray(fix.vel_n_mps, dtype=float).copy(),
+                                          np.asarray(fix.llh, dtype=float).copy()), keep_from=rep)
+                what += ": the alignment restarts from the fix and the current attitude"
+            events.append(HypothesisEvent(fix.t_s, 0.0, "diverged", what))
         rec.events = events
+        self.last_epoch_t_s = self.engine.model.t_s
+        self._log_track()
         self.events += events
         self.hypotheses_failed += len(failed)
         self.records.append(rec)
@@ -432,7 +562,8 @@ class IfaResult:
     R_diag (K, p), status (K,) (:class:`~.states.AlignmentState` values).  aligned / aligned_t_s: the decision; gyro_bias_radps (3,),
     accel_bias_mps2 (3,): final bias estimates; rejected: [(t_s, reason)] (rejected fixes and
     epochs that failed numerically in every hypothesis); runtime_s; events: the bank's
-    :class:`HypothesisEvent` s; hypotheses_failed, chol_jitter_repairs: counters.
+    :class:`HypothesisEvent` s; hypotheses_failed, chol_jitter_repairs, restarts: counters; track:
+    the covariance after every filter epoch (:attr:`InFlightAligner.track`).
     """
 
     method: str
@@ -457,6 +588,11 @@ class IfaResult:
     events: list[HypothesisEvent] = field(default_factory=list)
     hypotheses_failed: int = 0
     chol_jitter_repairs: int = 0
+    restarts: int = 0
+    #: InFlightAligner.track: (t_s, navigation error covariance (9, 9)) after every filter epoch
+    track: list[tuple[float, FloatArray]] = field(default_factory=list)
+    #: fixes stamped before the initial state (skipped, not rejected)
+    before_start: int = 0
 
     @property
     def heading_sigma_deg(self) -> FloatArray:
@@ -497,31 +633,33 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
     om, fb = np.asarray(imu.omega_radps, dtype=float), np.asarray(imu.f_mps2, dtype=float)
     if not (np.all(np.isfinite(om)) and np.all(np.isfinite(fb))):
         raise RejectedInput("IMU samples contain non-finite values", what="IMU samples", reason="nan")
-    dt = float(np.median(np.diff(t_imu)))
+    first = int(np.searchsorted(t_imu, initial.t_s + STAMP_TOL_S))  # samples after the initial state
+    dt = nominal_imu_dt_s(t_imu[first:])
     t0 = time.perf_counter()
     al = InFlightAligner(initial, lever_arm, cfg, method, dt)
-    first = int(np.searchsorted(t_imu, initial.t_s + 1e-9))  # samples after the initial state
     i = first
     rejected: list[tuple[float, str]] = []
     out: list[NavSeries] = []  # navigation of the hypothesis reported at each interval (as a node follows it)
     g_t = np.asarray(gnss.t_s, dtype=float)
+    bridge = cfg.max_fix_bridge_s
+    before_start = 0
     for j in range(g_t.size):
-        fix = GnssFix(float(g_t[j]), np.asarray(gnss.llh[j], dtype=float), np.asarray(gnss.pos_sigma_m[j], dtype=float),
-                      np.asarray(gnss.vel_n_mps[j], dtype=float), np.asarray(gnss.vel_sigma_mps[j], dtype=float))
+        fix = fix_at(g_t[j], gnss, j, cfg)
+        if np.isfinite(fix.t_s) and fix.t_s <= initial.t_s + STAMP_TOL_S:
+            before_start += 1  # not bad data: at or before the start (ifa_node skips it the same way)
+            continue
         try:
             check_fix(fix, al.last_fix_t)
-            if fix.t_s > t_imu[-1] + 0.5 * dt or fix.t_s < al.model.t_s - 0.5 * dt:
+            if fix.t_s > t_imu[-1] + bridge or fix.t_s < al.model.t_s - bridge:
                 raise RejectedInput(f"GNSS fix at t={fix.t_s} is outside the IMU data still to come", what="GNSS fix",
                                     reason="stale", t_s=fix.t_s)
         except RejectedInput as e:
             rejected.append((fix.t_s, str(e)))
             warnings.warn(f"IFA: skipping GNSS fix: {e}", stacklevel=2)
             continue
-        i1 = int(np.searchsorted(t_imu, fix.t_s + 0.5 * dt, side="right"))
-        if i1 > i:
-            al.propagate(t_imu[i:i1], om[i:i1], fb[i:i1])
-            out.append(al.engine.model.chunks[-1])  # the reported hypothesis' navigation
-            i = i1
+        # the samples up to the fix (the last one at or before it; the measurement bridges the rest),
+        # with a time update alone every predict_interval_s without a fix
+        i = advance(al, t_imu, om, fb, i, fix.t_s, out)
         try:
             rec = al.update(fix)
         except (RejectedInput, NumericalFailure) as e:
@@ -537,8 +675,7 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
             s = al.nav
             ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
     if i < t_imu.size:
-        al.propagate(t_imu[i:], om[i:], fb[i:])
-        out.append(al.engine.model.chunks[-1])
+        i = advance(al, t_imu, om, fb, i, float(t_imu[-1]), out)
     runtime = time.perf_counter() - t0
     chunks = [NavSeries(np.array([initial.t_s]), initial.q_nb[None], initial.vel_n_mps[None], initial.llh[None])]
     nav = NavSeries.concatenate(chunks + out)
@@ -552,8 +689,52 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
         np.array([r.nis for r in recs]), np.array([r.nis_window for r in recs]),
         np.array([r.R_diag for r in recs]).reshape(-1, p), np.array([r.status for r in recs], dtype=int),
         al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime, list(al.events), al.hypotheses_failed,
-        al.chol_jitter_repairs,
+        al.chol_jitter_repairs, al.restarts, list(al.track), before_start,
     )
+
+
+#: IMU samples after the start whose median interval is the nominal one (ifa_node waits for as many)
+IMU_DT_SAMPLES = 51
+
+
+def nominal_imu_dt_s(t_after_start_s: FloatArray) -> float:
+    """The IMU interval the process noise is scaled with [s]: the median step of the first
+    :data:`IMU_DT_SAMPLES` samples after the start (the same rule live and offline: ifa_node has no more
+    when it starts)."""
+    t = np.asarray(t_after_start_s, dtype=float)[:IMU_DT_SAMPLES]
+    if t.size < 2:
+        raise RejectedInput(f"{t.size} IMU sample(s) after the start: at least 2 are needed", what="IMU samples", reason="too_short")
+    return float(np.median(np.diff(t)))
+
+
+def advance(al: InFlightAligner, t_imu: FloatArray, om: FloatArray, fb: FloatArray, i: int, t_end_s: float,
+             out: list[NavSeries]) -> int:
+    """Propagate samples ``i:`` up to the last one at or before ``t_end_s``, with a time update
+    alone (``al.predict``) each time ``al.next_predict_t_s`` is passed; the reported hypothesis'
+    navigation chunks go to ``out``.  Returns the next sample index."""
+    while True:
+        tick = al.next_predict_t_s
+        last = min(tick, t_end_s)
+        i1 = int(np.searchsorted(t_imu, last + STAMP_TOL_S, side="right"))
+        if i1 > i:
+            al.propagate(t_imu[i:i1], om[i:i1], fb[i:i1])
+            out.append(al.engine.model.chunks[-1])  # the reported hypothesis' navigation
+            i = i1
+        if tick >= t_end_s or i >= t_imu.size:
+            return i
+        try:
+            al.predict()
+        except NumericalFailure as e:
+            warnings.warn(f"IFA: {e}", stacklevel=3)
+            al.last_epoch_t_s = al.model.t_s
+
+
+def fix_at(t_stamp_s: float, gnss: GnssSeries, j: int, cfg: IfaFilterConfig) -> GnssFix:
+    """Fix ``j`` of a series as the filter takes it: its stamp ``t_stamp_s`` [s] moved onto the IMU's
+    clock (minus ``cfg.gnss_time_offset_s``)."""
+    return GnssFix(float(t_stamp_s) - cfg.gnss_time_offset_s, np.asarray(gnss.llh[j], dtype=float),
+                   np.asarray(gnss.pos_sigma_m[j], dtype=float), np.asarray(gnss.vel_n_mps[j], dtype=float),
+                   np.asarray(gnss.vel_sigma_mps[j], dtype=float))
 
 
 def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray:
@@ -564,4 +745,4 @@ def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray
     return hpr_error(hpr_from_C_nb(result.C_nb), hpr_from_C_nb(quat_to_dcm(truth_q_nb))) / DEG
 
 
-__all__ = ["METHODS", "InFlightAligner", "IfaResult", "HypothesisEvent", "run", "attitude_errors_deg"]
+__all__ = ["METHODS", "InFlightAligner", "IfaResult", "HypothesisEvent", "run", "fix_at", "attitude_errors_deg", "STAMP_TOL_S", "advance", "nominal_imu_dt_s", "IMU_DT_SAMPLES"]

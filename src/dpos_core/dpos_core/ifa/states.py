@@ -13,17 +13,15 @@ from enum import IntEnum
 
 class AlignmentState(IntEnum):
     """``WAITING`` (ifa_node only: no initial state yet), ``ALIGNING``, ``ALIGNED``, ``DEGRADED``
-    (aligned, but the current innovation window is inconsistent)."""
+    (the innovations of the current window are inconsistent with the filter's covariance: before
+    or after the alignment), ``DIVERGED`` (far beyond that for several epochs: the alignment is
+    restarted)."""
 
     WAITING = -1
     ALIGNING = 0
     ALIGNED = 1
     DEGRADED = 2
-
-    @property
-    def aligned(self) -> bool:
-        """The alignment has been declared (ALIGNED or DEGRADED): the navigation may be used."""
-        return self in (AlignmentState.ALIGNED, AlignmentState.DEGRADED)
+    DIVERGED = 3
 
     @classmethod
     def from_message(cls, message: str) -> AlignmentState | None:
@@ -31,7 +29,13 @@ class AlignmentState(IntEnum):
         return cls.__members__.get(message)
 
     @classmethod
-    def message_is_aligned(cls, message: str) -> bool:
-        """An ``/ifa/status`` message says the main POS is aligned (``ALIGNED`` or ``DEGRADED``)."""
+    def message_is_aligned(cls, message: str, aligned_key: str | None = None) -> bool:
+        """An ``/ifa/status`` says the main POS is aligned: ``ALIGNED``, or ``DEGRADED`` after the
+        alignment (its ``aligned`` key/value is ``true``; a DEGRADED without the key counts as
+        aligned, as ifa_node published before it had the key)."""
         state = cls.from_message(message)
-        return state is not None and state.aligned
+        if state == AlignmentState.ALIGNED:
+            return True
+        if state == AlignmentState.DEGRADED:
+            return aligned_key is None or aligned_key.lower() == "true"
+        return False

@@ -63,6 +63,8 @@ def parser() -> argparse.ArgumentParser:
     ifa.add_argument("--outage", metavar="T0,DUR", help="also run with a GNSS outage [T0, T0+DUR) s")
     ifa.add_argument("--noise-jump", metavar="T0,SCALE", help="also run with the GNSS noise x SCALE from T0 s on")
     ifa.add_argument("--no-table", action="store_true", help="skip the Table-3 runs (only the experiments asked for)")
+    ifa.add_argument("--consistency", action="store_true",
+                     help="start from the data as on a real recording; NEES / NIS of the datasheet filter and the oracle")
     return ap
 
 

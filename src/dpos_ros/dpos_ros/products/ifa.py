@@ -4,6 +4,7 @@
     dpos-eval --scenario paper_ifa --methods add2,dd2,aekf --runs 5 --seed 1 --out /tmp/ifa
     dpos-eval --scenario paper_ifa --runs 3 --heading-sweep 10,45,90,135,180 --no-table --out /tmp/sweep
     dpos-eval --scenario paper_ifa --runs 3 --outage 300,30 --noise-jump 240,10 --no-table --out /tmp/robust
+    dpos-eval --scenario mems_vehicle --methods add2 --runs 4 --consistency --no-table --out /tmp/mems
 """
 
 from __future__ import annotations
@@ -57,6 +58,10 @@ def main_ifa(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Sc
         parts["outage"] = {"t0_s": outage[0], "duration_s": outage[1], "methods": E.outage(ev, methods, seeds, h0, *outage)}
     if jump:
         parts["noise_jump"] = {"t0_s": jump[0], "scale": jump[1], "methods": E.noise_jump(ev, methods, seeds, h0, *jump)}
+    if args.consistency:
+        outs = [(iv.t_start_s, iv.t_end_s) for iv in scenario.gnss.schedule if iv.outage]
+        o = outs[0] if outs else None
+        parts["consistency"] = {"outage_s": o, "filters": E.consistency(scenario, seeds, methods[0], args.duration, o)}
     metrics = E.metrics_json(scenario.name, seeds, h0, ev.cfg, parts)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)

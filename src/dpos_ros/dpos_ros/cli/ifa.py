@@ -1,0 +1,366 @@
+"""``dpos-ifa``: the main POS's in-flight alignment on a recording, offline, through the same core
+and the same parameters as the live graph (ifa_node's parameter file, pos_master_node's start
+rule), with a report and plots against a reference solution when one is given.
+
+    dpos-ifa out/walk_0827_1hz --params-file data/real/walk_0827/ifa_node.yaml --min-course-speed 0 \\
+        --reference data/real/walk_0827/gnss_1730_sf.pos --outage 60:75 --out out/walk_ifa
+
+Topics: the product's (``/master/imu``, ``/gnss/fix``, ``/gnss/vel``: a recorded live graph) when
+the bag has them, else real drivers' (``/imu/data``, ``/fix``, ``/vel``: ``dpos-import``); the
+``--*-topic`` options name others.  Times in the report are seconds after the first IMU sample.
+Writes ``OUT/nav.csv`` (the navigation at the IMU rate with its 1-sigma), ``OUT/report.md``,
+``OUT/report.json`` and ``OUT/ifa.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from dpos_core.config import ConfigError, load_aircraft
+from dpos_core.ifa.pipeline import IfaResult, run
+from dpos_core.ifa.reference import Reference, compare, initial_state, track_sigmas
+from dpos_core.imports.logs import LogFormatError, read_pos
+from dpos_core.series import GnssSeries, ImuSeries
+from dpos_core.units import DEG
+
+PRODUCT_TOPICS = ("/master/imu", "/gnss/fix", "/gnss/vel")
+DRIVER_TOPICS = ("/imu/data", "/fix", "/vel")
+
+
+class InputError(ValueError):
+    """A recording or an option cannot be used (the message says which and why)."""
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="dpos-ifa", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("bag", type=Path, help="rosbag2 directory")
+    ap.add_argument("--params-file", type=Path, required=True, help="ifa_node's ROS parameter file (ifa_node: ros__parameters:)")
+    ap.add_argument("--min-course-speed", type=float, default=5.0, metavar="MPS",
+                    help="pos_master_node's min_course_speed_mps: the start is the first fix at least this fast (default 5)")
+    ap.add_argument("--initial-heading", type=float, metavar="DEG", help="pos_master_node's initial_state heading below that speed")
+    ap.add_argument("--input-rotation-rpy-deg", metavar="R,P,Y", default="0,0,0",
+                    help="pos_master_node's input_rotation_rpy_deg: the driver's IMU axes in the body's FLU axes")
+    ap.add_argument("--imu-topic")
+    ap.add_argument("--fix-topic")
+    ap.add_argument("--vel-topic")
+    ap.add_argument("--reference", type=Path, help="reference solution (RTKLIB .pos) to compare with; default: the bag's own fixes")
+    ap.add_argument("--outage", metavar="START:END", help="report before / during / after this GNSS outage [s after the first IMU sample]")
+    ap.add_argument("--method", choices=("add2", "dd2", "aekf"), help="override the parameter file's method")
+    ap.add_argument("--live", type=Path, metavar="REC",
+                    help="a dpos-record recording of the live graph on this bag (/master/nav, /dpos/datum, /ifa/status, "
+                         "/pos_master/status): its navigation against the offline one and the reference, its counters")
+    ap.add_argument("--out", type=Path, required=True)
+    return ap
+
+
+def _deserialize(raws: list[bytes], msgtype: str) -> list[Any]:
+    from dpos_ros.io.bag import typestore
+
+    ts = typestore()
+    return [ts.deserialize_cdr(r, msgtype) for r in raws]
+
+
+def _stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def read_recording(bag: Path, topics: tuple[str, str, str], rotation: np.ndarray) -> tuple[int, ImuSeries, GnssSeries, list[str]]:
+    """``(origin_ns, imu, gnss, notes)`` of a bag: IMU in body axes (``rotation`` applied), fixes
+    paired with their velocity (same stamp within 1 ms), times in s after the first IMU sample.
+    Samples and fixes that are not finite or not after the previous one are dropped and noted."""
+    from dpos_ros.io.bag import read_raw
+
+    try:
+        raw = read_raw(bag, topics)
+    except Exception as e:  # rosbags raises its own errors for a missing or unreadable bag
+        raise InputError(f"{bag}: cannot read the bag ({type(e).__name__}: {e})") from None
+    missing = [t for t in topics if t not in raw]
+    if missing:
+        raise InputError(f"{bag}: no topic {missing} (has: {sorted(raw)}); name them with --imu-topic / --fix-topic / --vel-topic")
+    notes: list[str] = []
+    imus = _deserialize(raw[topics[0]][2], raw[topics[0]][0])
+    t = np.array([_stamp_ns(m) for m in imus], dtype=np.int64)
+    om = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in imus]) @ rotation.T
+    f = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imus]) @ rotation.T
+    keep = np.isfinite(om).all(axis=1) & np.isfinite(f).all(axis=1)
+    last = np.iinfo(np.int64).min
+    for i in range(t.size):
+        if keep[i] and t[i] > last:
+            last = t[i]
+        elif keep[i]:
+            keep[i] = False
+    if (~keep).any():
+        notes.append(f"{int((~keep).sum())} IMU samples dropped (not finite, or stamp not after the previous)")
+    t, om, f = t[keep], om[keep], f[keep]
+    if t.size < 2:
+        raise InputError(f"{bag}: fewer than 2 usable IMU samples on {topics[0]}")
+    origin = int(t[0])
+    fixes = {_stamp_ns(m): m for m in _deserialize(raw[topics[1]][2], raw[topics[1]][0])}
+    vels = {_stamp_ns(m): m for m in _deserialize(raw[topics[2]][2], raw[topics[2]][0])}
+    vt = np.array(sorted(vels), dtype=np.int64)
+    rows = []
+    for tf in sorted(fixes):
+        m = fixes[tf]
+        k = int(np.argmin(np.abs(vt - tf))) if vt.size else -1
+        if k < 0 or abs(int(vt[k]) - tf) > 1_000_000 or m.status.status < 0:
+            continue
+        v = vels[int(vt[k])]
+        pc = np.asarray(m.position_covariance, dtype=float).reshape(3, 3)
+        vc = np.asarray(v.twist.covariance, dtype=float).reshape(6, 6)[:3, :3]
+        row = [(tf - origin) * 1e-9, m.latitude * DEG, m.longitude * DEG, m.altitude, *np.sqrt(np.maximum(np.diag(pc), 0.0)),
+               v.twist.twist.linear.x, v.twist.twist.linear.y, v.twist.twist.linear.z, *np.sqrt(np.maximum(np.diag(vc), 0.0))]
+        if np.all(np.isfinite(row)):
+            rows.append(row)
+    dropped = len(fixes) - len(rows)
+    if dropped:
+        notes.append(f"{dropped} fixes not used (no velocity within 1 ms, no fix status, or not finite)")
+    if not rows:
+        raise InputError(f"{bag}: no usable fix with a velocity on {topics[1]} / {topics[2]}")
+    a = np.array(rows)
+    gnss = GnssSeries(a[:, 0], a[:, 1:4], a[:, 4:7], a[:, 7:10], a[:, 10:13])
+    return origin, ImuSeries((t - origin) * 1e-9, om, f), gnss, notes
+
+
+def _config(params_file: Path, method: str | None) -> tuple[Any, Any, str, np.ndarray]:
+    from ifa_node.params import IfaConfig
+
+    try:
+        doc = yaml.safe_load(params_file.read_text())
+        params = dict(doc["ifa_node"]["ros__parameters"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as e:
+        raise InputError(f"{params_file}: not an ifa_node parameter file ({type(e).__name__}: {e})") from None
+    try:
+        kw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+        node_cfg = IfaConfig(**kw)
+    except TypeError as e:
+        raise InputError(f"{params_file}: {e}") from None
+    if not node_cfg.aircraft_config:
+        raise InputError(f"{params_file}: aircraft_config is required (the vehicle file: IMU model and GNSS lever arm)")
+    ac_path = Path(node_cfg.aircraft_config)
+    if not ac_path.is_absolute() and not ac_path.exists():
+        beside = params_file.parent / ac_path.name
+        ac_path = beside if beside.exists() else ac_path
+    try:
+        aircraft = load_aircraft(ac_path if ac_path.exists() else node_cfg.aircraft_config)
+    except ConfigError as e:
+        raise InputError(str(e)) from None
+    return node_cfg.core_config(aircraft.master_imu), aircraft, method or node_cfg.method, np.asarray(aircraft.gnss_lever_arm_m, dtype=float)
+
+
+def _write_nav(path: Path, res: IfaResult, origin_ns: int) -> None:
+    from dpos_core.attitude import quat_to_dcm
+    from dpos_core.frames import hpr_from_C_nb
+
+    tt, sig = track_sigmas(res)
+    j = np.clip(np.searchsorted(tt, res.t_s, side="right") - 1, 0, max(tt.size - 1, 0))
+    s = sig[j] if tt.size else np.full((res.t_s.size, 9), np.nan)
+    hpr = hpr_from_C_nb(quat_to_dcm(res.q_nb)) / DEG
+    cols = np.column_stack([origin_ns + np.round(res.t_s * 1e9).astype(np.int64), res.t_s, res.llh[:, 0] / DEG, res.llh[:, 1] / DEG,
+                            res.llh[:, 2], res.vel_n_mps, hpr, s[:, 0:6], s[:, 6:9] / DEG])
+    head = ("t_ns,t_s,lat_deg,lon_deg,h_m,vE_mps,vN_mps,vU_mps,heading_deg,pitch_deg,roll_deg,sE_m,sN_m,sU_m,svE_mps,svN_mps,svU_mps,"
+            "s_attE_deg,s_attN_deg,s_attU_deg")
+    np.savetxt(path, cols, delimiter=",", header=head, comments="", fmt=["%d", "%.6f", "%.9f", "%.9f"] + ["%.6f"] * 16)
+
+
+def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float] | None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dpos_core import earth
+
+    inside = (ref.t_s > res.t_s[0]) & (ref.t_s < res.t_s[-1])
+    tr = ref.t_s[inside]
+    k = np.clip(np.searchsorted(res.t_s, tr), 0, res.t_s.size - 1)
+    err = np.array([earth.enu_between(a, b) for a, b in zip(res.llh[k], ref.llh[inside])])
+    tt, sig = track_sigmas(res)
+    fig, ax = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    ax[0].plot(tr, np.hypot(err[:, 0], err[:, 1]), label="horizontal error vs reference")
+    ax[0].plot(tt, 3 * np.hypot(sig[:, 0], sig[:, 1]), label="3 sigma (reported)")
+    ax[0].set_ylabel("m")
+    ax[0].set_yscale("log")
+    ax[1].plot(tr, err[:, 2], label="up error")
+    ax[1].plot(tt, 3 * sig[:, 2], "k--", tt, -3 * sig[:, 2], "k--", lw=0.8)
+    ax[1].set_ylabel("m")
+    ax[2].plot(res.epochs_s, res.heading_sigma_deg, label="heading sigma")
+    ax[2].plot(res.epochs_s, res.nis_window, label="window-mean NIS")
+    ax[2].set_yscale("log")
+    ax[2].set_xlabel("s after the first IMU sample")
+    for a in ax:
+        if outage:
+            a.axvspan(*outage, color="0.9")
+        a.legend(loc="upper right")
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = parser()
+    args = ap.parse_args(argv)
+    try:
+        rpy = [float(v) for v in args.input_rotation_rpy_deg.split(",")]
+        if len(rpy) != 3:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--input-rotation-rpy-deg takes 'R,P,Y' [deg], got {args.input_rotation_rpy_deg!r}")
+    outage = None
+    if args.outage:
+        try:
+            a, b = (float(v) for v in args.outage.split(":"))
+        except ValueError:
+            ap.error(f"--outage takes START:END [s], got {args.outage!r}")
+        if not b > a:
+            ap.error(f"--outage END must be after START, got {args.outage!r}")
+        outage = (a, b)
+    from dpos_ros.devices.relay import rotation_from_rpy_deg
+
+    try:
+        cfg, aircraft, method, lever = _config(args.params_file, args.method)
+        avail = _topics(args.bag)
+        default = PRODUCT_TOPICS if PRODUCT_TOPICS[0] in avail else DRIVER_TOPICS
+        topics = (args.imu_topic or default[0], args.fix_topic or default[1], args.vel_topic or default[2])
+        origin, imu, gnss, notes = read_recording(args.bag, topics, rotation_from_rpy_deg(rpy))
+        heading = None if args.initial_heading is None else args.initial_heading * DEG
+        init = initial_state(imu, gnss, args.min_course_speed, heading_rad=heading, lever_arm_m=lever)
+        if args.reference is not None:
+            p = read_pos(args.reference)
+            sd = np.sqrt(np.diagonal(p.pos_cov_enu_m2, axis1=1, axis2=2))
+            ref = Reference(np.asarray((p.t_ns - origin) * 1e-9, dtype=np.float64), p.llh, p.vel_n_mps, sd)
+        else:
+            ref = Reference.from_gnss(gnss)
+    except (InputError, LogFormatError, ValueError) as e:
+        print(f"dpos-ifa: error: {e}", file=sys.stderr)
+        return 2
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = run(imu, gnss, lever, cfg, method, init)
+    rep = compare(res, ref, outage)
+    args.out.mkdir(parents=True, exist_ok=True)
+    _write_nav(args.out / "nav.csv", res, origin)
+    _plot(args.out / "ifa.png", res, ref, outage)
+    data_s = float(imu.t_s[-1] - imu.t_s[0])
+    lines = [f"# In-flight alignment of {args.bag} ({method.upper()}, {args.params_file})", "",
+             f"- topics {', '.join(topics)}: {len(imu.t_s)} IMU samples, {len(gnss.t_s)} fixes; {'; '.join(notes) or 'nothing dropped'}",
+             f"- start: {init.t_s:.3f} s after the first IMU sample (heading {np.degrees(init.hpr_rad[0]):.1f}, pitch "
+             f"{np.degrees(init.hpr_rad[1]):.2f}, roll {np.degrees(init.hpr_rad[2]):.2f} deg); fixes before it: {res.before_start}",
+             f"- rejected fixes: {len(res.rejected)}; warnings: {len(caught)}; processing {res.runtime_s:.2f} s for {data_s:.1f} s "
+             f"of data (ratio {res.runtime_s / max(data_s, 1e-9):.4f})",
+             f"- reference: {args.reference or 'the bag fixes'}", ""]
+    lines += [f"- {x}" for x in rep.lines()]
+    (args.out / "report.md").write_text("\n".join(lines) + "\n")
+    (args.out / "report.json").write_text(json.dumps({
+        "aligned_t_s": rep.aligned_t_s, "diverged_epochs": rep.diverged, "restarts": rep.restarts,
+        "rejected_fixes": len(res.rejected), "heading_minus_course_deg": rep.heading_minus_course_deg,
+        "horizontal_error_m": rep.horizontal_error_m, "inside_3sigma": rep.inside_3sigma, "processing_s": res.runtime_s,
+        "data_s": data_s, "start_t_s": init.t_s, "before_start": res.before_start}, indent=2) + "\n")
+    if args.live is not None:
+        try:
+            counters, live_lines = live_report(args.live, origin, res, ref, outage)
+        except InputError as e:
+            print(f"dpos-ifa: error: {e}", file=sys.stderr)
+            return 2
+        lines += [""] + [f"- {x}" for x in live_lines]
+        (args.out / "report.md").write_text("\n".join(lines) + "\n")
+        (args.out / "live.json").write_text(json.dumps(counters, indent=2) + "\n")
+    print("\n".join(lines))
+    print(f"wrote {args.out / 'nav.csv'}, report.md, report.json, ifa.png")
+    return 0
+
+
+def _status_values(raws: list[bytes], msgtype: str) -> list[tuple[str, dict[str, str]]]:
+    """(message, key/values) of each DiagnosticArray's first status, in order."""
+    out = []
+    for m in _deserialize(raws, msgtype):
+        if m.status:
+            st = m.status[0]
+            out.append((st.message, {kv.key: kv.value for kv in st.values}))
+    return out
+
+
+def live_report(rec: Path, origin_ns: int, offline: IfaResult, ref: Reference, outage: tuple[float, float] | None) -> tuple[dict, list[str]]:
+    """The live graph's /master/nav (a recording) against the offline run of the same data and the
+    reference: max position difference live - offline at common IMU stamps, the report of
+    :func:`~dpos_core.ifa.reference.compare` with the covariance /master/nav carried, and the
+    counters of /ifa/status and /pos_master/status (rejected fixes, lost corrections, the largest
+    ``nav_discrepancy_m``)."""
+    from dataclasses import replace as dc_replace
+
+    from dpos_core import earth
+    from dpos_ros.contract import conversions as cv
+    from dpos_ros.io.bag import read_raw
+
+    raw = read_raw(rec, ["/master/nav", "/dpos/datum", "/ifa/status", "/pos_master/status"])
+    if "/master/nav" not in raw or "/dpos/datum" not in raw:
+        raise InputError(f"{rec}: needs /master/nav and /dpos/datum (has {sorted(raw)})")
+    datum = cv.datum_from_msg(_deserialize(raw["/dpos/datum"][2][:1], raw["/dpos/datum"][0])[0])
+    t_ns, vals = cv.decode_raw_batch(raw["/master/nav"][2], "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+    order = np.argsort(t_ns, kind="stable")
+    t_ns, vals = t_ns[order], vals[order]
+    blk = cv.odometry_from_values(t_ns, vals, datum)
+    t = np.asarray((t_ns - origin_ns) * 1e-9, dtype=np.float64)
+    # live minus offline at the same IMU stamps
+    k = np.clip(np.searchsorted(offline.t_s, t - 1e-7), 0, offline.t_s.size - 1)
+    same = np.abs(offline.t_s[k] - t) < 1e-6
+    # the message at an epoch's sample carries the state before that epoch's correction (pos_master_node):
+    # compare the others, where both are the closed-loop strapdown after every correction
+    ep = np.searchsorted(offline.t_s, np.asarray(offline.epochs_s) + 1e-6, side="right") - 1
+    same &= ~np.isin(k, ep)
+    diff = np.array([np.linalg.norm(earth.enu_between(a, b)) for a, b in zip(blk.llh[same], offline.llh[k[same]])])
+    P = np.zeros((t.size, 9, 9))
+    P[:, 0:3, 0:3] = blk.pose_cov[:, 0:3, 0:3]
+    P[:, 6:9, 6:9] = blk.pose_cov[:, 3:6, 3:6]
+    P[:, 3:6, 3:6] = np.eye(3)  # not used by the report
+    ifa = _status_values(raw["/ifa/status"][2], raw["/ifa/status"][0]) if "/ifa/status" in raw else []
+    pm = _status_values(raw["/pos_master/status"][2], raw["/pos_master/status"][0]) if "/pos_master/status" in raw else []
+    last_ifa = ifa[-1][1] if ifa else {}
+    start_s = float(t[0])  # the first /master/nav is the initial state (the ifa_node's origin)
+    aligned = last_ifa.get("aligned_t_s")
+    aligned_t = start_s + float(aligned) if aligned not in (None, "", "None", "none", "nan") else None
+    live = dc_replace(offline, t_s=t, llh=blk.llh, vel_n_mps=blk.vel_n_mps, q_nb=blk.q_nb,
+                      track=[(float(a), b) for a, b in zip(t[::10], P[::10])], status=np.zeros(0, dtype=int),
+                      aligned_t_s=aligned_t, restarts=int(float(last_ifa.get("restarts", 0) or 0)))
+    rep = compare(live, ref, outage)
+    disc = [float(v.get("nav_discrepancy_m", "nan")) for _, v in ifa if v.get("nav_discrepancy_m") not in (None, "")]
+    last_pm = pm[-1][1] if pm else {}
+    counters = {"master_nav_messages": int(t.size), "common_stamps_with_offline": int(same.sum()),
+                "max_live_minus_offline_m": float(diff.max()) if diff.size else None,
+                "ifa_status_final": ifa[-1][0] if ifa else None,
+                "diverged_messages": sum(1 for m, _ in ifa if m == "DIVERGED"),
+                "rejected_fixes": last_ifa.get("rejected_fixes"), "ifa_epochs": last_ifa.get("epochs"),
+                "max_nav_discrepancy_m": float(np.nanmax(disc)) if disc else None,
+                "corrections_lost": last_pm.get("corrections_lost"), "corrections_applied": last_pm.get("corrections"),
+                "report": {"aligned_t_s": rep.aligned_t_s, "heading_minus_course_deg": rep.heading_minus_course_deg,
+                           "horizontal_error_m": rep.horizontal_error_m, "inside_3sigma": rep.inside_3sigma}}
+    lines = [f"live graph ({rec}): {t.size} /master/nav messages, {int(same.sum())} at the offline stamps (epoch samples aside), "
+             f"max |live - offline| {counters['max_live_minus_offline_m']:.3g} m" if diff.size else f"live graph ({rec}): no common stamp",
+             f"live /ifa/status: final {counters['ifa_status_final']}, epochs {counters['ifa_epochs']}, rejected fixes "
+             f"{counters['rejected_fixes']}, DIVERGED messages {counters['diverged_messages']}, max nav_discrepancy_m "
+             f"{counters['max_nav_discrepancy_m']}; /pos_master/status: corrections {counters['corrections_applied']}, "
+             f"lost {counters['corrections_lost']}"]
+    lines += ["live " + x for x in rep.lines() if not x.startswith("DIVERGED")]
+    return counters, lines
+
+
+def _topics(bag: Path) -> set[str]:
+    """Topic names of a bag (empty when it cannot be read: read_recording then says why)."""
+    meta = bag / "metadata.yaml"
+    try:
+        d = yaml.safe_load(meta.read_text())
+        return {t["topic_metadata"]["name"] for t in d["rosbag2_bagfile_information"]["topics_with_message_count"]}
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return set()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

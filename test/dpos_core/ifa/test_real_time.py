@@ -1,0 +1,142 @@
+"""The in-flight alignment with real devices' timing and behaviour: fixes between IMU samples, a
+GNSS-IMU clock offset, outages (time updates alone), divergence and restart; on simulated
+paper_ifa data, whose truth the filter does not see."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dpos_core.attitude import dcm_to_quat
+from dpos_core.frames import C_nb_from_hpr, hpr_from_C_nb
+from dpos_core.ifa.model import IfaFilterConfig
+from dpos_core.ifa.pipeline import InFlightAligner, fix_at, run
+from dpos_core.ifa.reference import track_sigmas
+from dpos_core.ifa.states import AlignmentState
+from dpos_core.series import GnssSeries, ImuSeries
+from dpos_core.sim.scenario import load_scenario
+from dpos_core.sim.session import SimulatedSession
+from dpos_core.strapdown import NavState
+from dpos_core.units import DEG
+
+_CACHE: dict[str, tuple] = {}
+
+
+def _data():
+    if "s" not in _CACHE:
+        ss = SimulatedSession(load_scenario("paper_ifa"), 3)
+        imu, gnss = ss.master_imu(), ss.gnss()
+        tr = ss.truth("master", np.array([0.0]))
+        hpr = hpr_from_C_nb(tr.C_nb[0]) + np.array([20.0, 0.1, -0.1]) * DEG
+        init = NavState(0.0, dcm_to_quat(C_nb_from_hpr(*hpr)), tr.vel_n_mps[0], tr.llh[0])
+        _CACHE["s"] = (ss, imu, gnss, init)
+    return _CACHE["s"]
+
+
+def _cut(imu: ImuSeries, t_end: float) -> ImuSeries:
+    return imu.select(imu.t_s <= t_end)
+
+
+def _upto(g: GnssSeries, t_end: float) -> GnssSeries:
+    return _shift(g, 0.0, g.t_s <= t_end - 1.0)
+
+
+def _shift(g: GnssSeries, dt_s: float, keep: np.ndarray | None = None) -> GnssSeries:
+    k = np.ones(g.t_s.shape, dtype=bool) if keep is None else keep
+    return GnssSeries(g.t_s[k] + dt_s, g.llh[k], g.pos_sigma_m[k], g.vel_n_mps[k], g.vel_sigma_mps[k])
+
+
+def test_fixes_between_imu_samples_are_used_not_rejected():
+    """Real receivers stamp fixes anywhere between IMU samples: 4.3 ms after a sample is bridged
+    with the velocity (at 80 m/s: 0.34 m) and gives the on-grid result to the GNSS noise."""
+    ss, imu, gnss, init = _data()
+    imu, gnss = _cut(imu, 120.0), _upto(gnss, 120.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # not a single skipped fix
+        ref = run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(), "add2", init)
+        # the truth moves with the stamps: the fix taken 4.3 ms later is the antenna 4.3 ms later
+        tr = ss.truth("gnss", gnss.t_s + 0.0043)
+        off = GnssSeries(gnss.t_s + 0.0043, tr.llh, gnss.pos_sigma_m, tr.vel_n_mps, gnss.vel_sigma_mps)
+        res = run(imu, off, ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(), "add2", init)
+    assert not ref.rejected and not res.rejected
+    assert res.epochs_s.size == ref.epochs_s.size
+    d = np.abs(res.llh[-1] - ref.llh[-1]) * np.array([6.4e6, 6.4e6 * np.cos(ref.llh[-1, 0]), 1.0])
+    assert np.all(d < 5.0)  # both within the 1.5 m GNSS noise of the truth
+
+
+def test_fix_farther_than_the_bridge_is_rejected_by_name():
+    ss, imu, gnss, init = _data()
+    al = InFlightAligner(init, ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(max_fix_bridge_s=0.02), "add2", 0.01)
+    k = imu.t_s <= 1.0
+    al.propagate(imu.t_s[k], imu.omega_radps[k], imu.f_mps2[k])
+    fix = fix_at(1.05, gnss, 0, IfaFilterConfig())
+    from dpos_core.errors import RejectedInput
+
+    with pytest.raises(RejectedInput, match="max_fix_bridge_s"):
+        al.update(fix)
+
+
+def test_time_offset_is_removed_from_the_fix_stamps():
+    """A receiver clock 50 ms ahead of the IMU: with the offset declared the result is the on-time one."""
+    ss, imu, gnss, init = _data()
+    imu, gnss = _cut(imu, 100.0), _upto(gnss, 100.0)
+    lever = ss.scenario.aircraft.gnss_lever_arm_m
+    ref = run(imu, gnss, lever, IfaFilterConfig(), "add2", init)
+    late = _shift(gnss, 0.05)
+    res = run(imu, late, lever, IfaFilterConfig(gnss_time_offset_s=0.05), "add2", init)
+    np.testing.assert_allclose(res.llh[-1, :2], ref.llh[-1, :2], atol=1e-9)
+    np.testing.assert_allclose(res.epochs_s, ref.epochs_s, atol=1e-9)
+
+
+def test_outage_time_updates_grow_the_reported_covariance():
+    """No fix for 30 s: a time update every predict_interval_s, the position sigma grows through the
+    outage and covers the error; the first fix after it shrinks it again."""
+    ss, imu, gnss, init = _data()
+    imu, gnss = _cut(imu, 400.0), _upto(gnss, 400.0)
+    keep = ~((gnss.t_s >= 340.0) & (gnss.t_s < 370.0))
+    res = run(imu, _shift(gnss, 0.0, keep), ss.scenario.aircraft.gnss_lever_arm_m,
+              IfaFilterConfig(), "add2", init)
+    t, s9 = track_sigmas(res)
+    sig = np.hypot(s9[:, 0], s9[:, 1])
+    inside = (t > 340.0) & (t < 370.0)
+    assert inside.sum() >= 18  # a time update every 1.5 s of outage
+    assert np.all(np.diff(sig[inside]) > 0)
+    after = np.flatnonzero(t >= 370.0)[0]
+    before = sig[np.flatnonzero(t < 340.0)[-1]]
+    assert sig[inside][-1] > 1.3 * before and sig[after] < sig[inside][-1]
+    tr = ss.truth("master", np.array([369.0]))
+    k = int(np.searchsorted(res.t_s, 369.0))
+    from dpos_core import earth
+
+    err = earth.enu_between(res.llh[k], tr.llh[0])
+    assert np.hypot(err[0], err[1]) < 3.0 * sig[inside][-1]
+
+
+def test_divergence_is_reported_and_the_alignment_restarts():
+    """GNSS fixes that jump by 300 m (a wrong datum, a receiver reset) leave every bound: DIVERGED,
+    the bank restarts from the fix, and it aligns again on the good fixes."""
+    ss, imu, gnss, init = _data()
+    imu, gnss = _cut(imu, 400.0), _upto(gnss, 400.0)
+    llh = gnss.llh.copy()
+    bad = (gnss.t_s >= 150.0) & (gnss.t_s < 160.0)
+    llh[bad, 0] += 300.0 / 6.4e6
+    jumped = GnssSeries(gnss.t_s, llh, gnss.pos_sigma_m, gnss.vel_n_mps, gnss.vel_sigma_mps)
+    cfg = IfaFilterConfig(window=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = run(imu, jumped, ss.scenario.aircraft.gnss_lever_arm_m, cfg, "add2", init)
+    st = res.status
+    assert np.any(st == AlignmentState.DIVERGED)
+    first = res.epochs_s[np.flatnonzero(st == AlignmentState.DIVERGED)[0]]
+    assert 150.0 <= first < 165.0
+    assert res.restarts >= 1
+    assert st[-1] in (AlignmentState.ALIGNED, AlignmentState.ALIGNING)
+    np.testing.assert_equal(np.any(st[res.epochs_s < 150.0] == AlignmentState.DIVERGED), False)
+    off = replace(cfg, restart_on_divergence=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        kept = run(imu, jumped, ss.scenario.aircraft.gnss_lever_arm_m, off, "add2", init)
+    assert kept.restarts == 0 and np.any(kept.status == AlignmentState.DIVERGED)

@@ -1,0 +1,62 @@
+"""dpos-ifa: the in-flight alignment of a recording offline, with ifa_node's parameter file, on the
+real walk_0827 imported by dpos-import (data it did not generate); the errors a user meets."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from repo_paths import REPO
+
+from dpos_ros.cli import ifa, import_
+
+WALK = REPO / "data" / "real" / "walk_0827"
+
+
+@pytest.fixture(scope="module")
+def walk_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("walk") / "walk_0827_1hz"
+    rc = import_.main(["--imu", str(WALK / "imu_1730.csv"), "--tag", str(WALK / "imu_1730.csv.tag"), "--pos",
+                       str(WALK / "gnss_1730_sf.pos"), "--gnss-rate", "1", "--outage", "60:75", "--out", str(out)])
+    assert rc == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def report(walk_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("ifa")
+    rc = ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--min-course-speed", "0", "--reference",
+                   str(WALK / "gnss_1730_sf.pos"), "--outage", "60:75", "--out", str(out)])
+    assert rc == 0
+    return out, json.loads((out / "report.json").read_text())
+
+
+def test_aligns_on_the_real_recording_and_covers_its_error(report):
+    _, r = report
+    assert r["aligned_t_s"] is not None and r["aligned_t_s"] < 60.0
+    assert r["diverged_epochs"] == 0 and r["restarts"] == 0 and r["rejected_fixes"] == 0
+    e = r["horizontal_error_m"]
+    assert e["before"]["rms"] < 0.15 and e["after"]["rms"] < 0.15 and e["during"]["max"] < 5.0
+    assert r["inside_3sigma"]["E"] >= 0.98 and r["inside_3sigma"]["N"] >= 0.98
+    assert r["processing_s"] < r["data_s"]
+
+
+def test_writes_the_navigation_report_and_plot(report):
+    out, r = report
+    nav = np.loadtxt(out / "nav.csv", delimiter=",", skiprows=1)
+    assert nav.shape[1] == 20 and nav.shape[0] > 20000
+    assert np.all(np.diff(nav[:, 0]) > 0) and np.all(np.isfinite(nav[:, 2:]))
+    assert (out / "ifa.png").stat().st_size > 10_000
+    assert "aligned at" in (out / "report.md").read_text()
+
+
+def test_errors_name_what_is_wrong(walk_bag: Path, tmp_path: Path, capsys):
+    assert ifa.main([str(walk_bag), "--params-file", str(tmp_path / "none.yaml"), "--out", str(tmp_path / "o")]) == 2
+    assert "not an ifa_node parameter file" in capsys.readouterr().err
+    assert ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--imu-topic", "/nope",
+                     "--out", str(tmp_path / "o")]) == 2
+    assert "no topic ['/nope']" in capsys.readouterr().err
+    assert ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--out", str(tmp_path / "o")]) == 2
+    assert "no GNSS fix with a ground speed of 5.0 m/s" in capsys.readouterr().err  # a walk: lower --min-course-speed
