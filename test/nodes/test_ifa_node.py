@@ -1,11 +1,13 @@
 """The master loop of the graph: pos_master_node (mechanization with IFA feedback) + ifa_node (issue #5).
 
-* dpos_core.ifa.mechanization: the master mechanization with corrections equals the aligner's closed-loop
-  strapdown (no ROS);
+* (the master mechanization with corrections equals the aligner's closed-loop strapdown in any order of
+  arrival: test/dpos_core/ifa/test_mechanization.py, no ROS);
 * in-process graph (one Context, a MultiThreadedExecutor): the simulated master device + the
   mechanization + ifa_node reach ALIGNED, /master/nav agrees with the truth, and the corrections
   equal dpos_core.ifa.pipeline.run on the same data (the shadow design is deterministic);
-* bad GNSS input is rejected with a warning and leaves the filter undisturbed;
+* bad GNSS input is rejected with a warning and leaves the filter undisturbed; fixes stamped before
+  the aligner's start are skipped quietly and counted (``before_start``, issue #11);
+* (pos_master_node ``device: ros`` + ifa_node on jittered IMU stamps and late fixes: test_ifa_loop_live.py);
 * ``alignment: given`` integrates back to the truth from a perfect start.
 
 Every wait is bounded; nothing sleeps for a fixed time.
@@ -20,97 +22,22 @@ from typing import Any
 
 import numpy as np
 import pytest
+from ifa_support import Spinner, llh_err_m, truth_initial  # test/support/ifa_support.py
 from rclpy.parameter import Parameter
 
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_core.ifa.mechanization import MasterMechanization, initial_state_from_truth, stamp_s
-from dpos_core.ifa.model import GnssFix, IfaFilterConfig
-from dpos_core.ifa.pipeline import InFlightAligner, run
+from dpos_core.ifa.mechanization import stamp_s
+from dpos_core.ifa.pipeline import run
 from dpos_core.series import GnssSeries
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.strapdown import NavState
 from dpos_core.units import DEG
 from dpos_ros.contract import conversions as cv
 
 pytestmark = pytest.mark.ros
 
-R_EARTH_M = 6.378e6
 GRAPH_TIMEOUT_S = 120.0
 WAIT_S = 30.0
-
-
-def _initial(ss: SimulatedSession, heading_err_deg: float) -> NavState:
-    tr = ss.truth("master", np.array([0.0]))
-    return initial_state_from_truth(tr.q_nb[0], tr.vel_n_mps[0], tr.llh[0], 0.0, heading_err_deg)
-
-
-def _llh_err_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Approximate position difference [m] of llh arrays (..., 3)."""
-    d = np.asarray(a) - np.asarray(b)
-    return np.linalg.norm(d * np.array([R_EARTH_M, R_EARTH_M * np.cos(0.7), 1.0]), axis=-1)
-
-
-# ----------------------------------------------------------------------------- no ROS
-
-
-def test_master_mechanization_equals_the_aligner_closed_loop() -> None:
-    """Random IMU batches, the master running ahead of delayed corrections and bias compensations:
-    after each correction the re-integrated navigation equals InFlightAligner's (and run's)."""
-    ss = SimulatedSession(load_scenario("paper_ifa"), 3, duration_s=40.0)
-    imu, g = ss.master_imu(), ss.gnss()
-    init = _initial(ss, 60.0)
-    lever = ss.scenario.aircraft.gnss_lever_arm_m
-    cfg = IfaFilterConfig(use_reported_sigma=True)
-    res = run(imu, g, lever, cfg, "add2", init)
-    al = InFlightAligner(init, lever, cfg, "add2", float(np.median(np.diff(imu.t_s))))
-    mm = MasterMechanization(init, ring_s=5.0)
-    rng = np.random.default_rng(0)
-    n, i, ia = imu.t_s.size, 0, 0
-    fake_bias = (np.array([1e-6, -2e-6, 3e-6]), np.array([1e-4, 2e-4, -3e-4]))
-    for j in range(g.t_s.size):
-        fix = GnssFix(g.t_s[j], g.llh[j], g.pos_sigma_m[j], g.vel_n_mps[j], g.vel_sigma_mps[j])
-        i1 = int(np.searchsorted(imu.t_s, fix.t_s + 0.005, side="right"))
-        al.propagate(imu.t_s[ia:i1], imu.omega_radps[ia:i1], imu.f_mps2[ia:i1])
-        ia = i1
-        al.update(fix)
-        if j == 20:  # a bias compensation from here on, in the aligner and in the master
-            al.model.gyro_bias_comp, al.model.accel_bias_comp = fake_bias
-        target = min(n, i1 + int(rng.integers(1, 150)))
-        while i < target:
-            b = min(int(rng.integers(1, 40)), target - i)
-            mm.add(imu.t_s[i:i + b], imu.omega_radps[i:i + b], imu.f_mps2[i:i + b])
-            i += b
-        if j == 20:
-            assert mm.set_bias(al.nav.t_s, *fake_bias) is None
-        assert mm.correct(al.nav) is None
-        nav = mm.nav()
-        k = np.searchsorted(nav.t_s, al.nav.t_s - 1e-9)
-        assert abs(nav.t_s[k] - al.nav.t_s) < 1e-9
-        assert _llh_err_m(nav.llh[k], al.nav.llh) < 1e-9
-        if j < 20:  # no bias yet: the stored samples up to the next epoch are run()'s too
-            k1 = int(np.searchsorted(nav.t_s, g.t_s[j + 1] - 1e-9))
-            assert k1 > k + 1
-            r = np.searchsorted(res.t_s, nav.t_s[k:k1])
-            assert np.all(_llh_err_m(nav.llh[k:k1], res.llh[r]) < 1e-9)
-            assert np.abs(nav.q_nb[k:k1] - res.q_nb[r]).max() < 1e-12
-            assert np.abs(nav.vel_n_mps[k:k1] - res.vel_n_mps[r]).max() < 1e-9
-    if i < n:
-        mm.add(imu.t_s[i:], imu.omega_radps[i:], imu.f_mps2[i:])
-    al.propagate(imu.t_s[ia:], imu.omega_radps[ia:], imu.f_mps2[ia:])
-    s, f = mm.state, al.nav
-    assert s.t_s == f.t_s and _llh_err_m(s.llh, f.llh) < 1e-9
-    assert np.abs(s.q_nb - f.q_nb).max() < 1e-12 and np.abs(s.vel_n_mps - f.vel_n_mps).max() < 1e-9
-    assert mm.corrections == g.t_s.size
-    # the ring keeps ~ring_s seconds; an old correction is refused with a reason, nothing changes
-    assert "not a stored IMU sample" in mm.correct(NavState(1.0, f.q_nb, f.vel_n_mps, f.llh))
-    # bad IMU input: dropped with warnings, good samples kept
-    t_last = mm.t_s
-    _, keep, warnings = mm.add([t_last + 0.01, t_last + 0.01, t_last + 0.005, t_last + 0.02],
-                               [[0, 0, 0], [0, 0, 0], [0, 0, 0], [np.nan, 0, 0]], np.zeros((4, 3)))
-    assert keep.tolist() == [True, False, False, False]
-    assert len(warnings) == 3 and "duplicate" in " ".join(warnings) and "out-of-order" in " ".join(warnings)
-    assert "non-finite" in " ".join(warnings)
 
 
 # ----------------------------------------------------------------------------- graph helpers
@@ -153,37 +80,6 @@ class Probe:
                 if remaining <= 0:
                     raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}")
                 self.changed.wait(min(remaining, 0.2))
-
-
-class Spinner:
-    """A MultiThreadedExecutor spinning the nodes in a background thread."""
-
-    def __init__(self, context: Any, nodes: list[Any]) -> None:
-        from rclpy.executors import MultiThreadedExecutor
-
-        self.executor = MultiThreadedExecutor(num_threads=4, context=context)
-        self.nodes = nodes
-        for n in nodes:
-            self.executor.add_node(n)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        from rclpy.executors import ExternalShutdownException
-
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    def stop(self) -> None:
-        for n in self.nodes:
-            if hasattr(n, "device") and n.device is not None:
-                n.device.stop()
-        self.executor.shutdown(timeout_sec=5.0)
-        self.thread.join(10.0)
-        for n in self.nodes:
-            n.destroy_node()
 
 
 def _odometry(raws: list[bytes], datum: np.ndarray) -> cv.OdometryBlock:
@@ -235,20 +131,20 @@ def test_graph_aligns_and_equals_the_offline_run(ros_context) -> None:
         corr = _odometry(probe.raw["/ifa/correction"], datum)
         origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
         imu, gnss = ss.master_imu(), ss.gnss()
-        init = _initial(ss, float(ss.scenario.ifa["initial_heading_error_deg"]))
+        init = truth_initial(ss, float(ss.scenario.ifa["initial_heading_error_deg"]))
         res = run(imu, gnss, ss.scenario.aircraft.gnss_lever_arm_m, ifa.core_config, "add2", init)
         assert res.aligned and res.status.tolist().count(1) > 0
         t_corr = stamp_s(corr.t_ns, origin)
         np.testing.assert_array_equal(t_corr, gnss.t_s)
         k = np.searchsorted(res.t_s, t_corr)
-        pos_err = _llh_err_m(corr.llh, res.llh[k])
+        pos_err = llh_err_m(corr.llh, res.llh[k])
         assert pos_err.max() < 1e-6, (np.flatnonzero(pos_err > 1e-6), pos_err.max())
         assert np.abs(corr.vel_n_mps - res.vel_n_mps[k]).max() < 1e-9
         assert np.min([np.abs(corr.q_nb - res.q_nb[k]).max(axis=1), np.abs(corr.q_nb + res.q_nb[k]).max(axis=1)], axis=0).max() < 1e-9
         # the master's mechanization after the last correction is the aligner's strapdown
         s = master.mech.state
         assert s.t_s == pytest.approx(res.t_s[-1], abs=1e-9)
-        assert _llh_err_m(s.llh, res.final.llh) < 1e-6
+        assert llh_err_m(s.llh, res.final.llh) < 1e-6
         assert np.abs(s.vel_n_mps - res.final.vel_n_mps).max() < 1e-9
         # /master/nav: the initial state first, then one per IMU sample; at the end within the alignment accuracy
         nav = _odometry(probe.raw["/master/nav"], datum)
@@ -257,7 +153,7 @@ def test_graph_aligns_and_equals_the_offline_run(ros_context) -> None:
         truth = ss.truth("master", t_nav[-1:])
         herr = hpr_error(hpr_from_C_nb(cv.quat_to_dcm(nav.q_nb[-1])), hpr_from_C_nb(truth.C_nb[0])) / DEG
         assert abs(herr[0]) < 0.05 and np.all(np.abs(herr[1:]) < 0.02), herr
-        assert _llh_err_m(nav.llh[-1], truth.llh[0]) < 3.0
+        assert llh_err_m(nav.llh[-1], truth.llh[0]) < 3.0
         # unaligned flag: the heading sigma of the first nav is the prior's, of the last the filter's
         sig_h = np.sqrt(nav.pose_cov[[0, -1], 5, 5]) / DEG
         assert sig_h[0] == pytest.approx(100.0) and sig_h[1] < 0.1
@@ -295,7 +191,7 @@ def test_bad_gnss_is_rejected_and_leaves_the_filter_undisturbed(ros_context, ros
     imu, g = ss.master_imu(), ss.gnss()
     datum = ss.datum_llh
     origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
-    init = _initial(ss, 30.0)
+    init = truth_initial(ss, 30.0)
     ifa = IfaNode(context=ros_context, parameter_overrides=[
         Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
     node = Node("fake_master", context=ros_context)
@@ -355,8 +251,67 @@ def test_bad_gnss_is_rejected_and_leaves_the_filter_undisturbed(ros_context, ros
         corr = _odometry(corrections, datum)
         np.testing.assert_array_equal(stamp_s(corr.t_ns, origin), good.t_s)
         k = np.searchsorted(res.t_s, good.t_s - 1e-9)
-        assert _llh_err_m(corr.llh, res.llh[k]).max() < 1e-6
+        assert llh_err_m(corr.llh, res.llh[k]).max() < 1e-6
         assert np.abs(corr.vel_n_mps - res.vel_n_mps[k]).max() < 1e-9
+    finally:
+        for n in (ifa, node):
+            ros_executor.remove_node(n)
+            n.destroy_node()
+
+
+def test_fixes_before_the_start_are_skipped_quietly(ros_context, ros_executor) -> None:
+    """issue #11 (c): the master starts from a fix once the vehicle moves; the fixes stamped before
+    (standing still) and the start fix itself reach ifa_node before its initial state: they are
+    skipped and counted (``before_start``), not rejected, and the later fixes are epochs."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import TwistWithCovarianceStamped
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from sensor_msgs.msg import Imu, NavSatFix
+
+    from dpos_ros.contract.qos import NAV_QOS, SENSOR_QOS, STATUS_QOS
+    from ifa_node.node import IfaNode
+
+    ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=4.0)
+    imu, g = ss.master_imu(), ss.gnss()
+    datum = ss.datum_llh
+    start_ns = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
+    init = truth_initial(ss, 30.0)
+    ifa = IfaNode(context=ros_context, parameter_overrides=[
+        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
+    node = Node("fake_master_before_start", context=ros_context)
+    pub = {"nav": node.create_publisher(Odometry, "/master/nav", NAV_QOS), "imu": node.create_publisher(Imu, "/master/imu", SENSOR_QOS),
+           "fix": node.create_publisher(NavSatFix, "/gnss/fix", SENSOR_QOS),
+           "vel": node.create_publisher(TwistWithCovarianceStamped, "/gnss/vel", SENSOR_QOS)}
+    statuses: list[dict[str, str]] = []
+    node.create_subscription(DiagnosticArray, "/ifa/status",
+                             lambda m: statuses.append({kv.key: kv.value for kv in m.status[0].values} | {"message": m.status[0].message}),
+                             STATUS_QOS)
+    for n in (ifa, node):
+        ros_executor.add_node(n)
+    try:
+        _spin_until(ros_executor, lambda: all(p.get_subscription_count() >= 1 for p in pub.values()), WAIT_S, "the ifa_node's subscriptions")
+        # 6 fixes before the start (1 Hz, standing: the same position, zero velocity), the start fix at t = 0
+        n_before = 7
+        for k in range(n_before):
+            t_ns = start_ns - (n_before - 1 - k) * 1_000_000_000
+            pub["fix"].publish(cv.navsatfix_msg(t_ns, cv.GNSS_FRAME, g.llh[0], g.pos_sigma_m[0]))
+            pub["vel"].publish(cv.gnss_vel_msg(t_ns, np.zeros(3), g.vel_sigma_mps[0]))
+        _spin_until(ros_executor, lambda: ifa._newest_gnss_ns == start_ns and len(ifa._vels) == n_before, WAIT_S, "the early fixes")
+        v0 = cv.odometry_values_cov(init.llh[None], init.vel_n_mps[None], init.q_nb[None], datum, None, np.eye(3), np.eye(3), np.eye(3))
+        pub["nav"].publish(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([start_ns]), v0)[0]))
+        t_imu = cv.stamps_ns(ss.scenario.start_time_s, imu.t_s)
+        for row in cv.imu_rows(cv.MASTER_FRAME, t_imu, imu.omega_radps, imu.f_mps2, 1e-6, 1e-4):
+            pub["imu"].publish(bytes(row))
+        t_g = cv.stamps_ns(ss.scenario.start_time_s, g.t_s)
+        for j in range(3):  # 1, 2, 3 s: epochs (the IMU goes on to 4 s)
+            pub["fix"].publish(cv.navsatfix_msg(int(t_g[j]), cv.GNSS_FRAME, g.llh[j], g.pos_sigma_m[j]))
+            pub["vel"].publish(cv.gnss_vel_msg(int(t_g[j]), g.vel_n_mps[j], g.vel_sigma_mps[j]))
+        _spin_until(ros_executor, lambda: ifa.epochs == 3 and statuses and statuses[-1].get("epochs") == "3", WAIT_S,
+                    lambda: f"3 epochs (got {ifa.epochs}, {statuses[-1:]})")
+        last = statuses[-1]
+        assert last["before_start"] == str(n_before) and last["rejected_fixes"] == "0" and last["unpaired"] == "0", last
+        assert not ifa._fixes and not ifa._vels  # nothing left over (their velocities went with them)
     finally:
         for n in (ifa, node):
             ros_executor.remove_node(n)
@@ -396,7 +351,7 @@ def test_given_alignment_integrates_back_to_the_truth(ros_context) -> None:
         nav = _odometry(probe.raw["/master/nav"], ss.datum_llh)
         tru = _odometry(probe.raw["/truth/master"], ss.datum_llh)
         np.testing.assert_array_equal(nav.t_ns, tru.t_ns)
-        pos = _llh_err_m(nav.llh, tru.llh)
+        pos = llh_err_m(nav.llh, tru.llh)
         att = np.abs(hpr_error(hpr_from_C_nb(cv.quat_to_dcm(nav.q_nb)), hpr_from_C_nb(cv.quat_to_dcm(tru.q_nb)))) / DEG
         vel = np.abs(nav.vel_n_mps - tru.vel_n_mps)
         # the master IMU's 100 ug and 0.02 deg/h biases over 5 s: 5 mm/s, 1.2 cm, 3e-5 deg (measured: 5.1 mm/s, 3e-5 deg)

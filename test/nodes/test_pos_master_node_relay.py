@@ -8,7 +8,8 @@ A fake driver publishes paper_ifa's simulated master IMU (sensor_msgs/Imu on /dr
   has one message per IMU stamp, equals the offline MasterMechanization of the same samples and
   follows the truth; a NaN IMU message is rejected and counted, nothing good lost;
 * ``alignment: ifa``: the initial state comes from the first fix + velocity (heading = course over
-  ground, or the initial_state heading when too slow), /dpos/datum is the first fix, UNALIGNED;
+  ground, or the initial_state heading when too slow; pitch and roll levelled on the accelerometers,
+  also for an IMU mounted tilted), /dpos/datum is the first fix, UNALIGNED;
 * bad parameters are refused with errors naming them.
 
 Every wait is bounded; nothing sleeps.
@@ -32,11 +33,12 @@ from ros_wait import spin_until  # test/support/ros_wait.py
 from sensor_msgs.msg import Imu, NavSatFix
 
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_core.ifa.mechanization import MasterMechanization, initial_state_from_list, stamp_s
+from dpos_core.ifa.mechanization import MasterMechanization, initial_state_from_list, level_from_specific_force, stamp_s
 from dpos_core.units import DEG
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_ros.devices.relay import rotation_from_rpy_deg
 from dpos_ros.devices.sim_device import load_sim_session
 from dpos_ros.devices.sim_streams import TopicStream, device_streams
 from dpos_ros.runtime.params import ParameterError
@@ -201,21 +203,41 @@ def test_given_alignment_relays_everything_and_mechanizes_every_imu_stamp(ros_co
         g.close()
 
 
-@pytest.mark.parametrize("case", ["course", "slow_with_initial_heading"])
+#: the tilted IMU mount of the "tilted" case: [roll, pitch, yaw] [deg] of the IMU axes in the body axes
+TILT_RPY_DEG = (8.0, -6.0, 0.0)
+
+
+def _tilted(messages: list[tuple[int, str, Any]], R_body_imu: np.ndarray) -> list[tuple[int, str, Any]]:
+    """The driver's IMU messages as an IMU mounted with axes ``x_body = R x_imu`` measures them."""
+    out = []
+    for t, topic, msg in messages:
+        if topic == "/drv/imu":
+            m = deserialize_message(msg, Imu)
+            for v in (m.angular_velocity, m.linear_acceleration):
+                v.x, v.y, v.z = (R_body_imu.T @ np.array([v.x, v.y, v.z])).tolist()
+            msg = m
+        out.append((t, topic, msg))
+    return out
+
+
+@pytest.mark.parametrize("case", ["course", "slow_with_initial_heading", "tilted"])
 def test_ifa_alignment_starts_from_the_first_fix(case, ros_context, ros_executor) -> None:
     """alignment ifa: position (lever arm removed), velocity and heading = course over ground from the
-    first fix + velocity; too slow for the course (min_course_speed_mps 500): the initial_state heading."""
+    first fix + velocity, pitch and roll levelled on the mean specific force of the second before it;
+    too slow for the course (min_course_speed_mps 500): the initial_state heading; an IMU mounted
+    tilted by 8 deg roll / -6 deg pitch: its own pitch and roll."""
     duration = 4.0
     overrides = [Parameter("device", value="ros"), Parameter("alignment", value="ifa"),
                  Parameter("aircraft_config", value="paper_ifa")]
     if case == "slow_with_initial_heading":
         overrides += [Parameter("min_course_speed_mps", value=500.0),
                       Parameter("initial_state", value=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 123.0, 0.0, 0.0])]
+    R = rotation_from_rpy_deg(TILT_RPY_DEG) if case == "tilted" else np.eye(3)
     g = Graph(ros_context, ros_executor, overrides, duration)
     try:
         ss = g.session
         imu, gnss = ss.master_imu(), ss.gnss()
-        g.play(g.driver_messages(duration))
+        g.play(_tilted(g.driver_messages(duration), R))
         n_after = int((imu.t_s > gnss.t_s[0] + 1e-9).sum())  # IMU samples after the first fix
         spin_until(ros_executor, lambda: len(g.raw["/master/nav"]) >= n_after + 1, TIMEOUT_S,
                    lambda: f"{n_after + 1} /master/nav (got {len(g.raw['/master/nav'])})")
@@ -232,14 +254,20 @@ def test_ifa_alignment_starts_from_the_first_fix(case, ros_context, ros_executor
         tr = ss.truth("master", gnss.t_s[:1])
         hpr = hpr_from_C_nb(cv.quat_to_dcm(nav.q_nb[0])) / DEG
         np.testing.assert_allclose(nav.vel_n_mps[0], gnss.vel_n_mps[0], rtol=0, atol=1e-9)  # twist: via body axes
-        assert hpr[1] == pytest.approx(0.0, abs=1e-9) and hpr[2] == pytest.approx(0.0, abs=1e-9)
+        # pitch and roll: levelled on the mean specific force of the IMU samples in the second before the fix
+        win = (imu.t_s > gnss.t_s[0] - 1.0) & (imu.t_s <= gnss.t_s[0])
+        pitch, roll = level_from_specific_force((imu.f_mps2[win] @ R).mean(axis=0))  # rows: R^T f
+        assert hpr[1] == pytest.approx(pitch / DEG, abs=1e-9) and hpr[2] == pytest.approx(roll / DEG, abs=1e-9)
+        true_hpr = hpr_from_C_nb(tr.C_nb[0] @ R) / DEG
+        print(f"{case}: initial pitch {hpr[1]:.3f} roll {hpr[2]:.3f} deg, truth {true_hpr[1]:.3f} {true_hpr[2]:.3f} deg")
+        assert abs(hpr[1] - true_hpr[1]) < 0.3 and abs(hpr[2] - true_hpr[2]) < 0.3, (hpr, true_hpr)
         if case == "course":
             course = np.arctan2(gnss.vel_n_mps[0, 0], gnss.vel_n_mps[0, 1]) / DEG % 360.0
             assert hpr[0] == pytest.approx(course, abs=1e-9)
             true_heading = hpr_from_C_nb(tr.C_nb[0])[0] / DEG
             print(f"initial heading {hpr[0]:.3f} deg (course over ground), truth {true_heading:.3f} deg")
             assert abs((hpr[0] - true_heading + 180.0) % 360.0 - 180.0) < 3.0
-        else:
+        elif case == "slow_with_initial_heading":
             assert hpr[0] == pytest.approx(123.0, abs=1e-9)
         # position: the fix moved to the IMU by the lever arm, within the GNSS noise of the truth
         pos_err = _llh_err_m(nav.llh[0], tr.llh[0])

@@ -8,23 +8,36 @@ are one trajectory (dpos_core.ifa.mechanization), and its corrections equal
 
 Inputs
     ``/master/nav`` (Odometry): the first message is the initial state (pos_master_node publishes
-    the state its mechanization starts from first; its stamp is the time origin of the node);
-    later ones are compared with the shadow strapdown at the GNSS epochs (before the update) and
-    the discrepancy goes into the status (``nav_discrepancy_m`` / ``_deg``: zero to rounding when
-    the master had received every earlier correction when it computed that epoch; a master
-    running ahead of the corrections with ``rate_factor`` 0 shows its lag here).
+    the state its mechanization starts from first; its stamp is the time origin of the node); the
+    aligner starts once ``IMU_DT_SAMPLES`` IMU samples after it have arrived (their median
+    interval is the aligner's IMU interval, of its process noise: the same whenever the node
+    starts); later ones are compared with the shadow strapdown at the GNSS epochs (before the
+    update) and the discrepancy goes into the status (``nav_discrepancy_m`` / ``_deg``: zero to
+    rounding when the master had received every earlier correction when it computed that epoch; a
+    master running ahead of the corrections with ``rate_factor`` 0 shows its lag here).
     ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
     out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
     ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
     not come when GNSS data ``pair_timeout_s`` newer has arrived is dropped with a warning (and
     vice versa). NavSatFix covariance: ENU [m^2]; ``COVARIANCE_TYPE_UNKNOWN`` uses the nominal
-    sigmas. ``/dpos/datum`` (latched) unless the ``datum`` parameter is set.
+    sigmas. ``/dpos/datum`` (latched) unless the ``datum`` parameter is set. ``/session/end``
+    (simulation): no IMU sample after its stamp will come, so the fixes still waiting for one are
+    applied (those beyond the last sample + ``max_fix_bridge_s`` rejected, ``stale``), as run() ends.
 
-Epochs (at the GNSS rate, driven by the IMU): when the buffered IMU reaches a fix stamp, the samples
-up to it are propagated and the fix is applied (:meth:`InFlightAligner.update`). Bad GNSS input -
-non-finite values, zero covariance, no fix, a duplicate or out-of-order stamp - is rejected with a
-warning naming the problem, counted (``rejected_fixes``, ``rejected/<reason>``) and leaves the
-filter untouched (it is checked before any IMU is propagated for it).
+Epochs (at the GNSS rate, driven by the IMU), exactly as :func:`dpos_core.ifa.pipeline.run` on the
+same samples (issue #11): a fix stamped ``t`` is at ``t - gnss_time_offset_s`` on the IMU's clock;
+once an IMU sample newer than that has arrived (so every sample up to the fix is here, whatever
+the jitter of the stamps or the order of arrival), the buffered samples up to the last one at or
+before the fix (+ ``STAMP_TOL_S``) are propagated, with the aligner's time updates alone on the
+way (:func:`dpos_core.ifa.pipeline.advance`, run()'s own loop), and the fix is applied
+(:meth:`InFlightAligner.update`): its measurement bridges the fix time and that sample's with the
+velocity, up to ``max_fix_bridge_s``; a fix with no sample that close (an IMU gap) is rejected by
+the core (``not_at_nav_time``). Fixes stamped at or before the aligner's start (the initial state
+came from that fix, or before it: the vehicle standing still) are skipped quietly and counted
+(``before_start``), as are their velocities. Bad GNSS input - non-finite values, zero
+covariance, no fix, a duplicate or out-of-order stamp - is rejected with a warning naming the
+problem, counted (``rejected_fixes``, ``rejected/<reason>``) and leaves the filter untouched
+(it is checked before any IMU is propagated for it).
 
 Errors (:mod:`dpos_core.errors`)
     :class:`~dpos_core.errors.RejectedInput` from the core (a fix that fails its checks): a
@@ -40,25 +53,31 @@ Errors (:mod:`dpos_core.errors`)
 
 Outputs per accepted epoch
     ``/ifa/correction`` (Odometry, frame ``enu``, child ``master_imu``): the corrected master state
-    at the IMU sample of the epoch (stamp = that sample's stamp = the GNSS epoch on a common
-    grid), pose covariance from the filter (position, attitude error about the local ENU axes
-    rotated into ``enu``), twist in the body with the velocity covariance.
+    at the IMU sample of the epoch (stamp = that sample's stamp: the last sample at or before the
+    fix; the GNSS epoch itself on a common grid), pose covariance from the filter (position,
+    attitude error about the local ENU axes rotated into ``enu``), twist in the body with the
+    velocity covariance.
     ``/ifa/imu_bias`` (Imu, frame ``master_imu``): the gyro / accelerometer bias compensation the
     closed loop removes from the IMU samples after the stamp, with the filter's covariances.
     Published from the alignment epoch on: [Fang2012] sec. 3.3 feeds the biases back when the
     alignment ends (before, their estimates are in the status: ``gyro_bias_deg_h``,
     ``accel_bias_ug``), so pos_master_node can apply every message it gets.
     ``/ifa/status`` (DiagnosticArray, TRANSIENT_LOCAL): message WAITING (no data yet; level
-    STALE), ALIGNING (WARN), ALIGNED (OK), DEGRADED (WARN: aligned, innovations inconsistent);
-    level ERROR after a numerical failure (above); key/values: method, epochs, heading_sigma_deg,
+    STALE), ALIGNING (WARN), ALIGNED (OK), DEGRADED (WARN: innovations inconsistent), DIVERGED
+    (WARN: restarted); level ERROR after a numerical failure (above); key/values: method, epochs,
+    aligned (true once the alignment was declared: a DEGRADED after it still is), heading_sigma_deg,
     att_sigma_deg, R_diag, nis, nis_window, aligned_t_s, rejected_fixes, rejected/<reason>,
-    last_rejection, unpaired, imu_samples, imu_dropped, imu_gaps, numerical_failures,
-    last_failure, hypotheses_failed, chol_jitter_repairs, nav_discrepancy_m, nav_discrepancy_deg,
-    gyro_bias_deg_h, accel_bias_ug.
+    last_rejection, before_start, unpaired, imu_samples, imu_dropped, imu_gaps,
+    numerical_failures, last_failure, hypotheses_failed, chol_jitter_repairs, nav_discrepancy_m,
+    nav_discrepancy_deg, gyro_bias_deg_h, accel_bias_ug; and for pos_master_node's hold (see its
+    navigators module): fixes_done_ns (every fix stamped up to it is finished: epoch, rejected or
+    skipped; published with each), last_correction_ns (the stamp of the newest /ifa/correction),
+    gnss_time_offset_s.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
@@ -70,15 +89,18 @@ from nav_msgs.msg import Odometry
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
+from std_msgs.msg import Header
 
 from dpos_core.attitude import attitude_error, quat_to_dcm
 from dpos_core.config import ConfigError, load_aircraft, scenario_aircraft
 from dpos_core.earth import geodetic_to_enu
 from dpos_core.errors import NumericalFailure, RejectedInput
-from dpos_core.ifa.mechanization import body_rate_eb, stamp_s
-from dpos_core.ifa.model import IDX13, GnssFix, check_fix
-from dpos_core.ifa.pipeline import EpochRecord, InFlightAligner
+from dpos_core.ifa.mechanization import STAMP_TOL_S, body_rate_eb, stamp_s
+from dpos_core.ifa.model import GnssFix, check_fix
+from dpos_core.ifa.pipeline import IMU_DT_SAMPLES, EpochRecord, InFlightAligner, nominal_imu_dt_s
+from dpos_core.ifa.pipeline import advance as advance_imu  # run()'s own loop: live == offline by construction
 from dpos_core.ifa.states import AlignmentState
+from dpos_core.series import GAP_FACTOR, NavSeries
 from dpos_core.strapdown import NavState
 from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 from dpos_ros.contract import cdr
@@ -103,7 +125,8 @@ NAV_CACHE = 2000
 #: does not fall 5000 samples behind; a loss would show as an IMU gap (warned, counted).
 INPUT_QOS = SENSOR_QOS
 _LEVELS = {AlignmentState.WAITING.name: DiagnosticStatus.STALE, AlignmentState.ALIGNING.name: DiagnosticStatus.WARN,
-           AlignmentState.ALIGNED.name: DiagnosticStatus.OK, AlignmentState.DEGRADED.name: DiagnosticStatus.WARN}
+           AlignmentState.ALIGNED.name: DiagnosticStatus.OK, AlignmentState.DEGRADED.name: DiagnosticStatus.WARN,
+           AlignmentState.DIVERGED.name: DiagnosticStatus.ERROR}
 
 
 def _stamp_ns(header: Any) -> int:
@@ -138,7 +161,7 @@ class IfaNode(Node):
             name, value = ("aircraft_config", cfg.aircraft_config) if cfg.aircraft_config else ("scenario", cfg.scenario)
             raise ParameterError(name, value, str(e)) from None
         try:
-            self.core_config = cfg.core_config()
+            self.core_config = cfg.core_config(aircraft.master_imu)
         except ParameterError:
             raise  # names its parameter already
         except ValueError as e:
@@ -152,6 +175,7 @@ class IfaNode(Node):
         self._first_nav: bytes | None = None
         self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
         self._last_imu_ns: int | None = None
+        self._end_ns: int | None = None  # /session/end: the stamp of the session's last sample
         self._imu_dt_s: float | None = None
         self._last_sample: tuple[int, np.ndarray] | None = None  # last propagated (t_ns, omega)
         self._fixes: dict[int, NavSatFix] = {}
@@ -162,6 +186,7 @@ class IfaNode(Node):
         self.epochs = 0
         self.rejected = 0
         self.rejected_by_reason: dict[str, int] = {}  # reason code -> rejected fixes
+        self.before_start = 0  # fixes stamped at or before the aligner's start: skipped quietly
         self.unpaired = 0
         self.last_rejection = ""
         self.numerical_failures = 0
@@ -173,6 +198,11 @@ class IfaNode(Node):
         self.discrepancy = (float("nan"), float("nan"))
         self.last_record: EpochRecord | None = None
         self.corrections_published = 0
+        #: the newest GNSS stamp [ns] up to which every fix is finished (epoch, rejected or skipped), and
+        #: the stamp [ns] of the newest correction published: pos_master_node holds its IMU samples after
+        #: a fix until both tell it that fix's correction (if any) is in its hands
+        self.fixes_done_ns: int | None = None
+        self.last_correction_ns: int | None = None
         self._warned_unknown_cov = False
 
         self.pub_correction = self.create_publisher(Odometry, T.IFA_CORRECTION, NAV_QOS)
@@ -182,6 +212,7 @@ class IfaNode(Node):
         self.create_subscription(Odometry, T.MASTER_NAV, self._on_nav, INPUT_QOS, raw=True)
         self.create_subscription(NavSatFix, T.GNSS_FIX, self._on_fix, INPUT_QOS)
         self.create_subscription(TwistWithCovarianceStamped, T.GNSS_VEL, self._on_vel, INPUT_QOS)
+        self.create_subscription(Header, T.SESSION_END, self._on_session_end, NAV_QOS)
         if self.datum_llh is None:
             self.create_subscription(NavSatFix, T.DATUM, self._on_datum, DATUM_QOS)
         self.get_logger().info(
@@ -221,7 +252,7 @@ class IfaNode(Node):
             self.imu_dropped += 1
             log.warning(f"{'duplicate' if t_ns == last else 'out-of-order'} /master/imu stamp {t_ns} ns (last {last} ns): dropped")
             return
-        if last is not None and self._imu_dt_s is not None and (t_ns - last) * 1e-9 > 1.5 * self._imu_dt_s:
+        if last is not None and self._imu_dt_s is not None and (t_ns - last) * 1e-9 > GAP_FACTOR * self._imu_dt_s:
             self.imu_gaps += 1
             log.warning(f"/master/imu gap of {(t_ns - last) * 1e-9:.4f} s before stamp {t_ns} ns: integrated across")
         self._last_imu_ns = t_ns
@@ -243,8 +274,17 @@ class IfaNode(Node):
         self._newest_gnss_ns = max(self._newest_gnss_ns, t_ns)
         self._process()
 
+    def _on_session_end(self, msg: Header) -> None:
+        """/session/end (simulation): no sample after its stamp will come; the fixes waiting for one are
+        applied once the IMU up to it is here (run() at the end of its series)."""
+        self._end_ns = _stamp_ns(msg)
+        self.get_logger().info(f"/session/end at stamp {self._end_ns} ns ({msg.frame_id}): the fixes up to the last IMU sample are applied")
+        self._process()
+
     def _on_vel(self, msg: TwistWithCovarianceStamped) -> None:
         t_ns = _stamp_ns(msg.header)
+        if self.origin_ns is not None and self._before_start(t_ns):
+            return  # its fix is skipped (before_start)
         if t_ns in self._vels:
             self.get_logger().warning(f"duplicate /gnss/vel stamp {t_ns} ns: the first one is kept")
             return
@@ -259,10 +299,10 @@ class IfaNode(Node):
             return
         t0_ns, v = cv.decode_raw(self._first_nav, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
         self._imu = [s for s in self._imu if s[0] > t0_ns]
-        if len(self._imu) < 2:
+        if len(self._imu) < IMU_DT_SAMPLES:
             return
-        t_imu = np.array([s[0] for s in self._imu[:51]], dtype=np.int64)  # the IMU interval: median step
-        self._imu_dt_s = float(np.median(np.diff(stamp_s(t_imu, t0_ns))))
+        t_imu = np.array([s[0] for s in self._imu[:IMU_DT_SAMPLES]], dtype=np.int64)  # the IMU interval: median step
+        self._imu_dt_s = nominal_imu_dt_s(stamp_s(t_imu, t0_ns))  # the same rule as run()
         blk = cv.odometry_from_values(np.array([t0_ns]), v[None], self.datum_llh)
         initial = NavState(0.0, blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0])
         self.origin_ns = t0_ns
@@ -338,20 +378,41 @@ class IfaNode(Node):
         near = [k for k in self._vels if abs(k - t_ns) <= tol]
         return min(near, key=lambda k: abs(k - t_ns)) if near else None
 
+    def _finish(self, t_ns: int) -> None:
+        """The fix stamped ``t_ns`` leaves the queue: it is finished (epoch, rejection or skip); the
+        fixes are taken in stamp order, so every fix up to ``t_ns`` is (``fixes_done_ns``)."""
+        del self._fixes[t_ns]
+        self.fixes_done_ns = t_ns if self.fixes_done_ns is None else max(self.fixes_done_ns, t_ns)
+
+    def _fix_time_s(self, t_ns: int) -> float:
+        """A GNSS stamp [ns] on the IMU's clock: seconds since the origin minus ``gnss_time_offset_s``
+        (:func:`dpos_core.ifa.pipeline.fix_at`'s arithmetic)."""
+        return float(stamp_s(t_ns, self._origin())) - self.core_config.gnss_time_offset_s
+
+    def _before_start(self, t_ns: int) -> bool:
+        """A GNSS stamp at or before the aligner's start (its initial state)."""
+        return self._fix_time_s(t_ns) <= STAMP_TOL_S
+
     def _process(self) -> None:
-        """Apply every GNSS epoch the buffered IMU has reached (stamp order)."""
-        al, origin_ns, imu_dt_s = self.al, self.origin_ns, self._imu_dt_s
-        if al is None or origin_ns is None or imu_dt_s is None:  # not started (all three are set by _maybe_start)
+        """Apply every GNSS epoch whose IMU samples are all here (stamp order; module docstring)."""
+        al, origin_ns = self.al, self.origin_ns
+        if al is None or origin_ns is None:  # not started (both are set by _maybe_start)
             return
         timeout_ns = int(round(self.config.pair_timeout_s * 1e9))
-        half = 0.5 * imu_dt_s
-        half_ns = int(round(half * 1e9))
+        bridge = self.core_config.max_fix_bridge_s
         while self._fixes:
             t_ns = min(self._fixes)
             fix_msg = self._fixes[t_ns]
-            t_s = float(stamp_s(t_ns, origin_ns))
+            t_s = self._fix_time_s(t_ns)
+            if t_s <= STAMP_TOL_S:  # at or before the start: the initial state has it (or it is older)
+                self._finish(t_ns)
+                kv = self._pair(t_ns)
+                if kv is not None:
+                    del self._vels[kv]
+                self.before_start += 1
+                continue
             if al.last_fix_t is not None and t_s <= al.last_fix_t + 1e-9:  # no need to wait for its velocity
-                del self._fixes[t_ns]
+                self._finish(t_ns)
                 kv = self._pair(t_ns)
                 vel = self._vels.pop(kv) if kv is not None else None
                 try:
@@ -363,35 +424,43 @@ class IfaNode(Node):
             kv = self._pair(t_ns)
             if kv is None:
                 if self._newest_gnss_ns - t_ns > timeout_ns:
-                    del self._fixes[t_ns]
+                    self._finish(t_ns)
                     self.unpaired += 1
                     self.get_logger().warning(f"/gnss/fix at stamp {t_ns} ns has no /gnss/vel within "
                                               f"{self.config.pair_tolerance_s} s: dropped")
+                    self._publish_status()  # fixes_done_ns moved on
                     continue
                 break  # wait for its velocity
-            if not self._imu or self._imu[-1][0] < t_ns - half_ns:
-                break  # wait for the IMU to reach the fix
-            del self._fixes[t_ns]
+            ended = self._end_ns is not None and self._last_imu_ns is not None and self._last_imu_ns >= self._end_ns
+            if not ended and (self._last_imu_ns is None or float(stamp_s(self._last_imu_ns, origin_ns)) <= t_s + STAMP_TOL_S):
+                break  # wait for a sample after the fix: then every sample up to it is here
+            self._finish(t_ns)
             vel = self._vels.pop(kv)
+            t_last_s = float(stamp_s(self._last_imu_ns, origin_ns)) if self._last_imu_ns is not None else 0.0
+            if ended and t_s > t_last_s + bridge:
+                self._reject(t_ns, f"GNSS fix at t={t_s} is after the session's last IMU sample (t={t_last_s})", "stale")
+                continue
             if fix_msg.status.status == NavSatStatus.STATUS_NO_FIX:
                 self._reject(t_ns, f"GNSS message at t={t_s} reports no fix (status {fix_msg.status.status})", "no_fix")
                 continue
             fix = self._gnss_fix(t_ns, fix_msg, vel)
             try:
                 check_fix(fix, al.last_fix_t)
-                if t_s < al.model.t_s - half:
+                if t_s < al.model.t_s - bridge:
                     raise RejectedInput(f"GNSS fix at t={t_s} is older than the navigation (t={al.model.t_s})", what="GNSS fix",
                                         reason="stale", t_s=t_s)
             except RejectedInput as e:
                 self._rejected(t_ns, e)
                 continue
-            self._propagate_to(t_s + half)
+            self._propagate_to(t_s)
             self._epoch(t_ns, fix)
         self._expire_vels(timeout_ns)
 
     def _expire_vels(self, timeout_ns: int) -> None:
         for k in [k for k in self._vels if self._newest_gnss_ns - k > timeout_ns and self._pair_fix(k) is None]:
             del self._vels[k]
+            if self._before_start(k):
+                continue  # its fix was skipped (before_start): quietly
             self.unpaired += 1
             self.get_logger().warning(f"/gnss/vel at stamp {k} ns has no /gnss/fix: dropped")
 
@@ -399,28 +468,38 @@ class IfaNode(Node):
         tol = int(round(self.config.pair_tolerance_s * 1e9))
         return next((t for t in self._fixes if abs(t - k) <= tol), None)
 
-    def _propagate_to(self, t_end_s: float) -> None:
-        """Decode the buffered samples up to ``t_end_s`` (one vectorized decode), drop non-finite
-        ones with a warning, propagate the rest."""
+    def _propagate_to(self, t_fix_s: float) -> None:
+        """Propagate the buffered samples up to the last one at or before ``t_fix_s`` [s] (+ STAMP_TOL_S),
+        with the aligner's time updates alone on the way, as run() does (:func:`~dpos_core.ifa.pipeline.advance`): the
+        buffered samples up to the first one after the fix are decoded (one vectorized decode),
+        non-finite ones dropped with a warning; the one(s) after the fix stay buffered."""
         al, origin_ns = self._aligner(), self._origin()
-        end_ns = origin_ns + int(round(t_end_s * 1e9))
         n = 0
-        while n < len(self._imu) and self._imu[n][0] <= end_ns:
+        while n < len(self._imu) and float(stamp_s(self._imu[n][0], origin_ns)) <= t_fix_s + STAMP_TOL_S:
             n += 1
+        n = min(n + 1, len(self._imu))  # and the first one after the fix: run() sees the samples after it too
         if n == 0:
             return
-        batch, self._imu = self._imu[:n], self._imu[n:]
+        batch = self._imu[:n]
         t_ns, vals = cv.decode_raw_batch([r for _, r in batch], "imu", cv.MASTER_FRAME)
         om, f = vals[:, 13:16], vals[:, 25:28]
         ok = np.all(np.isfinite(om), axis=1) & np.all(np.isfinite(f), axis=1)
         for i in np.flatnonzero(~ok):
             self.imu_dropped += 1
             self.get_logger().warning(f"/master/imu at stamp {t_ns[i]} ns has non-finite values: dropped")
-        if not ok.any():
-            return
         t_ns, om, f = t_ns[ok], om[ok], f[ok]
-        al.propagate(stamp_s(t_ns, origin_ns), om, f)
-        self._last_sample = (int(t_ns[-1]), om[-1])
+        done = 0
+        if t_ns.size:
+            chunks: list[NavSeries] = []  # the navigation of the samples (run() keeps it; the master has its own)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                done = advance_imu(al, stamp_s(t_ns, origin_ns), om, f, 0, t_fix_s, chunks)
+            for w in caught:  # a time update alone that failed numerically (the core warns and goes on)
+                self.get_logger().warning(str(w.message))
+        if done:
+            self._last_sample = (int(t_ns[done - 1]), om[done - 1])
+        last_ns = int(t_ns[done - 1]) if done else -1
+        self._imu = [s for s, k in zip(batch, ok) if k and s[0] > last_ns] + self._imu[n:]
 
     def _epoch(self, t_fix_ns: int, fix: Any) -> None:
         al = self._aligner()
@@ -462,12 +541,12 @@ class IfaNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _cov15(self, P: np.ndarray) -> np.ndarray:
-        if P.shape[0] == 15:
-            return P
-        P15 = np.zeros((15, 15))
-        P15[np.ix_(IDX13, IDX13)] = P
-        P15[2, 2] = self.config.gnss_pos_sigma_m[2] ** 2  # vertical slaved to the GNSS (13 states)
-        P15[5, 5] = self.config.gnss_vel_sigma_mps[2] ** 2
+        """The (15, 15) navigation / bias covariance of the aligner's (13, 15 or 24 states)."""
+        al = self._aligner()
+        P15 = al.model.nav_cov15(P)
+        if not self.core_config.vertical:  # vertical slaved to the GNSS (13 states)
+            P15[2, 2] = self.config.gnss_pos_sigma_m[2] ** 2
+            P15[5, 5] = self.config.gnss_vel_sigma_mps[2] ** 2
         return P15
 
     def _publish_epoch(self, t_ns: int, rec: Any) -> None:
@@ -481,6 +560,7 @@ class IfaNode(Node):
         stamp = np.array([t_ns], dtype=np.int64)
         self.pub_correction.publish(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, stamp, vals)[0]))
         self.corrections_published += 1
+        self.last_correction_ns = t_ns
         if al.model.feed_biases:
             bv = cv.imu_bias_values(al.model.gyro_bias_comp, al.model.accel_bias_comp, P[9:12, 9:12], P[12:15, 12:15])
             self.pub_bias.publish(bytes(cdr.encode(cdr.layout("imu", cv.MASTER_FRAME), stamp, bv)[0]))
@@ -489,7 +569,7 @@ class IfaNode(Node):
         al = self.al
         if al is None or self.last_record is None:
             return (AlignmentState.WAITING if al is None else AlignmentState.ALIGNING).name
-        if self._failed and al.status.aligned:
+        if self._failed and al.aligned:
             return AlignmentState.DEGRADED.name
         return al.status.name
 
@@ -500,16 +580,21 @@ class IfaNode(Node):
             level = DiagnosticStatus.ERROR
         values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected}
         values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
-        values.update({"last_rejection": self.last_rejection, "unpaired": self.unpaired,
+        values.update({"fixes_done_ns": "none" if self.fixes_done_ns is None else str(self.fixes_done_ns),
+                       "last_correction_ns": "none" if self.last_correction_ns is None else str(self.last_correction_ns),
+                       "gnss_time_offset_s": f"{self.core_config.gnss_time_offset_s:.9g}"})
+        values.update({"last_rejection": self.last_rejection, "before_start": self.before_start, "unpaired": self.unpaired,
                        "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
                        "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
         al, rec = self.al, self.last_record
         if al is not None:
-            values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs})
+            values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs,
+                           "restarts": al.restarts, "states": al.model.n})
 
             sig = al.attitude_sigma_rad / DEG
             gb, ab = al.bias_estimates()
             values.update({
+                "aligned": "true" if al.aligned else "false",
                 "heading_sigma_deg": f"{sig[2]:.6g}",
                 "att_sigma_deg": " ".join(f"{x:.6g}" for x in sig),
                 "aligned_t_s": "none" if al.aligned_t_s is None else f"{al.aligned_t_s:.3f}",

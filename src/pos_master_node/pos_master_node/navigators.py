@@ -12,11 +12,19 @@
     (default: the scenario's ``ifa.initial_heading_error_deg``, else 0) and level errors 0, and
     publishes that initial state first (stamp = session start: the ifa_node starts its shadow
     strapdown from the first /master/nav), then one message per IMU sample with the IMU's stamp.
-    ``/ifa/correction`` for epoch ``t_k`` resets the state at the sample ``t_k`` and re-integrates
-    the samples stored after it (``ring_s``); ``/ifa/imu_bias`` stamped ``t_k`` is removed from
-    the samples after ``t_k``; both as the ifa_node's closed loop does, so the navigation equals
-    its strapdown (dpos_core.ifa.pipeline) to rounding. Already published messages are not
-    re-published: a message reflects the corrections received before it was computed.
+    ``/ifa/correction`` for epoch ``t_k`` resets the state at the sample ``t_k``;
+    ``/ifa/imu_bias`` stamped ``t_k`` is removed from the samples after ``t_k``; both as the
+    ifa_node's closed loop does, so the navigation equals its strapdown (dpos_core.ifa.pipeline)
+    to rounding, whatever the order of arrival (dpos_core.ifa.mechanization, issue #11): feedback
+    for a sample not integrated yet is kept pending and applied when that sample is integrated
+    (the batch is split there); feedback for an integrated sample resets it in the ring of the
+    last ``ring_s`` seconds and re-integrates the samples after it. Already published messages are
+    not re-published: a message reflects the corrections received before it was computed (those
+    published before a correction came are counted, ``corrections_late`` / ``late_samples``); the
+    message at an epoch sample is the state before its correction (what the ifa_node's
+    ``nav_discrepancy_m`` compares). Feedback older than the ring (or stamped where the master
+    integrated no sample) is lost: a warning each, counted (``corrections_lost``, ``biases_lost``,
+    ``last_lost``).
     Unaligned flag: until ``/ifa/status`` reports ALIGNED (or DEGRADED, i.e. aligned but
     inconsistent), the covariance is the filter's (from the latest correction; before the first
     one ``initial_sigma``, heading 100 deg) and ``/pos_master/status`` (DiagnosticArray,
@@ -47,10 +55,16 @@ once the drivers' data give the initial state (:meth:`Mechanizer.try_start_live`
     antenna position: a lever arm of a few m is well inside the initial position sigma);
     velocity = the GNSS velocity (the antenna's; the rotation term is ignored); heading = course
     over ground ``atan2(vE, vN)`` (aviation heading, clockwise from north; a crab angle in wind
-    is part of the initial heading error the IFA removes); pitch = roll = 0; covariance
-    ``initial_sigma`` (heading 100 deg by default). Below ``min_course_speed_mps`` ground speed
-    the course is meaningless: the ``initial_state`` heading is used when given, else the fix is
-    skipped with a warning and the node waits for a faster one.
+    is part of the initial heading error the IFA removes); pitch and roll levelled from the
+    accelerometers: the mean specific force of the relayed IMU samples over the last
+    ``LEVEL_WINDOW_S`` before the fix (dpos_core.ifa.mechanization.level_from_specific_force;
+    real mounts are tilted by up to ~10 deg; an acceleration ``a`` over that second tilts it by
+    ``a / g`` rad, the IFA removes the rest), 0 when no sample was relayed in that window (the
+    start log line says which); the node starts once a sample newer than the fix has been
+    relayed, so the window is complete. Covariance ``initial_sigma`` (heading 100 deg by
+    default). Below ``min_course_speed_mps`` ground speed the course is meaningless: the
+    ``initial_state`` heading is used when given, else the fix is skipped with a warning and the
+    node waits for a faster one.
 
 Threading: :meth:`Mechanizer.mechanize` runs in the simulated device's thread (or the relay's
 timer), the feedback callbacks in the executor; a lock serializes their use of the mechanization.
@@ -80,6 +94,7 @@ from dpos_core.ifa.mechanization import (
     body_rate_eb,
     initial_state_from_list,
     initial_state_from_truth,
+    level_from_specific_force,
     stamp_s,
 )
 from dpos_core.ifa.states import AlignmentState
@@ -93,7 +108,7 @@ from pos_master_node import NODE_NAME
 from pos_master_node.params import PosMasterConfig
 
 __all__ = ["Navigator", "ReferenceNavigator", "Mechanizer", "GivenNavigator", "IfaNavigator", "DriverInput", "NavRows",
-           "LEAD_WAIT_S", "FIX_VEL_MATCH_NS", "GNSS_KEEP", "WARN_THROTTLE_S"]
+           "LEAD_WAIT_S", "FIX_VEL_MATCH_NS", "GNSS_KEEP", "WARN_THROTTLE_S", "LEVEL_WINDOW_S"]
 
 #: longest wait for an /ifa/correction before the device runs on (max_lead_s) [s]
 LEAD_WAIT_S = 5.0
@@ -103,6 +118,9 @@ FIX_VEL_MATCH_NS = 50_000_000
 GNSS_KEEP = 20
 #: repeated "waiting" warnings at most this often [s]
 WARN_THROTTLE_S = 5.0
+#: ``device: ros``, ``alignment: ifa``: pitch and roll from the mean specific force of the IMU
+#: samples relayed over this long before the start fix [s]
+LEVEL_WINDOW_S = 1.0
 #: ``hardware_id`` of the /pos_master/status entry
 STATUS_HARDWARE_ID = "master_imu"
 
@@ -208,6 +226,16 @@ class Mechanizer(ABC):
         #: the flag of /master/nav (/pos_master/status)
         self.aligned = self.initially_aligned
         self._status_pub: Any = None  # attach()
+        #: the ifa_node's progress, from its /ifa/status: every fix stamped up to ``ifa_fixes_done_ns``
+        #: is finished (epoch, rejected or skipped) and its newest correction is stamped
+        #: ``ifa_last_correction_ns``; its GNSS time offset [ns] (``device: ros`` holds, :meth:`fix_answered`)
+        self.ifa_fixes_done_ns: int | None = None
+        self.ifa_last_correction_ns: int | None = None
+        self.ifa_offset_ns = 0
+        #: the newest /ifa/correction stamp received [ns]
+        self.correction_seen_ns: int | None = None
+        #: ``device: ros``: holds of the IMU after a fix released after LEAD_WAIT_S without the ifa_node's answer
+        self.hold_timeouts = 0
 
     # ------------------------------------------------------------------ state
     @property
@@ -223,6 +251,18 @@ class Mechanizer(ABC):
     def origin_ns(self) -> int:
         """The stamp of the initial state [ns] (time origin of the mechanization); after the start only."""
         return self._run().origin_ns
+
+    def ifa_running(self) -> bool:
+        """An ifa_node is aligning (its /ifa/status is past WAITING) and publishes /ifa/correction."""
+        return (self.ifa_status not in ("none", AlignmentState.WAITING.name)
+                and self.node.count_publishers(T.IFA_CORRECTION) > 0)
+
+    def fix_answered(self, t_fix_ns: int) -> bool:
+        """The ifa_node has finished the fix stamped ``t_fix_ns`` [ns] and its correction, if it made
+        one, has arrived here (its /ifa/status: ``fixes_done_ns`` >= the fix, and every correction up to
+        its ``last_correction_ns`` received)."""
+        done, last, seen = self.ifa_fixes_done_ns, self.ifa_last_correction_ns, self.correction_seen_ns
+        return done is not None and done >= t_fix_ns and (last is None or (seen is not None and seen >= last))
 
     def _run(self) -> _Started:
         if self._started is None:
@@ -323,11 +363,15 @@ class Mechanizer(ABC):
             mech = run.mech
             first = run.head_due
             run.head_due = False
+            counts = (mech.corrections, mech.corrections_lost)
             nav, keep, warnings = mech.add(stamp_s(t_ns, run.origin_ns), om, fb)
+            changed = counts != (mech.corrections, mech.corrections_lost)  # pending corrections applied (or lost)
             gyro = np.array([mech.bias_at(t)[0] for t in nav.t_s]).reshape(-1, 3)
             cov = self.nav_cov
         for w in warnings:
             self.log.warning(w)
+        if changed:
+            self.publish_status()
         head = None
         if first:
             s = mech.initial
@@ -361,6 +405,7 @@ class Mechanizer(ABC):
     def on_correction(self, raw: bytes) -> None:
         """/ifa/correction: reset the state at its stamp and re-integrate; its covariance is the nav's from now on."""
         t_ns, v = cv.decode_raw(raw, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+        self.correction_seen_ns = t_ns if self.correction_seen_ns is None else max(self.correction_seen_ns, t_ns)
         run = self._started
         if run is None:
             self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns before the mechanization started: ignored")
@@ -373,12 +418,12 @@ class Mechanizer(ABC):
             self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {e}: ignored")
             return
         with self._lock:
-            warning = run.mech.correct(state)
+            warning = run.mech.correct(state)  # pending until its sample is integrated, or applied now, or lost
             if warning is None:
                 self.nav_cov = (pos[0], att[0], vel[0])
             self._corrected.notify_all()
         if warning is not None:
-            self.log.warning(f"{T.IFA_CORRECTION}: {warning}")
+            self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {warning}")
         self.publish_status()
 
     def on_bias(self, raw: bytes) -> None:
@@ -392,7 +437,8 @@ class Mechanizer(ABC):
         with self._lock:
             warning = run.mech.set_bias(float(stamp_s(t_ns, run.origin_ns)), g[0], a[0])
         if warning is not None:
-            self.log.warning(f"{T.IFA_IMU_BIAS}: {warning}")
+            self.log.warning(f"{T.IFA_IMU_BIAS} at stamp {t_ns} ns: {warning}")
+            self.publish_status()
 
     def on_ifa_status(self, msg: DiagnosticArray) -> None:
         """/ifa/status: the ifa_node's state; :meth:`aligned_by` sets the flag."""
@@ -400,24 +446,31 @@ class Mechanizer(ABC):
             if st.name.startswith("ifa_node"):
                 was = self.aligned
                 self.ifa_status = st.message
-                self.aligned = self.aligned_by(st.message)
+                values = {kv.key: kv.value for kv in st.values}
+                self.aligned = self.aligned_by(st.message, values.get("aligned"))
+                self.ifa_fixes_done_ns = _int_or_none(values.get("fixes_done_ns"))
+                self.ifa_last_correction_ns = _int_or_none(values.get("last_correction_ns"))
+                offset_s = _float_or_none(values.get("gnss_time_offset_s"))
+                self.ifa_offset_ns = 0 if offset_s is None else int(round(offset_s * 1e9))
                 if self.aligned != was:
                     self.log.info(f"{T.IFA_STATUS} {st.message}: {T.MASTER_NAV} is {'aligned' if self.aligned else 'UNALIGNED'}")
                 self.publish_status()
 
     @abstractmethod
-    def aligned_by(self, ifa_message: str) -> bool:
-        """The flag after an /ifa/status with this message."""
+    def aligned_by(self, ifa_message: str, aligned_key: str | None = None) -> bool:
+        """The flag after an /ifa/status with this message (and its ``aligned`` value, if any)."""
 
     @abstractmethod
     def status_message(self) -> str:
         """The message of /pos_master/status."""
 
     def publish_status(self) -> None:
-        """/pos_master/status: the flag (level OK when aligned, else WARN) and the mechanization's counts."""
+        """/pos_master/status: the flag (level OK when aligned, else WARN; WARN too once feedback was
+        lost) and the mechanization's counts (pending / applied / late / lost feedback)."""
         if self._status_pub is None:  # before attach(): not wired yet
             return
-        level = DiagnosticStatus.OK if self.aligned else DiagnosticStatus.WARN
+        lost = self.mech is not None and (self.mech.corrections_lost > 0 or self.mech.biases_lost > 0)
+        level = DiagnosticStatus.OK if self.aligned and not lost else DiagnosticStatus.WARN
         message = self.status_message()
         with self._lock:
             mech = self.mech
@@ -427,6 +480,14 @@ class Mechanizer(ABC):
                 "started": mech is not None,
                 "ifa_status": self.ifa_status,
                 "corrections": 0 if mech is None else mech.corrections,
+                "corrections_pending": 0 if mech is None else mech.corrections_pending,
+                "corrections_late": 0 if mech is None else mech.corrections_late,
+                "late_samples": 0 if mech is None else mech.late_samples,
+                "corrections_lost": 0 if mech is None else mech.corrections_lost,
+                "biases": 0 if mech is None else mech.biases,
+                "biases_lost": 0 if mech is None else mech.biases_lost,
+                "hold_timeouts": self.hold_timeouts,
+                "last_lost": "" if mech is None else mech.last_lost,
                 "last_correction_t_s": "none" if mech is None or mech.last_correction_t_s is None else f"{mech.last_correction_t_s:.3f}",
                 "imu_dropped": 0 if mech is None else mech.dropped,
                 "imu_before_start": self.imu_before_start,
@@ -488,7 +549,7 @@ class GivenNavigator(Mechanizer):
         t0_ns = inp.imu.popleft()[0]
         return t0_ns, initial_state_from_list(cfg.initial_state, 0.0), f"the given state {list(cfg.initial_state)}"
 
-    def aligned_by(self, ifa_message: str) -> bool:
+    def aligned_by(self, ifa_message: str, aligned_key: str | None = None) -> bool:
         return self.aligned  # /ifa/status does not change the flag
 
     def status_message(self) -> str:
@@ -531,8 +592,13 @@ class IfaNavigator(Mechanizer):
                 self.imu_before_start += 1
         return start
 
+    _first_imu_ns: int | None = None  #: the first relayed IMU stamp course_start saw
+
     def course_start(self, inp: DriverInput) -> tuple[int, NavState, str] | None:
-        """The initial state from the oldest fix with a matching velocity, or None."""
+        """The initial state from the oldest fix with a matching velocity (module docstring), or None
+        (also while no IMU sample newer than that fix has been relayed: the levelling window is
+        then complete).  A fix older than the first relayed IMU sample is not a start (the same rule
+        as dpos_core.ifa.reference.initial_state offline)."""
         cfg = self.config
         fixes, vels = inp.fixes, inp.vels
         while fixes:
@@ -543,7 +609,15 @@ class IfaNavigator(Mechanizer):
                     fixes.popleft()
                     continue
                 return None
+            if not inp.imu or inp.imu[-1][0] <= t_fix:
+                return None  # the IMU up to the fix is not all here yet
+            if self._first_imu_ns is None:
+                self._first_imu_ns = int(inp.imu[0][0])
             fixes.popleft()
+            if t_fix < self._first_imu_ns:  # no IMU data at or before it: nothing to level on, nothing to start from
+                self.log.info(f"alignment ifa: the fix at {t_fix} ns precedes the first IMU sample ({self._first_imu_ns} ns): "
+                              "not a start", throttle_duration_sec=WARN_THROTTLE_S)
+                continue
             speed = math.hypot(vel[0], vel[1])
             if speed >= cfg.min_course_speed_mps:
                 heading = math.atan2(vel[0], vel[1]) % (2.0 * math.pi)
@@ -558,15 +632,33 @@ class IfaNavigator(Mechanizer):
                     f"{cfg.min_course_speed_mps:g}: the course is no heading; waiting for a faster fix (or set initial_state "
                     f"for its heading)", throttle_duration_sec=WARN_THROTTLE_S)
                 continue
+            pitch, roll, level_text = self.level(inp, t_fix)
+            text += f", {level_text}"
             if inp.lever_arm_b_m is not None:  # antenna -> IMU with the initial attitude
-                p_enu = -C_nb_from_hpr(heading, 0.0, 0.0) @ inp.lever_arm_b_m
+                p_enu = -C_nb_from_hpr(heading, pitch, roll) @ inp.lever_arm_b_m
                 llh = np.array(earth.enu_to_geodetic(p_enu, llh), dtype=float)
                 text += f", lever arm {inp.lever_arm_b_m.tolist()} m removed"
-            return t_fix, NavState.from_hpr(0.0, [heading, 0.0, 0.0], vel, llh), text
+            return t_fix, NavState.from_hpr(0.0, [heading, pitch, roll], vel, llh), text
         return None
 
-    def aligned_by(self, ifa_message: str) -> bool:
-        return AlignmentState.message_is_aligned(ifa_message)
+    @staticmethod
+    def level(inp: DriverInput, t_fix_ns: int) -> tuple[float, float, str]:
+        """``(pitch [rad], roll [rad], log text)`` from the mean specific force of the queued IMU
+        samples stamped in ``(t_fix - LEVEL_WINDOW_S, t_fix]`` (0, 0 when there are none)."""
+        lo = t_fix_ns - int(round(LEVEL_WINDOW_S * 1e9))
+        f = np.array([s[2] for s in inp.imu if lo < s[0] <= t_fix_ns], dtype=float).reshape(-1, 3)
+        if not f.shape[0]:
+            return 0.0, 0.0, f"pitch = roll = 0 (no IMU sample in the {LEVEL_WINDOW_S:g} s before the fix to level on)"
+        mean = f.mean(axis=0)
+        try:
+            pitch, roll = level_from_specific_force(mean)
+        except ValueError as e:
+            return 0.0, 0.0, f"pitch = roll = 0 ({e})"
+        return pitch, roll, (f"pitch and roll levelled on the mean specific force {np.round(mean, 3).tolist()} m/s^2 "
+                             f"of {f.shape[0]} IMU samples over the {LEVEL_WINDOW_S:g} s before the fix")
+
+    def aligned_by(self, ifa_message: str, aligned_key: str | None = None) -> bool:
+        return AlignmentState.message_is_aligned(ifa_message, aligned_key)
 
     def status_message(self) -> str:
         return "ALIGNED" if self.aligned else "UNALIGNED"
@@ -574,3 +666,19 @@ class IfaNavigator(Mechanizer):
 
 #: what makes /master/nav (chosen by ``alignment``)
 Navigator = ReferenceNavigator | GivenNavigator | IfaNavigator
+
+
+def _int_or_none(text: str | None) -> int | None:
+    """A status value as an integer (None when missing or not one, e.g. ``none``)."""
+    try:
+        return None if text is None else int(text)
+    except ValueError:
+        return None
+
+
+def _float_or_none(text: str | None) -> float | None:
+    """A status value as a float (None when missing or not one)."""
+    try:
+        return None if text is None else float(text)
+    except ValueError:
+        return None

@@ -68,11 +68,19 @@ class PosMasterConfig:
         min_course_speed_mps: ``device: ros``, ``alignment: ifa``: the initial heading is the
             GNSS course over ground when the ground speed is at least this [m/s]; below it the
             ``initial_state`` heading is used, or the node waits for a faster fix.
+        nav_delay_s: ``device: ros`` while an ifa_node aligns: a relayed IMU sample is integrated
+            (and its /master/nav published) once IMU data this much newer [s] has been relayed, or
+            the IMU has been silent for ``sources.NAV_FLUSH_S`` (wall clock: the end of the data). A GNSS receiver
+            delivers its fix 50-100 ms after the fix's stamp; with a delay above that the fix is
+            here before the samples after it are integrated, the node holds them until the
+            ifa_node's correction, and every /master/nav message has every correction before it
+            (pos_master_node.sources). 0 = as soon as relayed: the samples between a fix's stamp
+            and its arrival lack its correction (counted, ``late_samples``).
 
     ``device: ros`` ignores ``scenario``, ``seed``, ``duration``, ``rate_factor``,
     ``publish_truth``, ``min_subscribers``, ``wait_subscribers_s``, ``initial_heading_error_deg``
-    and ``max_lead_s``; ``device: sim`` ignores the ``input_*`` parameters and
-    ``min_course_speed_mps``.
+    and ``max_lead_s``; ``device: sim`` ignores the ``input_*`` parameters,
+    ``min_course_speed_mps`` and ``nav_delay_s``.
     """
 
     datum: tuple[float, ...] = datum_param()
@@ -100,3 +108,7 @@ class PosMasterConfig:
     input_rotation_rpy_deg: tuple[float, float, float] = input_rotation_param()
     min_course_speed_mps: float = param(
         5.0, "device ros, alignment ifa: least ground speed [m/s] for the course over ground as initial heading", minimum=0.0)
+    nav_delay_s: float = param(
+        0.2, "device ros with an ifa_node aligning: integrate a relayed IMU sample once IMU data this much [s] newer came "
+        "(or the IMU was silent for 2 s), so that late GNSS fixes arrive first and /master/nav has every correction before it",
+        minimum=0.0)

@@ -25,7 +25,30 @@
     publishes /master/nav for every IMU stamp - what the simulated device's tap does in its thread;
     /ifa/correction, /ifa/imu_bias and the UNALIGNED / ALIGNED / GIVEN flag as in simulation
     (pos_master_node.navigators, which also says how the initial state is found). No flow
-    control (``max_lead_s``): a real device runs in real time.
+    control of the device (``max_lead_s``): a real device runs in real time.
+
+    Hold for the IFA loop (issue #11): the correction of a GNSS epoch applies to the IMU samples
+    after it, so /master/nav of a sample is the aligner's only if every correction before it was
+    here when it was integrated. While an ifa_node is aligning (its /ifa/status past WAITING, a
+    publisher of /ifa/correction):
+
+    * the timer integrates the queued samples only up to the oldest relayed fix (moved onto the
+      IMU clock by the ifa_node's ``gnss_time_offset_s``) the ifa_node has not answered yet:
+      answered = its /ifa/status says every fix up to that stamp is finished (``fixes_done_ns``:
+      an epoch, a rejection or a skip) and every correction it published (``last_correction_ns``)
+      has arrived here. The relay itself (/master/imu, which the ifa_node needs to answer) is
+      never held; /master/nav waits for the ifa_node's processing only (a few ms per fix). A hold
+      unanswered for ``LEAD_WAIT_S`` (an ifa_node stopped or stuck) is released with a warning,
+      counted (``hold_timeouts``);
+    * a receiver delivers its fix some 50-100 ms after its stamp, so the timer also keeps
+      ``nav_delay_s`` of IMU time queued: a sample is integrated once a sample that much newer has
+      been relayed, so that its fix has been relayed (and holds it) by then; when no sample came
+      for ``NAV_FLUSH_S`` of wall time (the end of the data, an outage; longer than the pauses of
+      a replay as fast as possible) the queue is integrated.
+
+    Samples integrated before their fix was relayed anyway (``nav_delay_s`` 0, a fix later than
+    it, no ifa_node aligning yet) lack its correction: it is applied by re-integration and
+    counted (``corrections_late``, ``late_samples`` on /pos_master/status).
 
     ``/dpos/datum`` (latched): the ``datum`` parameter when set (stamped with the node's clock at
     start), else the first valid /gnss/fix (the antenna position, the fix's stamp). /master/nav is not
@@ -42,6 +65,8 @@ needs, raising ParameterError) and :meth:`start` ed once the navigator is attach
 from __future__ import annotations
 
 import dataclasses
+import time
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -63,11 +88,11 @@ from dpos_ros.devices.sim_streams import device_streams, session_id
 from dpos_ros.io.streams import TopicStream
 from dpos_ros.runtime.params import ParameterError, datum_llh_rad, format_config
 from pos_master_node import NODE_NAME
-from pos_master_node.navigators import DriverInput, Mechanizer, Navigator
+from pos_master_node.navigators import LEAD_WAIT_S, DriverInput, Mechanizer, Navigator
 from pos_master_node.params import PosMasterConfig
 
 __all__ = ["SimSource", "RelaySource", "Source", "IMU_INPUT", "FIX_INPUT", "VEL_INPUT", "SIM_ONLY", "RELAY_TICK_S",
-           "MAX_BATCH", "MAX_PER_TICK", "TAP_MAX_BATCH"]
+           "MAX_BATCH", "MAX_PER_TICK", "TAP_MAX_BATCH", "FIX_MARKS_KEEP", "NAV_FLUSH_S"]
 
 #: The driver topics of ``device: ros`` (relative: remap them, ``-r imu_in:=/driver/imu``).
 IMU_INPUT, FIX_INPUT, VEL_INPUT = "imu_in", "fix_in", "vel_in"
@@ -80,6 +105,11 @@ MAX_BATCH = 100
 MAX_PER_TICK = 1000
 #: ``device: sim``: most /master/imu messages handed to the mechanization at once (SimDevice tap)
 TAP_MAX_BATCH = 100
+#: ``device: ros``: relayed fix stamps kept for the hold of the IFA loop
+FIX_MARKS_KEEP = 10000
+#: ``device: ros``: the IMU silent this long [s, wall clock] = the end of the data (or an outage): the
+#: samples kept back by ``nav_delay_s`` are integrated
+NAV_FLUSH_S = 2.0
 
 
 class SimSource:
@@ -219,6 +249,10 @@ class RelaySource:
                   Route("vel", VEL_INPUT, T.GNSS_VEL, cv.GNSS_FRAME)]
         self.relay = DeviceRelay(node, routes, input_reliability=cfg.input_reliability, R_out_in=rotation,
                                  on_message=self._on_driver_message)
+        #: stamps [ns] of the relayed fixes the hold still waits for (module docstring), oldest first
+        self._fix_marks: deque[int] = deque(maxlen=FIX_MARKS_KEEP)
+        self._held: tuple[int, float] | None = None  # (fix stamp [ns], monotonic time [s]) of a hold blocking the IMU
+        self._imu_wall_s = time.monotonic()  # when the newest IMU sample was relayed (nav_delay_s)
         self._tick_timer = node.create_timer(RELAY_TICK_S, self._tick)
 
     def start(self) -> None:
@@ -251,7 +285,9 @@ class RelaySource:
         if topic == T.MASTER_IMU:
             w, f = msg.angular_velocity, msg.linear_acceleration
             inp.imu.append((t_ns, (w.x, w.y, w.z), (f.x, f.y, f.z)))
+            self._imu_wall_s = time.monotonic()
         elif topic == T.GNSS_FIX:
+            self._fix_marks.append(t_ns)
             llh = np.array([msg.latitude * DEG, msg.longitude * DEG, msg.altitude])
             if inp.datum_llh is None:
                 inp.datum_llh = llh
@@ -265,17 +301,56 @@ class RelaySource:
             v = msg.twist.twist.linear
             inp.vels.append((t_ns, np.array([v.x, v.y, v.z])))
 
+    def _hold_ns(self, origin_ns: int) -> int | None:
+        """The stamp [ns] after which the queued IMU samples wait for the ifa_node (module docstring),
+        None when nothing is held; releases a hold older than LEAD_WAIT_S with a warning."""
+        nav = self.navigator
+        marks = self._fix_marks
+        while marks and marks[0] <= origin_ns:  # before the start: the ifa_node skips them
+            marks.popleft()
+        if not marks or not nav.ifa_running():
+            self._held = None
+            return None
+        while marks and nav.fix_answered(marks[0]):
+            marks.popleft()
+        if not marks:
+            self._held = None
+            return None
+        if self._held is not None and self._held[0] == marks[0] and time.monotonic() - self._held[1] > LEAD_WAIT_S:
+            nav.hold_timeouts += 1
+            self.log.warning(f"no answer of the ifa_node to the fix at stamp {marks[0]} ns for {LEAD_WAIT_S:g} s (its fixes done up "
+                             f"to {nav.ifa_fixes_done_ns} ns, last correction {nav.ifa_last_correction_ns} ns, received up to "
+                             f"{nav.correction_seen_ns} ns): {T.MASTER_NAV} goes on without waiting ({nav.hold_timeouts} so far)")
+            marks.popleft()
+            self._held = None
+            return self._hold_ns(origin_ns)
+        return marks[0] - nav.ifa_offset_ns
+
     def _tick(self) -> None:
-        """Timer: start the mechanization when possible, then integrate the queued IMU samples in
-        batches of MAX_BATCH (at most MAX_PER_TICK per tick) and publish /master/nav."""
+        """Timer: start the mechanization when possible, then integrate the queued IMU samples (up to
+        the hold of the IFA loop, module docstring) in batches of MAX_BATCH (at most MAX_PER_TICK per
+        tick) and publish /master/nav."""
         nav = self.navigator
         if not nav.started and not nav.try_start_live(self.input):
             return
         origin_ns = nav.origin_ns
         pending = self.input.imu  # after the start: it replaces the queue
+        hold_ns = self._hold_ns(origin_ns)
+        delay_s = self.config.nav_delay_s
+        limit_ns = hold_ns
+        if pending and delay_s > 0.0 and time.monotonic() - self._imu_wall_s < NAV_FLUSH_S and nav.ifa_running():
+            delayed_ns = pending[-1][0] - int(round(delay_s * 1e9))  # keep nav_delay_s of IMU time queued
+            limit_ns = delayed_ns if limit_ns is None else min(limit_ns, delayed_ns)
         done = 0
         while pending and done < MAX_PER_TICK:
-            batch = [pending.popleft() for _ in range(min(MAX_BATCH, len(pending)))]
+            n = 0
+            while n < min(MAX_BATCH, len(pending)) and (limit_ns is None or pending[n][0] <= limit_ns):
+                n += 1
+            if n == 0:
+                if hold_ns is not None and pending[0][0] > hold_ns and (self._held is None or self._held[0] != self._fix_marks[0]):
+                    self._held = (self._fix_marks[0], time.monotonic())  # held: after a fix the ifa_node has not answered
+                break
+            batch = [pending.popleft() for _ in range(n)]
             done += len(batch)
             t_ns = np.array([b[0] for b in batch], dtype=np.int64)
             late = t_ns <= origin_ns  # arrived after the start but stamped before it

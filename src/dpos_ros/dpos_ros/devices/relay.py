@@ -21,7 +21,7 @@ Per message (one :class:`Route` = one driver input -> one contract output)
       outside [-180, 180] deg).
       An all-zero Imu covariance ("unknown" per sensor_msgs/Imu) is accepted: the transfer
       alignment uses the aircraft configuration's sensor error model, not the message's.
-    - Gaps: an accepted stamp step larger than ``GAP_FACTOR`` (1.5) times the median of the last
+    - Gaps: an accepted stamp step larger than ``GAP_FACTOR`` (1.75, dpos_core.series) times the median of the last
       ``PERIOD_WINDOW`` steps (once ``MIN_PERIODS`` steps are known) is counted as a gap, with the
       estimated number of missing samples, and warned about. The message itself is relayed.
     - ``imu`` routes: with ``R_out_in`` (3, 3) the angular velocity and linear acceleration are
@@ -74,6 +74,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
+from dpos_core.series import GAP_FACTOR
 from dpos_core.units import FloatArray
 from dpos_ros.contract.qos import SENSOR_QOS, STATUS_QOS, STREAM_DEPTH
 from dpos_ros.runtime.params import param
@@ -93,7 +94,6 @@ REASONS = ("nan", "zero_stamp", "duplicate", "out_of_order", "unavailable", "no_
 #: Values of the nodes' ``input_reliability`` parameter.
 INPUT_RELIABILITIES = ("best_effort", "reliable")
 #: A stamp step larger than this times the median step is a gap.
-GAP_FACTOR = 1.5
 #: Number of recent stamp steps whose median is the nominal period.
 PERIOD_WINDOW = 200
 #: Steps needed before gaps are detected.

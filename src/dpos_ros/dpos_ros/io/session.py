@@ -1,7 +1,7 @@
 """Reading a recorded session (rosbag2) into the transfer alignment's inputs.
 
 Every problem with the data is reported, and no good sample is dropped: out-of-order messages are
-sorted, exact duplicates removed, samples with NaN removed, gaps (stamp steps over 1.5 x the
+sorted, exact duplicates removed, samples with NaN removed, gaps (stamp steps over GAP_FACTOR = 1.75 x the
 median) counted; each as a warning naming the topic.  A missing ``/master/nav`` is an error.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from dpos_core.series import ImuSeries, NavSeries
+from dpos_core.series import GAP_FACTOR, ImuSeries, NavSeries
 from dpos_core.units import FloatArray
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
@@ -74,7 +74,7 @@ def _clean(topic: str, t_ns: NDArray[np.int64], vals: FloatArray, warnings: list
     if t_ns.size > 2:
         d = np.diff(t_ns)
         med = np.median(d)
-        gaps = d > 1.5 * med
+        gaps = d > GAP_FACTOR * med
         if gaps.any():
             warnings.append(f"{topic}: {int(gaps.sum())} gap(s) in the stamps, longest {d.max() * 1e-9:.3f} s (nominal step {med * 1e-9:.4f} s)")
     return t_ns, vals
