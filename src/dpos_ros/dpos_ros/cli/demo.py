@@ -35,7 +35,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--initial-heading-error", type=float, default=30.0, metavar="DEG",
                     help="with --alignment ifa: the main POS starts with this heading error (default 30)")
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
-    ap.add_argument("--timeout", type=float, default=170.0)
+    ap.add_argument("--timeout", type=float, default=400.0, help="give up when no products came after this long [s] (wall clock)")
     ap.add_argument("--verbose", action="store_true", help="stream every node's log")
     return ap
 
