@@ -168,23 +168,18 @@ def bench_ifa(results: dict, repeats: int) -> None:
     print(f"in-flight alignment add2: mems_vehicle (24 states) {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
     # the real recording walk_0827 (15 states), its ifa_node parameters
-    import yaml
 
     from dpos_core.config import load_aircraft
     from dpos_core.imports.logs import decimate_mask, read_imu_csv, read_pos, read_tag
-    from dpos_core.series import ImuSeries
     from ifa_node.params import IfaConfig
 
     walk = REPO / "data" / "real" / "walk_0827"
     log = read_imu_csv(walk / "imu_1730.csv", tag=read_tag(walk / "imu_1730.csv.tag"))
     pos = read_pos(walk / "gnss_1730_sf.pos")
     origin = int(log.t_ns[0])
-    k = decimate_mask(pos.t_ns, 1.0)
-    sd = lambda c: np.sqrt(np.diagonal(c, axis1=1, axis2=2))  # noqa: E731
-    g = GnssSeries((pos.t_ns[k] - origin) * 1e-9, pos.llh[k], sd(pos.pos_cov_enu_m2[k]), pos.vel_n_mps[k], sd(pos.vel_cov_enu[k]))
-    w_imu = ImuSeries((log.t_ns - origin) * 1e-9, log.omega_radps, log.f_mps2)
-    params = yaml.safe_load((walk / "ifa_node.yaml").read_text())["ifa_node"]["ros__parameters"]
-    node_cfg = IfaConfig(**{a: tuple(b) if isinstance(b, list) else b for a, b in params.items()})
+    g = pos.series(origin, decimate_mask(pos.t_ns, 1.0))
+    w_imu = log.series(origin)
+    node_cfg = IfaConfig.from_params_file(walk / "ifa_node.yaml")
     vehicle = load_aircraft(REPO / node_cfg.aircraft_config)
     wcfg = node_cfg.core_config(vehicle.master_imu)
     winit = data_initial_state(w_imu, g, 0.0)

@@ -10,22 +10,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from dpos_core.config import load_aircraft
 from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.reference import Reference, compare, initial_state
 from dpos_core.ifa.states import AlignmentState
 from dpos_core.imports.logs import decimate_mask, outage_mask, read_imu_csv, read_pos, read_tag
-from dpos_core.series import GnssSeries, ImuSeries
 from ifa_node.params import IfaConfig
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "real" / "walk_0827"
 OUTAGE_S = (60.0, 75.0)
-
-
-def _sd(c: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.diagonal(c, axis1=1, axis2=2))
 
 
 @pytest.fixture(scope="module")
@@ -33,17 +27,13 @@ def walk():
     imu = read_imu_csv(DATA / "imu_1730.csv", tag=read_tag(DATA / "imu_1730.csv.tag"))
     pos = read_pos(DATA / "gnss_1730_sf.pos")
     origin = int(imu.t_ns[0])
-    ti = (imu.t_ns - origin) * 1e-9
-    tg = (pos.t_ns - origin) * 1e-9
-    full = GnssSeries(tg, pos.llh, _sd(pos.pos_cov_enu_m2), pos.vel_n_mps, _sd(pos.vel_cov_enu))
-    keep = decimate_mask(pos.t_ns, 1.0) & outage_mask(pos.t_ns, [OUTAGE_S], origin)
-    g = GnssSeries(tg[keep], pos.llh[keep], full.pos_sigma_m[keep], pos.vel_n_mps[keep], full.vel_sigma_mps[keep])
+    full = pos.series(origin)
+    g = pos.series(origin, decimate_mask(pos.t_ns, 1.0) & outage_mask(pos.t_ns, [OUTAGE_S], origin))
     # the ifa_node parameters the live graph runs with (data/real/walk_0827/ifa_node.yaml)
-    params = yaml.safe_load((DATA / "ifa_node.yaml").read_text())["ifa_node"]["ros__parameters"]
-    node_cfg = IfaConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in params.items()})
+    node_cfg = IfaConfig.from_params_file(DATA / "ifa_node.yaml")
     vehicle = load_aircraft(Path(__file__).resolve().parents[2] / node_cfg.aircraft_config)
     cfg = node_cfg.core_config(vehicle.master_imu)
-    I = ImuSeries(ti, imu.omega_radps, imu.f_mps2)
+    I = imu.series(origin)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no fix skipped, no hypothesis failing
         # pos_master_node with min_course_speed_mps 0: the first fix, standing; the heading bank covers any heading

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
 
 from dpos_core.config.sensors import IMU_PRESETS
 from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS
@@ -69,6 +72,21 @@ class IfaConfig:
                                   choices=GYRO_AXIS_ERRORS)
     pair_tolerance_s: float = param(0.001, "a /gnss/fix and /gnss/vel closer than this [s] form one epoch", minimum=0.0)
     pair_timeout_s: float = param(2.0, "drop a fix without velocity once GNSS data this much [s] newer arrived", minimum=0.0)
+
+    @classmethod
+    def from_params_file(cls, path: Path) -> IfaConfig:
+        """The configuration of an ifa_node ROS parameter file (``ifa_node: ros__parameters:``), as
+        the node gets it from ``--params-file`` (offline tools and tests use the file the live graph
+        runs with).  ValueError naming the file when it is not one, or holds an unknown parameter."""
+        try:
+            params = dict(yaml.safe_load(Path(path).read_text())["ifa_node"]["ros__parameters"])
+        except (OSError, yaml.YAMLError, KeyError, TypeError) as e:
+            raise ValueError(f"{path}: not an ifa_node parameter file ({type(e).__name__}: {e})") from None
+        kw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+        try:
+            return cls(**kw)
+        except TypeError as e:
+            raise ValueError(f"{path}: {e}") from None
 
     def core_config(self, master_imu: ImuErrorModel | None = None) -> IfaFilterConfig:
         """The :class:`dpos_core.ifa.model.IfaFilterConfig` of these parameters; the IMU model is

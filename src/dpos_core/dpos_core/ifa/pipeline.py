@@ -421,9 +421,7 @@ class InFlightAligner:
 
     def _log_track(self) -> None:
         e = self.engine
-        n = e.model.n
-        E = e.model.full(np.eye(n))[:, :9] if n != 9 else np.eye(9)  # (n, 9): state -> the 15-state's first nine
-        self.track.append((e.model.t_s, symmetrize(E.T @ e.cov @ E)))
+        self.track.append((e.model.t_s, symmetrize(e.model.nav_cov15(e.cov)[:9, :9])))
 
     def _sync(self) -> None:
         for h in self.hyps:

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from ..series import GnssSeries, ImuSeries
 from ..units import DEG, G0_MPS2, FloatArray
 
 #: GPS - UTC [s] since 2017-01-01 (RTKLIB's leaps table)
@@ -138,6 +139,10 @@ class ImuLog:
 
     def __len__(self) -> int:
         return int(self.t_ns.size)
+
+    def series(self, origin_ns: int) -> ImuSeries:
+        """The samples as the core's :class:`~dpos_core.series.ImuSeries`, seconds after ``origin_ns``."""
+        return ImuSeries(np.asarray((self.t_ns - origin_ns) * 1e-9, dtype=np.float64), self.omega_radps, self.f_mps2)
 
     def intervals_s(self) -> FloatArray:
         return np.diff(self.t_ns) * 1e-9
@@ -262,6 +267,14 @@ class PosLog:
 
     def __len__(self) -> int:
         return int(self.t_ns.size)
+
+    def series(self, origin_ns: int, keep: NDArray[np.bool_] | None = None) -> GnssSeries:
+        """The (``keep``-selected) epochs as the core's :class:`~dpos_core.series.GnssSeries`, seconds
+        after ``origin_ns``, 1-sigma from the diagonals of the ENU covariances."""
+        k = np.ones(self.t_ns.shape, dtype=bool) if keep is None else keep
+        return GnssSeries(np.asarray((self.t_ns[k] - origin_ns) * 1e-9, dtype=np.float64), self.llh[k],
+                          np.sqrt(np.diagonal(self.pos_cov_enu_m2[k], axis1=1, axis2=2)), self.vel_n_mps[k],
+                          np.sqrt(np.diagonal(self.vel_cov_enu[k], axis1=1, axis2=2)))
 
     @property
     def has_velocity(self) -> bool:

@@ -133,15 +133,9 @@ def _config(params_file: Path, method: str | None) -> tuple[Any, Any, str, np.nd
     from ifa_node.params import IfaConfig
 
     try:
-        doc = yaml.safe_load(params_file.read_text())
-        params = dict(doc["ifa_node"]["ros__parameters"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as e:
-        raise InputError(f"{params_file}: not an ifa_node parameter file ({type(e).__name__}: {e})") from None
-    try:
-        kw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
-        node_cfg = IfaConfig(**kw)
-    except TypeError as e:
-        raise InputError(f"{params_file}: {e}") from None
+        node_cfg = IfaConfig.from_params_file(params_file)
+    except ValueError as e:
+        raise InputError(str(e)) from None
     if not node_cfg.aircraft_config:
         raise InputError(f"{params_file}: aircraft_config is required (the vehicle file: IMU model and GNSS lever arm)")
     ac_path = Path(node_cfg.aircraft_config)
@@ -234,9 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         heading = None if args.initial_heading is None else args.initial_heading * DEG
         init = initial_state(imu, gnss, args.min_course_speed, heading_rad=heading, lever_arm_m=lever)
         if args.reference is not None:
-            p = read_pos(args.reference)
-            sd = np.sqrt(np.diagonal(p.pos_cov_enu_m2, axis1=1, axis2=2))
-            ref = Reference(np.asarray((p.t_ns - origin) * 1e-9, dtype=np.float64), p.llh, p.vel_n_mps, sd)
+            ref = Reference.from_gnss(read_pos(args.reference).series(origin))
         else:
             ref = Reference.from_gnss(gnss)
     except (InputError, LogFormatError, ValueError) as e:
