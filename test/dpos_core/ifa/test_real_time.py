@@ -140,3 +140,24 @@ def test_divergence_is_reported_and_the_alignment_restarts():
         warnings.simplefilter("ignore")
         kept = run(imu, jumped, ss.scenario.aircraft.gnss_lever_arm_m, off, "add2", init)
     assert kept.restarts == 0 and np.any(kept.status == AlignmentState.DIVERGED)
+
+
+def test_imu_gap_longer_than_the_time_update_interval_is_crossed():
+    """A 4 s hole in the IMU (a driver restart; predict_interval_s is 1.5 s): run() does not hang,
+    the fixes inside the hole are rejected by name (the navigation cannot reach them), the time
+    update comes at the first sample after it and grows the covariance, and the fixes after it are used."""
+    ss, imu, gnss, init = _data()
+    imu, gnss = _cut(imu, 200.0), _upto(gnss, 200.0)
+    hole = (imu.t_s > 150.0) & (imu.t_s < 154.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = run(imu.select(~hole), gnss, ss.scenario.aircraft.gnss_lever_arm_m, IfaFilterConfig(), "add2", init)
+    in_hole = [t for t, _ in res.rejected if 150.0 < t < 154.0]
+    assert len(in_hole) == int(np.sum((gnss.t_s > 150.0) & (gnss.t_s < 154.0) & (np.abs(gnss.t_s - 150.0) > 0.05)))
+    assert all("max_fix_bridge_s" in why for t, why in res.rejected if 150.0 < t < 154.0)
+    assert len(res.rejected) == len(in_hole) and len(caught) >= len(in_hole)
+    assert res.epochs_s[-1] > 198.0  # the fixes after the hole are used
+    t, s9 = track_sigmas(res)
+    k_before = np.flatnonzero(t <= 150.0)[-1]
+    k_after = np.flatnonzero(t >= 154.0)[0]  # the time update at the first sample after the hole
+    assert t[k_after] < 154.1 and np.hypot(*s9[k_after, :2]) > np.hypot(*s9[k_before, :2])

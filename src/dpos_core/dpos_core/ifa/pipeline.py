@@ -709,16 +709,25 @@ def advance(al: InFlightAligner, t_imu: FloatArray, om: FloatArray, fb: FloatArr
              out: list[NavSeries]) -> int:
     """Propagate samples ``i:`` up to the last one at or before ``t_end_s``, with a time update
     alone (``al.predict``) each time ``al.next_predict_t_s`` is passed; the reported hypothesis'
-    navigation chunks go to ``out``.  Returns the next sample index."""
+    navigation chunks go to ``out``.  Returns the next sample index.
+
+    A gap in the IMU longer than ``predict_interval_s`` (no sample up to a due time update) is
+    integrated across to the first sample after it, where the time update is made: the
+    process noise of that interval covers the gap's duration, and the loop always moves on."""
+    n = t_imu.size
     while True:
         tick = al.next_predict_t_s
         last = min(tick, t_end_s)
         i1 = int(np.searchsorted(t_imu, last + STAMP_TOL_S, side="right"))
+        if i1 == i and tick < t_end_s:  # no sample up to the due time update: a gap in the IMU
+            if i >= n or t_imu[i] > t_end_s + STAMP_TOL_S:
+                return i  # nothing more before t_end_s: the fix (if any) is judged against the navigation time
+            i1 = i + 1
         if i1 > i:
             al.propagate(t_imu[i:i1], om[i:i1], fb[i:i1])
             out.append(al.engine.model.chunks[-1])  # the reported hypothesis' navigation
             i = i1
-        if tick >= t_end_s or i >= t_imu.size:
+        if tick >= t_end_s or i >= n:
             return i
         try:
             al.predict()
