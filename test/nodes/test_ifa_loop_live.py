@@ -25,7 +25,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistWithCovarianceStamped
 from ifa_support import Spinner  # test/support/ifa_support.py
-from jittered_master import JitteredMaster, jittered_master  # test/support/jittered_master.py
+from jittered_master import JitteredMaster, jittered_master, with_outage  # test/support/jittered_master.py
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -37,7 +37,8 @@ from dpos_core.ifa.pipeline import run
 from dpos_core.strapdown import NavState
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
-from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
+from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, keep_all
+from dpos_ros.io.flow import subscribe_draining
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -58,6 +59,11 @@ def _llh_err_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(d * np.array([R_EARTH_M, R_EARTH_M * np.cos(0.7), 1.0]), axis=-1)
 
 
+#: the statuses as a log (every message; the nodes publish one per epoch, in bursts when fast)
+STATUS_LOG_QOS = QoSProfile(history=STATUS_QOS.history, depth=10000, reliability=STATUS_QOS.reliability,
+                            durability=STATUS_QOS.durability)
+
+
 class Probe:
     """The driver's publishers and a sink of /master/nav, /ifa/correction and the two statuses."""
 
@@ -69,10 +75,12 @@ class Probe:
         self.raw: dict[str, list[bytes]] = defaultdict(list)
         self.status: dict[str, list[dict[str, str]]] = defaultdict(list)
         self.changed = threading.Condition()
+        # as a consumer of the graph must: KEEP_ALL and served in batches (dpos_ros.io.flow), or it falls
+        # behind the nodes that serve their inputs in batches in this one executor
         for topic in ("/master/nav", "/ifa/correction"):
-            self.node.create_subscription(Odometry, topic, lambda m, t=topic: self._got(t, bytes(m)), NAV_QOS, raw=True)
+            subscribe_draining(self.node, Odometry, topic, lambda m, t=topic: self._got(t, bytes(m)), keep_all(NAV_QOS), raw=True)
         for topic in ("/ifa/status", "/pos_master/status"):
-            self.node.create_subscription(DiagnosticArray, topic, lambda m, t=topic: self._status(t, m), STATUS_QOS)
+            subscribe_draining(self.node, DiagnosticArray, topic, lambda m, t=topic: self._status(t, m), STATUS_LOG_QOS)
 
     def _got(self, topic: str, raw: bytes) -> None:
         with self.changed:
@@ -111,6 +119,36 @@ def _driver_messages(jm: JitteredMaster, latency_s: float) -> list[tuple[int, st
     return [(t, topic, msg) for t, _, topic, msg in out]
 
 
+def _check_outage_covariance(probe: Probe, datum: np.ndarray, nav: cv.OdometryBlock, res: Any, origin_ns: int,
+                             outage_s: tuple[float, float], predictions: int) -> None:
+    """The outage's time updates alone: published live (about one per predict_interval_s), with the
+    covariance of run()'s track at the same time (trace: frame-independent), growing, and carried by
+    the /master/nav messages after each."""
+    a, b = outage_s
+    assert predictions >= int((b - a) / 1.5) - 2, predictions
+    corr = _odometry(probe.raw["/ifa/correction"], datum)
+    t_corr = stamp_s(corr.t_ns, origin_ns)
+    epochs = np.isin(np.round(t_corr, 6), np.round(res.t_s[np.searchsorted(res.t_s, res.epochs_s + 1e-6, side="right") - 1], 6))
+    pred = ~epochs
+    assert int(pred.sum()) == predictions
+    tt = np.array([x[0] for x in res.track])
+    tr_pos = np.array([np.trace(x[1][:3, :3]) for x in res.track])
+    live_pos = np.trace(corr.pose_cov[:, :3, :3], axis1=1, axis2=2)
+    for t, p in zip(t_corr[pred], live_pos[pred]):
+        k = int(np.argmin(np.abs(tt - t)))
+        assert abs(tt[k] - t) < 1e-6, (t, tt[k])  # run() made a time update alone at that sample too
+        assert p == pytest.approx(tr_pos[k], rel=1e-6)
+    in_outage = pred & (t_corr > a) & (t_corr < b + 1.0)
+    assert np.all(np.diff(live_pos[in_outage]) > 0) and live_pos[in_outage][-1] > 2.0 * live_pos[in_outage][0]
+    # /master/nav carries each one from the sample after it until the next correction
+    t_nav = stamp_s(nav.t_ns, origin_ns)
+    nav_pos = np.trace(nav.pose_cov[:, :3, :3], axis1=1, axis2=2)
+    for t, p in zip(t_corr[pred], live_pos[pred]):
+        j = int(np.searchsorted(t_nav, t + 1e-6))
+        if j < t_nav.size:
+            assert nav_pos[j] == pytest.approx(p, rel=1e-9)
+
+
 def _odometry(raws: list[bytes], datum: np.ndarray) -> cv.OdometryBlock:
     lay = cdr.layout("odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
     rows = np.stack([np.frombuffer(r, dtype=np.uint8)[: lay.size] for r in raws])
@@ -118,12 +156,17 @@ def _odometry(raws: list[bytes], datum: np.ndarray) -> cv.OdometryBlock:
     return cv.odometry_from_values(t_ns, vals, datum)
 
 
-@pytest.mark.parametrize(("pace", "duration_s"), [("fast", 60.0), ("realtime", 25.0)])
-def test_live_loop_on_jittered_data_equals_the_aligner(pace: str, duration_s: float, ros_context) -> None:
+@pytest.mark.parametrize(("pace", "duration_s", "outage_s"), [("fast", 60.0, (30.0, 42.0)), ("realtime", 25.0, None)])
+def test_live_loop_on_jittered_data_equals_the_aligner(pace: str, duration_s: float, outage_s, ros_context) -> None:
+    """The live graph (relay, mechanization, ifa_node; one process, real DDS) gives the navigation
+    of the offline run() on the same samples, with every correction applied and none late; in an
+    outage the ifa_node's time updates alone reach /master/nav with the covariance of run()'s track."""
     from ifa_node.node import IfaNode
     from pos_master_node.node import PosMasterNode
 
     jm = jittered_master(duration_s, seed=1)
+    if outage_s is not None:
+        jm = with_outage(jm, *outage_s)
     probe = Probe(ros_context)
     ifa = IfaNode(context=ros_context, parameter_overrides=[Parameter("aircraft_config", value="paper_ifa")])
     master = PosMasterNode(context=ros_context, cli_args=REMAPS, parameter_overrides=[
@@ -185,7 +228,7 @@ def test_live_loop_on_jittered_data_equals_the_aligner(pace: str, duration_s: fl
                    lambda: f"the master's corrections ({probe.status['/pos_master/status'][-1:]})")
         master_last = probe.status["/pos_master/status"][-1]
         assert master_last["corrections_lost"] == "0" and master_last["biases_lost"] == "0", master_last
-        assert mech.corrections == ifa.corrections_published == n_fix - 1
+        assert mech.corrections == ifa.corrections_published == n_fix - 1 + ifa.predictions
         # the aligner's navigation at every epoch (ifa_node's shadow strapdown, before the update)
         disc = np.array([float(s["nav_discrepancy_m"]) for s in probe.status["/ifa/status"] if "nav_discrepancy_m" in s])
         disc = disc[np.isfinite(disc)]
@@ -220,5 +263,7 @@ def test_live_loop_on_jittered_data_equals_the_aligner(pace: str, duration_s: fl
         assert disc.size >= n_fix - 3 and disc.max() < 1e-6, disc
         assert mech.late_samples == 0 and master_last["hold_timeouts"] == "0"
         assert d_pub.max() < 1e-6 and d_vel.max() < 1e-9, (np.flatnonzero(d_pub > 1e-6), d_pub.max())
+        if outage_s is not None:
+            _check_outage_covariance(probe, datum, nav, res, origin_ns, outage_s, ifa.predictions)
     finally:
         spinner.stop()

@@ -52,7 +52,8 @@ class Probe:
         from rclpy.node import Node
         from std_msgs.msg import Header
 
-        from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
+        from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, keep_all
+        from dpos_ros.io.flow import subscribe_draining
 
         self.node = Node("ifa_probe", context=context)
         self.raw: dict[str, list[bytes]] = defaultdict(list)
@@ -61,8 +62,9 @@ class Probe:
         topics = ["/ifa/correction", "/session/end"] + (["/master/nav"] if nav else [])
         for topic in topics:
             cls = Header if topic == "/session/end" else Odometry
-            self.node.create_subscription(cls, topic, lambda m, t=topic: self._got(t, m), NAV_QOS, raw=True)
-        self.node.create_subscription(DiagnosticArray, "/ifa/status", lambda m: self._got("/ifa/status", m), STATUS_QOS)
+            # KEEP_ALL and served in batches, as a consumer of the graph must (the nodes in this executor serve theirs so)
+            subscribe_draining(self.node, cls, topic, lambda m, t=topic: self._got(t, m), keep_all(NAV_QOS), raw=True)
+        subscribe_draining(self.node, DiagnosticArray, "/ifa/status", lambda m: self._got("/ifa/status", m), STATUS_QOS)
 
     def _got(self, topic: str, msg: Any) -> None:
         with self.changed:
@@ -297,7 +299,7 @@ def test_fixes_before_the_start_are_skipped_quietly(ros_context, ros_executor) -
             t_ns = start_ns - (n_before - 1 - k) * 1_000_000_000
             pub["fix"].publish(cv.navsatfix_msg(t_ns, cv.GNSS_FRAME, g.llh[0], g.pos_sigma_m[0]))
             pub["vel"].publish(cv.gnss_vel_msg(t_ns, np.zeros(3), g.vel_sigma_mps[0]))
-        _spin_until(ros_executor, lambda: ifa._newest_gnss_ns == start_ns and len(ifa._vels) == n_before, WAIT_S, "the early fixes")
+        _spin_until(ros_executor, lambda: ifa._newest_fix_ns == start_ns and len(ifa._vels) == n_before, WAIT_S, "the early fixes")
         v0 = cv.odometry_values_cov(init.llh[None], init.vel_n_mps[None], init.q_nb[None], datum, None, np.eye(3), np.eye(3), np.eye(3))
         pub["nav"].publish(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([start_ns]), v0)[0]))
         t_imu = cv.stamps_ns(ss.scenario.start_time_s, imu.t_s)

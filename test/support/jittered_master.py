@@ -9,7 +9,7 @@ of them, the very floats the nodes compute.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -86,3 +86,12 @@ def jittered_master(duration_s: float, seed: int = 1, n_dropped: int = 5, fix_ph
     fix_ns = start_ns + np.round(t_fix * 1e9).astype(np.int64)
     return JitteredMaster(imu_ns[keep], omega[keep], f[keep], fix_ns, GnssSeries(t_fix, llh, pos_sig, vel, vel_sig), ss,
                           start_ns, dropped)
+
+
+def with_outage(jm: JitteredMaster, t0_s: float, t1_s: float) -> JitteredMaster:
+    """The session without the fixes stamped in [t0_s, t1_s) seconds after its first fix (an outage)."""
+    t = (jm.fix_ns - jm.fix_ns[0]) * 1e-9
+    keep = ~((t >= t0_s) & (t < t1_s))
+    g = jm.gnss
+    return replace(jm, fix_ns=jm.fix_ns[keep],
+                   gnss=GnssSeries(g.t_s[keep], g.llh[keep], g.pos_sigma_m[keep], g.vel_n_mps[keep], g.vel_sigma_mps[keep]))

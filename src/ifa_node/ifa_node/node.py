@@ -18,8 +18,10 @@ Inputs
     ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
     out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
     ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
-    not come when GNSS data ``pair_timeout_s`` newer has arrived is dropped with a warning (and
-    vice versa). NavSatFix covariance: ENU [m^2]; ``COVARIANCE_TYPE_UNKNOWN`` uses the nominal
+    not come is dropped with a warning (and vice versa) once the velocity stream has passed it by
+    ``pair_timeout_s`` of stamps (each topic arrives in stamp order, so it will not come), or after
+    ``pair_timeout_s`` of wall time (the other stream is silent). The two streams may be far apart
+    on arrival (a replay as fast as possible relays each topic in batches). NavSatFix covariance: ENU [m^2]; ``COVARIANCE_TYPE_UNKNOWN`` uses the nominal
     sigmas. ``/dpos/datum`` (latched) unless the ``datum`` parameter is set. ``/session/end``
     (simulation): no IMU sample after its stamp will come, so the fixes still waiting for one are
     applied (those beyond the last sample + ``max_fix_bridge_s`` rejected, ``stale``), as run() ends.
@@ -38,6 +40,17 @@ came from that fix, or before it: the vehicle standing still) are skipped quietl
 covariance, no fix, a duplicate or out-of-order stamp - is rejected with a warning naming the
 problem, counted (``rejected_fixes``, ``rejected/<reason>``) and leaves the filter untouched
 (it is checked before any IMU is propagated for it).
+
+Outages: a time update alone is due ``predict_interval_s`` after the last filter epoch. run()
+makes it when it passes that time on its way to the next fix; this node makes it as soon as it
+can tell that no fix before it will come: IMU data ``outage_wait_s`` past it has arrived, the
+sample at it has been here ``outage_wait_s`` of wall time, and no fix before it is waiting here
+or in the middleware (taken first). It then publishes an /ifa/correction at that sample: the
+navigation, unchanged, with the grown covariance (the same as run()'s track at that time), so
+/master/nav's covariance grows through the outage live as offline (counted, ``predictions``).
+The checks in wall time (this one, and a fix whose velocity never comes: ``pair_timeout_s``)
+run on a timer when the executor is free, after the GNSS messages waiting in the middleware are
+taken, so a busy node never mistakes its own delay for silence.
 
 Errors (:mod:`dpos_core.errors`)
     :class:`~dpos_core.errors.RejectedInput` from the core (a fix that fails its checks): a
@@ -71,12 +84,14 @@ Outputs per accepted epoch
     numerical_failures, last_failure, hypotheses_failed, chol_jitter_repairs, nav_discrepancy_m,
     nav_discrepancy_deg, gyro_bias_deg_h, accel_bias_ug; and for pos_master_node's hold (see its
     navigators module): fixes_done_ns (every fix stamped up to it is finished: epoch, rejected or
-    skipped; published with each), last_correction_ns (the stamp of the newest /ifa/correction),
-    gnss_time_offset_s.
+    skipped; published with each), last_correction_ns / last_bias_ns (the stamps of the newest
+    /ifa/correction and /ifa/imu_bias), predict_due_ns (the IMU stamp of the next outage time
+    update), outage_wait_s, gnss_time_offset_s; predictions (outage time updates published).
 """
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -106,7 +121,8 @@ from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
+from dpos_ros.io.flow import ArrivalAge, subscribe_draining, take_waiting, use_device_fastdds_profile
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, datum_llh_rad, declare_config, format_config
 from ifa_node.params import IfaConfig
@@ -115,6 +131,8 @@ NODE_NAME = "ifa_node"
 STATUS_NAME = "ifa_node: in-flight alignment"
 #: IMU samples kept while waiting for the first /master/nav
 MAX_PRESTART_IMU = 20000
+#: period of the check for due outage time updates when no message comes [s]
+OUTAGE_CHECK_S = 0.05
 #: /master/nav messages kept for the epoch comparison
 NAV_CACHE = 2000
 #: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
@@ -123,7 +141,7 @@ NAV_CACHE = 2000
 #: waited forever. The node takes a sample in microseconds (raw bytes, decoded in batches) and
 #: pos_master_node at rate_factor 0 keeps at most ``max_lead_s`` ahead of the corrections, so it
 #: does not fall 5000 samples behind; a loss would show as an IMU gap (warned, counted).
-INPUT_QOS = SENSOR_QOS
+INPUT_QOS = keep_all(SENSOR_QOS)
 _LEVELS = {AlignmentState.WAITING.name: DiagnosticStatus.STALE, AlignmentState.ALIGNING.name: DiagnosticStatus.WARN,
            AlignmentState.ALIGNED.name: DiagnosticStatus.OK, AlignmentState.DEGRADED.name: DiagnosticStatus.WARN,
            AlignmentState.DIVERGED.name: DiagnosticStatus.ERROR}
@@ -180,7 +198,11 @@ class IfaNode(Node):
         self._last_sample: tuple[int, np.ndarray] | None = None  # last propagated (t_ns, omega)
         self._fixes: dict[int, NavSatFix] = {}
         self._vels: dict[int, TwistWithCovarianceStamped] = {}
-        self._newest_gnss_ns = -1
+        self._imu_arrival = ArrivalAge()  # /master/imu stamps by arrival wall time (outage time updates)
+        self.predictions = 0  # time updates alone published (outages)
+        self._newest_fix_ns = -1  # newest stamps of each stream (pairing: module docstring)
+        self._newest_vel_ns = -1
+        self._arrived: dict[int, float] = {}  # fix / velocity stamp -> monotonic time of arrival
         self._navs: OrderedDict[int, bytes] = OrderedDict()
         self._pre: OrderedDict[int, Any] = OrderedDict()  # shadow state at epochs before the update
         self.epochs = 0
@@ -203,15 +225,20 @@ class IfaNode(Node):
         #: a fix until both tell it that fix's correction (if any) is in its hands
         self.fixes_done_ns: int | None = None
         self.last_correction_ns: int | None = None
+        self.last_bias_ns: int | None = None  # the stamp of the newest /ifa/imu_bias
         self._warned_unknown_cov = False
 
         self.pub_correction = self.create_publisher(Odometry, T.IFA_CORRECTION, NAV_QOS)
         self.pub_bias = self.create_publisher(Imu, T.IFA_IMU_BIAS, NAV_QOS)
         self.pub_status = self.create_publisher(DiagnosticArray, T.IFA_STATUS, STATUS_QOS)
-        self.create_subscription(Imu, T.MASTER_IMU, self._on_imu, INPUT_QOS, raw=True)
-        self.create_subscription(Odometry, T.MASTER_NAV, self._on_nav, INPUT_QOS, raw=True)
-        self.create_subscription(NavSatFix, T.GNSS_FIX, self._on_fix, INPUT_QOS)
-        self.create_subscription(TwistWithCovarianceStamped, T.GNSS_VEL, self._on_vel, INPUT_QOS)
+        # an outage time update may become due in wall time only (outage_wait_s) after the last sample came
+        self.create_timer(OUTAGE_CHECK_S, self._on_timer)
+        subscribe_draining(self, Imu, T.MASTER_IMU, self._on_imu, INPUT_QOS, raw=True)
+        subscribe_draining(self, Odometry, T.MASTER_NAV, self._on_nav, INPUT_QOS, raw=True)
+        self._gnss_subs = [(subscribe_draining(self, NavSatFix, T.GNSS_FIX, self._on_fix, INPUT_QOS), NavSatFix, self._on_fix),
+                           (subscribe_draining(self, TwistWithCovarianceStamped, T.GNSS_VEL, self._on_vel, INPUT_QOS),
+                            TwistWithCovarianceStamped, self._on_vel)]
+        self._in_outage_check = False
         self.create_subscription(Header, T.SESSION_END, self._on_session_end, NAV_QOS)
         if self.datum_llh is None:
             self.create_subscription(NavSatFix, T.DATUM, self._on_datum, DATUM_QOS)
@@ -258,6 +285,7 @@ class IfaNode(Node):
         self._last_imu_ns = t_ns
         self.imu_samples += 1
         self._imu.append((t_ns, bytes(raw)))
+        self._imu_arrival.add(t_ns)
         if self.al is None:
             if len(self._imu) > MAX_PRESTART_IMU:
                 del self._imu[: len(self._imu) - MAX_PRESTART_IMU]
@@ -271,7 +299,8 @@ class IfaNode(Node):
             self._reject(t_ns, f"duplicate GNSS stamp {t_ns} ns (a fix with this stamp is already waiting): dropped", "duplicate")
             return
         self._fixes[t_ns] = msg
-        self._newest_gnss_ns = max(self._newest_gnss_ns, t_ns)
+        self._newest_fix_ns = max(self._newest_fix_ns, t_ns)
+        self._arrived.setdefault(t_ns, time.monotonic())
         self._process()
 
     def _on_session_end(self, msg: Header) -> None:
@@ -289,7 +318,8 @@ class IfaNode(Node):
             self.get_logger().warning(f"duplicate /gnss/vel stamp {t_ns} ns: the first one is kept")
             return
         self._vels[t_ns] = msg
-        self._newest_gnss_ns = max(self._newest_gnss_ns, t_ns)
+        self._newest_vel_ns = max(self._newest_vel_ns, t_ns)
+        self._arrived.setdefault(t_ns, time.monotonic())
         self._process()
 
     # ------------------------------------------------------------------ start
@@ -393,7 +423,15 @@ class IfaNode(Node):
         """A GNSS stamp at or before the aligner's start (its initial state)."""
         return self._fix_time_s(t_ns) <= STAMP_TOL_S
 
-    def _process(self) -> None:
+    def _on_timer(self) -> None:
+        """The checks in wall time, when the executor is free: first the GNSS messages waiting in the
+        middleware are taken (this node may have been busy), then a fix or velocity whose partner did
+        not come for ``pair_timeout_s`` is dropped, and the due outage time updates are made."""
+        self._take_gnss()
+        self._process(wall=True)
+        self._outage_predict()
+
+    def _process(self, wall: bool = False) -> None:
         """Apply every GNSS epoch whose IMU samples are all here (stamp order; module docstring)."""
         al, origin_ns = self.al, self.origin_ns
         if al is None or origin_ns is None:  # not started (both are set by _maybe_start)
@@ -423,7 +461,7 @@ class IfaNode(Node):
                 continue
             kv = self._pair(t_ns)
             if kv is None:
-                if self._newest_gnss_ns - t_ns > timeout_ns:
+                if self._partner_gone(t_ns, self._newest_vel_ns, timeout_ns, wall):
                     self._finish(t_ns)
                     self.unpaired += 1
                     self.get_logger().warning(f"/gnss/fix at stamp {t_ns} ns has no /gnss/vel within "
@@ -454,15 +492,86 @@ class IfaNode(Node):
                 continue
             self._propagate_to(t_s)
             self._epoch(t_ns, fix)
-        self._expire_vels(timeout_ns)
+        self._expire_vels(timeout_ns, wall)
+        if len(self._arrived) > len(self._fixes) + len(self._vels):
+            self._arrived = {k: v for k, v in self._arrived.items() if k in self._fixes or k in self._vels}
 
-    def _expire_vels(self, timeout_ns: int) -> None:
-        for k in [k for k in self._vels if self._newest_gnss_ns - k > timeout_ns and self._pair_fix(k) is None]:
+    def _outage_predict(self) -> None:
+        """Outages: the time updates alone that are due (module docstring, ``outage_wait_s``), each
+        published as an /ifa/correction (the navigation, unchanged, with the grown covariance) so that
+        /master/nav's covariance grows through the outage as the offline run's track does."""
+        al, origin_ns = self.al, self.origin_ns
+        if al is None or origin_ns is None or self._end_ns is not None or self._in_outage_check:
+            return  # at the end of a session the fixes' processing does the rest (as run())
+        self._in_outage_check = True
+        try:
+            self._outage_updates(al, origin_ns)
+        finally:
+            self._in_outage_check = False
+
+    def _take_gnss(self) -> bool:
+        """Take the fixes and velocities already waiting in the middleware (this node may have been
+        busy longer than ``outage_wait_s``): True when there were any."""
+        taken = False
+        for sub, cls, callback in self._gnss_subs:
+            try:
+                more = take_waiting(sub, cls, False)
+            except RuntimeError:  # being destroyed
+                continue
+            for m, _ in more:
+                callback(m)
+                taken = True
+        return taken
+
+    def _outage_updates(self, al: InFlightAligner, origin_ns: int) -> None:
+        wait_s = self.config.outage_wait_s
+        while True:
+            tick_s = al.next_predict_t_s
+            aged_ns = self._imu_arrival.aged_ns(wait_s)
+            last_ns = self._last_imu_ns
+            if (last_ns is None or aged_ns is None or float(stamp_s(last_ns, origin_ns)) < tick_s + wait_s
+                    or float(stamp_s(aged_ns, origin_ns)) < tick_s):
+                return  # not due: IMU data outage_wait_s past it, here for outage_wait_s of wall time
+            if self._take_gnss():
+                return  # fixes came in the meantime: they go first (this is called again)
+            if any(self._fix_time_s(t) <= tick_s + STAMP_TOL_S for t in self._fixes):
+                return  # a fix before it waits (for its velocity): the fixes go first
+            before = al.last_epoch_t_s
+            self._propagate_to(tick_s)  # stops at the tick (advance() makes the time updates it passes)
+            if al.last_epoch_t_s == before:
+                if al.model.t_s <= before + STAMP_TOL_S:  # no sample up to the tick: a gap in the IMU
+                    after = [t for t, _ in self._imu if float(stamp_s(t, origin_ns)) > tick_s]
+                    if not after:
+                        return
+                    self._propagate_to(float(stamp_s(after[0], origin_ns)))  # crossed; the update at that sample
+                else:
+                    try:
+                        al.predict()
+                    except NumericalFailure as e:
+                        self._numerical_failure(int(origin_ns + round(tick_s * 1e9)), e)
+                        al.last_epoch_t_s = al.model.t_s
+            if al.last_epoch_t_s <= before:
+                return
+            self.predictions += 1
+            sample_ns = self._last_sample[0] if self._last_sample is not None else origin_ns
+            self._publish_epoch(sample_ns, None)
+            self._publish_status()
+
+    def _expire_vels(self, timeout_ns: int, wall: bool) -> None:
+        for k in [k for k in self._vels if self._partner_gone(k, self._newest_fix_ns, timeout_ns, wall) and self._pair_fix(k) is None]:
             del self._vels[k]
             if self._before_start(k):
                 continue  # its fix was skipped (before_start): quietly
             self.unpaired += 1
             self.get_logger().warning(f"/gnss/vel at stamp {k} ns has no /gnss/fix: dropped")
+
+    def _partner_gone(self, t_ns: int, newest_other_ns: int, timeout_ns: int, wall: bool) -> bool:
+        """The partner of the fix / velocity stamped ``t_ns`` will not come: the other stream (newest
+        stamp ``newest_other_ns``) has passed it by ``timeout_ns``, or (``wall``: from the timer,
+        after taking what waits in the middleware) it has waited ``pair_timeout_s`` of wall time."""
+        if newest_other_ns - t_ns > timeout_ns:
+            return True
+        return wall and time.monotonic() - self._arrived.get(t_ns, time.monotonic()) > self.config.pair_timeout_s
 
     def _pair_fix(self, k: int) -> int | None:
         tol = int(round(self.config.pair_tolerance_s * 1e9))
@@ -564,6 +673,7 @@ class IfaNode(Node):
         if al.model.feed_biases:
             bv = cv.imu_bias_values(al.model.gyro_bias_comp, al.model.accel_bias_comp, P[9:12, 9:12], P[12:15, 12:15])
             self.pub_bias.publish(bytes(cdr.encode(cdr.layout("imu", cv.MASTER_FRAME), stamp, bv)[0]))
+            self.last_bias_ns = t_ns
 
     def state_name(self) -> str:
         al = self.al
@@ -582,6 +692,7 @@ class IfaNode(Node):
         values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
         values.update({"fixes_done_ns": "none" if self.fixes_done_ns is None else str(self.fixes_done_ns),
                        "last_correction_ns": "none" if self.last_correction_ns is None else str(self.last_correction_ns),
+                       "last_bias_ns": "none" if self.last_bias_ns is None else str(self.last_bias_ns),
                        "gnss_time_offset_s": f"{self.core_config.gnss_time_offset_s:.9g}"})
         values.update({"last_rejection": self.last_rejection, "before_start": self.before_start, "unpaired": self.unpaired,
                        "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
@@ -589,7 +700,10 @@ class IfaNode(Node):
         al, rec = self.al, self.last_record
         if al is not None:
             values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs,
-                           "restarts": al.restarts, "states": al.model.n})
+                           "restarts": al.restarts, "states": al.model.n, "predictions": self.predictions})
+            if self.origin_ns is not None and self._end_ns is None:  # the next outage time update (pos_master_node's hold)
+                values.update({"predict_due_ns": str(self.origin_ns + int(round(al.next_predict_t_s * 1e9))),
+                               "outage_wait_s": f"{self.config.outage_wait_s:.9g}"})
 
             sig = al.attitude_sigma_rad / DEG
             gb, ab = al.bias_estimates()
@@ -615,4 +729,5 @@ class IfaNode(Node):
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``ifa_node``."""
+    use_device_fastdds_profile()  # readers without resource limits (dpos_ros.io.flow)
     return run_node(IfaNode, NODE_NAME, argv)

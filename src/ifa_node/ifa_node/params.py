@@ -43,9 +43,14 @@ class IfaConfig:
         level_sigma_deg: prior pitch / roll 1 sigma [deg].
         gnss_time_offset_s, max_fix_bridge_s, predict_interval_s, restart_on_divergence,
             bias_feedback, gyro_axis_errors: see :class:`dpos_core.ifa.model.IfaFilterConfig`.
+        outage_wait_s: a time update alone due at IMU time ``t`` (no fix since ``predict_interval_s``:
+            an outage) is made, and published as an /ifa/correction with the grown covariance, once
+            IMU samples stamped ``t + outage_wait_s`` are here and the sample at ``t`` has been here
+            for ``outage_wait_s`` of wall time; a fix stamped before ``t`` that comes later still is
+            rejected (``stale``). /master/nav waits as long for it during an outage.
         pair_tolerance_s: a /gnss/fix and a /gnss/vel closer than this are one epoch.
-        pair_timeout_s: a fix (velocity) whose partner has not come when GNSS data this much newer
-            has arrived is dropped with a warning.
+        pair_timeout_s: a fix (velocity) whose partner has not come when the partner's stream is
+            this much newer [s], or after this long in wall time, is dropped with a warning.
     """
 
     datum: tuple[float, ...] = datum_param()
@@ -70,8 +75,10 @@ class IfaConfig:
     bias_feedback: str = param("auto", "when bias estimates are fed back: auto (by the IMU grade), aligned, always", choices=BIAS_FEEDBACK)
     gyro_axis_errors: str = param("auto", "gyro scale factor / misalignment as states or noise: auto (states for MEMS), states, noise",
                                   choices=GYRO_AXIS_ERRORS)
+    outage_wait_s: float = param(0.25, "outage: make a due time update alone once IMU data this much [s] newer is here, and this long [s] in wall time",
+                                 minimum=0.0, exclusive_minimum=True)
     pair_tolerance_s: float = param(0.001, "a /gnss/fix and /gnss/vel closer than this [s] form one epoch", minimum=0.0)
-    pair_timeout_s: float = param(2.0, "drop a fix without velocity once GNSS data this much [s] newer arrived", minimum=0.0)
+    pair_timeout_s: float = param(2.0, "drop a fix without velocity once the velocity stream is this much [s] newer, or after this long in wall time", minimum=0.0)
 
     @classmethod
     def from_params_file(cls, path: Path) -> IfaConfig:

@@ -26,8 +26,9 @@
     integrated no sample) is lost: a warning each, counted (``corrections_lost``, ``biases_lost``,
     ``last_lost``).
     Unaligned flag: until ``/ifa/status`` reports ALIGNED (or DEGRADED, i.e. aligned but
-    inconsistent), the covariance is the filter's (from the latest correction; before the first
-    one ``initial_sigma``, heading 100 deg) and ``/pos_master/status`` (DiagnosticArray,
+    inconsistent), the covariance is the filter's (that of the latest correction stamped before the
+    message's sample, whatever the order of arrival; before the first one ``initial_sigma``,
+    heading 100 deg) and ``/pos_master/status`` (DiagnosticArray,
     TRANSIENT_LOCAL, level WARN, message UNALIGNED) says so; ALIGNED: level OK.
 ``given`` (:class:`GivenNavigator`)
     the same mechanization from a configured ``initial_state`` (default in simulation: truth at
@@ -72,6 +73,7 @@ timer), the feedback callbacks in the executor; a lock serializes their use of t
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 import time
@@ -90,6 +92,7 @@ from dpos_core import earth
 from dpos_core.errors import RejectedInput
 from dpos_core.frames import C_nb_from_hpr
 from dpos_core.ifa.mechanization import (
+    STAMP_TOL_S,
     MasterMechanization,
     body_rate_eb,
     initial_state_from_list,
@@ -102,7 +105,8 @@ from dpos_core.strapdown import NavState
 from dpos_core.units import DEG, FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
+from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, keep_all
+from dpos_ros.io.flow import subscribe_draining
 from dpos_ros.runtime.params import ParameterError
 from pos_master_node import NODE_NAME
 from pos_master_node.params import PosMasterConfig
@@ -214,6 +218,11 @@ class Mechanizer(ABC):
         s = cfg.initial_sigma
         #: the /master/nav covariance: ``initial_sigma`` until the first correction, then the filter's
         self.nav_cov: NavCov = (np.eye(3) * s[0] ** 2, np.diag([s[3], s[4], s[2]]) ** 2 * DEG**2, np.eye(3) * s[1] ** 2)
+        #: the corrections' covariances by the time [s] of their sample, oldest first: a message carries
+        #: the one of the latest correction strictly before its sample (:meth:`_covs_at`), whatever the
+        #: order in which correction and sample arrived; ``nav_cov`` is the newest
+        self._cov_track: list[tuple[float, NavCov]] = []
+        self._cov0: NavCov = self.nav_cov
         self._lock = threading.Lock()
         self._corrected = threading.Condition(self._lock)
         self._started: _Started | None = None
@@ -231,9 +240,14 @@ class Mechanizer(ABC):
         #: ``ifa_last_correction_ns``; its GNSS time offset [ns] (``device: ros`` holds, :meth:`fix_answered`)
         self.ifa_fixes_done_ns: int | None = None
         self.ifa_last_correction_ns: int | None = None
+        self.ifa_last_bias_ns: int | None = None
+        #: the ifa_node's next time update alone (an outage) [ns, IMU clock]: ``device: ros`` holds
+        #: /master/nav for it too
+        self.ifa_predict_due_ns: int | None = None
         self.ifa_offset_ns = 0
-        #: the newest /ifa/correction stamp received [ns]
+        #: the newest /ifa/correction and /ifa/imu_bias stamps received [ns]
         self.correction_seen_ns: int | None = None
+        self.bias_seen_ns: int | None = None
         #: ``device: ros``: holds of the IMU after a fix released after LEAD_WAIT_S without the ifa_node's answer
         self.hold_timeouts = 0
 
@@ -252,17 +266,28 @@ class Mechanizer(ABC):
         """The stamp of the initial state [ns] (time origin of the mechanization); after the start only."""
         return self._run().origin_ns
 
-    def ifa_running(self) -> bool:
-        """An ifa_node is aligning (its /ifa/status is past WAITING) and publishes /ifa/correction."""
-        return (self.ifa_status not in ("none", AlignmentState.WAITING.name)
-                and self.node.count_publishers(T.IFA_CORRECTION) > 0)
+    def ifa_present(self) -> bool:
+        """An ifa_node is in the graph (a publisher of /ifa/correction), whatever its state: while it
+        starts (no /ifa/status yet, or WAITING) it will answer the fixes after our first /master/nav,
+        so the hold applies from the start (a replay as fast as possible otherwise runs seconds
+        ahead of its first corrections)."""
+        return self.node.count_publishers(T.IFA_CORRECTION) > 0
 
     def fix_answered(self, t_fix_ns: int) -> bool:
         """The ifa_node has finished the fix stamped ``t_fix_ns`` [ns] and its correction, if it made
         one, has arrived here (its /ifa/status: ``fixes_done_ns`` >= the fix, and every correction up to
-        its ``last_correction_ns`` received)."""
-        done, last, seen = self.ifa_fixes_done_ns, self.ifa_last_correction_ns, self.correction_seen_ns
-        return done is not None and done >= t_fix_ns and (last is None or (seen is not None and seen >= last))
+        its ``last_correction_ns`` received, and its bias estimate up to ``last_bias_ns``: the two
+        topics may arrive in either order)."""
+        done = self.ifa_fixes_done_ns
+        return done is not None and done >= t_fix_ns and self.feedback_received()
+
+    def feedback_received(self) -> bool:
+        """Every /ifa/correction and /ifa/imu_bias the ifa_node's last /ifa/status announces
+        (``last_correction_ns``, ``last_bias_ns``) has arrived here."""
+        last, seen = self.ifa_last_correction_ns, self.correction_seen_ns
+        bias, bias_seen = self.ifa_last_bias_ns, self.bias_seen_ns
+        return ((last is None or (seen is not None and seen >= last))
+                and (bias is None or (bias_seen is not None and bias_seen >= bias)))
 
     def _run(self) -> _Started:
         if self._started is None:
@@ -273,9 +298,10 @@ class Mechanizer(ABC):
     def attach(self) -> None:
         """Subscribe to /ifa/correction, /ifa/imu_bias and /ifa/status; publish /pos_master/status."""
         node = self.node
-        node.create_subscription(T.message_class(T.ODOMETRY), T.IFA_CORRECTION, self.on_correction, NAV_QOS, raw=True)
-        node.create_subscription(T.message_class(T.IMU), T.IFA_IMU_BIAS, self.on_bias, NAV_QOS, raw=True)
-        node.create_subscription(DiagnosticArray, T.IFA_STATUS, self.on_ifa_status, STATUS_QOS)
+        # draining subscriptions: the relay serves its inputs in batches (dpos_ros.io.flow.subscribe_draining)
+        subscribe_draining(node, T.message_class(T.ODOMETRY), T.IFA_CORRECTION, self.on_correction, keep_all(NAV_QOS), raw=True)
+        subscribe_draining(node, T.message_class(T.IMU), T.IFA_IMU_BIAS, self.on_bias, keep_all(NAV_QOS), raw=True)
+        subscribe_draining(node, DiagnosticArray, T.IFA_STATUS, self.on_ifa_status, STATUS_QOS)
         self._status_pub = node.create_publisher(DiagnosticArray, T.POS_MASTER_STATUS, STATUS_QOS)
         self.publish_status()
 
@@ -367,7 +393,8 @@ class Mechanizer(ABC):
             nav, keep, warnings = mech.add(stamp_s(t_ns, run.origin_ns), om, fb)
             changed = counts != (mech.corrections, mech.corrections_lost)  # pending corrections applied (or lost)
             gyro = np.array([mech.bias_at(t)[0] for t in nav.t_s]).reshape(-1, 3)
-            cov = self.nav_cov
+            cov = self._covs_at(nav.t_s)
+            head_cov = self._covs_at(np.array([mech.initial.t_s]))
         for w in warnings:
             self.log.warning(w)
         if changed:
@@ -375,7 +402,7 @@ class Mechanizer(ABC):
         head = None
         if first:
             s = mech.initial
-            v0 = cv.odometry_values_cov(s.llh[None], s.vel_n_mps[None], s.q_nb[None], run.datum_llh, None, *cov)
+            v0 = cv.odometry_values_cov(s.llh[None], s.vel_n_mps[None], s.q_nb[None], run.datum_llh, None, *head_cov)
             head = bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([run.origin_ns]), v0)[0])
         rows = np.empty((0, 0), dtype=np.uint8)
         if len(nav):
@@ -384,6 +411,23 @@ class Mechanizer(ABC):
             rows = cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, t_ns[keep], v)
         self.nav_published += int(len(nav)) + int(first)
         return head, rows, keep
+
+    def _covs_at(self, t_s: FloatArray) -> NavCov:
+        """The covariances ((N, 3, 3) position, attitude, velocity) of /master/nav messages at ``t_s``
+        (N,) [s], increasing: the latest correction's strictly before each sample (the message at an
+        epoch's sample carries the state before that epoch, and its covariance), ``initial_sigma``'s
+        before the first. Entries older than the latest one used are dropped (the samples come in
+        time order). Under the lock."""
+        track = self._cov_track
+        t = np.asarray(t_s, dtype=float)
+        k = np.searchsorted(np.array([x[0] for x in track]), t - STAMP_TOL_S, side="left") - 1
+        if not k.size:
+            return (np.zeros((0, 3, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3, 3)))
+        blocks = [self._cov0] + [c for _, c in track]
+        out = tuple(np.stack([blocks[j + 1][i] for j in k]).reshape(-1, 3, 3) for i in range(3))
+        if k.max() > 0:
+            del track[: int(k.max())]
+        return out  # type: ignore[return-value]
 
     def wait_for_corrections(self, t_s: float, max_lead_s: float, stopping: Callable[[], bool]) -> None:
         """Flow control of the IFA loop: wait while the mechanization at ``t_s`` is more than
@@ -420,7 +464,10 @@ class Mechanizer(ABC):
         with self._lock:
             warning = run.mech.correct(state)  # pending until its sample is integrated, or applied now, or lost
             if warning is None:
-                self.nav_cov = (pos[0], att[0], vel[0])
+                c = (pos[0], att[0], vel[0])
+                k = bisect.bisect_right([x[0] for x in self._cov_track], state.t_s)
+                self._cov_track.insert(k, (state.t_s, c))
+                self.nav_cov = self._cov_track[-1][1]
             self._corrected.notify_all()
         if warning is not None:
             self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {warning}")
@@ -429,6 +476,7 @@ class Mechanizer(ABC):
     def on_bias(self, raw: bytes) -> None:
         """/ifa/imu_bias: remove the estimate from the samples after its stamp."""
         t_ns, v = cv.decode_raw(raw, "imu", cv.MASTER_FRAME)
+        self.bias_seen_ns = t_ns if self.bias_seen_ns is None else max(self.bias_seen_ns, t_ns)
         run = self._started
         if run is None:
             self.log.warning(f"{T.IFA_IMU_BIAS} at stamp {t_ns} ns before the mechanization started: ignored")
@@ -450,6 +498,8 @@ class Mechanizer(ABC):
                 self.aligned = self.aligned_by(st.message, values.get("aligned"))
                 self.ifa_fixes_done_ns = _int_or_none(values.get("fixes_done_ns"))
                 self.ifa_last_correction_ns = _int_or_none(values.get("last_correction_ns"))
+                self.ifa_last_bias_ns = _int_or_none(values.get("last_bias_ns"))
+                self.ifa_predict_due_ns = _int_or_none(values.get("predict_due_ns"))
                 offset_s = _float_or_none(values.get("gnss_time_offset_s"))
                 self.ifa_offset_ns = 0 if offset_s is None else int(round(offset_s * 1e9))
                 if self.aligned != was:

@@ -69,7 +69,8 @@ class PosMasterConfig:
             GNSS course over ground when the ground speed is at least this [m/s]; below it the
             ``initial_state`` heading is used, or the node waits for a faster fix.
         nav_delay_s: ``device: ros`` while an ifa_node aligns: a relayed IMU sample is integrated
-            (and its /master/nav published) once IMU data this much newer [s] has been relayed, or
+            (and its /master/nav published) once IMU data this much newer [s] has been relayed and
+            it was relayed this long ago in wall time (a replay as fast as possible), or
             the IMU has been silent for ``sources.NAV_FLUSH_S`` (wall clock: the end of the data). A GNSS receiver
             delivers its fix 50-100 ms after the fix's stamp; with a delay above that the fix is
             here before the samples after it are integrated, the node holds them until the

@@ -29,25 +29,32 @@
 
     Hold for the IFA loop (issue #11): the correction of a GNSS epoch applies to the IMU samples
     after it, so /master/nav of a sample is the aligner's only if every correction before it was
-    here when it was integrated. While an ifa_node is aligning (its /ifa/status past WAITING, a
-    publisher of /ifa/correction):
+    here when it was integrated. While an ifa_node is in the graph (a publisher of
+    /ifa/correction, from its start on):
 
     * the timer integrates the queued samples only up to the oldest relayed fix (moved onto the
       IMU clock by the ifa_node's ``gnss_time_offset_s``) the ifa_node has not answered yet:
       answered = its /ifa/status says every fix up to that stamp is finished (``fixes_done_ns``:
-      an epoch, a rejection or a skip) and every correction it published (``last_correction_ns``)
-      has arrived here. The relay itself (/master/imu, which the ifa_node needs to answer) is
+      an epoch, a rejection or a skip) and every correction and bias estimate it published
+      (``last_correction_ns``, ``last_bias_ns``: the two topics arrive in either order) has arrived
+      here. The fixes waiting in the middleware are relayed first (the node may have been busy).
+      The relay itself (/master/imu, which the ifa_node needs to answer) is
       never held; /master/nav waits for the ifa_node's processing only (a few ms per fix). A hold
       unanswered for ``LEAD_WAIT_S`` (an ifa_node stopped or stuck) is released with a warning,
       counted (``hold_timeouts``);
+    * in an outage, the same for the ifa_node's next time update alone (its /ifa/status
+      ``predict_due_ns``) once the relayed IMU is past it: its correction carries the grown
+      covariance, and the messages after it carry that;
     * a receiver delivers its fix some 50-100 ms after its stamp, so the timer also keeps
       ``nav_delay_s`` of IMU time queued: a sample is integrated once a sample that much newer has
-      been relayed, so that its fix has been relayed (and holds it) by then; when no sample came
+      been relayed and it has waited ``nav_delay_s`` of wall time since it was relayed (a replay
+      as fast as possible relays a backlog of IMU messages in one batch, ahead of the fixes of the
+      same time), so that its fix has been relayed (and holds it) by then; when no sample came
       for ``NAV_FLUSH_S`` of wall time (the end of the data, an outage; longer than the pauses of
       a replay as fast as possible) the queue is integrated.
 
     Samples integrated before their fix was relayed anyway (``nav_delay_s`` 0, a fix later than
-    it, no ifa_node aligning yet) lack its correction: it is applied by re-integration and
+    it, no ifa_node in the graph yet) lack its correction: it is applied by re-integration and
     counted (``corrections_late``, ``late_samples`` on /pos_master/status).
 
     ``/dpos/datum`` (latched): the ``datum`` parameter when set (stamped with the node's clock at
@@ -85,6 +92,7 @@ from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS
 from dpos_ros.devices.relay import DeviceRelay, Route, rotation_from_rpy_deg
 from dpos_ros.devices.sim_device import SimDevice, Tap, load_sim_session
 from dpos_ros.devices.sim_streams import device_streams, session_id
+from dpos_ros.io.flow import ArrivalAge
 from dpos_ros.io.streams import TopicStream
 from dpos_ros.runtime.params import ParameterError, datum_llh_rad, format_config
 from pos_master_node import NODE_NAME
@@ -253,6 +261,10 @@ class RelaySource:
         self._fix_marks: deque[int] = deque(maxlen=FIX_MARKS_KEEP)
         self._held: tuple[int, float] | None = None  # (fix stamp [ns], monotonic time [s]) of a hold blocking the IMU
         self._imu_wall_s = time.monotonic()  # when the newest IMU sample was relayed (nav_delay_s)
+        self._imu_arrival = ArrivalAge()  # the IMU stamps by relay wall time (nav_delay_s)
+        self._newest_imu_ns: int | None = None
+        self._prediction_held: tuple[int, float] | None = None  # (stamp [ns], monotonic [s]) of an outage hold
+        self._prediction_released: int | None = None  # an outage hold released after LEAD_WAIT_S
         self._tick_timer = node.create_timer(RELAY_TICK_S, self._tick)
 
     def start(self) -> None:
@@ -286,6 +298,8 @@ class RelaySource:
             w, f = msg.angular_velocity, msg.linear_acceleration
             inp.imu.append((t_ns, (w.x, w.y, w.z), (f.x, f.y, f.z)))
             self._imu_wall_s = time.monotonic()
+            self._imu_arrival.add(t_ns, self._imu_wall_s)
+            self._newest_imu_ns = t_ns if self._newest_imu_ns is None else max(self._newest_imu_ns, t_ns)
         elif topic == T.GNSS_FIX:
             self._fix_marks.append(t_ns)
             llh = np.array([msg.latitude * DEG, msg.longitude * DEG, msg.altitude])
@@ -302,13 +316,51 @@ class RelaySource:
             inp.vels.append((t_ns, np.array([v.x, v.y, v.z])))
 
     def _hold_ns(self, origin_ns: int) -> int | None:
-        """The stamp [ns] after which the queued IMU samples wait for the ifa_node (module docstring),
-        None when nothing is held; releases a hold older than LEAD_WAIT_S with a warning."""
+        """The stamp [ns] after which the queued IMU samples wait for the ifa_node (module docstring):
+        its answer to the oldest relayed fix, or its time update alone of an outage; None when
+        nothing is held."""
+        holds = [h for h in (self._fix_hold_ns(origin_ns), self._prediction_hold_ns()) if h is not None]
+        return min(holds) if holds else None
+
+    def _prediction_hold_ns(self) -> int | None:
+        """During an outage: the ifa_node's next time update alone (its /ifa/status ``predict_due_ns``)
+        once the relayed IMU is past it (the ifa_node makes it ``outage_wait_s`` later), and every
+        correction it announced until it has arrived; released after LEAD_WAIT_S with a warning."""
+        nav = self.navigator
+        due, newest = nav.ifa_predict_due_ns, self._newest_imu_ns
+        if due is None or newest is None or not nav.ifa_present():
+            self._prediction_held = None
+            return None
+        if not nav.feedback_received():
+            hold = nav.ifa_last_correction_ns  # announced, on its way
+        elif newest > due:  # the ifa_node makes it once the IMU is outage_wait_s past it (or a fix comes first)
+            hold = due
+        else:
+            self._prediction_held = None
+            return None
+        if hold is None or hold == self._prediction_released:
+            return None
+        now = time.monotonic()
+        if self._prediction_held is None or self._prediction_held[0] != hold:
+            self._prediction_held = (hold, now)
+        elif now - self._prediction_held[1] > LEAD_WAIT_S:
+            nav.hold_timeouts += 1
+            self.log.warning(f"no time update of the ifa_node at stamp {hold} ns for {LEAD_WAIT_S:g} s (outage; its next one due at "
+                             f"{due} ns, last correction {nav.ifa_last_correction_ns} ns, received up to {nav.correction_seen_ns} ns): "
+                             f"{T.MASTER_NAV} goes on without waiting ({nav.hold_timeouts} so far)")
+            self._prediction_released = hold
+            self._prediction_held = None
+            return None
+        return hold
+
+    def _fix_hold_ns(self, origin_ns: int) -> int | None:
+        """The oldest relayed fix the ifa_node has not answered (moved onto the IMU clock), None when
+        none; releases a hold older than LEAD_WAIT_S with a warning."""
         nav = self.navigator
         marks = self._fix_marks
         while marks and marks[0] <= origin_ns:  # before the start: the ifa_node skips them
             marks.popleft()
-        if not marks or not nav.ifa_running():
+        if not marks or not nav.ifa_present():
             self._held = None
             return None
         while marks and nav.fix_answered(marks[0]):
@@ -323,7 +375,9 @@ class RelaySource:
                              f"{nav.correction_seen_ns} ns): {T.MASTER_NAV} goes on without waiting ({nav.hold_timeouts} so far)")
             marks.popleft()
             self._held = None
-            return self._hold_ns(origin_ns)
+            return self._fix_hold_ns(origin_ns)
+        if self._held is None or self._held[0] != marks[0]:
+            self._held = (marks[0], time.monotonic())  # the oldest fix the ifa_node has not answered, since
         return marks[0] - nav.ifa_offset_ns
 
     def _tick(self) -> None:
@@ -334,12 +388,18 @@ class RelaySource:
         if not nav.started and not nav.try_start_live(self.input):
             return
         origin_ns = nav.origin_ns
+        self.relay.take_pending(("fix",))  # every fix relayed so far holds (this node may have been busy)
         pending = self.input.imu  # after the start: it replaces the queue
         hold_ns = self._hold_ns(origin_ns)
         delay_s = self.config.nav_delay_s
         limit_ns = hold_ns
-        if pending and delay_s > 0.0 and time.monotonic() - self._imu_wall_s < NAV_FLUSH_S and nav.ifa_running():
-            delayed_ns = pending[-1][0] - int(round(delay_s * 1e9))  # keep nav_delay_s of IMU time queued
+        now = time.monotonic()
+        aged_ns = self._imu_arrival.aged_ns(delay_s, now)
+        if pending and delay_s > 0.0 and now - self._imu_wall_s < NAV_FLUSH_S and nav.ifa_present():
+            # keep nav_delay_s of IMU time queued, and every sample nav_delay_s of wall time: a replay
+            # as fast as possible relays the IMU in batches ahead of the fixes (module docstring)
+            delayed_ns = pending[-1][0] - int(round(delay_s * 1e9))
+            delayed_ns = pending[0][0] - 1 if aged_ns is None else min(delayed_ns, aged_ns)
             limit_ns = delayed_ns if limit_ns is None else min(limit_ns, delayed_ns)
         done = 0
         while pending and done < MAX_PER_TICK:
@@ -347,8 +407,6 @@ class RelaySource:
             while n < min(MAX_BATCH, len(pending)) and (limit_ns is None or pending[n][0] <= limit_ns):
                 n += 1
             if n == 0:
-                if hold_ns is not None and pending[0][0] > hold_ns and (self._held is None or self._held[0] != self._fix_marks[0]):
-                    self._held = (self._fix_marks[0], time.monotonic())  # held: after a fix the ifa_node has not answered
                 break
             batch = [pending.popleft() for _ in range(n)]
             done += len(batch)

@@ -46,7 +46,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Header
@@ -56,7 +55,7 @@ from dpos_core.config import ConfigError, config_text, load_aircraft
 from dpos_core.errors import RejectedInput
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
 from dpos_ros.devices.sim_device import SimDevice
 from dpos_ros.io.session import read_session
 from dpos_ros.io.spill import SpillWriter
@@ -97,12 +96,6 @@ def _pool(n_workers: int) -> cf.Executor:
 def _describe(e: BaseException) -> str:
     """``<type>: <message>`` of an exception (a KeyError's message alone says little)."""
     return f"{type(e).__name__}: {e}"
-
-
-def _keep_all(qos):
-    if qos.durability.name == "TRANSIENT_LOCAL":
-        return qos
-    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=qos.reliability, durability=qos.durability)
 
 
 class _Stream:
@@ -181,7 +174,7 @@ class TransferAlignNode(Node):
         types = {T.ODOMETRY: Odometry, T.IMU: Imu, T.NAVSATFIX: NavSatFix}
         # KEEP_ALL (design.md allows it): a reader that falls behind makes reliable writers wait
         # instead of losing the oldest samples, as a deep KEEP_LAST queue would
-        self._subs = [self.create_subscription(types[mt], topic, self._make_cb(topic, mt), _keep_all(qos), raw=True)
+        self._subs = [self.create_subscription(types[mt], topic, self._make_cb(topic, mt), keep_all(qos), raw=True)
                       for topic, (mt, qos) in topics.items()]
         self._subs.append(self.create_subscription(Header, T.SESSION_END, self._on_end, NAV_QOS))
         self.create_service(Trigger, "~/finalize", self._on_finalize)

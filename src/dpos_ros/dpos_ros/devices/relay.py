@@ -77,6 +77,7 @@ from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 from dpos_core.series import GAP_FACTOR
 from dpos_core.units import FloatArray
 from dpos_ros.contract.qos import SENSOR_QOS, STATUS_QOS, STREAM_DEPTH
+from dpos_ros.io.flow import subscribe_draining, take_waiting
 from dpos_ros.runtime.params import param
 
 __all__ = [
@@ -167,11 +168,12 @@ def rotation_from_rpy_deg(rpy_deg: Sequence[float]) -> FloatArray:
 
 
 def input_qos(reliability: str) -> QoSProfile:
-    """The QoS of a driver subscription: ``best_effort`` or ``reliable``, deep KEEP_LAST, VOLATILE."""
+    """The QoS of a driver subscription: ``best_effort`` or ``reliable``, KEEP_ALL, VOLATILE: what
+    was delivered is never overwritten before the relay takes it (:func:`~dpos_ros.contract.qos.keep_all`)."""
     if reliability not in INPUT_RELIABILITIES:
         raise ValueError(f"input reliability {reliability!r}: expected one of {', '.join(INPUT_RELIABILITIES)}")
     return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
+        history=HistoryPolicy.KEEP_ALL,
         depth=STREAM_DEPTH,
         reliability=ReliabilityPolicy.BEST_EFFORT if reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.VOLATILE,
@@ -333,8 +335,8 @@ class DeviceRelay:
         for route in routes:
             st = _RouteState(route)
             st.publisher = node.create_publisher(KINDS[route.kind], route.output_topic, SENSOR_QOS)
-            st.subscription = node.create_subscription(
-                KINDS[route.kind], route.input_topic, lambda msg, s=st: self._on_input(s, msg), qos_in)
+            st.subscription = subscribe_draining(node, KINDS[route.kind], route.input_topic,
+                                                 lambda msg, s=st: self._on_input(s, msg), qos_in)
             self._states.append(st)
         self._status_pub = None
         if status_period_s is not None:
@@ -404,6 +406,23 @@ class DeviceRelay:
         self._status_pub.publish(arr)
 
     # ------------------------------------------------------------------ per message
+
+    def take_pending(self, kinds: Sequence[str]) -> int:
+        """Relay now what waits in the middleware on the routes of ``kinds`` (e.g. ``("fix", "vel")``
+        before a decision that needs every fix up to a stamp: the node may have been busy); returns
+        how many messages were taken."""
+        n = 0
+        for st in self._states:
+            if st.route.kind not in kinds:
+                continue
+            try:
+                more = take_waiting(st.subscription, KINDS[st.route.kind], False)
+            except RuntimeError:  # being destroyed
+                continue
+            for m, _ in more:
+                self._on_input(st, m)
+            n += len(more)
+        return n
 
     def _on_input(self, s: _RouteState, msg: Any) -> None:
         t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

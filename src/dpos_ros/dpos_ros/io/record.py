@@ -28,7 +28,7 @@ Threading
     a queue. A writer thread drains the queue into the rosbags ``Writer`` (connections are created
     through the same queue, so no lock is needed and a connection always precedes its messages).
     The executor so never waits for compression or disk. A callback also takes (``take_message``,
-    up to ``TAKE_BATCH``) the further samples already waiting on its subscription: the rclpy
+    up to ``dpos_ros.io.flow.TAKE_BATCH``) the further samples already waiting on its subscription: the rclpy
     executor's per-dispatch overhead (~100 us) otherwise limits a Python recorder to ~10k msg/s.
 
     Sensor/navigation streams are subscribed KEEP_ALL (the design allows it; ``keep_all=False``
@@ -68,6 +68,7 @@ from dpos_ros.contract import qos as dpos_qos
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.topics import message_class
 from dpos_ros.io.bag import ROSBAG2_VERSION, typestore
+from dpos_ros.io.flow import take_waiting
 
 __all__ = ["BagRecorder", "topic_qos_kind", "subscription_qos", "ALL_EXCLUDED", "DISCOVERY_PERIOD_S"]
 
@@ -75,8 +76,6 @@ __all__ = ["BagRecorder", "topic_qos_kind", "subscription_qos", "ALL_EXCLUDED", 
 DISCOVERY_PERIOD_S = 0.1
 #: Topics that ``all_topics`` leaves out (record them by naming them).
 ALL_EXCLUDED = ("/rosout", "/parameter_events", "/clock")
-#: Messages taken per subscription callback beyond the one the executor hands over.
-TAKE_BATCH = 256
 #: A queue backlog that is logged (the writer thread does not keep up).
 BACKLOG_WARN = 20000
 
@@ -288,21 +287,15 @@ class BagRecorder:
             on_message(raw, info)
             # take what else is waiting on this subscription at once: one executor dispatch per
             # batch instead of per message (the executor's overhead dominates a raw recorder)
-            handle = getattr(sub, "handle", None)
-            if handle is None or self._closed:
+            if self._closed:
                 return
             batch = []
             try:
-                with handle:
-                    for _ in range(TAKE_BATCH):
-                        taken = handle.take_message(cls, True)
-                        if taken is None:
-                            break
-                        batch.append(taken)
+                batch = take_waiting(sub, cls, True)
             except RuntimeError as exc:  # rclpy's InvalidHandle / RCLError: being destroyed (shutdown); the executor takes the rest
                 self._problem("take", topic, "taking the waiting samples failed; the executor delivers them", exc)
-            for taken in batch:  # outside the try: a failure here is a bug and propagates
-                on_message(taken[0], taken[1] if len(taken) > 1 else None)
+            for raw_i, info_i in batch:  # outside the try: a failure here is a bug and propagates
+                on_message(raw_i, info_i)
 
         sub = self.node.create_subscription(cls, topic, callback, qos, raw=True)
         self._subs[topic] = sub
