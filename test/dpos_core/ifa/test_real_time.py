@@ -161,3 +161,24 @@ def test_imu_gap_longer_than_the_time_update_interval_is_crossed():
     k_before = np.flatnonzero(t <= 150.0)[-1]
     k_after = np.flatnonzero(t >= 154.0)[0]  # the time update at the first sample after the hole
     assert t[k_after] < 154.1 and np.hypot(*s9[k_after, :2]) > np.hypot(*s9[k_before, :2])
+
+
+def test_time_offset_is_estimated_where_observable():
+    """A receiver stamping 50 ms late, unknown to the filter: the estimate over candidates 50 ms apart
+    is within 2.5 sigma of it with a sigma under 10 ms (the aircraft flies 80 m/s); a span of 2 ms,
+    where the innovations cannot tell the candidates apart, is reported as not observable."""
+    from dpos_core.ifa.time_offset import estimate_time_offset
+
+    ss, imu, gnss, init = _data()
+    imu, gnss = _cut(imu, 150.0), _upto(gnss, 150.0)
+    late = _shift(gnss, 0.05)
+    cfg = IfaFilterConfig(use_reported_sigma=True)
+    lever = ss.scenario.aircraft.gnss_lever_arm_m
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = estimate_time_offset(imu, late, lever, cfg, init, np.arange(-0.1, 0.2001, 0.05))
+        flat = estimate_time_offset(imu, late, lever, cfg, init, np.array([0.049, 0.050, 0.051]))
+    assert est.observable and est.sigma_s < 0.01
+    assert abs(est.offset_s - 0.05) < 2.5 * est.sigma_s, est.lines()
+    assert 0.5 < est.reduced_chi2 < 2.0  # R from the reported sigmas fits the data
+    assert not flat.observable and np.isnan(flat.sigma_s) and "not observable" in flat.lines()[0]

@@ -60,3 +60,19 @@ def test_errors_name_what_is_wrong(walk_bag: Path, tmp_path: Path, capsys):
     assert "no topic ['/nope']" in capsys.readouterr().err
     assert ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--out", str(tmp_path / "o")]) == 2
     assert "no GNSS fix with a ground speed of 5.0 m/s" in capsys.readouterr().err  # a walk: lower --min-course-speed
+
+
+def test_estimates_the_time_offset_on_request(walk_bag: Path, tmp_path: Path, capsys):
+    """--estimate-time-offset: the candidates' innovation sums, the estimate with its sigma (or
+    "not observable"), in report.md and report.json; a span of fewer than 3 candidates is refused."""
+    out = tmp_path / "o"
+    assert ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--min-course-speed", "0",
+                     "--estimate-time-offset=-100:100:100", "--out", str(out)]) == 0
+    t = json.loads((out / "report.json").read_text())["time_offset"]
+    assert len(t["cost"]) == 3 and t["epochs_used"] > 50 and np.all(np.isfinite(t["cost"]))
+    assert t["cost"][1] < min(t["cost"][0], t["cost"][2])  # the walk's minimum is near zero, not at +-100 ms
+    assert abs(t["offset_s"]) < 0.1 and (t["observable"] == np.isfinite(t["sigma_s"]))
+    assert "GNSS-IMU time offset" in (out / "report.md").read_text()
+    with pytest.raises(SystemExit) as e:
+        ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--estimate-time-offset=0:10:10", "--out", str(out)])
+    assert e.value.code == 2 and "at least 3 candidates" in capsys.readouterr().err

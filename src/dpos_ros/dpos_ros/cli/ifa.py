@@ -57,6 +57,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--live", type=Path, metavar="REC",
                     help="a dpos-record recording of the live graph on this bag (/master/nav, /dpos/datum, /ifa/status, "
                          "/pos_master/status): its navigation against the offline one and the reference, its counters")
+    ap.add_argument("--estimate-time-offset", metavar="MIN:MAX:STEP",
+                    help="estimate the GNSS-IMU time offset [ms] over these candidates (dpos_core.ifa.time_offset: the "
+                         "fixed-noise filter's innovations; says when the data do not make it observable)")
     ap.add_argument("--out", type=Path, required=True)
     return ap
 
@@ -217,6 +220,15 @@ def main(argv: list[str] | None = None) -> int:
         if not b > a:
             ap.error(f"--outage END must be after START, got {args.outage!r}")
         outage = (a, b)
+    offsets = None
+    if args.estimate_time_offset:
+        try:
+            lo, hi, step = (float(v) for v in args.estimate_time_offset.split(":"))
+        except ValueError:
+            ap.error(f"--estimate-time-offset takes MIN:MAX:STEP [ms], got {args.estimate_time_offset!r}")
+        if not (step > 0 and hi >= lo + 2 * step):
+            ap.error(f"--estimate-time-offset needs STEP > 0 and at least 3 candidates, got {args.estimate_time_offset!r}")
+        offsets = np.arange(lo, hi + 0.5 * step, step) * 1e-3
     from dpos_ros.devices.relay import rotation_from_rpy_deg
 
     try:
@@ -250,12 +262,23 @@ def main(argv: list[str] | None = None) -> int:
              f"of data (ratio {res.runtime_s / max(data_s, 1e-9):.4f})",
              f"- reference: {args.reference or 'the bag fixes'}", ""]
     lines += [f"- {x}" for x in rep.lines()]
+    offset_json = None
+    if offsets is not None:
+        from dpos_core.ifa.time_offset import estimate_time_offset
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # each run's skipped fixes are the main run's, reported above
+            est = estimate_time_offset(imu, gnss, lever, cfg, init, offsets)
+        lines += [""] + [f"- {x}" for x in est.lines()]
+        offset_json = {"offset_s": est.offset_s, "sigma_s": est.sigma_s, "observable": est.observable,
+                       "epochs_used": est.epochs_used, "reduced_chi2": est.reduced_chi2,
+                       "offsets_s": est.offsets_s.tolist(), "cost": est.cost.tolist()}
     (args.out / "report.md").write_text("\n".join(lines) + "\n")
     (args.out / "report.json").write_text(json.dumps({
         "aligned_t_s": rep.aligned_t_s, "diverged_epochs": rep.diverged, "restarts": rep.restarts,
         "rejected_fixes": len(res.rejected), "heading_minus_course_deg": rep.heading_minus_course_deg,
         "horizontal_error_m": rep.horizontal_error_m, "inside_3sigma": rep.inside_3sigma, "processing_s": res.runtime_s,
-        "data_s": data_s, "start_t_s": init.t_s, "before_start": res.before_start}, indent=2) + "\n")
+        "data_s": data_s, "start_t_s": init.t_s, "before_start": res.before_start, "time_offset": offset_json}, indent=2) + "\n")
     if args.live is not None:
         try:
             counters, live_lines = live_report(args.live, origin, res, ref, outage)
@@ -320,7 +343,7 @@ def live_report(rec: Path, origin_ns: int, offline: IfaResult, ref: Reference, o
     aligned = last_ifa.get("aligned_t_s")
     aligned_t = start_s + float(aligned) if aligned not in (None, "", "None", "none", "nan") else None
     live = dc_replace(offline, t_s=t, llh=blk.llh, vel_n_mps=blk.vel_n_mps, q_nb=blk.q_nb,
-                      track=[(float(a), b) for a, b in zip(t[::10], P[::10])], status=np.zeros(0, dtype=int),
+                      track=[(float(a), b) for a, b in zip(t, P)], status=np.zeros(0, dtype=int),  # the covariance each message carried
                       aligned_t_s=aligned_t, restarts=int(float(last_ifa.get("restarts", 0) or 0)))
     rep = compare(live, ref, outage)
     disc = [float(v.get("nav_discrepancy_m", "nan")) for _, v in ifa if v.get("nav_discrepancy_m") not in (None, "")]
