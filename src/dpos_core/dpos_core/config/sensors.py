@@ -73,6 +73,14 @@ class ImuErrorModel:
         a = np.hypot(self.accel_noise_ug * UG_MPS2, self.accel_vrw_mps_rth / 60.0 / np.sqrt(dt_s))
         return float(g), float(a)
 
+    def bias_walk_variance(self, T_s: float) -> tuple[float, float]:
+        """Variance of the in-run bias change over an interval ``T_s`` << tau (the first-order
+        Gauss-Markov process as a random walk, ``2 sigma_BI^2 T / tau``): (gyro [rad^2/s^2],
+        accel [m^2/s^4]), the process noise of constant-bias filter states."""
+        g = 2.0 * (self.gyro_bias_instability_deg_h * DEG_PER_H) ** 2 * T_s / self.gyro_bias_tau_s
+        a = 2.0 * (self.accel_bias_instability_ug * UG_MPS2) ** 2 * T_s / self.accel_bias_tau_s
+        return float(g), float(a)
+
     @property
     def has_in_run_bias(self) -> bool:
         return self.gyro_bias_instability_deg_h > 0 or self.accel_bias_instability_ug > 0

@@ -423,10 +423,9 @@ class IfaModel:
         g_sig, a_sig = imu.white_sigma(self.imu_dt_s)
         Q = np.zeros((N_EXT, N_EXT))
         Q[np.ix_(_NAV_ORDER, _NAV_ORDER)] = nav_process_noise(lin.T, self.imu_dt_s, g_sig, a_sig)
-        if imu.gyro_bias_instability_deg_h:
-            Q[EPS, EPS] += np.eye(3) * 2.0 * (imu.gyro_bias_instability_deg_h * DEG_PER_H) ** 2 * lin.T / imu.gyro_bias_tau_s
-        if imu.accel_bias_instability_ug:
-            Q[NAB, NAB] += np.eye(3) * 2.0 * (imu.accel_bias_instability_ug * UG_MPS2) ** 2 * lin.T / imu.accel_bias_tau_s
+        q_g, q_a = imu.bias_walk_variance(lin.T)
+        Q[EPS, EPS] += np.eye(3) * q_g
+        Q[NAB, NAB] += np.eye(3) * q_a
         if (imu.gyro_scale_ppm or imu.gyro_misalignment_mrad):
             r2 = self._rot_abs**2
             v = (imu.gyro_scale_ppm * 1e-6) ** 2 * r2 + (imu.gyro_misalignment_mrad * 1e-3) ** 2 * (r2.sum() - r2)

@@ -25,7 +25,8 @@ nominal (``int f^n dt``, ``int C_est dt``) and its mid-interval rates, with the 
 their start value (they change by < 1e-4 of themselves per second once the first update has
 taken out the large initial misalignment); position by the trapezoid rule; the flexure block is
 discretized exactly (Van Loan).  Process noise: gyro/accelerometer white noise integrated over
-the interval, and the exact flexure noise.
+the interval, the in-run bias instability of the sub-IMU's model as a random walk of the bias
+states (``ImuErrorModel.bias_walk_variance``; zero for the seeds' units), and the exact flexure noise.
 
 Measurement (eq. 16-20, formed from the two attitudes instead of subtracted Euler angles):
 
@@ -276,6 +277,9 @@ class TransferAlignmentModel:
         imu = self.install.imu
         Q = np.zeros((N_STATES, N_STATES))
         Q[NAV, NAV] = nav_process_noise(T, self._imu_dt_s, *imu.white_sigma(self._imu_dt_s))  # PHI, DV, DP
+        q_g, q_a = imu.bias_walk_variance(T)  # the sub-IMU's in-run bias instability (0 for the seeds' units)
+        Q[EPS, EPS] += np.eye(3) * q_g
+        Q[NAB, NAB] += np.eye(3) * q_a
         Qf = self._flex_discrete(T)[1]
         for i in range(3):
             ii = [18 + i, 21 + i]
