@@ -81,14 +81,14 @@ def read_recording(bag: Path, topics: tuple[str, str, str], rotation: np.ndarray
     Samples and fixes that are not finite or not after the previous one are dropped and noted."""
     from dpos_ros.io.bag import read_raw
 
+    notes: list[str] = []
     try:
-        raw = read_raw(bag, topics)
+        raw = read_raw(bag, topics, notes)  # a bag without metadata is recovered (noted)
     except Exception as e:  # rosbags raises its own errors for a missing or unreadable bag
         raise InputError(f"{bag}: cannot read the bag ({type(e).__name__}: {e})") from None
     missing = [t for t in topics if t not in raw]
     if missing:
         raise InputError(f"{bag}: no topic {missing} (has: {sorted(raw)}); name them with --imu-topic / --fix-topic / --vel-topic")
-    notes: list[str] = []
     imus = _deserialize(raw[topics[0]][2], raw[topics[0]][0])
     t = np.array([_stamp_ns(m) for m in imus], dtype=np.int64)
     om = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in imus]) @ rotation.T

@@ -60,16 +60,104 @@ def write_streams(
     return n
 
 
-def read_raw(path: Path, topics: Iterable[str] | None = None) -> dict[str, tuple[str, list[int], list[bytes]]]:
-    """Every message of a bag as ``{topic: (msgtype, log times [ns], raw CDR)}``, in log-time order."""
+#: suffix of the directory a bag without metadata is recovered into (:func:`readable_bag`)
+RECOVERED_SUFFIX = ".recovered"
+
+
+def readable_bag(path: Path) -> tuple[Path, str | None]:
+    """The bag to read for ``path``, and what was done to make it readable (None: nothing).
+
+    A recorder killed before it closed its bag (SIGKILL, power loss, a full disk) leaves a
+    directory with an MCAP file but no ``metadata.yaml``, and an MCAP without its summary; rosbags
+    reads neither. Such a bag is recovered into the new directory ``<path>.recovered``: the MCAP is
+    read record by record (:mod:`mcap`'s stream reader) up to the first incomplete record, and every
+    complete message is written with its channel and log time into a rosbag2 there; the original is
+    not touched. A recovered directory that exists already is reused. Raises :class:`ValueError`
+    naming the path when there is nothing to recover (no .mcap, several, or no complete message).
+    """
+    path = Path(path)
+    if path.is_file() and path.suffix == ".mcap":
+        path = path.parent
+    if not path.is_dir() or (path / "metadata.yaml").is_file():
+        return path, None
+    files = sorted(path.glob("*.mcap"))
+    if len(files) != 1:
+        return path, None  # not ours to guess: the reader says what is missing
+    out = path.with_name(path.name + RECOVERED_SUFFIX)
+    if (out / "metadata.yaml").is_file():
+        return out, f"{path} has no metadata.yaml: reading its recovery {out} (made earlier)"
+    n, topics, stop = _recover_mcap(files[0], out)
+    return out, (f"{path} has no metadata.yaml (a recording that was not closed): recovered {n} messages on {topics} topics "
+                 f"from {files[0].name} into {out}; {stop}")
+
+
+def _recover_mcap(src: Path, out: Path) -> tuple[int, int, str]:
+    """Copy the complete messages of the MCAP ``src`` into a new rosbag2 ``out`` (:func:`readable_bag`):
+    (messages, topics, where the reading stopped)."""
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from rosbags.typesys import get_types_from_msg
+
+    ts = typestore()
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    msgs: list[tuple[int, int, bytes]] = []
+    stop = "read to the end"
+    size = src.stat().st_size
+    with src.open("rb") as f:
+        try:
+            for rec in StreamReader(f, validate_crcs=False).records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                elif isinstance(rec, Message) and rec.channel_id in channels:
+                    msgs.append((rec.channel_id, rec.log_time, bytes(rec.data)))
+        except Exception as e:  # noqa: BLE001 - the truncated tail: EndOfFile, a short chunk, a zstd frame cut off
+            stop = (f"the file ends in an incomplete record at or before byte {f.tell()} of {size} ({type(e).__name__}: {e}); "
+                    "what was not in a complete chunk is lost")
+    if not msgs:
+        raise ValueError(f"{src}: no metadata.yaml and no complete message in the MCAP ({stop})")
+    for ch in channels.values():
+        sc = schemas.get(ch.schema_id)
+        if sc is not None and sc.name not in ts.fielddefs and sc.encoding == "ros2msg":
+            ts.register(get_types_from_msg(sc.data.decode(), sc.name))
+    w = Writer(out, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
+    w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    w.set_custom_data("dpos.recovered_from", str(src))
+    w.open()
+    try:
+        conns = {cid: w.add_connection(ch.topic, schemas[ch.schema_id].name, typestore=ts)
+                 for cid, ch in channels.items() if ch.schema_id in schemas}
+        for cid, t, data in sorted(msgs, key=lambda m: m[1]):
+            if cid in conns:
+                w.write(conns[cid], t, data)
+    finally:
+        w.close()
+    return len(msgs), len({channels[c].topic for c, _, _ in msgs}), stop
+
+
+def read_raw(path: Path, topics: Iterable[str] | None = None, notes: list[str] | None = None) -> dict[str, tuple[str, list[int], list[bytes]]]:
+    """Every message of a bag as ``{topic: (msgtype, log times [ns], raw CDR)}``, in log-time order.
+    A bag without metadata is recovered first (:func:`readable_bag`); what was recovered is appended
+    to ``notes`` (or warned about when it is None)."""
     from rosbags.highlevel import AnyReader
+
+    path, note = readable_bag(Path(path))
+    if note is not None:
+        if notes is None:
+            import warnings
+
+            warnings.warn(note, stacklevel=2)
+        else:
+            notes.append(note)
 
     wanted = None if topics is None else set(topics)
     out: dict[str, tuple[str, list[int], list[bytes]]] = {}
     times: dict[str, list[int]] = defaultdict(list)
     data: dict[str, list[bytes]] = defaultdict(list)
     types: dict[str, str] = {}
-    with AnyReader([Path(path)], default_typestore=typestore()) as r:
+    with AnyReader([path], default_typestore=typestore()) as r:
         conns = [c for c in r.connections if wanted is None or c.topic in wanted]
         for c in conns:
             types[c.topic] = c.msgtype

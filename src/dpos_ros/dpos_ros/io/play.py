@@ -108,16 +108,26 @@ def _data_files(path: Path) -> str:
     return ", ".join(str(path / f) for f in files) or str(path)
 
 
-def open_bag(path: Path) -> Any:
+def open_bag(path: Path, log: Callable[[str], None] | None = None) -> Any:
     """An opened rosbags ``AnyReader`` of the bag directory ``path`` (a bag's .mcap/.db3 file or
-    metadata.yaml stand for its directory); :class:`BagError` naming the path when unreadable."""
+    metadata.yaml stand for its directory); :class:`BagError` naming the path when unreadable. A bag
+    without metadata (a recorder that was killed) is recovered first and ``log`` told so
+    (:func:`dpos_ros.io.bag.readable_bag`)."""
     from rosbags.highlevel import AnyReader
+
+    from dpos_ros.io.bag import readable_bag
 
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag (a rosbag2 directory)")
     if path.is_file() and (path.parent / "metadata.yaml").is_file():
         path = path.parent
+    try:
+        path, note = readable_bag(path)
+    except (ValueError, OSError) as exc:
+        raise BagError(f"cannot read bag {_data_files(path)}: {exc}") from exc
+    if note is not None and log is not None:
+        log(note)
     reader = AnyReader([path], default_typestore=typestore())
     try:
         reader.open()
@@ -174,7 +184,7 @@ class BagPlayer:
         self._logger = node.get_logger()
         self._log = log or self._logger.info
         self._stop = threading.Event()
-        self.reader = open_bag(self.bag)
+        self.reader = open_bag(self.bag, self._logger.warning)
         try:
             self._setup(None if topics is None else list(topics))
         except BaseException:

@@ -106,11 +106,15 @@ def read_session(path: Path) -> RecordedSession:
         return sess
     if not (path / "metadata.yaml").is_file() and not any(path.glob("*.mcap")):
         raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml) nor a dpos spill (no spill.json)")
+    notes: list[str] = []
     try:
-        raw = bag.read_raw(path)
+        raw = bag.read_raw(path, notes=notes)  # a recording without metadata is recovered (noted)
+        meta_path, _ = bag.readable_bag(path)
     except Exception as e:  # rosbags raises its own errors for truncated or broken files
         raise SessionError(f"{path}: cannot read the recording: {e}") from None
-    return session_from_raw(raw, bag.custom_data(path), path)
+    sess = session_from_raw(raw, bag.custom_data(meta_path), path)
+    sess.warnings[:0] = notes
+    return sess
 
 
 def session_from_streams(streams, custom: dict[str, str], name: str = "memory") -> RecordedSession:
