@@ -260,8 +260,12 @@ def test_live_loop_on_jittered_data_equals_the_aligner(pace: str, duration_s: fl
               f"({disc.size} epochs); master ring vs run() {d_ring.max():.2e} m; published /master/nav vs run() {d_pub.max():.2e} m, "
               f"{d_vel.max():.1e} m/s ({d_pub.size} samples besides the epochs)")
         assert d_ring.max() < 1e-6
-        assert disc.size >= n_fix - 3 and disc.max() < 1e-6, disc
-        assert mech.late_samples == 0 and master_last["hold_timeouts"] == "0"
+        # every epoch the ifa_node compared (the statuses are a latest-value topic: a fast reader may miss some)
+        # most epochs: one whose /master/nav message reaches the node outside its caches is not compared
+        # (fast pace: ~10 % measured); every published message is compared with run() below (d_pub)
+        assert ifa.discrepancy_checks >= 0.75 * (n_fix - 1) and ifa.max_discrepancy_m < 1e-6, (ifa.discrepancy_checks, ifa.max_discrepancy_m)
+        assert disc.size >= 1 and disc.max() < 1e-6, disc
+        assert mech.late_samples == 0 and master_last["hold_timeouts"] == "0", (mech.last_late, ifa.predictions)
         assert d_pub.max() < 1e-6 and d_vel.max() < 1e-9, (np.flatnonzero(d_pub > 1e-6), d_pub.max())
         if outage_s is not None:
             _check_outage_covariance(probe, datum, nav, res, origin_ns, outage_s, ifa.predictions)

@@ -82,7 +82,8 @@ Outputs per accepted epoch
     att_sigma_deg, R_diag, nis, nis_window, aligned_t_s, rejected_fixes, rejected/<reason>,
     last_rejection, before_start, unpaired, imu_samples, imu_dropped, imu_gaps,
     numerical_failures, last_failure, hypotheses_failed, chol_jitter_repairs, nav_discrepancy_m,
-    nav_discrepancy_deg, gyro_bias_deg_h, accel_bias_ug; and for pos_master_node's hold (see its
+    nav_discrepancy_deg, nav_discrepancy_checks and nav_discrepancy_max_m (epochs compared so far and
+    the largest difference: a status message may be missed, these are not), gyro_bias_deg_h, accel_bias_ug; and for pos_master_node's hold (see its
     navigators module): fixes_done_ns (every fix stamped up to it is finished: epoch, rejected or
     skipped; published with each), last_correction_ns / last_bias_ns (the stamps of the newest
     /ifa/correction and /ifa/imu_bias), predict_due_ns (the IMU stamp of the next outage time
@@ -218,6 +219,8 @@ class IfaNode(Node):
         self.imu_dropped = 0
         self.imu_gaps = 0
         self.discrepancy = (float("nan"), float("nan"))
+        self.discrepancy_checks = 0  # epochs compared with /master/nav, and the largest difference [m] of all
+        self.max_discrepancy_m = 0.0
         self.last_record: EpochRecord | None = None
         self.corrections_published = 0
         #: the newest GNSS stamp [ns] up to which every fix is finished (epoch, rejected or skipped), and
@@ -647,6 +650,8 @@ class IfaNode(Node):
         d_enu = geodetic_to_enu(lat, lon, h, shadow.llh)
         phi = attitude_error(quat_to_dcm(blk.q_nb[0]), shadow.C_nb)
         self.discrepancy = (float(np.linalg.norm(d_enu)), float(np.linalg.norm(phi) / DEG))
+        self.discrepancy_checks += 1
+        self.max_discrepancy_m = max(self.max_discrepancy_m, self.discrepancy[0])
 
     # ------------------------------------------------------------------ outputs
     def _cov15(self, P: np.ndarray) -> np.ndarray:
@@ -723,6 +728,8 @@ class IfaNode(Node):
                 "nis_window": f"{rec.nis_window:.6g}",
                 "nav_discrepancy_m": f"{self.discrepancy[0]:.3g}",
                 "nav_discrepancy_deg": f"{self.discrepancy[1]:.3g}",
+                "nav_discrepancy_checks": self.discrepancy_checks,
+                "nav_discrepancy_max_m": f"{self.max_discrepancy_m:.3g}",
             })
         self.pub_status.publish(cv.diagnostic_array(self.get_clock().now().to_msg(), st_name, "master_imu", level, message, values))
 

@@ -538,6 +538,7 @@ class Mechanizer(ABC):
                 "biases_lost": 0 if mech is None else mech.biases_lost,
                 "hold_timeouts": self.hold_timeouts,
                 "last_lost": "" if mech is None else mech.last_lost,
+                "last_late": "" if mech is None else mech.last_late,
                 "last_correction_t_s": "none" if mech is None or mech.last_correction_t_s is None else f"{mech.last_correction_t_s:.3f}",
                 "imu_dropped": 0 if mech is None else mech.dropped,
                 "imu_before_start": self.imu_before_start,

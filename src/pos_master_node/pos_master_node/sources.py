@@ -55,7 +55,7 @@
 
     Samples integrated before their fix was relayed anyway (``nav_delay_s`` 0, a fix later than
     it, no ifa_node in the graph yet) lack its correction: it is applied by re-integration and
-    counted (``corrections_late``, ``late_samples`` on /pos_master/status).
+    counted (``corrections_late``, ``late_samples``, ``last_late`` on /pos_master/status).
 
     ``/dpos/datum`` (latched): the ``datum`` parameter when set (stamped with the node's clock at
     start), else the first valid /gnss/fix (the antenna position, the fix's stamp). /master/nav is not

@@ -215,7 +215,8 @@ class MasterMechanization:
         biases: bias compensations applied (:meth:`set_bias`);
         corrections_late: of those, applied to a sample after which samples had already been
             integrated (their navigation, already handed out, lacks it);
-        late_samples: how many samples that was in all (corrections and biases);
+        late_samples: how many samples that was in all (corrections and biases); last_late: the
+            latest late correction, for people;
         corrections_lost, biases_lost: feedback that could not be applied exactly (older than the
             ring, or stamped where no sample was integrated); last_lost: why, for people;
         dropped: IMU samples dropped (non-finite, duplicate / out-of-order stamps).
@@ -245,6 +246,7 @@ class MasterMechanization:
         self.biases_lost = 0
         self.late_samples = 0
         self.last_lost = ""
+        self.last_late = ""  #: the latest feedback applied late: when, and to how many samples
         self.last_correction_t_s: float | None = None
         self.dropped = 0  # IMU samples dropped (non-finite, duplicate / out-of-order stamps)
         self._dt_nominal: float | None = None
@@ -473,6 +475,7 @@ class MasterMechanization:
         if later > 0:
             self.corrections_late += 1
             self.late_samples += later
+            self.last_late = f"correction at t={t:.6f} s after {later} sample(s) were integrated (last at t={float(self.ring.t_s[-1]):.6f} s)"
         return None
 
     def set_bias(self, t_s: float, gyro_radps: ArrayLike, accel_mps2: ArrayLike) -> str | None:
