@@ -93,7 +93,9 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
                 s[k] = vec3(s[k], f"{where}.{k}")
         if "span_m" not in s or "lever_arm_m" not in s:
             raise ConfigError(f"{where}: span_m and lever_arm_m are required")
-        subs.append(build(SubImuConfig, {**s, "imu": imu}, where))
+        sub = build(SubImuConfig, {**s, "imu": imu}, where)
+        _check_side(where, f"sub-IMU {sub.name!r}", sub.span_m, sub.lever_arm_m[1], "its lever_arm_m y (from the master IMU, FLU: y left)")
+        subs.append(sub)
     names = [s.name for s in subs]
     if len(set(names)) != len(names):
         raise ConfigError(f"{label}: duplicate sub-IMU names {names}")
@@ -110,7 +112,15 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         a["lever_arm_m"] = vec3(a.get("lever_arm_m", [0, 0, 0]), f"{where}.lever_arm_m")
         if "span_m" not in a:
             raise ConfigError(f"{where}: span_m is required")
-        ants.append(build(AntennaConfig, a, where))
+        ant = build(AntennaConfig, a, where)
+        if ant.sub_imu is None:
+            _check_side(where, f"antenna {ant.name!r}", ant.span_m, ant.lever_arm_m[1],
+                        "its lever_arm_m y (from the master IMU, FLU: y left)")
+        else:
+            carrier_sub = subs[names.index(ant.sub_imu)]
+            _check_side(where, f"antenna {ant.name!r}", ant.span_m, carrier_sub.lever_arm_m[1],
+                        f"the lever_arm_m y of its sub-IMU {ant.sub_imu!r} (FLU: y left)")
+        ants.append(ant)
     if len({a.name for a in ants}) != len(ants):
         raise ConfigError(f"{label}: duplicate antenna names")
     return AircraftConfig(
@@ -121,6 +131,20 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         antennas=tuple(ants),
         master_imu=imu_model(d["master_imu"], f"{label}: master_imu") if d.get("master_imu") is not None else None,
     )
+
+
+def _side(y: float) -> str:
+    return "the right wing" if y < 0 else "the left wing"
+
+
+def _check_side(where: str, what: str, span_m: float, y_m: float, whose_y: str) -> None:
+    """``span_m`` is signed, + on the right wing (FLU y < 0), - on the left (y > 0): a span whose
+    sign contradicts the side given by the lever arm's y is a ConfigError. Zero on either side
+    (on the fuselage) is accepted."""
+    if span_m == 0.0 or y_m == 0.0 or (span_m > 0.0) == (y_m < 0.0):
+        return
+    raise ConfigError(f"{where}.span_m: {what} has span_m {span_m:g} m, which puts it on {_side(-span_m)} "
+                      f"(span_m is signed, + right wing, - left wing), but {whose_y} is {y_m:g} m: {_side(y_m)}")
 
 
 def scenario_aircraft_ref(scenario: str | Path) -> str:
