@@ -78,6 +78,8 @@ def readable_bag(path: Path) -> tuple[Path, str | None]:
     path = Path(path)
     if path.is_file() and path.suffix == ".mcap":
         path = path.parent
+    if path.name in ("", ".."):  # "." or "..": its recovery <name>.recovered needs a real name
+        path = path.resolve()
     if not path.is_dir() or (path / "metadata.yaml").is_file():
         return path, None
     files = sorted(path.glob("*.mcap"))

@@ -122,18 +122,40 @@ def open_bag(path: Path, log: Callable[[str], None] | None = None) -> Any:
         raise BagError(f"{path}: no such bag (a rosbag2 directory)")
     if path.is_file() and (path.parent / "metadata.yaml").is_file():
         path = path.parent
+    problem = _not_a_bag(path)
+    if problem is not None:
+        raise BagError(problem)
     try:
         path, note = readable_bag(path)
     except (ValueError, OSError) as exc:
         raise BagError(f"cannot read bag {_data_files(path)}: {exc}") from exc
     if note is not None and log is not None:
         log(note)
-    reader = AnyReader([path], default_typestore=typestore())
     try:
+        reader = AnyReader([path], default_typestore=typestore())
         reader.open()
     except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds; all mean "unreadable"
         raise BagError(f"cannot read bag {_data_files(path)}: {_describe(path, exc)}") from exc
     return reader
+
+
+def _not_a_bag(path: Path) -> str | None:
+    """Why ``path`` (which exists) cannot be a rosbag2 at all, or None when it may be one: a file
+    that is not a bag's .mcap/.db3, a directory without metadata.yaml and without any data file."""
+    if path.is_file():
+        if path.suffix in (".mcap", ".db3"):
+            return None
+        return f"{path}: not a rosbag2 (a bag is a directory with metadata.yaml and .mcap or .db3 files)"
+    if not path.is_dir():
+        return f"{path}: not a rosbag2 (neither a directory nor a file)"
+    try:
+        names = [p.name for p in path.iterdir()]
+    except OSError as exc:
+        return f"{path}: cannot list the directory: {exc.strerror or exc}"
+    if "metadata.yaml" in names or any(n.endswith((".mcap", ".db3")) for n in names):
+        return None
+    what = "it is empty" if not names else "no metadata.yaml and no .mcap or .db3 file in it"
+    return f"{path}: not a rosbag2 directory ({what})"
 
 
 class BagPlayer:
