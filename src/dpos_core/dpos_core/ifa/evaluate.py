@@ -75,7 +75,9 @@ class RunResult:
     data_s: float
 
     def convergence_t_s(self, tol_deg: float = CONVERGED_DEG) -> float | None:
-        """First epoch from which |heading error| stays below ``tol_deg`` (None if never)."""
+        """First epoch from which |heading error| stays below ``tol_deg`` (None if never, or no epoch)."""
+        if self.epochs_s.size == 0:
+            return None
         bad = np.nonzero(np.abs(self.err_deg[:, 0]) >= tol_deg)[0]
         if bad.size == 0:
             return float(self.epochs_s[0])

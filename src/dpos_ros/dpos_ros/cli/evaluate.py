@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -28,6 +29,10 @@ from dpos_core.ta.pipeline import METHODS, ORACLE
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products.ta import evaluate, metrics_json, report_md, solve
+
+
+#: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
+TA_FILTER_RATE_HZ = 1.0
 
 
 def methods_of(text: str | None, *, ifa: bool) -> list[str]:
@@ -68,14 +73,33 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+def check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The numeric options, before anything runs: ``ap.error`` (exit 2, usage) names the first bad one."""
+    if args.runs < 1:
+        ap.error(f"--runs must be >= 1, got {args.runs}")
+    if args.particles < 1:
+        ap.error(f"--particles must be >= 1, got {args.particles}")
+    if args.seed < 0:
+        ap.error(f"--seed must be >= 0, got {args.seed}")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        ap.error(f"--duration must be > 0 seconds, got {args.duration:g}")
+    for name in ("initial_attitude_error", "initial_heading_error"):
+        v = getattr(args, name)
+        if v is not None and not math.isfinite(v):
+            ap.error(f"--{name.replace('_', '-')} must be a finite number of degrees, got {v:g}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     args = ap.parse_args(argv)
+    check_numbers(ap, args)
     try:
         scenario = load_scenario(args.scenario, aircraft=args.aircraft)
     except ConfigError as e:
         print(f"dpos-eval: {e}", file=sys.stderr)
         return 2
+    if args.duration is not None and args.duration > scenario.duration_s:
+        ap.error(f"--duration {args.duration:g} s exceeds the scenario {scenario.name}'s {scenario.duration_s:g} s")
     try:
         methods = methods_of(args.methods, ifa=is_ifa_scenario(scenario))
     except ValueError as e:
@@ -84,8 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         from dpos_ros.products.ifa import main_ifa
 
         return main_ifa(ap, args, scenario, methods)
-    if args.runs < 1:
-        ap.error("--runs must be >= 1")
+    if args.duration is not None and args.duration < 1.0 / TA_FILTER_RATE_HZ:
+        ap.error(f"--duration must be >= {1.0 / TA_FILTER_RATE_HZ:g} s for transfer alignment "
+                 f"(one epoch of the {TA_FILTER_RATE_HZ:g} Hz filter), got {args.duration:g}")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
     ac_text = config_text("aircraft", args.aircraft) if args.aircraft else None
     per_method: dict[str, list[dict]] = {m: [] for m in methods}
@@ -99,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE in methods else None
         for m in methods:
             t0 = time.perf_counter()
-            ants, tm = solve(sess, scenario.aircraft, m, args.particles, seed, err0, oracle_truth=truth if m == ORACLE else None)
+            ants, tm = solve(sess, scenario.aircraft, m, args.particles, seed, err0, oracle_truth=truth if m == ORACLE else None,
+                              filter_rate_hz=TA_FILTER_RATE_HZ)
             ev = evaluate(sess, ants)
             per_method[m].append(ev)
             timing[m]["processing_s"] += tm["processing_s"]
