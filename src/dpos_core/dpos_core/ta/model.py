@@ -28,6 +28,18 @@ discretized exactly (Van Loan).  Process noise: gyro/accelerometer white noise i
 the interval, the in-run bias instability of the sub-IMU's model as a random walk of the bias
 states (``ImuErrorModel.bias_walk_variance``; zero for the seeds' units), and the exact flexure noise.
 
+Short sub-IMU gaps (a step longer than ``GAP_FACTOR`` nominal steps, up to ``TAConfig.max_imu_gap_s``;
+longer gaps split the session, :func:`.pipeline.run_segments`): the strapdown holds the sample after
+the gap across it, so the interval holding the gap gets the noise of what the IMU did not measure
+(:meth:`TransferAlignmentModel._gap_noise`): per gap of length ``g``, with ``dw`` and ``df`` the
+changes of the angular rate and specific force across it, an attitude 1-sigma ``|dw| g`` (twice the
+hold's error ``|dw| g / 2`` when the rate changes linearly across the gap; the margin covers the
+curvature of aircraft and wing motions whose time constants are seconds), a velocity 1-sigma
+``|df| g`` plus what that attitude error does to the velocity over the rest of the interval
+(``|f| sigma_phi tau``), the position error that velocity error builds (fully correlated), and the
+white noise of one sample held for ``g`` instead of averaged over ``g / dt`` samples.  Those
+intervals are listed in ``bridged_intervals`` (flag :data:`.flags.BRIDGED_GAP`).
+
 Measurement (eq. 16-20, formed from the two attitudes instead of subtracted Euler angles):
 
     z_att = log( C_m C_0 C_est^T )  = log( expm(-[A theta]) expm(-[A rho]) expm([phi]) ) + v
@@ -58,7 +70,7 @@ from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
 from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors
-from ..series import ImuSeries, NavSeries
+from ..series import GAP_FACTOR, ImuSeries, NavSeries
 from ..strapdown import NavState, Strapdown
 
 N_STATES = 24
@@ -106,10 +118,39 @@ class TAConfig:
     vel_noise_floor_mps: float = 1e-4
     use_position: bool = True  #: match the lever-arm-compensated master position too
     pos_noise_floor_m: float = 0.01  #: floor of the master position noise (lever-arm survey, antenna phase)
+    #: a sub-IMU step longer than this [s] (and than ``MIN_GAP_STEPS`` nominal steps) splits the data:
+    #: each part is aligned anew from the main POS (:func:`.pipeline.run_segments`); shorter gaps are
+    #: integrated across with their process noise (module docstring).  0.05 s = 5 steps at 100 Hz:
+    #: the hold across a gap errs by ``alpha g^2 / 2`` for an angular acceleration ``alpha``, below the
+    #: main POS's attitude noise (0.005 deg) up to alpha = 4 deg/s^2 at 0.05 s; the linear-rate model of
+    #: the bridging noise holds over 0.05 s for motions with time constants of seconds (turn entries,
+    #: wing flexure); a longer gap leaves the strapdown to guess the motion
+    max_imu_gap_s: float = 0.05
+    #: rows within this time [s] after a restart (a gap above) carry :data:`.flags.RESTARTED_AFTER_GAP`
+    restart_flag_s: float = 10.0
 
     def __post_init__(self) -> None:
         if not self.filter_rate_hz > 0:
             raise ValueError(f"filter_rate_hz must be > 0, got {self.filter_rate_hz}")
+        if not self.max_imu_gap_s > 0:
+            raise ValueError(f"max_imu_gap_s must be > 0, got {self.max_imu_gap_s}")
+        if not self.restart_flag_s >= 0:
+            raise ValueError(f"restart_flag_s must be >= 0, got {self.restart_flag_s}")
+
+
+#: a gap is never shorter than this many nominal sub-IMU steps (a slow IMU's regular step is no gap)
+MIN_GAP_STEPS = 3.0
+
+
+def nominal_dt_s(t_s: FloatArray) -> float:
+    """The nominal step [s] of stamps ``t_s`` (N,), N >= 2: the median step."""
+    return float(np.median(np.diff(t_s)))
+
+
+def gap_limit_s(t_s: FloatArray, cfg: TAConfig) -> float:
+    """The longest sub-IMU step [s] of stamps ``t_s`` (N,) that is integrated across rather than
+    splitting the data: ``max(cfg.max_imu_gap_s, MIN_GAP_STEPS x nominal step)``."""
+    return max(cfg.max_imu_gap_s, MIN_GAP_STEPS * nominal_dt_s(t_s)) if t_s.size >= 2 else cfg.max_imu_gap_s
 
 
 @dataclass
@@ -180,7 +221,10 @@ class TransferAlignmentModel:
         self._flex = self.install.flexure
         self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
         self._q_cache: dict[float, FloatArray] = {}
-        self._imu_dt_s = float(np.median(np.diff(t_imu)))
+        self._imu_dt_s = nominal_dt_s(t_imu)
+        self._gap_q: dict[int, FloatArray] = {}  # interval -> extra (9, 9) noise of its bridged gaps
+        #: the intervals k (epoch k to k + 1) that contained a short gap integrated across
+        self.bridged_intervals: list[int] = []
         self._build_epoch(0)
 
     # ------------------------------------------------------------------ nominal / epochs
@@ -242,6 +286,11 @@ class TransferAlignmentModel:
         if interval is None:  # the epochs are distinct sub-IMU sample times: some time always passes
             raise RuntimeError(f"no time passed between epochs {k} and {k + 1} (t = {self.epochs_s[k]:.6f} s)")
         self._intervals.append(interval)
+        gaps = np.nonzero(dt[:, 0] > GAP_FACTOR * self._imu_dt_s)[0]
+        if gaps.size:
+            self._gap_q[k] = sum((self._gap_noise(i0 + j, float(dt[j, 0]), float(self.epochs_s[k + 1] - t[j])) for j in gaps),
+                                 np.zeros((9, 9)))
+            self.bridged_intervals.append(k)
         self._nominal_at.append(self.strapdown.state)
         self._build_epoch(k + 1)
 
@@ -270,7 +319,31 @@ class TransferAlignmentModel:
         key = round(T, 9)
         if key not in self._q_cache:
             self._q_cache[key] = self._process_noise(T)
-        return self._q_cache[key]
+        extra = self._gap_q.get(k)
+        if extra is None:
+            return self._q_cache[key]
+        Q = self._q_cache[key].copy()
+        Q[NAV, NAV] += extra
+        return Q
+
+    def _gap_noise(self, i: int, g: float, tau: float) -> FloatArray:
+        """Extra process noise (9, 9) of ``(phi, dv, dp)`` for the sub-IMU gap of ``g`` [s] ending at
+        sample ``i``, held across by that sample, ``tau`` [s] before the interval's end (module docstring)."""
+        imu = self.imu
+        j = i - 1 if i > 0 else min(i + 1, imu.t_s.size - 1)  # the sample on the other side of the gap
+        dw = float(np.linalg.norm(imu.omega_radps[i] - imu.omega_radps[j]))
+        df = float(np.linalg.norm(imu.f_mps2[i] - imu.f_mps2[j]))
+        sg, sa = self.install.imu.white_sigma(self._imu_dt_s)
+        held = max(g * g - self._imu_dt_s * g, 0.0)  # one sample's noise held for g, not averaged over g / dt
+        var_phi = (dw * g) ** 2 + sg**2 * held
+        var_v = (df * g) ** 2 + sa**2 * held + (float(np.linalg.norm(imu.f_mps2[i])) * np.sqrt(var_phi) * tau) ** 2
+        lever = tau + 0.5 * g  # the velocity error integrates into position over the rest of the interval
+        Q = np.zeros((9, 9))
+        Q[PHI, PHI] = np.eye(3) * var_phi
+        Q[DV, DV] = np.eye(3) * var_v
+        Q[DP, DP] = np.eye(3) * var_v * lever**2
+        Q[DV, DP] = Q[DP, DV] = np.eye(3) * var_v * lever
+        return Q
 
     def _process_noise(self, T: float) -> FloatArray:
         """Process noise (24, 24) of an interval of length T (module docstring)."""

@@ -10,25 +10,43 @@ Output at the IMU rate: the error estimates at the filter epochs are applied to 
 nominal trajectory, linearly interpolated between epochs.  Within the interval after epoch k
 the nominal was integrated from the state corrected at k, so its start error is the estimate at
 k and its end error is the estimate at k + 1 before that epoch's correction.
+
+Sub-IMU gaps (:func:`run_segments`; issue #14): a step longer than
+:func:`.model.gap_limit_s` (``TAConfig.max_imu_gap_s``, 0.05 s by default) splits the data into
+segments, each aligned on its own from the main POS at its first sample (master interpolated
+there, the configured prior): the strapdown cannot know how the wing moved while it was not
+measured, and after a long gap a bridged solution was off by metres and degrees with a sigma of
+milli-degrees.  No row is output inside a gap; the spans without rows are returned
+(``TAResult.not_estimated``), the rows of the first ``TAConfig.restart_flag_s`` of a restarted
+segment flagged (:data:`.flags.RESTARTED_AFTER_GAP`).  A restart takes the configured prior of
+every state, the constant ones (rho, biases) included: carrying them over would be tighter but
+would rest on the mount not having moved while nothing was measured.  Shorter gaps are integrated
+across with their process noise (:mod:`.model`, flag :data:`.flags.BRIDGED_GAP`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import compose_rotvec, dcm_to_quat, quat_to_dcm, rotvec_to_dcm
+from ..attitude import compose_rotvec, dcm_to_quat, dcm_to_rotvec, quat_to_dcm, rotvec_to_dcm
+from ..errors import RejectedInput
 from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
 from ..filters.runners import rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
-from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel
+from . import flags as F
+from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, gap_limit_s, nominal_dt_s
+
+#: master epochs further apart than this [s] are a gap of the main-system navigation (no
+#: measurement in between, as TransferAlignmentModel._master_at)
+MASTER_GAP_S = 0.5
 
 METHODS = ("ukf", "urtss", "upf", "ups")
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
@@ -41,7 +59,11 @@ class TAResult:
     t_s (N,), llh (N, 3), vel_n_mps (N, 3), q_nb (N, 4); sigma (N, 9): 1-sigma of
     [phi (3, rad), dv (3, m/s), dp (3, m, ENU)]; epochs_s (K,), x (K, 24), P (K, 24, 24): the
     state estimates at the epochs (after their correction); method; particles; ess (K,) for PF;
-    chol_jitter_repairs: Cholesky factors that needed a diagonal jitter (dpos_core.filters.linalg).
+    chol_jitter_repairs: Cholesky factors that needed a diagonal jitter (dpos_core.filters.linalg);
+    flags (N,): the rows' quality bits (:mod:`.flags`); not_estimated: the spans ``(t_from_s,
+    t_to_s, reason)`` between output rows that :func:`run_segments` left without rows (sub-IMU
+    gaps, data too short to align); the rows at ``t_from_s`` and ``t_to_s`` themselves exist when
+    data do on that side.
     """
 
     method: str
@@ -55,25 +77,147 @@ class TAResult:
     P: FloatArray
     ess: FloatArray | None = None
     chol_jitter_repairs: int = 0
+    flags: F.FlagArray = field(default_factory=lambda: F.none(0))
+    not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
 
     @property
     def C_nb(self) -> FloatArray:
         return quat_to_dcm(self.q_nb)
 
 
-def initial_from_master(master: NavSeries, install: Installation, attitude_error_hpr_deg=(0.0, 0.0, 0.0)) -> NavState:
-    """Sub-IMU start state at the first master epoch: master position + lever arm, master velocity
-    + lever-arm velocity, master attitude x nominal mount, optionally rotated by an initial
-    attitude error (aviation heading/pitch/roll offsets, as in [Gong2018]'s 40 deg test)."""
-    C_m = master.C_nb[0]
+def initial_from_master(master: NavSeries, install: Installation, attitude_error_hpr_deg=(0.0, 0.0, 0.0),
+                        t_s: float | None = None) -> NavState:
+    """Sub-IMU start state at the first master epoch (or at ``t_s``, the master interpolated there:
+    :func:`master_at`): master position + lever arm, master velocity + lever-arm velocity, master
+    attitude x nominal mount, optionally rotated by an initial attitude error (aviation
+    heading/pitch/roll offsets, as in [Gong2018]'s 40 deg test).  ValueError when ``t_s`` is outside
+    the master data or inside a gap of it."""
+    (w,) = master.required("omega_eb_b_radps")
+    if t_s is None:
+        t, llh_m, v_m, C_m, w_m = float(master.t_s[0]), master.llh[0], master.vel_n_mps[0], master.C_nb[0], w[0]
+    else:
+        at = master_at(master, t_s)
+        if at is None:
+            raise ValueError(f"no main-system navigation at t = {t_s:.3f} s (outside the data or in a gap)")
+        t, (llh_m, v_m, C_m, w_m) = float(t_s), at
     r = install.lever_arm_m
     C_s = C_m @ install.C_b_s0
     if np.any(np.asarray(attitude_error_hpr_deg) != 0.0):
         hpr = hpr_from_C_nb(C_s) + np.asarray(attitude_error_hpr_deg, dtype=float) * DEG
         C_s = C_nb_from_hpr(*hpr)
-    (w_m,) = master.required("omega_eb_b_radps")
-    v = master.vel_n_mps[0] + C_m @ np.cross(w_m[0], r)
-    return NavState(master.t_s[0], dcm_to_quat(C_s), v, earth.offset_llh(master.llh[0], C_m @ r))
+    v = v_m + C_m @ np.cross(w_m, r)
+    return NavState(t, dcm_to_quat(C_s), v, earth.offset_llh(llh_m, C_m @ r))
+
+
+def master_at(master: NavSeries, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """The master's llh (3,), velocity (3,), C_nb (3, 3) and body rate (3,) at ``t_s``: an epoch's
+    own values, or interpolated between the two around it (attitude along the geodesic); None
+    outside the data or between epochs more than ``MASTER_GAP_S`` apart."""
+    (w,) = master.required("omega_eb_b_radps")
+    m = master
+    j = int(np.searchsorted(m.t_s, t_s))
+    if j < m.t_s.size and abs(m.t_s[j] - t_s) < 1e-6:
+        return m.llh[j], m.vel_n_mps[j], m.C_nb[j], w[j]
+    if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > MASTER_GAP_S:
+        return None
+    a = (t_s - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
+    C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
+    return ((1 - a) * m.llh[j - 1] + a * m.llh[j], (1 - a) * m.vel_n_mps[j - 1] + a * m.vel_n_mps[j], C,
+            (1 - a) * w[j - 1] + a * w[j])
+
+
+def split_at_gaps(t_s: FloatArray, limit_s: float) -> list[slice]:
+    """The runs of stamps ``t_s`` (N,) without a step longer than ``limit_s`` [s], as slices (in order)."""
+    cuts = np.nonzero(np.diff(t_s) > limit_s)[0] + 1
+    edges = np.concatenate([[0], cuts, [t_s.size]]).astype(int)
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+
+
+def run_segments(
+    imu: ImuSeries,
+    master: NavSeries,
+    install: Installation,
+    cfg: TAConfig = TAConfig(),
+    method: str = "ups",
+    particles: int = 100,
+    seed: int = 0,
+    attitude_error_hpr_deg=(0.0, 0.0, 0.0),
+    points: UnscentedPoints = UnscentedPoints(alpha=0.1),
+    oracle_truth=None,
+    upf_engine=None,
+) -> TAResult:
+    """Align one sub-IMU whose stream may have gaps (module docstring): split it at steps longer
+    than :func:`.model.gap_limit_s`, align every segment from the main POS at its start (the
+    start of its first sample's interval - a sample is the mean over the nominal step before its
+    stamp - with the master interpolated there, or the first master epoch for data that start
+    before it; ``attitude_error_hpr_deg`` as :func:`initial_from_master`, on every
+    segment), and concatenate the results (rows, epochs, states, covariances, flags; the jitter
+    repairs summed).  Data without such a gap give :func:`run`'s result.
+
+    A segment shorter than one filter interval (after the master starts and before it ends), or
+    starting inside a master gap with no master epoch after it, is not estimated: it adds to
+    ``TAResult.not_estimated`` instead of raising.  RejectedInput when no segment can be aligned
+    (or as :func:`run` for NaN samples, stamps out of order); NumericalFailure as :func:`run`."""
+    t = imu.t_s
+    if t.ndim != 1:
+        raise ValueError(f"sub-IMU stamps must have shape (N,), got {t.shape}")
+    if t.size < 2:
+        raise RejectedInput(f"{t.size} sub-IMU sample(s): at least 2 are needed", what="sub-IMU samples", reason="too_short")
+    if np.any(np.diff(t) <= 0):
+        raise RejectedInput("sub-IMU stamps must be strictly increasing", what="sub-IMU samples", reason="out_of_order")
+    step = 1.0 / cfg.filter_rate_hz
+    parts: list[TAResult] = []
+    spans: list[tuple[float, float, str]] = []
+    pending: list[str] = []  # why there are no rows since the last output row
+    last_row: float | None = None
+    t_master_end = float(master.t_s[-1])
+    dt = nominal_dt_s(t)
+    for i, seg in enumerate(split_at_gaps(t, gap_limit_s(t, cfg))):
+        if i > 0:
+            pending.append(f"sub-IMU gap of {t[seg.start] - t[seg.start - 1]:.3f} s")
+        start, why = _segment_start(master, float(t[seg.start]) - dt, float(t[seg.stop - 1]))
+        end = min(float(t[seg.stop - 1]), t_master_end)
+        if why is None and end - start < step - 1e-9:
+            why = f"{max(end - start, 0.0):.3f} s of sub-IMU data, too short to align (one filter interval is {step:g} s)"
+        if why is not None:
+            pending.append(why)
+            continue
+        init = initial_from_master(master, install, attitude_error_hpr_deg, None if start == float(master.t_s[0]) else start)
+        r = run(imu.select(seg), master, install, cfg, method, particles, seed, init, points, oracle_truth, upf_engine)
+        if i > 0:
+            r.flags[r.t_s <= start + cfg.restart_flag_s] |= F.RESTARTED_AFTER_GAP
+        if pending:
+            spans.append((float(t[0]) if last_row is None else last_row, float(r.t_s[0]), "; ".join(pending)))
+            pending = []
+        last_row = float(r.t_s[-1])
+        parts.append(r)
+    if not parts:
+        raise RejectedInput(f"no sub-IMU segment can be aligned: {'; '.join(pending)}", what="sub-IMU samples", reason="too_short")
+    if pending:
+        assert last_row is not None
+        spans.append((last_row, float(t[-1]), "; ".join(pending)))
+    if len(parts) == 1:
+        parts[0].not_estimated = spans
+        return parts[0]
+    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    ess = None if any(p.ess is None for p in parts) else cat("ess")
+    return TAResult(method, cat("t_s"), cat("llh"), cat("vel_n_mps"), cat("q_nb"), cat("sigma"), cat("epochs_s"), cat("x"), cat("P"),
+                    ess, sum(p.chol_jitter_repairs for p in parts), cat("flags"), spans)
+
+
+def _segment_start(master: NavSeries, t_first: float, t_last: float) -> tuple[float, str | None]:
+    """Where a segment of sub-IMU data covering ``t_first`` to ``t_last`` [s] starts its alignment: the
+    first master epoch if the data start before it, else ``t_first`` if the master can be
+    interpolated there, else the next master epoch; and why it cannot start, or None."""
+    m0 = float(master.t_s[0])
+    if t_first <= m0 + 1e-6:  # (master_at's tolerance for an epoch's own time)
+        return m0, None
+    if master_at(master, t_first) is not None:
+        return t_first, None
+    j = int(np.searchsorted(master.t_s, t_first))
+    if j >= master.t_s.size or master.t_s[j] >= t_last:
+        return t_first, "no main-system navigation over the sub-IMU data"
+    return float(master.t_s[j]), None
 
 
 def run(
@@ -104,6 +248,17 @@ def run(
     return res
 
 
+def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
+    """:data:`.flags.BRIDGED_GAP` on the output rows (those of :func:`_apply`) of the intervals
+    that contained a short gap."""
+    sizes = [ch.t_s.size for ch in model.nominal_chunks()]
+    out = F.none(int(sum(sizes)))
+    ends = np.cumsum(sizes)
+    for k in model.bridged_intervals:
+        out[ends[k] - sizes[k]:ends[k]] |= F.BRIDGED_GAP
+    return out
+
+
 def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig, method: str, particles: int, seed: int,
          initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine) -> TAResult:
     if method not in METHODS + (ORACLE,):
@@ -121,7 +276,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         lin = LinearizedAboutTruth(model, *oracle_truth)
         tr = run_sigma_point_filter(lin, x0, P0, points)
         x, P = lin.to_model(*smooth_gaussian(tr))
-        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None)
+        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model))
     if method in ("ukf", "urtss"):
         tr = run_sigma_point_filter(model, x0, P0, points)
         corr = tr.corrections
@@ -138,7 +293,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         else:
             x, P = ptr.mixture.x_f, ptr.mixture.P_f
     out = _apply(model, x, P, corr)
-    return TAResult(method, *out, model.epochs_s, x, P, ess)
+    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model))
 
 
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
