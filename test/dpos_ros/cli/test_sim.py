@@ -107,3 +107,22 @@ def test_dpos_sim_rejects_bad_arguments(tmp_path: Path) -> None:
     (tmp_path / "c").mkdir()
     r = subprocess.run([exe, "--scenario", "paper_su", "--out", str(tmp_path / "c")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "exists" in r.stderr
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--datum", "95", "200", "0"], "--datum: latitude must be in [-90, 90] deg, got 95"),
+    (["--datum", "-91", "0", "0"], "--datum: latitude must be in [-90, 90] deg"),
+    (["--datum", "40", "200", "0"], "--datum: longitude must be in [-180, 180] deg, got 200"),
+    (["--datum", "40", "116", "nan"], "--datum: height must be a finite number of metres"),
+    (["--datum", "40", "116", "inf"], "--datum: height must be a finite number of metres"),
+    (["--duration", "0"], "--duration must be > 0"),
+    (["--duration", "-5"], "--duration must be > 0"),
+    (["--duration", "nan"], "--duration must be > 0"),
+])
+def test_dpos_sim_rejects_bad_datum_and_duration(tmp_path: Path, args: list[str], needle: str) -> None:
+    """Issue #14: an impossible datum or duration is a usage error before anything is simulated."""
+    exe = str(Path(sys.executable).parent / "dpos-sim")
+    out = tmp_path / "bag"
+    r = subprocess.run([exe, "--scenario", "paper_su", *args, "--out", str(out)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not out.exists()

@@ -162,6 +162,10 @@ def test_datum_parameter_empty_means_session_datum():
         ([40.0, 116.0], "expected [] (the session's own datum) or [lat_deg, lon_deg, h_m]"),
         ([91.0, 116.0, 0.0], "latitude must be in [-90, 90] deg"),
         ([40.0, -181.0, 0.0], "longitude must be in [-180, 180] deg"),
+        ([95.0, 200.0, 0.0], "latitude must be in [-90, 90] deg, got 95"),
+        ([float("nan"), 116.0, 0.0], "must be finite"),
+        ([40.0, 116.0, float("inf")], "must be finite"),
+        ([40.0, 116.0, float("nan")], "must be finite"),
     ],
 )
 def test_datum_parameter_is_validated(datum, message):

@@ -22,6 +22,8 @@ from dpos_core.sim.session import SimulatedSession
 from dpos_ros.cli.progress import Progress
 from dpos_ros.devices.sim_streams import session_custom_data, session_id, session_streams
 from dpos_ros.io.bag import write_streams
+from dpos_ros.io.outdir import OutputError, OutputTarget
+from dpos_ros.runtime.params import datum_problem
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,8 +41,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--seed must be >= 0")
     if args.duration is not None and not args.duration > 0:
         ap.error("--duration must be > 0")
+    if args.datum is not None and (problem := datum_problem(*args.datum)) is not None:
+        ap.error(f"--datum: {problem}")
     if args.out.exists():
         ap.error(f"--out {args.out} exists; rosbag2 writes a new directory")
+    try:
+        target = OutputTarget(args.out)
+    except OutputError as e:
+        print(f"dpos-sim: error: --out {e}", file=sys.stderr)
+        return 2
     try:
         scenario = load_scenario(args.scenario, aircraft=args.aircraft)
         session = SimulatedSession(scenario, args.seed, args.duration)
@@ -54,7 +63,13 @@ def main(argv: list[str] | None = None) -> int:
     streams = session_streams(session, truth=not args.no_truth, datum_llh=datum)
     t_gen = time.perf_counter() - t0
     ac_text = config_text("aircraft", args.aircraft if args.aircraft else _scenario_aircraft(args.scenario))
-    n = write_streams(args.out, streams, progress=Progress("writing"), custom_data=session_custom_data(session, ac_text))
+    try:
+        n = write_streams(args.out, streams, progress=Progress("writing"), custom_data=session_custom_data(session, ac_text))
+    except OSError as e:  # ENOSPC, EACCES, EROFS, EIO: no bag without its metadata is left behind
+        if sys.stderr.isatty():
+            print(file=sys.stderr)  # end the progress bar's line
+        print(f"dpos-sim: error: {target.fault(e)}", file=sys.stderr)
+        return 2
     elapsed = time.perf_counter() - t0
     size = sum(f.stat().st_size for f in args.out.iterdir())
     print(f"session {session_id(session)}: {n} messages on {len(streams)} topics, {size / 1e6:.1f} MB")

@@ -42,6 +42,7 @@ __all__ = [
     "packaged_params_file",
     "read_params_file",
     "datum_param",
+    "datum_problem",
     "datum_llh_rad",
     "aircraft_config_param",
     "DEVICES",
@@ -108,17 +109,25 @@ def param(
     return dataclasses.field(default=default, metadata={_META_KEY: spec})
 
 
+def datum_problem(lat_deg: float, lon_deg: float, h_m: float) -> str | None:
+    """What is wrong with a datum [lat_deg, lon_deg, h_m] (WGS-84), or None: latitude outside
+    [-90, 90], longitude outside [-180, 180] (NaN is outside), a non-finite height. The nodes'
+    ``datum`` parameter and ``dpos-sim --datum`` check the same."""
+    if not -90.0 <= lat_deg <= 90.0:
+        return f"latitude must be in [-90, 90] deg, got {lat_deg:g}"
+    if not -180.0 <= lon_deg <= 180.0:
+        return f"longitude must be in [-180, 180] deg, got {lon_deg:g}"
+    if not math.isfinite(h_m):
+        return f"height must be a finite number of metres, got {h_m:g}"
+    return None
+
+
 def _check_datum(datum: tuple[float, ...]) -> str | None:
     if len(datum) == 0:
         return None
     if len(datum) != 3:
         return "expected [] (the session's own datum) or [lat_deg, lon_deg, h_m]"
-    lat, lon, _ = datum
-    if not -90.0 <= lat <= 90.0:
-        return "latitude must be in [-90, 90] deg"
-    if not -180.0 <= lon <= 180.0:
-        return "longitude must be in [-180, 180] deg"
-    return None
+    return datum_problem(*datum)
 
 
 def datum_param() -> Any:
