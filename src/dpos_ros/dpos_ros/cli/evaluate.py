@@ -30,7 +30,6 @@ from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products.ta import evaluate, metrics_json, report_md, solve
 
-
 #: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
 
