@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +21,10 @@ from numpy.typing import NDArray
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat
 from dpos_core.config import AircraftConfig
+from dpos_core.errors import RejectedInput
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.series import NavSeries
+from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta.antenna import antenna_motion
@@ -37,7 +39,9 @@ from dpos_ros.io.session import RecordedSession
 class AntennaSolution:
     """An antenna's smoothed trajectory (``traj``) with 1-sigma (N, 9): attitude (rad, rotation
     about local ENU), velocity (m/s, ENU), position (m, ENU); or a status saying why there is none.
-    ``chol_jitter_repairs``: Cholesky jitter repairs made by its sub-IMU's smoother (counted, not silent)."""
+    ``chol_jitter_repairs``: Cholesky jitter repairs made by its sub-IMU's smoother (counted, not silent).
+    ``flags`` (N,): each row's quality bits (:mod:`dpos_core.ta.flags`; none set when None).
+    ``not_estimated``: the spans ``(t_from_s, t_to_s, reason)`` without rows (sub-IMU gaps)."""
 
     name: str
     sub_imu: str | None
@@ -45,6 +49,8 @@ class AntennaSolution:
     traj: NavSeries | None = None
     sigma: FloatArray | None = None
     chol_jitter_repairs: int = 0
+    flags: ta_flags.FlagArray | None = None
+    not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
 
 
 def solve(
@@ -63,9 +69,17 @@ def solve(
     """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
     with their antennas) from the first epoch at which the main POS is aligned
     (:func:`aligned_master`); carry the solutions to their antennas.  Returns the antennas and the
-    timing (processing and data seconds)."""
+    timing (processing and data seconds).
+
+    A sub-IMU's stream is aligned by :func:`dpos_core.ta.pipeline.run_segments`: across a gap
+    longer than ``TAConfig.max_imu_gap_s`` it restarts from the main POS and the span has no rows
+    (the status says ``estimated (not estimated over <from>-<to> s: <why>)`` and a warning names
+    the spans); a sub-IMU whose data cannot be aligned at all (empty or all-NaN topic, too short,
+    rejected by the core) gives its antennas ``not estimated: <why>`` and a warning, the other
+    sub-IMUs going on."""
     cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
     results = {}
+    unusable: dict[str, str] = {}  # sub-IMU -> why it is not estimated
     t0 = time.perf_counter()
     master = aligned_master(sess, master_aligned_sigma_deg)
     if only is not None:
@@ -81,9 +95,17 @@ def solve(
         e = initial_attitude_error_deg
         if master is None:
             continue
-        init = pipeline.initial_from_master(master, ins, (e, e, e))
-        results[s.name] = pipeline.run(sess.sub_imus[s.name], master, ins, cfg, method, particles, seed, initial=init,
-                                       oracle_truth=None if oracle_truth is None else oracle_truth[s.name])
+        try:
+            res = pipeline.run_segments(sess.sub_imus[s.name], master, ins, cfg, method, particles, seed, (e, e, e),
+                                        oracle_truth=None if oracle_truth is None else oracle_truth[s.name])
+        except RejectedInput as ex:
+            unusable[s.name] = f"sub-IMU {s.name}: {ex}"
+            sess.warnings.append(f"sub-IMU {s.name}: {ex}; its antennas are not estimated")
+            continue
+        if res.not_estimated:
+            sess.warnings.append(f"sub-IMU {s.name}: no pose over {_spans(res.not_estimated)}; each part after a gap "
+                                 f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
+        results[s.name] = res
     for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
@@ -96,16 +118,22 @@ def solve(
             continue
         r = results.get(a.sub_imu)
         if r is None:
-            why = "the main POS is never aligned" if master is None else f"sub-IMU {a.sub_imu} has no data"
+            why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
             out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
             continue
         imu = sess.sub_imus[a.sub_imu]
         nearest = np.clip(np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
         llh, v = antenna_motion(r.C_nb, r.vel_n_mps, r.llh, imu.omega_radps[nearest], a.lever_arm_m)
         keep = _decimate(r.t_s, output_rate_hz)
-        out[a.name] = AntennaSolution(a.name, a.sub_imu, "estimated", NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
-                                      r.chol_jitter_repairs)
+        status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
+        out[a.name] = AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
+                                      r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated))
     return out, timing
+
+
+def _spans(spans: list[tuple[float, float, str]]) -> str:
+    """``12.0-72.0 s: sub-IMU gap of 60.000 s; ...`` for the spans ``(t_from_s, t_to_s, reason)``."""
+    return "; ".join(f"{a:.1f}-{b:.1f} s: {why}" for a, b, why in spans)
 
 
 def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1):
@@ -187,7 +215,7 @@ def write(
         name = st.topic.split("/")[2]
         a = antennas[name]
         assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
-        _write_csv(out / f"{name}.csv", st.t_ns, a.traj, a.sigma)
+        _write_csv(out / f"{name}.csv", st.t_ns, a.traj, a.sigma, a.flags)
     bag_dir = out / "antennas"
     if streams:
         if bag_dir.exists():
@@ -236,16 +264,20 @@ def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution])
     return streams
 
 
-def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray) -> None:
+def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> None:
+    """The antenna CSV (design.md "Session products"): per row (N) stamp, position, velocity,
+    attitude, their 1-sigma (s (N, 9) as AntennaSolution.sigma) and ``flags`` (N,) (the quality
+    bits of :mod:`dpos_core.ta.flags`; 0 when None)."""
     hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
+    fl = ta_flags.none(tr.t_s.size) if flags is None else flags
     cols = np.column_stack([
         t_ns * 1e-9, np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
-        s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]),
+        s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]), fl,
     ])
     header = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading_deg,pitch_deg,roll_deg,"
               "sigma_north_m,sigma_east_m,sigma_h_m,sigma_vel_e_mps,sigma_vel_n_mps,sigma_vel_u_mps,"
-              "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg")
-    fmt = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.6f"] * 3 + ["%.4e"] * 9
+              "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg,flags")
+    fmt = ["%.9f", "%.10f", "%.10f", "%.4f"] + ["%.5f"] * 3 + ["%.6f"] * 3 + ["%.4e"] * 9 + ["%d"]
     np.savetxt(path, cols, delimiter=",", header=header, comments="", fmt=fmt)
 
 
