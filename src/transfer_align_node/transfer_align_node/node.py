@@ -8,11 +8,35 @@ Buffering
     and ``dpos-process <spill dir>`` gives the same products.  Stamps, gaps and counts per topic
     are reported on ``/transfer_align/status`` (DiagnosticArray, latched, 1 Hz).
 
+Sessions
+    A session is what arrives between two finalizes.  The latched ``/dpos/datum`` is kept and
+    written into every session's spill (a publisher that latched it once serves every session);
+    without one the ``datum`` parameter is used.  After a session is closed, a message that
+    continues its topic's stream of that session (stamp after the topic's last one there, at or
+    before the session's end) is late: it goes into ``<spill>/late/`` (counted in the status as
+    ``<topic>/late_after_finalize`` and in the session's ``status.json``; ``dpos-process
+    <spill>`` uses it, the node's own products do not).  Every other message - a stamp after the
+    end, or a topic that starts again (a replay, a restarted device) - belongs to the next
+    session, and once a topic started again all its messages do.
+
+Bad messages
+    Messages with stamp 0 or with other frame names than the topic's first message are counted
+    (status ``<topic>/rejected``, level WARN) and kept out of the stream statistics; they are
+    spilled as they came, and the session reader (:func:`dpos_ros.io.session.read_session`)
+    rejects them, with the relays' other checks, naming each kind.
+
+Disk faults
+    ``output_dir`` must be writable at start (else exit 2 naming it).  When the disk refuses a
+    write (full, read-only, I/O error) the messages are held in memory in arrival order, up to
+    ``disk_full_buffer_mb``, and written out as soon as the disk takes them again (tried every
+    second); the status is ERROR meanwhile, naming the error, what is held and what was lost past
+    the bound.  Finalizing waits until everything held is on disk.  Products that cannot be
+    written are reported at ERROR with the command that makes them from the spill.
+
 Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     Waits, at most ``finalize_timeout_s``, until every stream has reached the end stamp (the
     truth streams too, unless they stopped arriving for ``STALL_S``) and reports what is
-    missing; a message stamped at or before the end that still arrives after the spill closed is
-    counted (status ``<topic>/late_after_finalize``) and does not open a new session; then runs
+    missing; then runs
     the smoother for each sub-IMU in worker processes (in parallel on the available cores) while
     the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
@@ -33,8 +57,10 @@ Errors
 from __future__ import annotations
 
 import concurrent.futures as cf
+import json
 import multiprocessing as mp
 import os
+import tempfile
 import threading
 import time
 import traceback
@@ -58,7 +84,7 @@ from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
 from dpos_ros.devices.sim_device import SimDevice
 from dpos_ros.io.session import read_session
-from dpos_ros.io.spill import SpillWriter
+from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, solve, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
@@ -77,10 +103,23 @@ def _stamp_ns(data: bytes) -> int:
     return sec * 1_000_000_000 + nsec
 
 
+def _frame_bytes(data: bytes) -> bytes:
+    """The header.frame_id of a serialized message as its CDR bytes (length + string)."""
+    n = int.from_bytes(data[12:16], "little")
+    return bytes(data[12 : 16 + n])
+
+
+def _check_writable(directory: Path) -> None:
+    """Create ``directory`` if needed and write a file there; OSError when it cannot be written."""
+    directory.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=directory, prefix=".writable_"):
+        pass
+
+
 def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
                   filter_rate_hz: float, output_rate_hz: float):
     """One sub-IMU in a worker process: read the spill, align, return the antenna solutions."""
-    sess = read_session(Path(spill_dir))
+    sess = read_session(Path(spill_dir), include_late=False)
     aircraft = load_aircraft("session", text=aircraft_yaml)
     ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub],
                          filter_rate_hz=filter_rate_hz, output_rate_hz=output_rate_hz)
@@ -122,6 +161,58 @@ class _Stream:
         self.last_ns = max(self.last_ns, t)
 
 
+class _Closed:
+    """The last closed session: where late messages of it go (module docstring, "Sessions")."""
+
+    def __init__(self, end_ns: int, spill_dir: Path, session_id: str, last_ns: dict[str, int], max_bytes: int) -> None:
+        self.end_ns = end_ns
+        self.spill_dir = spill_dir
+        self.session_id = session_id
+        self.last_ns = last_ns  # topic -> newest stamp spilled in the session
+        self.restarted: set[str] = set()  # topics whose messages now belong to the next session
+        self.late: dict[str, int] = {}
+        self.products: Path | None = None
+        self._max_bytes = max_bytes
+        self._writer: BufferedSpill | None = None
+
+    def is_late(self, topic: str, t: int) -> bool:
+        last = self.last_ns.get(topic)
+        if topic in self.restarted or last is None or not last < t <= self.end_ns:
+            self.restarted.add(topic)
+            return False
+        return True
+
+    def write(self, topic: str, msgtype: str, t: int, data: bytes) -> int:
+        if self._writer is None:
+            self._writer = BufferedSpill(lambda: SpillWriter(self.spill_dir / LATE_DIR, self.session_id), self._max_bytes)
+        self._writer.write(topic, msgtype, t, data)
+        self.late[topic] = self.late.get(topic, 0) + 1
+        return self.late[topic]
+
+    def close(self) -> None:
+        """Close the late spill and write the final late counts into the session's products."""
+        if self._writer is not None:
+            self._writer.flush()
+            self._writer.close()
+        if self.products is not None and self.late:
+            _note_late(self.products, self.spill_dir, self.late)
+
+
+def _note_late(products: Path, spill_dir: Path, late: dict[str, int]) -> None:
+    """Record in ``products/status.json`` what arrived after the session closed (not in these
+    products; ``dpos-process <spill>`` uses it)."""
+    f = products / "status.json"
+    try:
+        st = json.loads(f.read_text())
+        st["late_after_close"] = {"messages": dict(sorted(late.items())), "spill": str(spill_dir / LATE_DIR),
+                                  "used": False, "rerun": f"dpos-process {spill_dir} --out <dir> uses them"}
+        tmp = f.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(st, indent=1))
+        os.replace(tmp, f)
+    except (OSError, ValueError):
+        pass  # the counts are in the node's log and status; the spill holds the messages
+
+
 class TransferAlignNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -147,8 +238,13 @@ class TransferAlignNode(Node):
             raise ParameterError("sub_imus", list(cfg.sub_imus), f"{unknown} not in aircraft {self.aircraft.name!r} (has {known})")
         self.sub_names = list(cfg.sub_imus) or known
         self.output_dir = Path(cfg.output_dir)
+        try:
+            _check_writable(self.output_dir)
+        except OSError as e:
+            raise ParameterError("output_dir", cfg.output_dir, f"not writable: {e.strerror or e}") from None
+        self._max_held = int(cfg.disk_full_buffer_mb * 1_000_000)
         self._lock = threading.Lock()
-        self._spill: SpillWriter | None = None
+        self._spill: BufferedSpill | None = None
         self._spill_dir: Path | None = None
         self._streams: dict[str, _Stream] = {}
         self._end: tuple[int, str] | None = None
@@ -158,9 +254,12 @@ class TransferAlignNode(Node):
         self._errors: dict[str, str] = {}  # sub-IMU (or "finalize") -> what failed, for the session being / last finalized
         self._chol_jitter_repairs = 0  # in the smoothers of the last finalized session
         self._sessions_done = 0
-        self._closed_end_ns: int | None = None  # end stamp of the last closed session
+        self._closed: _Closed | None = None  # the last closed session (late messages)
         self._end_on_shutdown = False
-        self._late: dict[str, int] = {}  # messages of a closed session that arrived after it closed
+        self._datum: tuple[int, bytes] | None = None  # the latest /dpos/datum (stamp, CDR): spilled into every session
+        self._frames: dict[str, bytes] = {}  # topic -> frame_id bytes of its first message
+        self._rejected: dict[str, int] = {}  # topic -> messages with stamp 0 or another frame
+        self._disk: BufferedSpill | None = None  # a closing spill waiting for the disk (finalize)
         self._device: SimDevice | None = None  # publishing the antenna poses of the last session
         topics = {T.MASTER_NAV: (T.ODOMETRY, NAV_QOS), T.DATUM: (T.NAVSATFIX, DATUM_QOS),
                   T.TRUTH_MASTER: (T.ODOMETRY, NAV_QOS)}
@@ -189,19 +288,33 @@ class TransferAlignNode(Node):
     def _make_cb(self, topic: str, msgtype: str):
         def cb(data: bytes) -> None:
             t = _stamp_ns(data)
+            data = bytes(data)
             with self._lock:
-                if self._spill is None and self._closed_end_ns is not None and t <= self._closed_end_ns:
-                    # a straggler of the session being finalized: it must not open a new session
-                    n = self._late.get(topic, 0) + 1
-                    self._late[topic] = n
+                if topic == T.DATUM:  # latched once, valid for every session until a new one comes
+                    self._datum = (t, data)
+                    if self._spill is not None:
+                        self._spill.write(topic, msgtype, t, data)
+                        self._streams.setdefault(topic, _Stream(t))
+                    return
+                closed = self._closed
+                if closed is not None and closed.is_late(topic, t):
+                    n = closed.write(topic, msgtype, t, data)
                     if n == 1:
                         self.get_logger().warning(
-                            f"{topic}: message stamped {t} ns arrived after its session (ending {self._closed_end_ns} ns) "
-                            "was closed; not in that session's products (counted in the status as late)")
+                            f"{topic}: message stamped {t} ns arrived after its session {closed.session_id} (ending "
+                            f"{closed.end_ns} ns) was closed; kept in {closed.spill_dir / LATE_DIR} (dpos-process on the "
+                            "spill uses it; counted in the status as late_after_finalize)")
                     return
-                self._closed_end_ns = None
                 sp = self._ensure_spill()
-                sp.write(topic, msgtype, t, bytes(data))
+                sp.write(topic, msgtype, t, data)
+                frame = self._frames.setdefault(topic, _frame_bytes(data))
+                if t == 0 or _frame_bytes(data) != frame:
+                    n = self._rejected[topic] = self._rejected.get(topic, 0) + 1
+                    if n == 1:
+                        self.get_logger().warning(
+                            f"{topic}: message with {'stamp 0' if t == 0 else 'another frame_id than the first message'} "
+                            "(spilled; the session reader rejects it; counted in the status as rejected)")
+                    return
                 st = self._streams.get(topic)
                 if st is None:
                     self._streams[topic] = _Stream(t)
@@ -209,13 +322,18 @@ class TransferAlignNode(Node):
                     st.add(t)
         return cb
 
-    def _ensure_spill(self) -> SpillWriter:
+    def _ensure_spill(self) -> BufferedSpill:
         sp = self._spill
         if sp is None:
             sid = time.strftime("session_%Y%m%d_%H%M%S")
-            self._spill_dir = self.output_dir / "spill" / f"{sid}_{os.getpid()}"
-            sp = self._spill = SpillWriter(self._spill_dir, sid, {"dpos.session_id": sid, "dpos.aircraft_yaml": self.aircraft_yaml})
+            d = self._spill_dir = self.output_dir / "spill" / f"{sid}_{os.getpid()}"
+            custom = {"dpos.session_id": sid, "dpos.aircraft_yaml": self.aircraft_yaml}
+            sp = self._spill = BufferedSpill(lambda: SpillWriter(d, sid, custom), self._max_held)
+            self._frames = {}
             self.get_logger().info(f"new session: spilling to {self._spill_dir}")
+            if self._datum is not None:
+                sp.write(T.DATUM, T.NAVSATFIX, *self._datum)
+                self._streams[T.DATUM] = _Stream(self._datum[0])
         return sp
 
     def _on_end(self, msg) -> None:
@@ -277,16 +395,22 @@ class TransferAlignNode(Node):
             with self._lock:
                 sp, spill_dir = self._spill, self._spill_dir
                 missing = [t for t in needed if t not in self._streams]
-                if sp is not None and sid:
-                    sp.session_id = sid
-                    sp.set_custom("dpos.session_id", sid)
                 if sp is not None and T.DATUM not in self._streams and cfg.datum:
                     self._spill_datum(sp)
                 self._spill = None  # new messages (stamped after the end) start the next session
                 self._spill_dir = None
-                self._closed_end_ns = end_ns
                 streams = self._streams
                 self._streams = {}
+                rejected = self._rejected
+                self._rejected = {}
+                previous = self._closed
+                if sp is not None and spill_dir is not None:
+                    self._closed = _Closed(end_ns, spill_dir, sid or spill_dir.name, {k: v.last_ns for k, v in streams.items()},
+                                           self._max_held)
+            if previous is not None:
+                previous.close()
+            if rejected:
+                log.warning(f"finalize: messages with stamp 0 or another frame_id (rejected by the session reader): {rejected}")
             short = [t for t, st in streams.items() if t in needed and st.last_ns < end_ns - 20_000_000]
             if behind:
                 log.warning(f"finalize: after {cfg.finalize_timeout_s:g} s still short of the end stamp: {behind}")
@@ -298,7 +422,7 @@ class TransferAlignNode(Node):
             if sp is None or spill_dir is None:  # (both are set together by _ensure_spill)
                 log.error("finalize: nothing buffered")
                 return
-            sp.close()
+            self._close_spill(sp, sid)
             self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()})
         except Exception as e:  # noqa: BLE001 - logged with its traceback, status ERROR; the node stays up for the next session
             log.error(f"finalize failed: {_describe(e)}\n{''.join(traceback.format_exception(e)).rstrip()}")
@@ -308,6 +432,42 @@ class TransferAlignNode(Node):
         finally:
             with self._lock:
                 self._finalizing = False
+
+    def _close_spill(self, sp: BufferedSpill, sid: str) -> None:
+        """Write out what is held in memory (waiting, with the status at ERROR, while the disk
+        refuses it: nothing held is dropped), name the session and close the spill.  At shutdown
+        the wait is bounded by ``finalize_timeout_s``: what the disk still refuses then is lost
+        with the process, and the error says how much."""
+        log = self.get_logger()
+        waited = False
+        give_up = time.monotonic() + self.config.finalize_timeout_s if self._end_on_shutdown else None
+        while True:
+            if give_up is not None and time.monotonic() > give_up:
+                log.error(f"shutdown: the disk still refuses the spill ({sp.error}); {sp.held} message(s) held in memory "
+                          "are lost with the process; processing what is on disk")
+                sp.close()
+                break
+            try:
+                if sp.flush():
+                    if sid and sp.writer is not None:
+                        sp.writer.session_id = sid
+                        sp.writer.set_custom("dpos.session_id", sid)
+                    sp.close()
+                    break
+            except OSError as e:  # naming the session (spill.json) failed: the disk still refuses
+                sp.error = e
+            self._progress = (f"finalize waits for the disk: {sp.held} message(s) held in memory "
+                              f"({sp.error.strerror if sp.error else 'error'}); free space on {self.output_dir}")
+            with self._lock:
+                self._disk = sp
+            if not waited:
+                log.error(self._progress)
+                waited = True
+            time.sleep(1.0)
+        if waited:
+            with self._lock:
+                self._disk = None
+            log.info("finalize: the disk took the held messages; the spill is complete")
 
     def _spill_datum(self, sp) -> None:
         lat, lon, h = self.config.datum
@@ -366,8 +526,8 @@ class TransferAlignNode(Node):
         for a in self.aircraft.antennas:
             if a.name not in antennas and (a.sub_imu is None or a.sub_imu in self.sub_names):
                 antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
-        sess = read_session(spill_dir)
-        sess.warnings[:0] = warnings
+        sess = read_session(spill_dir, include_late=False)
+        sess.warnings = list(dict.fromkeys(warnings + sess.warnings))  # the workers read the same spill: each warning once
         streams = [s for s in antenna_streams(sess, antennas) if len(s)]
         if self._device is not None:
             self._device.stop()
@@ -378,7 +538,25 @@ class TransferAlignNode(Node):
             device.finished.wait()
         else:
             log.warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
-        out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
+        try:
+            out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
+        except OSError as e:
+            why = f"the products of session {sess.session_id} could not be written ({e.strerror or e}: {e.filename or self.output_dir})"
+            with self._lock:
+                self._errors["products"] = why
+            self._progress = f"{why}; the spill is kept: dpos-process {spill_dir} --out <dir> makes them"
+            log.error(self._progress)
+            self._sessions_done += 1
+            return
+        with self._lock:
+            closed = self._closed
+            if closed is not None and closed.spill_dir == spill_dir:
+                closed.products = out
+                late = dict(closed.late)
+            else:
+                late = {}
+        if late:
+            _note_late(out, spill_dir, late)
         self._sessions_done += 1
         for name, sol in antennas.items():
             log.info(f"antenna {name}: {sol.status}")
@@ -388,7 +566,15 @@ class TransferAlignNode(Node):
         (log.error if failed else log.info)(f"{self._progress} (processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data)")
 
     # ------------------------------------------------------------------ status
+    def _retry_disk(self) -> None:
+        """Write out what the disk refused before, when nothing else comes to retry it (1 Hz)."""
+        with self._lock:
+            sp = self._spill
+            if sp is not None and sp.held:
+                sp.flush()
+
     def _publish_status(self) -> None:
+        self._retry_disk()
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         st = DiagnosticStatus()
@@ -402,8 +588,17 @@ class TransferAlignNode(Node):
         st.values = [KeyValue(key="state", value="finalizing" if finalizing else ("buffering" if streams else "idle")),
                      KeyValue(key="sessions_done", value=str(self._sessions_done))]
         with self._lock:
-            late = dict(self._late)
+            late = dict(self._closed.late) if self._closed is not None else {}
             errors = dict(self._errors)
+            rejected = dict(self._rejected)
+            disk = self._spill if self._spill is not None and (self._spill.held or self._spill.lost) else self._disk
+        if disk is not None and (disk.held or disk.lost):
+            st.level = DiagnosticStatus.ERROR
+            err = disk.error.strerror if disk.error is not None and disk.error.strerror else str(disk.error or "")
+            st.values += [KeyValue(key="disk_error", value=err), KeyValue(key="held_in_memory", value=str(disk.held)),
+                          KeyValue(key="held_bytes", value=str(disk.held_bytes)), KeyValue(key="lost", value=str(disk.lost))]
+            errors["disk"] = (f"the disk refuses the spill ({err}): {disk.held} message(s) held in memory"
+                              + (f", {disk.lost} lost past disk_full_buffer_mb" if disk.lost else ""))
         st.values.append(KeyValue(key="chol_jitter_repairs", value=str(self._chol_jitter_repairs)))
         if errors:  # a sub-IMU's smoother (or the finalize) failed in the session being / last finalized
             st.level = DiagnosticStatus.ERROR
@@ -413,6 +608,9 @@ class TransferAlignNode(Node):
                 st.message = f"{st.message} ({'' if finalizing else 'last session: '}failed {names})"
         for topic, n in sorted(late.items()):
             st.values.append(KeyValue(key=f"{topic}/late_after_finalize", value=str(n)))
+            st.level = max(st.level, DiagnosticStatus.WARN)
+        for topic, n in sorted(rejected.items()):
+            st.values.append(KeyValue(key=f"{topic}/rejected", value=str(n)))
             st.level = max(st.level, DiagnosticStatus.WARN)
         for topic, (c, g, _last) in sorted(streams.items()):
             st.values.append(KeyValue(key=f"{topic}/count", value=str(c)))
@@ -440,6 +638,9 @@ class TransferAlignNode(Node):
             device = getattr(self, "_device", None)
             if device is not None:
                 device.stop()
+            closed = getattr(self, "_closed", None)
+            if closed is not None:  # the late messages of the last session: final counts into its products
+                closed.close()
         finally:
             super().destroy_node()
 

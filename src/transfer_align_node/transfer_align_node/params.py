@@ -32,6 +32,8 @@ class TransferAlignConfig:
         finalize_timeout_s: how long finalizing waits for data up to the end stamp.
         workers: worker processes for the smoother, 0 = one per core.
         seed: random seed of the particle methods.
+        disk_full_buffer_mb: messages held in memory while the disk refuses the spill (full,
+            read-only), in MB of message data; past it messages are lost (counted, status ERROR).
         initial_attitude_error_deg: the papers' initial-error experiment ([Gong2018]: 40 deg): the
             sub-IMUs start from the master's attitude x mount rotated by this many degrees in
             heading, pitch and roll, and the prior 1-sigma is this (at least 1 deg). 0 for real data.
@@ -48,5 +50,6 @@ class TransferAlignConfig:
     finalize_timeout_s: float = param(10.0, "bounded wait for data up to the end stamp [s]", minimum=0.0)
     workers: int = param(0, "smoother worker processes (0 = one per core)", minimum=0)
     seed: int = param(0, "random seed of the particle methods", minimum=0)
+    disk_full_buffer_mb: float = param(512.0, "memory for messages while the disk refuses the spill [MB]", minimum=0.0)
     initial_attitude_error_deg: float = param(
         0.0, "simulation experiment: initial sub-IMU attitude offset per axis [deg] (also its prior sigma, >= 1 deg); 0 for real data", minimum=0.0)

@@ -96,14 +96,20 @@ def encode(lay: Layout, t_ns: NDArray[np.int64], values: FloatArray) -> NDArray[
     return out
 
 
-def decode(lay: Layout, rows: NDArray[np.uint8]) -> tuple[NDArray[np.int64], FloatArray]:
-    """Inverse of :func:`encode` for rows of this layout: ``(t_ns (N,), values (N, n_doubles))``."""
-    r = np.ascontiguousarray(rows, dtype=np.uint8)
+def matches(lay: Layout, rows: NDArray[np.uint8]) -> NDArray[np.bool_]:
+    """(N,) True for the rows (N, lay.size) that have this layout's frame names (padding ignored)."""
+    r = np.asarray(rows, dtype=np.uint8)
     if r.ndim != 2 or r.shape[1] != lay.size:
         raise ValueError(f"expected serialized rows of {lay.size} bytes, got shape {r.shape}")
     keep = np.ones(lay.offset - 8, dtype=bool)
     keep[[p - 12 for p in lay.padding]] = False  # padding bytes may hold anything
-    if not np.all(r[:, 12 : 4 + lay.offset][:, keep] == np.frombuffer(lay.prefix, dtype=np.uint8)[keep]):
+    return np.all(r[:, 12 : 4 + lay.offset][:, keep] == np.frombuffer(lay.prefix, dtype=np.uint8)[keep], axis=1)
+
+
+def decode(lay: Layout, rows: NDArray[np.uint8]) -> tuple[NDArray[np.int64], FloatArray]:
+    """Inverse of :func:`encode` for rows of this layout: ``(t_ns (N,), values (N, n_doubles))``."""
+    r = np.ascontiguousarray(rows, dtype=np.uint8)
+    if not np.all(matches(lay, r)):
         raise ValueError("serialized messages do not have the expected frame names")
     sec = r[:, 4:8].copy().view("<i4")[:, 0].astype(np.int64)
     nsec = r[:, 8:12].copy().view("<u4")[:, 0].astype(np.int64)

@@ -80,24 +80,69 @@ def _clean(topic: str, t_ns: NDArray[np.int64], vals: FloatArray, warnings: list
     return t_ns, vals
 
 
-def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str) -> tuple[NDArray[np.int64], FloatArray]:
+#: sensor_msgs/Imu doubles (cdr.IMU_DOUBLES): angular velocity and linear acceleration covariance diagonals
+_IMU_W_COV_DIAG = [16, 20, 24]
+_IMU_F_COV_DIAG = [28, 32, 36]
+
+
+def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str, warnings: list[str]) -> tuple[NDArray[np.int64], FloatArray]:
+    """Stamps (N,) and doubles (N, IMU_DOUBLES | ODOM_DOUBLES) of a topic's messages.
+
+    The topic's frame names are those of most of its messages; a message with other frame names
+    (another device publishing on the topic) is rejected, and so is one the relays of
+    :mod:`dpos_ros.devices.relay` reject: stamp 0 (``zero_stamp``) and, for Imu, a rate or
+    acceleration covariance[0] = -1 (``unavailable``) or a negative variance (``negative_cov``).
+    Each kind is counted in a warning naming the topic; the other messages are kept.  A topic
+    none of whose messages can be decoded raises :class:`SessionError`."""
+    n_doubles = cdr.IMU_DOUBLES if kind == "imu" else cdr.ODOM_DOUBLES
     if not blobs:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, cdr.IMU_DOUBLES if kind == "imu" else cdr.ODOM_DOUBLES))
-    frame, child = cdr.frame_ids(blobs[0], kind)
-    try:
-        return cdr.decode(cdr.layout(kind, frame, child), bag.rows(blobs))
-    except ValueError as e:
-        raise SessionError(f"{topic} ({msgtype}): {e}") from None
+        return np.zeros(0, dtype=np.int64), np.zeros((0, n_doubles))
+    sizes = np.fromiter((len(b) for b in blobs), dtype=np.int64, count=len(blobs))
+    by_size: dict[int, tuple[NDArray[np.intp], NDArray[np.uint8]]] = {}
+    best: tuple[cdr.Layout, str, NDArray[np.uint8], NDArray[np.bool_]] | None = None
+    for i in sorted({0, len(blobs) // 2, len(blobs) - 1}):  # candidate frame names: a stray message is rarely all three
+        try:
+            frame, child = cdr.frame_ids(blobs[i], kind)
+            lay = cdr.layout(kind, frame, child)
+        except (UnicodeDecodeError, ValueError):
+            continue
+        if lay.size not in by_size:
+            idx = np.nonzero(sizes == lay.size)[0]
+            by_size[lay.size] = idx, bag.rows([blobs[j] for j in idx]) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
+        rows = by_size[lay.size][1]
+        ok = cdr.matches(lay, rows) if rows.shape[0] else np.zeros(0, dtype=bool)
+        if best is None or int(ok.sum()) > int(best[3].sum()):
+            best = (lay, frame if kind != "odometry" else f"{frame}' -> '{child}", rows, ok)
+    if best is None or not best[3].any():
+        raise SessionError(f"{topic} ({msgtype}): no message has a readable {kind} layout")
+    lay, frames, rows, ok = best
+    n_keep = int(ok.sum())
+    if n_keep < len(blobs):
+        warnings.append(f"{topic}: {len(blobs) - n_keep} message(s) with other frame names than '{frames}' (or another type) "
+                        "rejected; the others kept")
+    t_ns, vals = cdr.decode(lay, rows[ok])
+    reasons = {"zero_stamp": t_ns == 0}
+    if kind == "imu":
+        reasons["unavailable"] = (vals[:, _IMU_W_COV_DIAG[0]] == -1.0) | (vals[:, _IMU_F_COV_DIAG[0]] == -1.0)
+        reasons["negative_cov"] = np.any(vals[:, _IMU_W_COV_DIAG + _IMU_F_COV_DIAG] < 0.0, axis=1) & ~reasons["unavailable"]
+    bad = np.zeros(t_ns.size, dtype=bool)
+    for why, mask in reasons.items():
+        mask = mask & ~bad
+        if mask.any():
+            warnings.append(f"{topic}: {int(mask.sum())} message(s) rejected ({why}, first at stamp {int(t_ns[mask][0])} ns)")
+            bad |= mask
+    return t_ns[~bad], vals[~bad]
 
 
-def read_session(path: Path) -> RecordedSession:
-    """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring)."""
+def read_session(path: Path, include_late: bool = True) -> RecordedSession:
+    """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring); of a
+    spill, with its late messages unless ``include_late`` is False (:func:`dpos_ros.io.spill.read_spill`)."""
     path = Path(path)
     from dpos_ros.io.spill import is_spill, read_spill
 
     if is_spill(path):  # the crash-safe spill of transfer_align_node
         try:
-            raw, custom, sid, warns = read_spill(path)
+            raw, custom, sid, warns = read_spill(path, include_late)
         except (ValueError, OSError) as e:
             raise SessionError(f"{path}: cannot read the spill: {e}") from None
         custom.setdefault("dpos.session_id", sid)
@@ -135,8 +180,10 @@ def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedS
         datum = cv.datum_from_msg(deserialize_message(raw[T.DATUM][2][0], NavSatFix))
     else:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
-    t_nav, v_nav = _decode_rows(T.MASTER_NAV, raw[T.MASTER_NAV][0], raw[T.MASTER_NAV][2], "odometry")
+    t_nav, v_nav = _decode_rows(T.MASTER_NAV, raw[T.MASTER_NAV][0], raw[T.MASTER_NAV][2], "odometry", warnings)
     t_nav, v_nav = _clean(T.MASTER_NAV, t_nav, v_nav, warnings)
+    if t_nav.size == 0:
+        raise SessionError(f"{path}: no usable /master/nav message: the transfer alignment needs the main-system navigation")
     t0_ns = int(round(float(custom["dpos.start_time_s"]) * 1e9)) if "dpos.start_time_s" in custom else int(t_nav[0])
     od = cv.odometry_from_values(t_nav, v_nav, datum)
     # covariances: the message's are in the enu (datum) frame (pose) and the body (twist); the model wants local ENU
@@ -149,12 +196,18 @@ def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedS
     truth: dict[str, NavSeries] = {}
     for topic, (msgtype, _, blobs) in sorted(raw.items()):
         parts = topic.strip("/").split("/")
-        if len(parts) == 3 and parts[0] == "sub_imu" and parts[2] == "imu":
-            t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "imu"), warnings)
+        is_imu = len(parts) == 3 and parts[0] == "sub_imu" and parts[2] == "imu"
+        if not is_imu and not (parts[0] == "truth" and msgtype == T.ODOMETRY):
+            continue
+        try:  # one topic's problem costs that topic only
+            t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "imu" if is_imu else "odometry", warnings), warnings)
+        except SessionError as e:
+            warnings.append(f"{e}; the topic is ignored")
+            continue
+        if is_imu:
             blk = cv.imu_from_values(t, v)
             subs[parts[1]] = ImuSeries(ts(t), blk.omega_radps, blk.f_mps2)
-        elif parts[0] == "truth" and msgtype == T.ODOMETRY:
-            t, v = _clean(topic, *_decode_rows(topic, msgtype, blobs, "odometry"), warnings)
+        else:
             o = cv.odometry_from_values(t, v, datum)
             truth["/".join(parts[1:])] = NavSeries(ts(t), o.q_nb, o.vel_n_mps, o.llh)
     end_s = None

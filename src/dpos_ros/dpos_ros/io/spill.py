@@ -14,18 +14,36 @@ bounded: nothing is kept in the process.
 
 :func:`read_spill` returns the same ``{topic: (msgtype, times, blobs)}`` as :func:`dpos_ros.io.bag.read_raw`,
 so ``dpos-process`` on a spill runs exactly the code that processes a bag.
+
+Late messages
+    Messages of a session that arrive after transfer_align_node closed it (a device that lagged
+    beyond ``finalize_timeout_s``) go into the spill of the same format in ``<spill>/late/``.
+    :func:`read_spill` merges them into their topics (in stamp order) and says how many it took,
+    so a re-run (``dpos-process <spill>``) uses them.
+
+Disk faults
+    A write that fails (ENOSPC, EIO, EROFS, ...) leaves the log as it was: a record is either
+    written whole or the file is cut back to its previous length, and the ``OSError`` is raised.
+    :class:`BufferedSpill` keeps such records in memory, within a bound, in arrival order, and
+    writes them out when the disk takes them again (every later write retries).
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import struct
+import time
+from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 
 FORMAT = "dpos-spill"
 VERSION = 1
 _HEAD = struct.Struct("<qI")
+#: sub-directory of a spill holding the messages that arrived after the session was closed
+LATE_DIR = "late"
 
 
 class SpillWriter:
@@ -63,7 +81,18 @@ class SpillWriter:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
             self._fds[topic] = fd
             self.counts[topic] = 0
-        os.write(fd, _HEAD.pack(int(t_ns), len(data)) + data)
+        rec = _HEAD.pack(int(t_ns), len(data)) + data
+        size = os.fstat(fd).st_size
+        try:
+            n = os.write(fd, rec)
+            if n != len(rec):  # a short write: the device is full
+                raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} (wrote {n} of {len(rec)} bytes)")
+        except OSError:
+            try:  # no partial record: the log stays readable to its last whole record
+                os.ftruncate(fd, size)
+            except OSError:
+                pass  # the reader drops a cut-short last record (and says so)
+            raise
         self.counts[topic] += 1
         self.last_t_ns[topic] = max(self.last_t_ns.get(topic, int(t_ns)), int(t_ns))
         if self._fsync_every:
@@ -85,9 +114,29 @@ def is_spill(path: Path) -> bool:
     return (Path(path) / "spill.json").is_file()
 
 
-def read_spill(path: Path) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
-    """``(raw, custom_data, session_id, warnings)`` of a spill directory (see module docstring)."""
+def read_spill(path: Path, include_late: bool = True) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
+    """``(raw, custom_data, session_id, warnings)`` of a spill directory (see module docstring);
+    the late messages of ``<path>/late/`` merged into their topics in stamp order (unless
+    ``include_late`` is False: transfer_align_node's own products are made without them)."""
     path = Path(path)
+    raw, custom, sid, warnings = _read_one(path)
+    late_dir = path / LATE_DIR
+    if include_late and is_spill(late_dir):
+        late, _, _, late_warnings = _read_one(late_dir)
+        warnings += [f"{LATE_DIR}/{w}" for w in late_warnings]
+        for topic, (msgtype, times, blobs) in late.items():
+            if not times:
+                continue
+            warnings.append(f"{topic}: {len(times)} message(s) arrived after the session was closed (late); "
+                            f"included from {LATE_DIR}/")
+            t0, b0 = (raw[topic][1], raw[topic][2]) if topic in raw else ([], [])
+            pairs = sorted(zip(t0 + times, range(len(t0) + len(times))), key=lambda p: p[0])
+            blobs_all = b0 + blobs
+            raw[topic] = (msgtype, [t for t, _ in pairs], [blobs_all[i] for _, i in pairs])
+    return raw, custom, sid, warnings
+
+
+def _read_one(path: Path) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
     meta = json.loads((path / "spill.json").read_text())
     if meta.get("format") != FORMAT or meta.get("version") != VERSION:
         raise ValueError(f"{path}: not a {FORMAT} v{VERSION} directory")
@@ -109,3 +158,74 @@ def read_spill(path: Path) -> tuple[dict[str, tuple[str, list[int], list[bytes]]
             warnings.append(f"{topic}: the last record of {f.name} is cut short ({len(buf) - o} bytes, a crash while writing); dropped")
         raw[topic] = (info["msgtype"], times, blobs)
     return raw, dict(meta.get("custom_data") or {}), str(meta.get("session_id", path.name)), warnings
+
+
+class BufferedSpill:
+    """A :class:`SpillWriter` that survives disk faults (module docstring, "Disk faults").
+
+    ``make_writer`` creates the writer (the spill directory) when the first record is written,
+    and again while the disk refuses it.  :meth:`write` first writes out what is held in memory,
+    then the new record; a record the disk refuses (``OSError``) is held in memory in arrival
+    order, up to ``max_bytes`` of message data.  Past that bound a record is lost: counted in
+    :attr:`lost` (never silently).  While anything is held, the disk is tried again at most every
+    ``retry_s``.  :attr:`error` is the last disk error while anything is held (None once
+    everything is on disk).
+    """
+
+    def __init__(self, make_writer: Callable[[], SpillWriter], max_bytes: int, retry_s: float = 1.0) -> None:
+        self._make_writer = make_writer
+        self.writer: SpillWriter | None = None
+        self.max_bytes = int(max_bytes)
+        self.retry_s = float(retry_s)
+        self._next_try = 0.0
+        self._held: deque[tuple[str, str, int, bytes]] = deque()
+        self.held_bytes = 0
+        self.lost = 0
+        self.error: OSError | None = None
+        self.disk_errors = 0  # writes the disk refused (each retry counts)
+
+    @property
+    def held(self) -> int:
+        """Records held in memory, waiting for the disk."""
+        return len(self._held)
+
+    def _write(self, topic: str, msgtype: str, t_ns: int, data: bytes) -> None:
+        if self.writer is None:
+            self.writer = self._make_writer()
+        self.writer.write(topic, msgtype, t_ns, data)
+
+    def _refused(self, e: OSError) -> None:
+        self.error = e
+        self.disk_errors += 1
+        self._next_try = time.monotonic() + self.retry_s
+
+    def flush(self) -> bool:
+        """Write out what is held; True when nothing is held any more."""
+        while self._held:
+            try:
+                self._write(*self._held[0])
+            except OSError as e:
+                self._refused(e)
+                return False
+            _, _, _, data = self._held.popleft()
+            self.held_bytes -= len(data)
+        self.error = None
+        return True
+
+    def write(self, topic: str, msgtype: str, t_ns: int, data: bytes) -> None:
+        if (not self._held or time.monotonic() >= self._next_try) and self.flush():
+            try:
+                self._write(topic, msgtype, t_ns, data)
+                return
+            except OSError as e:
+                self._refused(e)
+        if self.held_bytes + len(data) > self.max_bytes:
+            self.lost += 1
+            return
+        self._held.append((topic, msgtype, int(t_ns), bytes(data)))
+        self.held_bytes += len(data)
+
+    def close(self) -> None:
+        """Close the writer (what is still held stays held: call :meth:`flush` first)."""
+        if self.writer is not None:
+            self.writer.close()
