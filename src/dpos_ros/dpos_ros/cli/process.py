@@ -4,19 +4,32 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
     dpos-process /tmp/paper_su_s1 --out /tmp/products                 # UPS (the default)
     dpos-process /tmp/paper_su_s1 --method ups --particles 100 --out /tmp/products
     dpos-process BAG --method ups --aircraft my_aircraft.yaml --out DIR
+    dpos-process BAG --out DIR --overwrite                            # replace DIR/<session id>/
+
+Exit status: 0 when every antenna of the aircraft is estimated; 1 when some (or all) are not
+(named, with why; the products are written); 2 for unusable input or output (a bad option, an
+unreadable recording or aircraft file, an existing DIR/<session id>/ without --overwrite, an
+output that cannot be written) - then nothing partial is left, and with --overwrite the earlier
+products are kept.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS
+from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
 from dpos_ros.io.session import SessionError, read_session
-from dpos_ros.products.ta import evaluate, solve, write
+from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
+
+EXIT_OK = 0
+EXIT_NOT_ESTIMATED = 1
+EXIT_ERROR = 2
 
 
 def parser() -> argparse.ArgumentParser:
@@ -32,15 +45,51 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
                     help="initial sub-IMU attitude error per axis (default: the recording's transfer_alignment setting, else 0)")
-    ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/)")
+    ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
+                         "(the old ones are kept if the run fails)")
     return ap
+
+
+def _check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.particles < 1:
+        ap.error(f"--particles must be >= 1, got {args.particles}")
+    if args.seed < 0:
+        ap.error(f"--seed must be >= 0, got {args.seed}")
+    if not (math.isfinite(args.filter_rate) and args.filter_rate > 0):
+        ap.error(f"--filter-rate must be > 0 Hz, got {args.filter_rate:g}")
+    if not (math.isfinite(args.output_rate) and args.output_rate >= 0):
+        ap.error(f"--output-rate must be >= 0 Hz (0 = the sub-IMU rate), got {args.output_rate:g}")
+    if args.initial_attitude_error is not None and not math.isfinite(args.initial_attitude_error):
+        ap.error(f"--initial-attitude-error must be a finite number of degrees, got {args.initial_attitude_error:g}")
+
+
+def not_estimated(antennas: dict[str, AntennaSolution], aircraft_name: str, sub_imus: list[str]) -> str | None:
+    """Why the run's exit status is 1 (one line), or None when every configured antenna is estimated."""
+    if not antennas:
+        return f"no antenna was estimated: the aircraft {aircraft_name!r} configures no antenna"
+    missing = {name: a.status for name, a in antennas.items() if a.traj is None}
+    if not missing:
+        return None
+    why = "; ".join(f"{name}: {status}" for name, status in missing.items())
+    if len(missing) < len(antennas):
+        return f"{len(missing)} of {len(antennas)} antennas not estimated ({why})"
+    text = f"no antenna was estimated ({why})"
+    if not sub_imus:
+        text += "; the recording has no /sub_imu/<name>/imu topic"
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     args = ap.parse_args(argv)
-    if args.particles < 1:
-        ap.error("--particles must be >= 1")
+    _check_numbers(ap, args)
+    try:
+        target = OutputTarget(args.out)
+    except OutputError as e:
+        print(f"dpos-process: error: --out {e}", file=sys.stderr)
+        return EXIT_ERROR
     try:
         sess = read_session(args.bag)
         if args.aircraft:
@@ -50,20 +99,37 @@ def main(argv: list[str] | None = None) -> int:
         else:
             raise SessionError(f"{args.bag} carries no aircraft configuration: pass --aircraft")
     except (SessionError, ConfigError) as e:
-        print(f"dpos-process: {e}", file=sys.stderr)
-        return 2
+        print(f"dpos-process: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as e:
+        print(f"dpos-process: error: cannot read the recording: {os_error_text(e, args.bag)}", file=sys.stderr)
+        return EXIT_ERROR
+    final = args.out / sess.session_id
+    had_products = final.exists()
+    if had_products and not args.overwrite:
+        print(f"dpos-process: error: {final} exists (products of an earlier run): pass --overwrite to replace them, "
+              "or choose another --out", file=sys.stderr)
+        return EXIT_ERROR
     ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     print(f"dpos-process: session {sess.session_id}: {len(sess.sub_imus)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg")
-    if not args.filter_rate > 0 or args.output_rate < 0:
-        ap.error("--filter-rate must be > 0 and --output-rate >= 0")
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
                              filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate)
     ev = evaluate(sess, antennas)
-    out = write(args.out, sess, antennas, args.method, timing, ev or None)
+    try:
+        out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite)
+    except ProductsExistError:  # appeared while processing
+        print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as e:  # ENOSPC, EACCES, EROFS, EIO: write() removed its partial products
+        target.cleanup()
+        kept = f"; the earlier products in {final} are kept" if had_products else ""
+        print(f"dpos-process: error: writing the products to {final} failed: {os_error_text(e, final)}; "
+              f"the partial products were removed{kept}", file=sys.stderr)
+        return EXIT_ERROR
     for name, a in antennas.items():
         print(f"  {name}: {a.status}")
     print(f"processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data "
@@ -71,7 +137,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"products in {out}")
     if ev:
         print((out / "report.md").read_text())
-    return 0
+    problem = not_estimated(antennas, aircraft.name, list(sess.sub_imus))
+    if problem is not None:
+        print(f"dpos-process: {problem}", file=sys.stderr)
+        return EXIT_NOT_ESTIMATED
+    return EXIT_OK
 
 
 if __name__ == "__main__":

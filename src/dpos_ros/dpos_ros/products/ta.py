@@ -204,12 +204,86 @@ def write(
     method: str,
     timing: dict[str, float],
     evaluation: dict[str, dict] | None = None,
+    *,
+    overwrite: bool = False,
 ) -> Path:
-    """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory."""
+    """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory.
+
+    The directory is new: when it exists, :class:`ProductsExistError` (a FileExistsError) is raised
+    before anything is written, unless ``overwrite``; then the products are written into a
+    temporary sibling ``.<session id>.new-<pid>`` and swapped in only when complete (the old
+    products are kept when writing fails). On any exception while writing, what this call created
+    (the new directory or the temporary one) is removed and the exception re-raised: the
+    products are complete or absent, never mixed or partial. ``out_root`` is created if needed."""
+    import shutil
+
+    final = Path(out_root) / sess.session_id
+    out = _new_products_dir(final, overwrite)
+    try:
+        _write_products(out, sess, antennas, method, timing, evaluation)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    if out != final:
+        _swap_in(out, final)
+    return final
+
+
+class ProductsExistError(FileExistsError):
+    """The session's product directory exists (from an earlier run) and ``overwrite`` is False."""
+
+
+def _new_products_dir(final: Path, overwrite: bool) -> Path:
+    """The new directory to write the products into: ``final`` itself when it does not exist,
+    else (``overwrite``) a temporary sibling; :class:`ProductsExistError` otherwise."""
+    import errno
+    import os
+    import shutil
+
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if not final.exists():
+        final.mkdir()
+        return final
+    if not overwrite:
+        raise ProductsExistError(errno.EEXIST, "products of an earlier run exist (they are not mixed with new ones; "
+                                 "overwrite replaces them)", str(final))
+    tmp = final.with_name(f".{final.name}.new-{os.getpid()}")
+    if tmp.exists():  # left by a killed run of the same pid
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
+
+
+def _swap_in(tmp: Path, final: Path) -> None:
+    """Replace ``final`` by the complete ``tmp`` (two renames in one directory); the old products
+    are restored if the second rename fails, and removed once the new ones are in place."""
+    import os
+    import shutil
+
+    old = final.with_name(f".{final.name}.old-{os.getpid()}")
+    if old.exists():
+        shutil.rmtree(old)
+    os.rename(final, old)
+    try:
+        os.rename(tmp, final)
+    except BaseException:
+        os.rename(old, final)
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _write_products(
+    out: Path,
+    sess: RecordedSession,
+    antennas: dict[str, AntennaSolution],
+    method: str,
+    timing: dict[str, float],
+    evaluation: dict[str, dict] | None,
+) -> None:
+    """The products (module docstring) into the new, empty directory ``out``."""
     from dpos_ros.io.bag import write_streams
 
-    out = Path(out_root) / sess.session_id
-    out.mkdir(parents=True, exist_ok=True)
     streams = antenna_streams(sess, antennas)
     for st in streams:
         name = st.topic.split("/")[2]
@@ -233,7 +307,6 @@ def write(
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
         (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
         plot_errors(out, evaluation, method)
-    return out
 
 
 def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
