@@ -371,7 +371,11 @@ def _refuse_unknown_overrides(node: Any, cls: type) -> None:
         if name in known or name.startswith("qos_overrides.") or node.has_parameter(name):
             continue
         close = difflib.get_close_matches(name, sorted(known), n=1)
-        hint = f"; did you mean '{close[0]}'?" if close else f"; {cls.__name__} has: {', '.join(sorted(known))}"
+        if close:
+            hint = f"; did you mean '{close[0]}'?"
+        else:  # nothing alike (often another node's parameter): the nearest name, and all of them
+            nearest = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.0)
+            hint = (f"; the closest known is '{nearest[0]}'" if nearest else "") + f"; {cls.__name__} has: {', '.join(sorted(known))}"
         raise ParameterError(name, overrides[name].value, f"unknown parameter of this node{hint}")
 
 
