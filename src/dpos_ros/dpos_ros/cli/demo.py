@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -64,8 +65,9 @@ def main(argv: list[str] | None = None) -> int:
 
     sid = f"paper_su_seed{args.seed}"
     status = out / sid / "status.json"
-    if status.exists():
-        status.unlink()
+    if (out / sid).exists():  # the node writes a session's products only into a new directory
+        print(f"dpos-demo: removing the previous demo products {out / sid}", flush=True)
+        shutil.rmtree(out / sid)
     print(f"dpos-demo: paper_su ({args.duration:.0f} s, both wings) through the live graph on ROS_DOMAIN_ID {domain}", flush=True)
     try:
         with Graph(spec, log) as g:
