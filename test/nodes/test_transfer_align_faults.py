@@ -121,7 +121,9 @@ def test_second_session_with_the_same_stamps_and_a_datum_latched_once(node, msgs
         counts = {t: s.count for t, s in ta._streams.items()}
     assert counts[T.MASTER_NAV] == len(msgs[T.MASTER_NAV][1]) and counts[T.DATUM] == 1, counts
     _finalize(ta, _end(msgs), "second")
-    for sid in ("first", "second"):
+    _feed(ta, msgs, topics=TOPICS[1:])  # and again, under a session id that has products already
+    _finalize(ta, _end(msgs), "second")
+    for sid in ("first", "second", "second_2"):
         st = json.loads((tmp_path / "out" / sid / "status.json").read_text())
         assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, st
         assert len(st["warnings"]) == len(set(st["warnings"])), st["warnings"]
@@ -129,7 +131,7 @@ def test_second_session_with_the_same_stamps_and_a_datum_latched_once(node, msgs
     b = np.loadtxt(tmp_path / "out" / "second" / "ant_r.csv", delimiter=",", skiprows=1)
     assert a.shape == b.shape and np.allclose(a, b)  # the same data give the same poses
     s = _status(ta)
-    assert s["sessions_done"] == "2" and not any(k.endswith("late_after_finalize") for k in s), s
+    assert s["sessions_done"] == "3" and not any(k.endswith("late_after_finalize") for k in s), s
 
 
 def test_mid_flight_finalize_leaves_the_rest_of_the_flight_processable(node, msgs, tmp_path: Path) -> None:

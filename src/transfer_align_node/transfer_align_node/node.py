@@ -94,6 +94,9 @@ NODE_NAME = "transfer_align_node"
 #: at finalize, a stream that the smoother does not need (truth) and that has received nothing
 #: for this long is not waited for (it may simply have ended before the session)
 STALL_S = 2.0
+#: at finalize, a stream that reached the end stamp (within 20 ms) is closed once it received
+#: nothing for this long: its last samples may still be in flight
+SETTLE_S = 0.3
 
 
 def _stamp_ns(data: bytes) -> int:
@@ -260,6 +263,7 @@ class TransferAlignNode(Node):
         self._frames: dict[str, bytes] = {}  # topic -> frame_id bytes of its first message
         self._rejected: dict[str, int] = {}  # topic -> messages with stamp 0 or another frame
         self._disk: BufferedSpill | None = None  # a closing spill waiting for the disk (finalize)
+        self._stopping_at: float | None = None  # time.monotonic() of the shutdown (bounds the wait for the disk)
         self._device: SimDevice | None = None  # publishing the antenna poses of the last session
         topics = {T.MASTER_NAV: (T.ODOMETRY, NAV_QOS), T.DATUM: (T.NAVSATFIX, DATUM_QOS),
                   T.TRUTH_MASTER: (T.ODOMETRY, NAV_QOS)}
@@ -388,6 +392,10 @@ class TransferAlignNode(Node):
                                   and not stalled(self._streams[t]))]
                     behind += [t for t, st in self._streams.items() if t not in needed and t != T.DATUM
                                and st.last_ns < end_ns - 20_000_000 and now - st.arrived < STALL_S]
+                    # a stream within 20 ms of the end may still have its last samples in flight:
+                    # close once nothing stamped up to the end arrived for SETTLE_S
+                    behind += [t for t, st in self._streams.items() if t != T.DATUM and t not in behind
+                               and st.last_ns <= end_ns and now - st.arrived < SETTLE_S]
                 if not behind or now > deadline:
                     break
                 self._progress = f"waiting for data up to the end: {behind}"
@@ -440,8 +448,10 @@ class TransferAlignNode(Node):
         with the process, and the error says how much."""
         log = self.get_logger()
         waited = False
-        give_up = time.monotonic() + self.config.finalize_timeout_s if self._end_on_shutdown else None
+        if self._end_on_shutdown:
+            self._stopping_at = self._stopping_at or time.monotonic()
         while True:
+            give_up = None if self._stopping_at is None else self._stopping_at + self.config.finalize_timeout_s
             if give_up is not None and time.monotonic() > give_up:
                 log.error(f"shutdown: the disk still refuses the spill ({sp.error}); {sp.held} message(s) held in memory "
                           "are lost with the process; processing what is on disk")
@@ -538,6 +548,13 @@ class TransferAlignNode(Node):
             device.finished.wait()
         else:
             log.warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
+        sid = sess.session_id
+        k = 2
+        while (self.output_dir / sess.session_id).exists():  # a repeated id (the same bag replayed): never overwrite a flight's products
+            sess.session_id = f"{sid}_{k}"
+            k += 1
+        if sess.session_id != sid:
+            log.warning(f"products of a session {sid!r} exist in {self.output_dir}: this session's go to {sess.session_id!r}")
         try:
             out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
         except OSError as e:
@@ -626,6 +643,7 @@ class TransferAlignNode(Node):
             lock = getattr(self, "_lock", None)
             if lock is None:  # construction failed (bad parameter): nothing to finalize
                 return
+            self._stopping_at = time.monotonic()
             with lock:
                 pending = self._spill is not None and not self._finalizing
                 last = max((s.last_ns for s in self._streams.values()), default=None)
