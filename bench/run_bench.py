@@ -22,6 +22,24 @@ Keys (in order):
                                graph_cpu_percent: CPU per node over the run
   replay_speed_factor          data duration / wall time of the fastest zero-loss replay (dpos-play
                                --rate 0) of paper_su with 2 sub-IMUs into transfer_align_node
+  soak_duration_s              the soak: the graph of graph_loss_count (the rated load) for --soak-s
+                               seconds of data (600; 0 skips it) in real time
+  soak_loss_count              messages lost over the soak, counted as for graph_loss_count (must be 0);
+                               soak_messages: how many were sent
+  soak_rss_mb                  {process: [RSS MB]} (VmRSS; None once the process is gone) sampled every
+                               10 s from the graph's start through the data flow, every 1 s through
+                               transfer_align_node's finalize (its smoother workers live for seconds);
+                               "<node>/workers": the summed RSS of the node's child processes (the
+                               smoother workers); soak_rss_t_s: the sampling times, s from the start of
+                               the data flow (every device publishing; it ends when every device's
+                               messages are acknowledged); soak_rss_phase: start / data / finalize
+  soak_peak_rss_mb             {process: peak MB}: its VmHWM (the largest RSS of its life) or the largest
+                               sample; transfer_align_node/worker_each: the largest VmHWM of one worker
+  soak_rss_growth_mb_per_min   {process: MB/min}: least-squares slope of its samples of the data flow
+                               (not the finalize); bounded memory is ~0
+  soak_processing_time_ratio   finalize processing time (status.json timing.processing_s: the smoothers
+                               of the 6 sub-IMUs) / data duration; soak_data_wall_s: wall time of the
+                               data flow
 """
 
 from __future__ import annotations
@@ -33,6 +51,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -195,20 +214,17 @@ def _cpu_s(pid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def bench_graph(results: dict, repeats: int) -> None:
-    import tempfile
-
+def _graph_spec(tmp: Path, dur: float) -> tuple[Any, Path, list[str]]:
+    """The rated load: pos_master_node + one pos_sub_node per sub-IMU of paper_wing at 200 Hz in real
+    time for ``dur`` s, transfer_align_node (ukf; products and spill in ``tmp/out``) and a
+    dpos-record of /master/imu (``tmp/rec``; /master/imu has no other consumer in this graph).
+    Returns (GraphSpec, scenario file, sub-IMU names)."""
     import yaml
 
     from dpos_core.config import config_text
     from dpos_core.sim.scenario import load_scenario
-    from dpos_core.sim.session import SimulatedSession
-    from dpos_ros.devices.sim_streams import device_streams
-    from dpos_ros.io import spill
-    from dpos_ros.runtime.graph import Graph, GraphSpec, NodeSpec
+    from dpos_ros.runtime.graph import GraphSpec, NodeSpec
 
-    dur = 60.0
-    tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_graph_"))
     sc = yaml.safe_load(config_text("scenarios", "paper_wing"))
     sc["rates_hz"] = {"master_imu_hz": 200.0, "master_nav_hz": 200.0, "sub_imu_hz": 200.0}
     sc["aircraft"] = "paper_wing"
@@ -217,9 +233,9 @@ def bench_graph(results: dict, repeats: int) -> None:
     subs = [s.name for s in load_scenario(scen).aircraft.sub_imus]
     common = {"scenario": str(scen), "aircraft_config": "paper_wing", "duration": dur, "rate_factor": 1.0,
               "publish_truth": False, "min_subscribers": 1, "wait_subscribers_s": 10.0}
-    out = tmp / "out"
     spec = GraphSpec(nodes=[
-        NodeSpec("transfer_align_node", "transfer_align_node", {"method": "ukf", "aircraft_config": "paper_wing", "output_dir": str(out)},
+        NodeSpec("transfer_align_node", "transfer_align_node",
+                 {"method": "ukf", "aircraft_config": "paper_wing", "output_dir": str(tmp / "out")},
                  ready_subscribes=("/master/nav",)),
         NodeSpec("pos_master_node", "pos_master_node", {**common, "alignment": "reference"}),
         *[NodeSpec(n, "pos_sub_node", {**common, "name": n}) for n in subs],
@@ -227,32 +243,58 @@ def bench_graph(results: dict, repeats: int) -> None:
         NodeSpec("recorder", "dpos-record", args=("--out", str(tmp / "rec"), "--until-session-end", "/master/imu", "/session/end"),
                  ready_subscribes=("/master/imu",)),
     ], ros_domain_id=150 + os.getpid() % 50, ready_timeout_s=60.0, stop_timeout_s=30.0)
+    return spec, scen, subs
+
+
+def _graph_done(g: Any, tmp: Path) -> bool:
+    """transfer_align_node wrote the session's products and the recorder closed its bag."""
+    return any((tmp / "out").glob("*/status.json")) and g.procs["recorder"].popen.poll() is not None
+
+
+def _graph_loss(tmp: Path, scen: Path, subs: list[str], dur: float) -> tuple[int, int]:
+    """(messages lost, messages expected) of /master/nav and the sub-IMUs (counted in
+    transfer_align_node's spill) and /master/imu (counted in the recorder's bag)."""
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+    from dpos_ros.devices.sim_streams import device_streams
+    from dpos_ros.io import bag, spill
+
+    ss = SimulatedSession(load_scenario(scen), 1, dur)
+    expected = {s.topic: len(s) for dev in ["master"] + [f"sub_imu/{n}" for n in subs]
+                for s in device_streams(ss, dev, truth=False) if s.topic in ("/master/nav", "/master/imu") or s.topic.startswith("/sub_imu/")}
+    d = next((tmp / "out" / "spill").iterdir())
+    raw, _, _, _ = spill.read_spill(d)
+    counts = {t: len(v[2]) for t, v in raw.items()}
+    del raw
+    counts.update({t: len(v[2]) for t, v in bag.read_raw(tmp / "rec", ["/master/imu"]).items()})
+    lost = sum(n - counts.get(t, 0) for t, n in expected.items())
+    return int(lost), int(sum(expected.values()))
+
+
+def bench_graph(results: dict, repeats: int) -> None:
+    import tempfile
+
+    from dpos_ros.runtime.graph import Graph
+
+    dur = 60.0
+    tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_graph_"))
+    spec, scen, subs = _graph_spec(tmp, dur)
     cpu0, cpu1 = {}, {}
     with Graph(spec, log=lambda n, l: None) as g:
         for name, p in g.procs.items():
             cpu0[name] = _cpu_s(p.popen.pid)
         t0 = time.perf_counter()
-        status_dir = out
         deadline = time.monotonic() + dur + 240
-        while time.monotonic() < deadline and not (any(status_dir.glob("*/status.json")) and g.procs["recorder"].popen.poll() is not None):
+        while time.monotonic() < deadline and not _graph_done(g, tmp):
             time.sleep(0.5)
         wall = time.perf_counter() - t0
         for name, p in g.procs.items():
             if name != "recorder":
                 cpu1[name] = _cpu_s(p.popen.pid)
     cpu0.pop("recorder", None)
-    ss = SimulatedSession(load_scenario(scen), 1, dur)
-    expected = {s.topic: len(s) for dev in ["master"] + [f"sub_imu/{n}" for n in subs]
-                for s in device_streams(ss, dev, truth=False) if s.topic in ("/master/nav", "/master/imu") or s.topic.startswith("/sub_imu/")}
-    d = next((out / "spill").iterdir())
-    raw, _, _, _ = spill.read_spill(d)
-    from dpos_ros.io import bag
-
-    raw.update({t: v for t, v in bag.read_raw(tmp / "rec").items() if t == "/master/imu"})
-    lost = sum(expected[t] - len(raw.get(t, ("", [], []))[2]) for t in expected)
-    n_msgs = sum(expected.values())
-    results["graph_loss_count"] = int(lost)
-    results["graph_messages"] = int(n_msgs)
+    lost, n_msgs = _graph_loss(tmp, scen, subs, dur)
+    results["graph_loss_count"] = lost
+    results["graph_messages"] = n_msgs
     results["graph_cpu_percent"] = {n: round(100.0 * (cpu1[n] - cpu0[n]) / wall, 1) for n in cpu0}
     print(f"graph: {n_msgs} messages of /master/imu, /master/nav + 6 sub-IMUs at 200 Hz over {dur:.0f} s real time: lost {lost}")
     print("graph CPU % per node over the session and its processing: " + ", ".join(f"{k} {v}" for k, v in results["graph_cpu_percent"].items()))
@@ -298,13 +340,186 @@ def bench_replay(results: dict, repeats: int) -> None:
           f"{1300.0 / wall:.1f}x real time, lost {lost}")
 
 
-BENCHES: dict[str, Callable[[dict, int], None]] = {
+#: seconds between two memory samples of the soak while the data flow, and while transfer_align_node
+#: finalizes the session (seconds: its smoother workers live only that long)
+SOAK_SAMPLE_S = 10.0
+SOAK_FINALIZE_SAMPLE_S = 1.0
+
+
+def _proc_mem_mb(pid: int) -> tuple[float, float] | None:
+    """(VmRSS, VmHWM) [MB] of a live process from /proc/<pid>/status; None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            kv = dict(line.split(":", 1) for line in f if line.startswith(("VmRSS:", "VmHWM:")))
+        return int(kv["VmRSS"].split()[0]) / 1024.0, int(kv["VmHWM"].split()[0]) / 1024.0
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every live descendant of ``pid`` (the smoother workers of transfer_align_node and their
+    multiprocessing helpers), from /proc/<pid>/task/*/children."""
+    out: list[int] = []
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for t in tasks:
+            try:
+                with open(f"/proc/{p}/task/{t}/children") as f:
+                    kids = [int(c) for c in f.read().split()]
+            except (OSError, ValueError):
+                continue
+            out += kids
+            todo += kids
+    return out
+
+
+class _MemSampler:
+    """RSS of every process of a running Graph (and the summed RSS of each one's descendants,
+    as ``<name>/workers``), one sample per call; VmHWM kept from the last read."""
+
+    def __init__(self, g: Any) -> None:
+        self.g = g
+        self.times: list[float] = []  # time.monotonic() of each sample
+        self.rss: list[dict[str, float]] = []  # per sample: process label -> VmRSS [MB]
+        self.hwm: dict[str, float] = {}  # process label -> VmHWM [MB] (monotone: the last read)
+        self.worker_hwm: dict[int, float] = {}  # descendant pid -> VmHWM [MB]
+
+    def __call__(self) -> None:
+        rss: dict[str, float] = {}
+        for name, p in self.g.procs.items():
+            m = _proc_mem_mb(p.popen.pid) if p.popen.poll() is None else None
+            if m is None:
+                continue
+            rss[name], self.hwm[name] = m
+            kids = {k: km for k in _descendants(p.popen.pid) if (km := _proc_mem_mb(k)) is not None}
+            if kids:
+                rss[f"{name}/workers"] = sum(km[0] for km in kids.values())
+                for k, km in kids.items():
+                    self.worker_hwm[k] = max(self.worker_hwm.get(k, 0.0), km[1])
+        self.times.append(time.monotonic())
+        self.rss.append(rss)
+
+    def labels(self) -> list[str]:
+        return list(dict.fromkeys(k for r in self.rss for k in r))
+
+
+def bench_soak(results: dict, repeats: int, soak_s: float = 600.0) -> None:
+    """The graph benchmark's graph for ``soak_s`` s of data in real time; every process's memory
+    sampled every SOAK_SAMPLE_S s while the data flow and every SOAK_FINALIZE_SAMPLE_S s while
+    transfer_align_node finalizes."""
+    import tempfile
+
+    from dpos_ros.runtime.graph import Graph
+
+    if soak_s <= 0:
+        print("soak: skipped (--soak-s 0)")
+        return
+    dur = float(soak_s)
+    tmp = Path(tempfile.mkdtemp(prefix="dpos_bench_soak_"))
+    spec, scen, subs = _graph_spec(tmp, dur)
+    devices = [n.name for n in spec.nodes if n.executable in ("pos_master_node", "pos_sub_node")]
+    # the data flow: from the last device that starts publishing in real time to the last one
+    # whose messages are all acknowledged (SimDevice's log lines "publishing ..." / "published ...")
+    started: dict[str, float] = {}
+    finished: dict[str, float] = {}
+    log_path = tmp / "graph.log"
+    print(f"soak: {len(spec.nodes)} processes, {dur:.0f} s of data at 200 Hz in real time; logs in {log_path}", flush=True)
+    with log_path.open("w") as log_file:
+        def log(name: str, line: str) -> None:
+            now = time.monotonic()
+            log_file.write(f"{now:.1f} [{name}] {line}\n")
+            if name in devices and ": publishing " in line:
+                started.setdefault(name, now)
+            elif name in devices and ": published " in line:
+                finished.setdefault(name, now)
+
+        with Graph(spec, log=log) as g:
+            sample = _MemSampler(g)
+            t_ready = time.monotonic()
+            # device start-up (stream generation) + data + finalize (the ukf of 6 sub-IMUs on 2
+            # busy cores: about the data duration) + margin
+            budget = 120.0 + 4.0 * dur + 300.0
+            next_sample = t_ready
+            while time.monotonic() < t_ready + budget and not _graph_done(g, tmp):
+                now = time.monotonic()
+                if len(finished) == len(devices):  # the finalize: sample it closely from now on
+                    next_sample = min(next_sample, now + SOAK_FINALIZE_SAMPLE_S)
+                if now >= next_sample:
+                    sample()
+                    next_sample += SOAK_SAMPLE_S if len(finished) < len(devices) else SOAK_FINALIZE_SAMPLE_S
+                time.sleep(0.2)
+            sample()  # the end of the finalize: the products are written
+            done = _graph_done(g, tmp)
+    if not done:
+        raise RuntimeError(f"soak: no products after {budget:.0f} s; see {log_path}")
+    if set(started) != set(devices) or set(finished) != set(devices):
+        raise RuntimeError(f"soak: devices that never started / finished publishing: {sorted(set(devices) - set(started))} / "
+                           f"{sorted(set(devices) - set(finished))}; see {log_path}")
+    t_data0, t_data1 = max(started.values()), max(finished.values())
+    timing = json.loads(next((tmp / "out").glob("*/status.json")).read_text()).get("timing", {})
+    lost, n_msgs = _graph_loss(tmp, scen, subs, dur)
+
+    labels = sample.labels()
+    rel = [t - t_data0 for t in sample.times]
+    phase = ["start" if t < t_data0 else "data" if t <= t_data1 else "finalize" for t in sample.times]
+    rss_mb: dict[str, list[float | None]] = {k: [round(r[k], 1) if k in r else None for r in sample.rss] for k in labels}
+    peak = {k: round(max([sample.hwm.get(k, 0.0)] + [v for v in rss_mb[k] if v is not None]), 1) for k in labels}
+    if sample.worker_hwm:
+        peak["transfer_align_node/worker_each"] = round(max(sample.worker_hwm.values()), 1)
+    growth: dict[str, float | None] = {}
+    for k in labels:
+        pts = np.array([(r / 60.0, v) for r, ph, v in zip(rel, phase, rss_mb[k]) if ph == "data" and v is not None])
+        growth[k] = round(float(np.polyfit(pts[:, 0], pts[:, 1], 1)[0]), 3) if len(pts) >= 2 else None
+    processing_s = float(timing.get("processing_s", np.nan))
+    results["soak_duration_s"] = dur
+    results["soak_loss_count"] = lost
+    results["soak_messages"] = n_msgs
+    results["soak_rss_mb"] = rss_mb
+    results["soak_rss_t_s"] = [round(r, 1) for r in rel]
+    results["soak_rss_phase"] = phase
+    results["soak_peak_rss_mb"] = peak
+    results["soak_rss_growth_mb_per_min"] = growth
+    results["soak_processing_time_ratio"] = processing_s / dur
+    results["soak_data_wall_s"] = round(t_data1 - t_data0, 1)
+
+    print(f"soak: {n_msgs} messages of /master/imu, /master/nav + 6 sub-IMUs at 200 Hz over {dur:.0f} s of data "
+          f"(every device publishing for {t_data1 - t_data0:.0f} s wall): lost {lost}; finalize {processing_s:.1f} s "
+          f"(ratio {processing_s / dur:.3f}); {len(rel)} memory samples (every {SOAK_SAMPLE_S:g} s, "
+          f"{SOAK_FINALIZE_SAMPLE_S:g} s in the finalize)")
+    data_i = [i for i, ph in enumerate(phase) if ph == "data"]
+    fin_i = [i for i, ph in enumerate(phase) if ph == "finalize"]
+    cols = [data_i[0], data_i[len(data_i) // 2], data_i[-1]] if data_i else [None, None, None]
+
+    def mb(v: float | None) -> str:
+        return "-" if v is None else f"{v:.1f}"
+
+    w = max(len(k) for k in labels)
+    print(f"  {'RSS [MB]':<{w}}  {'start':>7} {'middle':>7} {'end':>7}  {'finalize':>8} {'VmHWM':>7}  {'MB/min':>7}")
+    for k in labels:
+        fin = [v for i in fin_i if (v := rss_mb[k][i]) is not None]
+        gk = growth[k]
+        print(f"  {k:<{w}}  " + " ".join(f"{mb(None if i is None else rss_mb[k][i]):>7}" for i in cols)
+              + f"  {mb(max(fin) if fin else None):>8} {peak[k]:>7.1f}  {'-' if gk is None else f'{gk:+.3f}':>7}")
+    print(f"  (start / middle / end: samples of the data flow, t = {', '.join(mb(None if i is None else rel[i]) for i in cols)} s; "
+          "finalize: the largest sample after it; VmHWM: the peak of the process's life; MB/min: least-squares slope "
+          "over the data flow"
+          + (f"; workers: the smoother processes of transfer_align_node summed, {len(sample.worker_hwm)} process(es), "
+             f"the largest VmHWM {peak['transfer_align_node/worker_each']:.1f} MB" if sample.worker_hwm else "") + ")")
+
+
+BENCHES: dict[str, Callable[..., None]] = {
     "strapdown": bench_strapdown,
     "sim": bench_sim,
     "transfer_alignment": bench_transfer_alignment,
     "ifa": bench_ifa,
     "graph": bench_graph,
     "replay": bench_replay,
+    "soak": bench_soak,
 }
 
 
@@ -313,12 +528,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", choices=sorted(BENCHES), action="append", help="run only these benchmarks")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--soak-s", type=float, default=600.0, metavar="S",
+                    help="seconds of data of the soak benchmark (600; 0 skips it)")
     args = ap.parse_args(argv)
+    options = {"soak": {"soak_s": args.soak_s}}
     results: dict = {}
     for name, fn in BENCHES.items():
         if args.only and name not in args.only:
             continue
-        fn(results, args.repeats)
+        fn(results, args.repeats, **options.get(name, {}))
     results["machine"] = {"cpus": os.cpu_count(), "python": sys.version.split()[0]}
     args.out.write_text(json.dumps(results, indent=2) + "\n")
     print(f"wrote {args.out}")
