@@ -215,8 +215,8 @@ def _cpu_s(pid: int) -> float:
 
 
 def _graph_spec(tmp: Path, dur: float) -> tuple[Any, Path, list[str]]:
-    """The rated load: pos_master_node + one pos_sub_node per sub-IMU of paper_wing at 200 Hz in real
-    time for ``dur`` s, transfer_align_node (ukf; products and spill in ``tmp/out``) and a
+    """The rated load: pos_master_node + one pos_sub_node per sub-IMU of paper_wing at 200 Hz (its
+    steady flight made ``dur`` s long when it is shorter) in real time for ``dur`` s, transfer_align_node (ukf; products and spill in ``tmp/out``) and a
     dpos-record of /master/imu (``tmp/rec``; /master/imu has no other consumer in this graph).
     Returns (GraphSpec, scenario file, sub-IMU names)."""
     import yaml
@@ -228,6 +228,8 @@ def _graph_spec(tmp: Path, dur: float) -> tuple[Any, Path, list[str]]:
     sc = yaml.safe_load(config_text("scenarios", "paper_wing"))
     sc["rates_hz"] = {"master_imu_hz": 200.0, "master_nav_hz": 200.0, "sub_imu_hz": 200.0}
     sc["aircraft"] = "paper_wing"
+    steady = sc["flight"]["segments"][-1]  # paper_wing is 300 s of steady flight: longer for a longer soak
+    steady["duration_s"] += max(0.0, dur - sum(seg["duration_s"] for seg in sc["flight"]["segments"]))
     scen = tmp / "wing200.yaml"
     scen.write_text(yaml.safe_dump(sc))
     subs = [s.name for s in load_scenario(scen).aircraft.sub_imus]
