@@ -172,3 +172,51 @@ def test_sigstopped_sub_imu_catches_up_and_nothing_is_lost(tmp_path: Path) -> No
     assert t.size == 4000 and np.all(np.diff(t) == 10_000_000) and frozen < 3000, (t.size, frozen)
     st = json.loads((out / "paper_su_seed1" / "status.json").read_text())
     assert st["antennas"]["ant_r"] == "estimated", st
+
+
+def test_sub_imu_frozen_past_the_session_end_its_late_data_are_kept_and_used_by_dpos_process(tmp_path: Path) -> None:
+    """SIGSTOP the sub-IMU's device until the master has ended the session and finalize gave up
+    waiting (finalize_timeout_s 2 s), then SIGCONT: its remaining samples arrive after the session
+    closed. They are kept in <spill>/late, counted in status.json, and dpos-process on the spill
+    has every sample of the flight."""
+    domain = int(os.environ["ROS_DOMAIN_ID"])
+    out = tmp_path / "out"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    ta = subprocess.Popen([str(EXE / "transfer_align_node"), "--ros-args", "-p", "method:=ukf", "-p", f"output_dir:={out}",
+                           "-p", "output_rate_hz:=1.0", "-p", "finalize_timeout_s:=2.0"], env=env, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    common = ["-p", "scenario:=paper_su", "-p", "duration:=30.0", "-p", "rate_factor:=2.0", "-p", "publish_truth:=false",
+              "-p", "min_subscribers:=1", "-p", "wait_subscribers_s:=30.0"]
+    master = subprocess.Popen([str(EXE / "pos_master_node"), "--ros-args", *common, "-p", "alignment:=reference"],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    sub = subprocess.Popen([str(EXE / "pos_sub_node"), "--ros-args", "-r", "__node:=sub_r", "-p", "name:=sub_r", *common],
+                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        assert _wait(lambda: (out / "spill").is_dir() and any(spill.is_spill(p) for p in (out / "spill").iterdir()), 60)
+        d = next(p for p in (out / "spill").iterdir() if spill.is_spill(p))
+        n_sub = lambda: len(spill.read_spill(d)[0].get("/sub_imu/sub_r/imu", ("", [], []))[1])  # noqa: E731
+        assert _wait(lambda: n_sub() > 1500, 60)
+        os.killpg(sub.pid, signal.SIGSTOP)
+        # the master ends the session, finalize waits 2 s for sub_r and closes the spill without its tail
+        assert _wait(lambda: any(out.glob("paper_su_seed1/status.json")), 120)
+        os.killpg(sub.pid, signal.SIGCONT)
+        assert _wait(lambda: n_sub() == 3000, 60)  # read_spill merges late/
+    finally:
+        for p in (master, sub, ta):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGCONT)
+                os.killpg(p.pid, signal.SIGINT)
+            p.wait(60)
+    st = json.loads((out / "paper_su_seed1" / "status.json").read_text())
+    n_late = st["late_after_close"]["messages"]["/sub_imu/sub_r/imu"]
+    own = len(spill.read_spill(d, include_late=False)[0]["/sub_imu/sub_r/imu"][1])
+    assert own + n_late == 3000 and n_late > 100 and st["late_after_close"]["used"] is False, (own, st["late_after_close"])
+    r = subprocess.run([str(EXE / "dpos-process"), str(d), "--method", "ukf", "--output-rate", "1", "--out", str(tmp_path / "p")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert f"{n_late} message(s) arrived after the session was closed" in r.stderr, r.stderr
+    p = json.loads((tmp_path / "p" / "paper_su_seed1" / "status.json").read_text())
+    assert p["antennas"]["ant_r"] == "estimated", p  # the whole flight, no gap
+    t = np.loadtxt(tmp_path / "p" / "paper_su_seed1" / "ant_r.csv", delimiter=",", skiprows=1, usecols=0)
+    t_own = np.loadtxt(out / "paper_su_seed1" / "ant_r.csv", delimiter=",", skiprows=1, usecols=0)
+    assert t[-1] - t[0] > t_own[-1] - t_own[0] + 1.0  # the re-run covers the tail the node did not have
