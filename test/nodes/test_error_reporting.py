@@ -86,6 +86,7 @@ def ifa(ros_context, monkeypatch):
     for row in cv.imu_rows(cv.MASTER_FRAME, cv.stamps_ns(ss.scenario.start_time_s, imu.t_s), imu.omega_radps, imu.f_mps2, 1e-6, 1e-4):
         node._on_imu(bytes(row))
     assert node.al is not None and node.imu_samples == imu.t_s.size
+    assert not [w for w in log.at("warning") if "after the start state" in w]  # the IMU starts with the state: no warning
     t_g = cv.stamps_ns(ss.scenario.start_time_s, g.t_s)
 
     def fix(j: int, llh=None) -> None:
@@ -95,6 +96,38 @@ def ifa(ros_context, monkeypatch):
     node.fix, node.g, node.log, node.tap = fix, g, log, tap
     try:
         yield node
+    finally:
+        node.destroy_node()
+
+
+def test_ifa_first_imu_long_after_the_start_state_is_warned(ros_context, monkeypatch) -> None:
+    """A replay started before ifa_node subscribed: its first IMU sample is 3 s after the start
+    state. The node says so (the navigation integrates across the unmeasured motion) and reports
+    the gap in its status."""
+    from ifa_node.node import IfaNode
+
+    ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=6.0)
+    imu, datum = ss.master_imu(), ss.datum_llh
+    origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
+    tr = ss.truth("master", np.array([0.0]))
+    init = initial_state_from_truth(tr.q_nb[0], tr.vel_n_mps[0], tr.llh[0], 0.0, 30.0)
+    node = IfaNode(context=ros_context, parameter_overrides=[
+        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
+    log, tap = FakeLogger(), StatusTap()
+    monkeypatch.setattr(node, "get_logger", lambda: log)
+    node.pub_status = tap
+    try:
+        v0 = cv.odometry_values_cov(init.llh[None], init.vel_n_mps[None], init.q_nb[None], datum, None, np.eye(3), np.eye(3), np.eye(3))
+        node._on_nav(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([origin]), v0)[0]))
+        late = imu.t_s >= 3.0
+        for row in cv.imu_rows(cv.MASTER_FRAME, cv.stamps_ns(ss.scenario.start_time_s, imu.t_s[late]), imu.omega_radps[late],
+                               imu.f_mps2[late], 1e-6, 1e-4):
+            node._on_imu(bytes(row))
+        assert node.al is not None
+        warned = [w for w in log.at("warning") if "first /master/imu sample after the start state" in w]
+        assert len(warned) == 1 and "is 3.000 s after it" in warned[0], log.lines
+        node._publish_status()
+        assert abs(float(tap.sent[-1]["imu_start_gap_s"]) - 3.0) < 0.011, tap.sent[-1]
     finally:
         node.destroy_node()
 

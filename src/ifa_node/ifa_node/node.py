@@ -80,7 +80,8 @@ Outputs per accepted epoch
     (WARN: restarted); level ERROR after a numerical failure (above); key/values: method, epochs,
     aligned (true once the alignment was declared: a DEGRADED after it still is), heading_sigma_deg,
     att_sigma_deg, R_diag, nis, nis_window, aligned_t_s, rejected_fixes, rejected/<reason>,
-    last_rejection, before_start, unpaired, imu_samples, imu_dropped, imu_gaps,
+    last_rejection, before_start, unpaired, imu_samples, imu_dropped, imu_gaps, imu_start_gap_s (the
+    first IMU sample after the start state minus its stamp; warned when over START_GAP_WARN_S),
     numerical_failures, last_failure, hypotheses_failed, chol_jitter_repairs, nav_discrepancy_m,
     nav_discrepancy_deg, nav_discrepancy_checks and nav_discrepancy_max_m (epochs compared so far and
     the largest difference: a status message may be missed, these are not), gyro_bias_deg_h, accel_bias_ug; and for pos_master_node's hold (see its
@@ -132,6 +133,8 @@ NODE_NAME = "ifa_node"
 STATUS_NAME = "ifa_node: in-flight alignment"
 #: IMU samples kept while waiting for the first /master/nav
 MAX_PRESTART_IMU = 20000
+#: a first IMU sample this long after the start state (at least GAP_FACTOR IMU intervals) is warned about [s]
+START_GAP_WARN_S = 0.1
 #: period of the check for due outage time updates when no message comes [s]
 OUTAGE_CHECK_S = 0.05
 #: /master/nav messages kept for the epoch comparison
@@ -218,6 +221,7 @@ class IfaNode(Node):
         self.imu_samples = 0
         self.imu_dropped = 0
         self.imu_gaps = 0
+        self.imu_start_gap_s = 0.0  # first IMU sample after the start state - its stamp [s]
         self.discrepancy = (float("nan"), float("nan"))
         self.discrepancy_checks = 0  # epochs compared with /master/nav, and the largest difference [m] of all
         self.max_discrepancy_m = 0.0
@@ -338,6 +342,13 @@ class IfaNode(Node):
         self._imu_dt_s = nominal_imu_dt_s(stamp_s(t_imu, t0_ns))  # the same rule as run()
         blk = cv.odometry_from_values(np.array([t0_ns]), v[None], self.datum_llh)
         initial = NavState(0.0, blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0])
+        self.imu_start_gap_s = (self._imu[0][0] - t0_ns) * 1e-9
+        if self.imu_start_gap_s > max(GAP_FACTOR * self._imu_dt_s, START_GAP_WARN_S):
+            # e.g. a replay started before this node subscribed: the motion in between is not measured
+            self.get_logger().warning(
+                f"the first /master/imu sample after the start state (/master/nav at {t0_ns} ns) is {self.imu_start_gap_s:.3f} s "
+                f"after it (IMU interval {self._imu_dt_s:.4g} s): the navigation integrates across this gap and is wrong by the "
+                "motion in it until GNSS corrects it; start this node before the data (status imu_start_gap_s)")
         self.origin_ns = t0_ns
         self.al = InFlightAligner(initial, self.lever_arm_m, self.core_config, self.config.method, self._imu_dt_s)
         self._first_nav = None
@@ -701,6 +712,7 @@ class IfaNode(Node):
                        "gnss_time_offset_s": f"{self.core_config.gnss_time_offset_s:.9g}"})
         values.update({"last_rejection": self.last_rejection, "before_start": self.before_start, "unpaired": self.unpaired,
                        "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
+                       "imu_start_gap_s": f"{self.imu_start_gap_s:.6g}",
                        "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
         al, rec = self.al, self.last_record
         if al is not None:
