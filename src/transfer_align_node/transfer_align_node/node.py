@@ -121,9 +121,10 @@ def _check_writable(directory: Path) -> None:
 
 def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
                   filter_rate_hz: float, output_rate_hz: float):
-    """One sub-IMU in a worker process: read the spill, align, return the antenna solutions."""
-    sess = read_session(Path(spill_dir), include_late=False)
+    """One sub-IMU in a worker process: read its topics of the spill, align, return the antenna solutions."""
     aircraft = load_aircraft("session", text=aircraft_yaml)
+    mine = {T.sub_imu(sub), T.TRUTH_MASTER, T.truth_sub_imu(sub)} | {T.truth_antenna(a.name) for a in aircraft.antennas if a.sub_imu == sub}
+    sess = read_session(Path(spill_dir), include_late=False, keep=mine.__contains__)
     ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub],
                          filter_rate_hz=filter_rate_hz, output_rate_hz=output_rate_hz)
     return ants, timing, sess.warnings
@@ -536,7 +537,7 @@ class TransferAlignNode(Node):
         for a in self.aircraft.antennas:
             if a.name not in antennas and (a.sub_imu is None or a.sub_imu in self.sub_names):
                 antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
-        sess = read_session(spill_dir, include_late=False)
+        sess = read_session(spill_dir, include_late=False, keep=lambda t: not t.startswith("/sub_imu/"))  # the products need no IMU data
         sess.warnings = list(dict.fromkeys(warnings + sess.warnings))  # the workers read the same spill: each warning once
         streams = [s for s in antenna_streams(sess, antennas) if len(s)]
         if self._device is not None:
@@ -546,6 +547,8 @@ class TransferAlignNode(Node):
             self._progress = f"publishing {sum(len(s) for s in streams)} antenna poses"
             device = self._device = SimDevice(self, streams, 0.0).start()
             device.finished.wait()
+            device.stop()  # every pose is published: do not hold the session's poses until the next one
+            self._device = None
         else:
             log.warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
         sid = sess.session_id

@@ -139,7 +139,8 @@ def _recover_mcap(src: Path, out: Path) -> tuple[int, int, str]:
     return len(msgs), len({channels[c].topic for c, _, _ in msgs}), stop
 
 
-def read_raw(path: Path, topics: Iterable[str] | None = None, notes: list[str] | None = None) -> dict[str, tuple[str, list[int], list[bytes]]]:
+def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = None,
+             notes: list[str] | None = None) -> dict[str, tuple[str, list[int], list[bytes]]]:
     """Every message of a bag as ``{topic: (msgtype, log times [ns], raw CDR)}``, in log-time order.
     A bag without metadata is recovered first (:func:`readable_bag`); what was recovered is appended
     to ``notes`` (or warned about when it is None)."""
@@ -154,13 +155,17 @@ def read_raw(path: Path, topics: Iterable[str] | None = None, notes: list[str] |
         else:
             notes.append(note)
 
-    wanted = None if topics is None else set(topics)
+    wanted: Callable[[str], bool] | None = None
+    if callable(topics):
+        wanted = topics
+    elif topics is not None:
+        wanted = set(topics).__contains__
     out: dict[str, tuple[str, list[int], list[bytes]]] = {}
     times: dict[str, list[int]] = defaultdict(list)
     data: dict[str, list[bytes]] = defaultdict(list)
     types: dict[str, str] = {}
     with AnyReader([path], default_typestore=typestore()) as r:
-        conns = [c for c in r.connections if wanted is None or c.topic in wanted]
+        conns = [c for c in r.connections if wanted is None or wanted(c.topic)]
         for c in conns:
             types[c.topic] = c.msgtype
         for c, t, raw in r.messages(connections=conns):

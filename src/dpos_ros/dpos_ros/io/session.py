@@ -8,6 +8,7 @@ median) counted; each as a warning naming the topic.  A missing ``/master/nav`` 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -134,15 +135,19 @@ def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str, warnin
     return t_ns[~bad], vals[~bad]
 
 
-def read_session(path: Path, include_late: bool = True) -> RecordedSession:
+def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None) -> RecordedSession:
     """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring); of a
-    spill, with its late messages unless ``include_late`` is False (:func:`dpos_ros.io.spill.read_spill`)."""
+    spill, with its late messages unless ``include_late`` is False (:func:`dpos_ros.io.spill.read_spill`).
+    ``keep``: read only the topics it accepts (/master/nav and /dpos/datum are always read)."""
+    if keep is not None:
+        only = keep
+        keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END) or only(t)  # noqa: E731
     path = Path(path)
     from dpos_ros.io.spill import is_spill, read_spill
 
     if is_spill(path):  # the crash-safe spill of transfer_align_node
         try:
-            raw, custom, sid, warns = read_spill(path, include_late)
+            raw, custom, sid, warns = read_spill(path, include_late, keep)
         except (ValueError, OSError) as e:
             raise SessionError(f"{path}: cannot read the spill: {e}") from None
         custom.setdefault("dpos.session_id", sid)
@@ -153,7 +158,7 @@ def read_session(path: Path, include_late: bool = True) -> RecordedSession:
         raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml) nor a dpos spill (no spill.json)")
     notes: list[str] = []
     try:
-        raw = bag.read_raw(path, notes=notes)  # a recording without metadata is recovered (noted)
+        raw = bag.read_raw(path, keep, notes=notes)  # a recording without metadata is recovered (noted)
         meta_path, _ = bag.readable_bag(path)
     except Exception as e:  # rosbags raises its own errors for truncated or broken files
         raise SessionError(f"{path}: cannot read the recording: {e}") from None

@@ -114,15 +114,17 @@ def is_spill(path: Path) -> bool:
     return (Path(path) / "spill.json").is_file()
 
 
-def read_spill(path: Path, include_late: bool = True) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
+def read_spill(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None,
+               ) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
     """``(raw, custom_data, session_id, warnings)`` of a spill directory (see module docstring);
     the late messages of ``<path>/late/`` merged into their topics in stamp order (unless
-    ``include_late`` is False: transfer_align_node's own products are made without them)."""
+    ``include_late`` is False: transfer_align_node's own products are made without them).
+    ``keep``: read only the topics it accepts (the others' files are not opened)."""
     path = Path(path)
-    raw, custom, sid, warnings = _read_one(path)
+    raw, custom, sid, warnings = _read_one(path, keep)
     late_dir = path / LATE_DIR
     if include_late and is_spill(late_dir):
-        late, _, _, late_warnings = _read_one(late_dir)
+        late, _, _, late_warnings = _read_one(late_dir, keep)
         warnings += [f"{LATE_DIR}/{w}" for w in late_warnings]
         for topic, (msgtype, times, blobs) in late.items():
             if not times:
@@ -136,13 +138,16 @@ def read_spill(path: Path, include_late: bool = True) -> tuple[dict[str, tuple[s
     return raw, custom, sid, warnings
 
 
-def _read_one(path: Path) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
+def _read_one(path: Path, keep: Callable[[str], bool] | None = None,
+              ) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
     meta = json.loads((path / "spill.json").read_text())
     if meta.get("format") != FORMAT or meta.get("version") != VERSION:
         raise ValueError(f"{path}: not a {FORMAT} v{VERSION} directory")
     raw: dict[str, tuple[str, list[int], list[bytes]]] = {}
     warnings: list[str] = []
     for topic, info in meta["topics"].items():
+        if keep is not None and not keep(topic):
+            continue
         f = path / info["file"]
         buf = f.read_bytes() if f.is_file() else b""
         times, blobs = [], []

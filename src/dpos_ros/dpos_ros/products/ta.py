@@ -10,7 +10,10 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -215,7 +218,6 @@ def write(
     products are kept when writing fails). On any exception while writing, what this call created
     (the new directory or the temporary one) is removed and the exception re-raised: the
     products are complete or absent, never mixed or partial. ``out_root`` is created if needed."""
-    import shutil
 
     final = Path(out_root) / sess.session_id
     out = _new_products_dir(final, overwrite)
@@ -236,9 +238,6 @@ class ProductsExistError(FileExistsError):
 def _new_products_dir(final: Path, overwrite: bool) -> Path:
     """The new directory to write the products into: ``final`` itself when it does not exist,
     else (``overwrite``) a temporary sibling; :class:`ProductsExistError` otherwise."""
-    import errno
-    import os
-    import shutil
 
     final.parent.mkdir(parents=True, exist_ok=True)
     if not final.exists():
@@ -257,8 +256,6 @@ def _new_products_dir(final: Path, overwrite: bool) -> Path:
 def _swap_in(tmp: Path, final: Path) -> None:
     """Replace ``final`` by the complete ``tmp`` (two renames in one directory); the old products
     are restored if the second rename fails, and removed once the new ones are in place."""
-    import os
-    import shutil
 
     old = final.with_name(f".{final.name}.old-{os.getpid()}")
     if old.exists():
@@ -291,11 +288,7 @@ def _write_products(
         assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
         _write_csv(out / f"{name}.csv", st.t_ns, a.traj, a.sigma, a.flags)
     bag_dir = out / "antennas"
-    if streams:
-        if bag_dir.exists():
-            import shutil
-
-            shutil.rmtree(bag_dir)
+    if streams:  # (out is a new directory: write() never mixes runs)
         write_streams(bag_dir, streams, custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
     status = {name: a.status for name, a in antennas.items()}
     repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.traj is not None}
