@@ -185,7 +185,8 @@ def test_stray_messages_are_rejected_and_counted_and_both_wings_estimated(node, 
     bad_msgs[topic] = (msgs[topic][0], good[:300] + strays + good[300:])
     _feed(ta, bad_msgs)
     s = _status(ta)
-    assert s[f"{topic}/rejected"] == "6" and s["level"] >= 1, s  # 5 frames + stamp 0 (the covariance is the reader's)
+    assert s[f"{topic}/rejected"] == "7" and s["level"] >= 1, s
+    assert (s[f"{topic}/rejected/frame"], s[f"{topic}/rejected/zero_stamp"], s[f"{topic}/rejected/unavailable"]) == ("5", "1", "1"), s
     _finalize(ta, _end(msgs), "strays")
     st = json.loads((tmp_path / "out" / "strays" / "status.json").read_text())
     assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, st

@@ -20,10 +20,11 @@ Sessions
     session, and once a topic started again all its messages do.
 
 Bad messages
-    Messages with stamp 0 or with other frame names than the topic's first message are counted
-    (status ``<topic>/rejected``, level WARN) and kept out of the stream statistics; they are
-    spilled as they came, and the session reader (:func:`dpos_ros.io.session.read_session`)
-    rejects them, with the relays' other checks, naming each kind.
+    Messages the session reader (:func:`dpos_ros.io.session.read_session`) will reject - other
+    frame names than the topic's first message (``frame``), stamp 0, and for Imu the relays'
+    ``unavailable`` / ``negative_cov`` - are counted as they arrive (status ``<topic>/rejected``
+    and ``<topic>/rejected/<reason>``, level WARN) and kept out of the stream statistics; they
+    are spilled as they came.
 
 Disk faults
     ``output_dir`` must be writable at start (else exit 2 naming it).  When the disk refuses a
@@ -79,11 +80,12 @@ from std_srvs.srv import Trigger
 
 from dpos_core.config import ConfigError, config_text, load_aircraft
 from dpos_core.errors import RejectedInput
+from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
 from dpos_ros.devices.sim_device import SimDevice
-from dpos_ros.io.session import read_session
+from dpos_ros.io.session import read_session, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, solve, write
 from dpos_ros.runtime.node_main import run_node
@@ -261,8 +263,8 @@ class TransferAlignNode(Node):
         self._closed: _Closed | None = None  # the last closed session (late messages)
         self._end_on_shutdown = False
         self._datum: tuple[int, bytes] | None = None  # the latest /dpos/datum (stamp, CDR): spilled into every session
-        self._frames: dict[str, bytes] = {}  # topic -> frame_id bytes of its first message
-        self._rejected: dict[str, int] = {}  # topic -> messages with stamp 0 or another frame
+        self._frames: dict[str, tuple[bytes, cdr.Layout | None]] = {}  # topic -> frame_id bytes of its first message (Imu: layout)
+        self._rejected: dict[str, dict[str, int]] = {}  # topic -> reason -> messages the session reader rejects
         self._disk: BufferedSpill | None = None  # a closing spill waiting for the disk (finalize)
         self._stopping_at: float | None = None  # time.monotonic() of the shutdown (bounds the wait for the disk)
         self._device: SimDevice | None = None  # publishing the antenna poses of the last session
@@ -312,13 +314,14 @@ class TransferAlignNode(Node):
                     return
                 sp = self._ensure_spill()
                 sp.write(topic, msgtype, t, data)
-                frame = self._frames.setdefault(topic, _frame_bytes(data))
-                if t == 0 or _frame_bytes(data) != frame:
-                    n = self._rejected[topic] = self._rejected.get(topic, 0) + 1
-                    if n == 1:
+                why = self._reject_reason(topic, msgtype, t, data)
+                if why is not None:
+                    counts = self._rejected.setdefault(topic, {})
+                    counts[why] = counts.get(why, 0) + 1
+                    if counts[why] == 1:
                         self.get_logger().warning(
-                            f"{topic}: message with {'stamp 0' if t == 0 else 'another frame_id than the first message'} "
-                            "(spilled; the session reader rejects it; counted in the status as rejected)")
+                            f"{topic}: message stamped {t} ns rejected ({why}); spilled as it came, the session reader rejects "
+                            "it too (counted in the status as rejected)")
                     return
                 st = self._streams.get(topic)
                 if st is None:
@@ -326,6 +329,21 @@ class TransferAlignNode(Node):
                 else:
                     st.add(t)
         return cb
+
+    def _reject_reason(self, topic: str, msgtype: str, t: int, data: bytes) -> str | None:
+        """Why the session reader will reject this message (:func:`dpos_ros.io.session.reject_reasons`,
+        ``frame``: another frame_id than the topic's first message in this session), or None."""
+        frame = _frame_bytes(data)
+        first = self._frames.get(topic)
+        if first is None:
+            first = self._frames[topic] = (frame, cdr.layout("imu", cdr.frame_ids(data, "imu")[0]) if msgtype == T.IMU else None)
+        if frame != first[0]:
+            return "frame"
+        lay = first[1]
+        if lay is None or len(data) != lay.size:
+            return "zero_stamp" if t == 0 else None
+        t_v, vals = cdr.decode(lay, np.frombuffer(data, dtype=np.uint8)[None])
+        return next((why for why, m in reject_reasons("imu", t_v, vals).items() if m[0]), None)
 
     def _ensure_spill(self) -> BufferedSpill:
         sp = self._spill
@@ -419,7 +437,7 @@ class TransferAlignNode(Node):
             if previous is not None:
                 previous.close()
             if rejected:
-                log.warning(f"finalize: messages with stamp 0 or another frame_id (rejected by the session reader): {rejected}")
+                log.warning(f"finalize: messages the session reader rejects, per topic and reason: {rejected}")
             short = [t for t, st in streams.items() if t in needed and st.last_ns < end_ns - 20_000_000]
             if behind:
                 log.warning(f"finalize: after {cfg.finalize_timeout_s:g} s still short of the end stamp: {behind}")
@@ -610,7 +628,7 @@ class TransferAlignNode(Node):
         with self._lock:
             late = dict(self._closed.late) if self._closed is not None else {}
             errors = dict(self._errors)
-            rejected = dict(self._rejected)
+            rejected = {k: dict(v) for k, v in self._rejected.items()}
             disk = self._spill if self._spill is not None and (self._spill.held or self._spill.lost) else self._disk
         if disk is not None and (disk.held or disk.lost):
             st.level = DiagnosticStatus.ERROR
@@ -629,8 +647,9 @@ class TransferAlignNode(Node):
         for topic, n in sorted(late.items()):
             st.values.append(KeyValue(key=f"{topic}/late_after_finalize", value=str(n)))
             st.level = max(st.level, DiagnosticStatus.WARN)
-        for topic, n in sorted(rejected.items()):
-            st.values.append(KeyValue(key=f"{topic}/rejected", value=str(n)))
+        for topic, by_reason in sorted(rejected.items()):
+            st.values.append(KeyValue(key=f"{topic}/rejected", value=str(sum(by_reason.values()))))
+            st.values += [KeyValue(key=f"{topic}/rejected/{why}", value=str(n)) for why, n in sorted(by_reason.items())]
             st.level = max(st.level, DiagnosticStatus.WARN)
         for topic, (c, g, _last) in sorted(streams.items()):
             st.values.append(KeyValue(key=f"{topic}/count", value=str(c)))

@@ -122,17 +122,28 @@ def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str, warnin
         warnings.append(f"{topic}: {len(blobs) - n_keep} message(s) with other frame names than '{frames}' (or another type) "
                         "rejected; the others kept")
     t_ns, vals = cdr.decode(lay, rows[ok])
-    reasons = {"zero_stamp": t_ns == 0}
-    if kind == "imu":
-        reasons["unavailable"] = (vals[:, _IMU_W_COV_DIAG[0]] == -1.0) | (vals[:, _IMU_F_COV_DIAG[0]] == -1.0)
-        reasons["negative_cov"] = np.any(vals[:, _IMU_W_COV_DIAG + _IMU_F_COV_DIAG] < 0.0, axis=1) & ~reasons["unavailable"]
     bad = np.zeros(t_ns.size, dtype=bool)
-    for why, mask in reasons.items():
-        mask = mask & ~bad
+    for why, mask in reject_reasons(kind, t_ns, vals).items():
         if mask.any():
             warnings.append(f"{topic}: {int(mask.sum())} message(s) rejected ({why}, first at stamp {int(t_ns[mask][0])} ns)")
             bad |= mask
     return t_ns[~bad], vals[~bad]
+
+
+def reject_reasons(kind: str, t_ns: NDArray[np.int64], vals: FloatArray) -> dict[str, NDArray[np.bool_]]:
+    """The relays' checks (:mod:`dpos_ros.devices.relay`) on decoded messages: ``{reason: mask (N,)}``,
+    each message under its first reason only: ``zero_stamp`` and, for ``imu`` (vals (N, IMU_DOUBLES)),
+    ``unavailable`` (rate or acceleration covariance[0] = -1) and ``negative_cov``.  (NaN rows are
+    removed later, by the cleaning, with their own count.)"""
+    reasons = {"zero_stamp": t_ns == 0}
+    if kind == "imu":
+        reasons["unavailable"] = (vals[:, _IMU_W_COV_DIAG[0]] == -1.0) | (vals[:, _IMU_F_COV_DIAG[0]] == -1.0)
+        reasons["negative_cov"] = np.any(vals[:, _IMU_W_COV_DIAG + _IMU_F_COV_DIAG] < 0.0, axis=1)
+    taken = np.zeros(t_ns.size, dtype=bool)
+    for why in reasons:
+        reasons[why] = reasons[why] & ~taken
+        taken |= reasons[why]
+    return reasons
 
 
 def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None) -> RecordedSession:
