@@ -130,7 +130,10 @@ def test_antennas_without_imu_flex_with_the_wing() -> None:
     for name in ("ant02", "ant12"):
         a = ss.truth(f"antenna/{name}", t)
         dev[name] = np.abs(attitude_error(a.C_nb, m.C_nb)).max()
-    assert dev["ant12"] > 3.0 * dev["ant02"] > 0.0  # flexure grows along the span
+    # flexure grows along the span: paper_wing's modal wing turns a section by the first bending
+    # mode's slope phi_1'(s / L), x 2.75 from 2 to 12 m of L = 12.5 m (seed 2: 0.0256 / 0.0088 rad
+    # = x 2.9); the Gauss-Markov flexure's linear span scaling gave x 6 (the former bound was x 3)
+    assert dev["ant12"] > 2.0 * dev["ant02"] > 0.0
 
 
 def test_config_errors_name_the_problem(tmp_path: Path) -> None:

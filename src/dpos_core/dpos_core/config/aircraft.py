@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .files import ConfigError, build, parse_yaml, read_yaml, vec3
-from .flexure import FlexureModel
+from .flexure import FlexureModel, ModalWing, WingMode
 from .sensors import ImuErrorModel, imu_model
 
 
@@ -63,6 +63,10 @@ class AircraftConfig:
     #: the main IMU's datasheet model (``master_imu:``, may name a ``preset``); None = not stated
     #: (ifa_node then takes its ``imu_preset`` / parameters, or a simulated scenario's sensor)
     master_imu: ImuErrorModel | None = None
+    #: the simulator's modal wing (``flexure: {model: modal}``); None: the simulator flexes the wing
+    #: with ``flexure`` itself (``model: gauss_markov``, the default).  ``flexure`` stays the
+    #: transfer alignment's model ([Gong2018] eq. 13) either way.
+    wing: ModalWing | None = None
 
     def sub_imu(self, name: str) -> SubImuConfig:
         for s in self.sub_imus:
@@ -77,10 +81,11 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
     allowed = {"name", "gnss_lever_arm_m", "flexure", "sub_imus", "antennas", "description", "master_imu"}
     if set(d) - allowed:
         raise ConfigError(f"{label}: unknown key(s) {sorted(set(d) - allowed)}")
+    wing = None
     if d.get("flexure") is None and not d.get("sub_imus"):
         flex = FlexureModel(tau_s=(5.0, 2.0, 2.0), variance_deg2=(0.0, 0.0, 0.0))  # no wing: a rigid vehicle
     else:
-        flex = build(FlexureModel, d.get("flexure"), f"{label}: flexure")
+        flex, wing = _flexure(d.get("flexure"), f"{label}: flexure")
     subs = []
     for i, s in enumerate(d.get("sub_imus") or []):
         where = f"{label}: sub_imus[{i}]"
@@ -123,6 +128,10 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         ants.append(ant)
     if len({a.name for a in ants}) != len(ants):
         raise ConfigError(f"{label}: duplicate antenna names")
+    if wing is not None:
+        for what, span in [(f"sub-IMU {x.name!r}", x.span_m) for x in subs] + [(f"antenna {x.name!r}", x.span_m) for x in ants]:
+            if abs(span) > wing.semi_span_m:
+                raise ConfigError(f"{label}: {what} at span {span:g} m is beyond the wing's semi_span_m {wing.semi_span_m:g} m")
     return AircraftConfig(
         name=str(d.get("name", Path(str(name_or_path)).stem)),
         gnss_lever_arm_m=vec3(d.get("gnss_lever_arm_m", [0, 0, 0]), f"{label}: gnss_lever_arm_m"),
@@ -130,7 +139,34 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         sub_imus=tuple(subs),
         antennas=tuple(ants),
         master_imu=imu_model(d["master_imu"], f"{label}: master_imu") if d.get("master_imu") is not None else None,
+        wing=wing,
     )
+
+
+def _flexure(d: object, where: str) -> tuple[FlexureModel, ModalWing | None]:
+    """The ``flexure:`` block: ``model: gauss_markov`` (default; :class:`FlexureModel`, simulated
+    as such) or ``model: modal`` (:class:`ModalWing` for the simulator, plus the transfer alignment's
+    Gauss-Markov model: ``tau_s`` and ``span_exponent`` as given (default 5/2/2 s, 1), the variances
+    those of the modes at the reference span, per axis)."""
+    if not isinstance(d, dict):
+        return build(FlexureModel, d, where), None
+    d = dict(d)
+    model = d.pop("model", "gauss_markov")
+    if model == "gauss_markov":
+        return build(FlexureModel, d, where), None
+    if model != "modal":
+        raise ConfigError(f"{where}: model must be gauss_markov or modal, got {model!r}")
+    if "variance_deg2" in d:
+        raise ConfigError(f"{where}: a modal wing's variance_deg2 follows from its modes' sigma_deg; remove it")
+    ta = {k: d.pop(k) for k in ("tau_s", "span_exponent") if k in d}
+    raw = d.pop("modes", None)
+    if not isinstance(raw, list) or not raw:
+        raise ConfigError(f"{where}: a modal wing needs a non-empty list of modes")
+    d["modes"] = tuple(build(WingMode, m, f"{where}.modes[{i}]") for i, m in enumerate(raw))
+    wing = build(ModalWing, d, where)
+    flex = build(FlexureModel, {"tau_s": ta.get("tau_s", [5.0, 2.0, 2.0]), "span_exponent": ta.get("span_exponent", 1.0),
+                                "reference_span_m": wing.reference_span_m, "variance_deg2": list(wing.variance_deg2())}, where)
+    return flex, wing
 
 
 def _side(y: float) -> str:

@@ -16,6 +16,16 @@ Sub-IMU on the wing (all vectors of the lever arm in master body axes ``b``):
   motion of the flexing wing, so the sub-IMU's specific force contains
   ``omega x (omega x r) + omega_dot x r`` and the flexure acceleration consistently.
 
+Sub-IMU on a modal wing (:func:`deformed_body_motion`, :class:`~dpos_core.sim.flexure.ModalRealization`):
+the flexure gives, in master axes, the rotation ``theta_b`` of the wing section and the
+displacement ``d`` of its elastic axis (deflection ``w`` up, in-plane ``u`` forward), so
+
+* attitude ``C_bs = expm([theta_b x]) C_s0 = C_s0 expm([theta_s x])`` with ``theta_s = C_s0^T theta_b``;
+* lever arm ``r = r0 + d + (R(theta_b) - I) r_off``: the section moves with the elastic axis and
+  turns the body's offset ``r_off`` from it (``r0`` without its along-wing y component);
+* ``r_dot = d_dot + R(theta_b) (J_r(theta_b) theta_b_dot x r_off)``, and the rates as above: the
+  gyro sees the flexure rate, the accelerometer the deflection acceleration ``d2w/dt2``.
+
 Antennas are rigid on their carrier (a sub-IMU, or a wing section for antennas without IMU).
 """
 
@@ -76,5 +86,40 @@ def rigid_offset_motion(carrier: Motion, offset_m: ArrayLike) -> Motion:
     def motion(t: FloatArray):
         p, v, C, w = carrier(t)
         return p + C @ d, v + np.einsum("mij,mj->mi", C, np.cross(w, d)), C, w
+
+    return motion
+
+
+def deformed_body_motion(
+    carrier: Motion,
+    lever_arm_b_m: ArrayLike,
+    C_b_s0: ArrayLike,
+    deformation: Callable[[FloatArray], tuple[FloatArray, FloatArray, FloatArray, FloatArray]],
+) -> Motion:
+    """Motion of a body on a modal wing (module docstring).
+
+    Args:
+        carrier: the master body's motion.
+        lever_arm_b_m: ``r0`` (3,) undeformed, from the master IMU, master axes (wing along y).
+        C_b_s0: (3, 3) body axes -> master axes without flexure (mount and rigid misalignment).
+        deformation: ``t -> (theta_b, theta_b_dot, d, d_dot)`` each (M, 3) in master axes
+            (:meth:`~dpos_core.sim.flexure.ModalRealization.deformation` at the body's span).
+    """
+    r0 = np.asarray(lever_arm_b_m, dtype=float).reshape(3)
+    C_s0 = np.asarray(C_b_s0, dtype=float).reshape(3, 3)
+    r_off = r0 * np.array([1.0, 0.0, 1.0])
+
+    def motion(t: FloatArray):
+        p_m, v_m, C_eb, w_eb = carrier(t)
+        thb, thbd, d, dd = deformation(t)
+        th, thd = thb @ C_s0, thbd @ C_s0  # sub-IMU axes: C_s0^T theta_b
+        C_bs = C_s0 @ rotvec_to_dcm(th)
+        R = rotvec_to_dcm(thb)
+        r = r0 + d + R @ r_off - r_off
+        r_dot = dd + np.einsum("mij,mj->mi", R, np.cross(np.einsum("mij,mj->mi", right_jacobian(thb), thbd), r_off))
+        p = p_m + np.einsum("mij,mj->mi", C_eb, r)
+        v = v_m + np.einsum("mij,mj->mi", C_eb, np.cross(w_eb, r) + r_dot)
+        w = np.einsum("mji,mj->mi", C_bs, w_eb) + np.einsum("mij,mj->mi", right_jacobian(th), thd)
+        return p, v, C_eb @ C_bs, w
 
     return motion

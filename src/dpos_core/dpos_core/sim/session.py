@@ -25,8 +25,8 @@ from ..attitude import dcm_to_quat, mount_dcm, quat_to_dcm
 from ..frames import C_nb_from_hpr, hpr_from_C_nb, hpr_sigma_to_rotation_cov
 from ..kinematics import Motion, increments_from_motion, nav_from_ecef
 from ..series import GnssSeries, ImuSeries, NavSeries
-from .bodies import flexed_body_motion, rigid_offset_motion
-from .flexure import FlexureRealization
+from .bodies import deformed_body_motion, flexed_body_motion, rigid_offset_motion
+from .flexure import FlexureRealization, ModalRealization, load_factor
 from .flight import Flight
 from .scenario import Scenario
 from .sensors import draw_axes_errors, draw_biases, measure
@@ -42,7 +42,7 @@ class SimulatedSession:
         self.seed = int(seed)
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {seed}")
-        self._flexure: dict[int, FlexureRealization] = {}
+        self._flexure: dict[int, FlexureRealization | ModalRealization] = {}
 
     # ------------------------------------------------------------------ basics
     @property
@@ -67,19 +67,33 @@ class SimulatedSession:
         return k / rate_hz
 
     # ------------------------------------------------------------------ bodies
-    def flexure(self, side: int) -> FlexureRealization:
-        """Flexure of the right (+1) or left (-1) wing.
+    def flexure(self, side: int) -> FlexureRealization | ModalRealization:
+        """Flexure of the right (+1) or left (-1) wing: the aircraft's modal wing (its quasi-static
+        bending following this flight's load factor) if it has one, else its Gauss-Markov flexure.
 
         Sampled on the sub-IMU sample grid: within every IMU interval the interpolated flexure is
         then one smooth cubic, so the quadrature of the increments stays exact (a grid node inside
         an interval, where the white-noise-driven theta_ddot jumps, costs ~1e-7 rad per sample).
         """
-        if side not in self._flexure:
+        wing = self.scenario.aircraft.wing
+        if side not in self._flexure and wing is not None:
+            self._flexure[side] = ModalRealization.sample(
+                wing, side, self.duration_s, 1.0 / self.scenario.rates.sub_imu_hz,
+                self.rng("flexure/right" if side > 0 else "flexure/left"), load=load_factor(self.flight))
+        elif side not in self._flexure:
             self._flexure[side] = FlexureRealization.sample(
                 self.scenario.aircraft.flexure, self.duration_s, 1.0 / self.scenario.rates.sub_imu_hz,
                 self.rng("flexure/right" if side > 0 else "flexure/left"),
             )
         return self._flexure[side]
+
+    def _flexed_motion(self, lever_arm_m, C_b_s0, span_m: float) -> Motion:
+        """A body on the wing at ``span_m``: on the modal wing, or on the Gauss-Markov flexure."""
+        if self.scenario.aircraft.wing is not None and span_m != 0.0:
+            fr = self.flexure(1 if span_m > 0 else -1)
+            assert isinstance(fr, ModalRealization)
+            return deformed_body_motion(self.flight.ecef_motion, lever_arm_m, C_b_s0, lambda t: fr.deformation(t, span_m))
+        return flexed_body_motion(self.flight.ecef_motion, lever_arm_m, C_b_s0, self._flex_at(span_m))
 
     def _flex_at(self, span_m: float):
         if span_m == 0.0 or not np.any(np.asarray(self.scenario.aircraft.flexure.variance_deg2) > 0):
@@ -97,14 +111,14 @@ class SimulatedSession:
         kind, _, name = body.partition("/")
         if kind == "sub_imu":
             s = ac.sub_imu(name)
-            return flexed_body_motion(self.flight.ecef_motion, s.lever_arm_m, mount_dcm(s.mount_rpy_deg, s.rho_deg), self._flex_at(s.span_m))
+            return self._flexed_motion(s.lever_arm_m, mount_dcm(s.mount_rpy_deg, s.rho_deg), s.span_m)
         if kind == "antenna":
             for a in ac.antennas:
                 if a.name == name:
                     if a.sub_imu is not None:
                         return rigid_offset_motion(self.motion(f"sub_imu/{a.sub_imu}"), a.lever_arm_m)
                     # no IMU: a wing section at the antenna's span, flexing with the wing, no mount error
-                    return flexed_body_motion(self.flight.ecef_motion, a.lever_arm_m, np.eye(3), self._flex_at(a.span_m))
+                    return self._flexed_motion(a.lever_arm_m, np.eye(3), a.span_m)
             raise KeyError(f"no antenna {name!r} in aircraft {ac.name!r}")
         raise KeyError(f"unknown body {body!r}")
 
