@@ -87,7 +87,7 @@ from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, ke
 from dpos_ros.devices.sim_device import SimDevice
 from dpos_ros.io.session import read_session, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
-from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, solve, write
+from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
 from transfer_align_node.params import TransferAlignConfig
@@ -553,10 +553,11 @@ class TransferAlignNode(Node):
                 if a.sub_imu == sub:
                     antennas[a.name] = AntennaSolution(a.name, a.sub_imu, f"failed: {why}")
         for a in self.aircraft.antennas:
-            if a.name not in antennas and (a.sub_imu is None or a.sub_imu in self.sub_names):
-                antennas[a.name] = AntennaSolution(a.name, a.sub_imu, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
+            if a.name not in antennas and a.sub_imu is not None and a.sub_imu in self.sub_names:
+                antennas[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: sub-IMU {a.sub_imu} has no data")
         sess = read_session(spill_dir, include_late=False, keep=lambda t: not t.startswith("/sub_imu/"))  # the products need no IMU data
         sess.warnings = list(dict.fromkeys(warnings + sess.warnings))  # the workers read the same spill: each warning once
+        antennas.update(fit_antennas(sess, self.aircraft, antennas))  # the `fit` antennas: least-squares wing fit ([LSFit] sec. 2)
         streams = [s for s in antenna_streams(sess, antennas) if len(s)]
         if self._device is not None:
             self._device.stop()

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dpos_core import earth
-from dpos_core.attitude import dcm_to_quat
+from dpos_core.attitude import dcm_to_quat, mount_dcm
 from dpos_core.config import AircraftConfig
 from dpos_core.errors import RejectedInput
 from dpos_core.frames import hpr_from_C_nb
@@ -31,7 +31,8 @@ from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta.antenna import antenna_motion
-from dpos_core.ta.model import Installation, TAConfig
+from dpos_core.ta.model import RHO, Installation, TAConfig
+from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
@@ -44,7 +45,10 @@ class AntennaSolution:
     about local ENU), velocity (m/s, ENU), position (m, ENU); or a status saying why there is none.
     ``chol_jitter_repairs``: Cholesky jitter repairs made by its sub-IMU's smoother (counted, not silent).
     ``flags`` (N,): each row's quality bits (:mod:`dpos_core.ta.flags`; none set when None).
-    ``not_estimated``: the spans ``(t_from_s, t_to_s, reason)`` without rows (sub-IMU gaps)."""
+    ``not_estimated``: the spans ``(t_from_s, t_to_s, reason)`` without rows (sub-IMU gaps).
+    ``carrier``: its sub-IMU's own solution at the same rows (the input of the least-squares wing
+    fit, :func:`fit_antennas`); ``wing_fit``: for a ``fit`` antenna, the fit's basis choice and
+    cross-validation (:class:`dpos_core.ta.wingfit.WingFit`)."""
 
     name: str
     sub_imu: str | None
@@ -54,6 +58,8 @@ class AntennaSolution:
     chol_jitter_repairs: int = 0
     flags: ta_flags.FlagArray | None = None
     not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
+    carrier: SubImuTrack | None = None
+    wing_fit: dict | None = None
 
 
 def solve(
@@ -117,8 +123,7 @@ def solve(
     out: dict[str, AntennaSolution] = {}
     for a in aircraft.antennas:
         if a.sub_imu is None:
-            out[a.name] = AntennaSolution(a.name, None, "not estimated: no IMU (the least-squares wing fit of [LSFit] is not implemented yet)")
-            continue
+            continue  # fit_antennas below
         r = results.get(a.sub_imu)
         if r is None:
             why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
@@ -130,8 +135,72 @@ def solve(
         keep = _decimate(r.t_s, output_rate_hz)
         status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
         out[a.name] = AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
-                                      r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated))
-    return out, timing
+                                      r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep))
+    if any(a.sub_imu is None for a in aircraft.antennas):
+        out.update(fit_antennas(sess, aircraft, out))
+    return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
+
+
+def _carrier(aircraft: AircraftConfig, sub: str, r: pipeline.TAResult, keep: NDArray[np.intp]) -> SubImuTrack:
+    """The sub-IMU's smoothed solution at the output rows ``keep`` with its rigid misalignment
+    estimate (state 15:18 at the epochs, interpolated to the rows) for the wing fit."""
+    s = aircraft.sub_imu(sub)
+    t = r.t_s[keep]
+    if r.epochs_s.size:
+        rho = np.stack([np.interp(t, r.epochs_s, r.x[:, RHO][:, i]) for i in range(3)], -1)
+        sd = np.sqrt(np.diagonal(r.P[:, RHO, RHO], axis1=1, axis2=2))
+        rho_sd = np.stack([np.interp(t, r.epochs_s, sd[:, i]) for i in range(3)], -1)
+    else:
+        rho, rho_sd = np.zeros((t.size, 3)), np.full((t.size, 3), np.inf)
+    return SubImuTrack(sub, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
+                       t, r.C_nb[keep], r.vel_n_mps[keep], r.llh[keep], r.sigma[keep], rho, rho_sd)
+
+
+#: the status of an antenna estimated by the wing fit starts with this
+FIT_STATUS = "estimated (least-squares wing fit"
+
+
+def fit_antennas(sess: RecordedSession, aircraft: AircraftConfig, antennas: dict[str, AntennaSolution]) -> dict[str, AntennaSolution]:
+    """The antennas without a sub-IMU (``sub_imu: fit``) by the least-squares wing fit ([LSFit]
+    sec. 2, :func:`dpos_core.ta.wingfit.fit_wing`) from the estimated sub-IMUs of their wing side
+    (the ``carrier`` of ``antennas``, the solutions of :func:`solve`, or collected from the
+    transfer_align_node's workers) and the main POS of ``sess``.  Each wing side with at least 2
+    estimated sub-IMUs gives its ``fit`` antennas the status ``estimated (least-squares wing fit,
+    <basis>; from sub-IMUs ...)``; otherwise ``not estimated: ...``."""
+    out: dict[str, AntennaSolution] = {}
+    tracks: dict[str, SubImuTrack] = {}
+    for sol in antennas.values():
+        if sol.carrier is not None and sol.traj is not None and sol.carrier.t_s.size > 1:
+            tracks.setdefault(sol.carrier.name, sol.carrier)
+    for side in (1.0, -1.0):
+        fits = [a for a in aircraft.antennas if a.sub_imu is None and np.sign(a.span_m or 1.0) == side]
+        if not fits:
+            continue
+        subs = sorted((tr for tr in tracks.values() if np.sign(tr.span_m) == side), key=lambda tr: (-tr.t_s.size, abs(tr.span_m)))
+        wing = "right" if side > 0 else "left"
+        if len(subs) < 2:
+            why = (f"not estimated: the least-squares wing fit needs at least 2 estimated sub-IMUs on the {wing} wing, "
+                   f"has {len(subs)}")
+            out.update({a.name: AntennaSolution(a.name, None, why) for a in fits})
+            continue
+        try:
+            wf = fit_wing(sess.master, subs, [(a.name, a.span_m, np.asarray(a.lever_arm_m, dtype=float)) for a in fits])
+        except Exception as ex:  # noqa: BLE001 - a bug or bad data of the fit: its antennas only, the others' products go on
+            sess.warnings.append(f"least-squares wing fit of the {wing} wing failed: {ex}; its fit antennas are not estimated")
+            out.update({a.name: AntennaSolution(a.name, None, f"not estimated: the least-squares wing fit failed: {ex}") for a in fits})
+            continue
+        names = ", ".join(sorted(tr.name for tr in subs))
+        info = {"wing": wing, "sub_imus": sorted(tr.name for tr in subs), "degree": wf.degree,
+                "variance_factor": wf.variance_factor,
+                "cv": {c: {str(k): v for k, v in cv.items()} for c, cv in wf.cv.items()}}
+        for a in fits:
+            fa = wf.antennas[a.name]
+            status = f"{FIT_STATUS}, {wf.basis_text()}; from sub-IMUs {names})"
+            if fa.traj.t_s.size == 0:
+                out[a.name] = AntennaSolution(a.name, None, "not estimated: the least-squares wing fit has no epoch with enough sub-IMUs")
+                continue
+            out[a.name] = AntennaSolution(a.name, None, status, fa.traj, fa.sigma, wing_fit=info)
+    return out
 
 
 def _spans(spans: list[tuple[float, float, str]]) -> str:
@@ -292,9 +361,12 @@ def _write_products(
         write_streams(bag_dir, streams, custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
     status = {name: a.status for name, a in antennas.items()}
     repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.traj is not None}
-    (out / "status.json").write_text(json.dumps({"session_id": sess.session_id, "method": method, "antennas": status,
-                                                 "warnings": sess.warnings, "timing": timing, "chol_jitter_repairs": repairs},
-                                                indent=2) + "\n")
+    doc = {"session_id": sess.session_id, "method": method, "antennas": status, "warnings": sess.warnings, "timing": timing,
+           "chol_jitter_repairs": repairs}
+    fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
+    if fits:
+        doc["wing_fit"] = fits
+    (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")

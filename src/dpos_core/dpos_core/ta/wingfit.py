@@ -1,0 +1,348 @@
+"""Least-squares wing fit: the motion of antennas without a sub-IMU ([LSFit] sec. 2).
+
+[LSFit] sec. 2 fits, at each epoch, a polynomial of order k along the wing to the latitudes (and
+the other motion parameters) that transfer alignment gives at the n' sub-IMUs, and evaluates it at
+the spans of the antennas without an IMU; it sets k = n' = 6 (its eq. 13-15; the equations were
+lost in our copy, the text around them survives).  Six coefficients through six points interpolate
+exactly, with no redundancy to average the sub-IMUs' errors and a polynomial that swings outside
+the outermost IMU (its antenna No. 12).  Here instead:
+
+* What is fitted is the wing's *deformation relative to the rigid aircraft*, not the raw
+  positions: per sub-IMU ``i`` at span ``s_i`` and epoch ``t`` (body axes ``b`` of the main POS)
+
+  - flexure angles ``theta_i`` (3, rad): ``expm([theta_i x]) = C_nb^T C_ns,i (C_mount,i expm([rho_i x]))^T``
+    with the sub-IMU's smoothed attitude ``C_ns,i``, the main POS attitude ``C_nb``, the nominal
+    mount and the rigid misalignment ``rho_i`` the transfer alignment estimated (state 15:18);
+  - deflection ``d_i`` (3, m): ``C_nb^T (p_i - p_m) - r0_i`` (``r0_i`` the nominal lever arm);
+  - deflection rate ``d_dot_i`` (3, m/s): ``C_nb^T (v_i - v_m) - omega_eb^b x (r0_i + d_i)``,
+
+  each with the variance from the sub-IMU's smoothed 1-sigma (and the rho estimate's for the
+  angles).  The rigid part (the lever arm, 12 m at the tip) is then exact, and what is fitted is
+  centimetres and tenths of a degree that vanish at the wing root.
+* Basis: a clamped cantilever's deflection and slope vanish at the root ``s = 0`` (span measured
+  from the main POS; ``root_span_m`` moves it), so the candidates are ``sum_{j=1..k} a_j s^j`` for
+  the angles and ``sum_{j=2..k} a_j s^j`` for the deflection and its rate, k = 0..``max_degree``
+  (k = 0: no deformation of that component).  Each of the 9 components (3 angles, 3 deflections,
+  3 rates) gets its k by leave-one-out cross-validation over the sub-IMUs computed on the whole
+  session (one choice per component, stable in time): every sub-IMU in turn is left out of each
+  epoch's fit, predicted from the others, and its residual scaled by its own 1-sigma; the
+  candidate with the smallest mean squared scaled residual wins (too few terms: the residuals
+  hold the unmodelled shape; too many: the prediction's variance grows, most at the ends).
+  Extrapolation (antenna 12 beyond the sub-IMU at 11 m) enters the score for the outermost IMU, so
+  a basis that swings outside the IMUs loses.
+* Fit: per epoch and component, weighted least squares with the sub-IMUs' variances (Cholesky
+  solves of the normal equations, vectorised over epochs); the parameter covariance is scaled by
+  the a posteriori variance factor of the session (chi^2 / degrees of freedom, at least 1: the
+  fit's residuals, when larger than the sigmas say, widen the covariance).
+* Antenna at span ``s_a``, lever arm ``r_a`` (master axes):
+  ``theta_a = b(s_a)^T a_theta``, ``d_a = b(s_a)^T a_d + (expm([theta_a x]) - I) o_a``
+  (``o_a``: the antenna's offset across the wing, x and z, from the sub-IMUs' lever arms
+  interpolated to ``s_a``: the section is rigid), position ``p_m + C_nb (r_a + d_a)``, velocity
+  ``v_m + C_nb (omega x (r_a + d_a) + d_dot_a + theta_dot_a x o_a)``, attitude
+  ``C_nb expm([theta_a x])`` (the antenna's axes are the main POS's: ``fit`` antennas have no mount).
+  Covariance: ``b^T P_a b`` per component (grows beyond the outermost IMU through the basis) rotated
+  to ENU, plus the main POS's attitude, velocity and position covariances and the attitude's
+  effect through the lever arm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import earth
+from ..attitude import dcm_to_rotvec, rotvec_to_dcm, skew
+from ..series import NavSeries
+from ..units import FloatArray
+
+#: the 9 fitted components: flexure angles about x, y, z (rad), deflection, deflection rate (body axes)
+COMPONENTS = ("theta_x", "theta_y", "theta_z", "d_x", "d_y", "d_z", "ddot_x", "ddot_y", "ddot_z")
+
+
+@dataclass(frozen=True)
+class SubImuTrack:
+    """A sub-IMU's smoothed solution on one wing, the input of the fit.
+
+    t_s (N,); C_nb (N, 3, 3) sub-IMU axes -> ENU; vel_n_mps (N, 3); llh (N, 3); sigma (N, 9):
+    1-sigma [attitude (3, rad, ENU), velocity (3, m/s, ENU), position (3, m, ENU)]; rho (N, 3) the
+    estimated rigid misalignment (rad, sub-IMU axes) and rho_sigma (N, 3) its 1-sigma; span_m and
+    lever_arm_m (3,) (master axes) and C_b_s0 (3, 3) (nominal mount, sub-IMU -> master axes) from
+    the aircraft configuration."""
+
+    name: str
+    span_m: float
+    lever_arm_m: FloatArray
+    C_b_s0: FloatArray
+    t_s: FloatArray
+    C_nb: FloatArray
+    vel_n_mps: FloatArray
+    llh: FloatArray
+    sigma: FloatArray
+    rho: FloatArray
+    rho_sigma: FloatArray
+
+
+@dataclass
+class FittedAntenna:
+    """An antenna from the fit: ``traj`` at the fit epochs and ``sigma`` (N, 9) as :class:`SubImuTrack`."""
+
+    name: str
+    traj: NavSeries
+    sigma: FloatArray
+
+
+@dataclass
+class WingFit:
+    """The fit of one wing: the epochs ``t_s`` (T,), the chosen degree per component
+    (:data:`COMPONENTS` -> k, the basis ``s^1..s^k`` for angles, ``s^2..s^k`` otherwise), the
+    cross-validation per component and candidate k (``{"score": mean squared scaled residual,
+    "rms": RMS residual in the component's unit}``), the a posteriori variance factors, and the
+    antennas."""
+
+    t_s: FloatArray
+    degree: dict[str, int]
+    cv: dict[str, dict[int, dict[str, float]]]
+    variance_factor: dict[str, float]
+    antennas: dict[str, FittedAntenna] = field(default_factory=dict)
+
+    def basis_text(self) -> str:
+        """``angles k=(2, 1, 1), deflection k=(2, 3, 2), rate k=(...)`` for status lines."""
+        k = [self.degree[c] for c in COMPONENTS]
+        return f"polynomial in span, degree: angles {tuple(k[0:3])}, deflection {tuple(k[3:6])}, deflection rate {tuple(k[6:9])}"
+
+
+def powers(component: str, degree: int) -> list[int]:
+    """The exponents of the basis of ``component`` at ``degree``: clamped root, so angles start at
+    s^1 and deflections (and rates) at s^2; empty for degree 0 (or 1 for a deflection)."""
+    lo = 1 if component.startswith("theta") else 2
+    return list(range(lo, degree + 1))
+
+
+def candidates(component: str, max_degree: int) -> list[int]:
+    """The candidate degrees: 0 (no deformation) and each degree that adds a term."""
+    lo = 1 if component.startswith("theta") else 2
+    return [0] + list(range(lo, max_degree + 1))
+
+
+def design(s: FloatArray, pw: list[int]) -> FloatArray:
+    """(S, p) basis matrix ``s^j`` for the exponents ``pw``."""
+    s = np.asarray(s, dtype=float)
+    return s[:, None] ** np.asarray(pw, dtype=float)[None, :] if pw else np.zeros((s.size, 0))
+
+
+def wls(B: FloatArray, y: FloatArray, var: FloatArray) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Weighted least squares per epoch: ``B`` (S, p), ``y`` (T, S), ``var`` (T, S) (``inf`` or
+    NaN: the point is missing).  Returns the coefficients (T, p), their covariance (T, p, p)
+    (unscaled: ``(B^T W B)^-1``) and a mask (T,) of the epochs with enough points (rank p);
+    invalid epochs have NaN."""
+    T, p = y.shape[0], B.shape[1]
+    w = np.where(np.isfinite(var) & np.isfinite(y), 1.0 / np.where(np.isfinite(var), var, 1.0), 0.0)
+    yz = np.where(w > 0, y, 0.0)
+    n_pts = np.sum(w > 0, axis=1)
+    if p == 0:
+        return np.zeros((T, 0)), np.zeros((T, 0, 0)), n_pts >= 1
+    N = np.einsum("si,ts,sj->tij", B, w, B)
+    rhs = np.einsum("si,ts->ti", B, w * yz)
+    ok = n_pts >= p
+    ok &= np.linalg.cond(np.where(ok[:, None, None], N, np.eye(p))) < 1e12
+    N = np.where(ok[:, None, None], N, np.eye(p))
+    L = np.linalg.cholesky(N)
+    eye = np.broadcast_to(np.eye(p), N.shape)
+    Linv = np.linalg.solve(L, eye)  # triangular factor's solve: (B^T W B)^-1 = L^-T L^-1
+    P = np.swapaxes(Linv, 1, 2) @ Linv
+    a = np.einsum("tij,tj->ti", P, rhs)
+    a[~ok] = np.nan
+    P[~ok] = np.nan
+    return a, P, ok
+
+
+def cross_validate(s: FloatArray, y: FloatArray, var: FloatArray, pw: list[int]) -> tuple[float, float]:
+    """Leave-one-out over the S points, every epoch: ``(mean of r^2 / var_i, RMS of r)`` with
+    ``r`` the left-out point's residual and ``var_i`` its variance (the weighted mean squared
+    prediction error: for a basis that holds the field it is ``1 + var_pred / var_i``, so a
+    basis with more terms than the field needs pays for its larger prediction variance);
+    ``s`` (S,), ``y``/``var`` (T, S)."""
+    num, sq, n = 0.0, 0.0, 0
+    for i in range(s.size):
+        v = var.copy()
+        v[:, i] = np.inf
+        B = design(s, pw)
+        a, P, ok = wls(B, y, v)
+        ok &= np.isfinite(var[:, i]) & np.isfinite(y[:, i])
+        b = design(s[i : i + 1], pw)[0]
+        pred = a[ok] @ b
+        r = y[ok, i] - pred
+        num += float(np.sum(r * r / var[ok, i]))
+        sq += float(np.sum(r * r))
+        n += int(ok.sum())
+    return (num / n, float(np.sqrt(sq / n))) if n else (float("inf"), float("nan"))
+
+
+def choose_degree(component: str, s: FloatArray, y: FloatArray, var: FloatArray,
+                  max_degree: int = 4) -> tuple[int, dict[int, dict[str, float]]]:
+    """The degree of ``component`` with the smallest leave-one-out score (:func:`cross_validate`)
+    among :func:`candidates` that leave at least one redundant point (p <= S - 2); returns it and
+    every candidate's ``{"score", "rms"}``."""
+    cv: dict[int, dict[str, float]] = {}
+    for k in candidates(component, max_degree):
+        pw = powers(component, k)
+        if len(pw) > s.size - 2:
+            continue
+        score, rms = cross_validate(s, y, var, pw)
+        cv[k] = {"score": score, "rms": rms}
+    best = min(cv, key=lambda k: (cv[k]["score"], k))
+    return best, cv
+
+
+def _on_grid(tr: SubImuTrack, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                                                      NDArray[np.bool_]]:
+    """The track at the epochs ``t`` (T,): C_nb (T, 3, 3) (geodesic interpolation), vel, llh,
+    sigma, rho, rho_sigma (linear) and a mask (T,) of epochs bracketed by rows at most 3 nominal
+    steps apart (or matching a row)."""
+    ts = tr.t_s
+    dt = float(np.median(np.diff(ts))) if ts.size > 1 else 1.0
+    j = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, max(ts.size - 2, 0))
+    k = np.minimum(j + 1, ts.size - 1)
+    span = ts[k] - ts[j]
+    f = np.clip(np.where(span > 0, (t - ts[j]) / np.where(span > 0, span, 1.0), 0.0), 0.0, 1.0)
+    exact = (np.abs(ts[j] - t) < 1e-6) | (np.abs(ts[k] - t) < 1e-6)
+    ok = exact | ((ts[j] <= t) & (t <= ts[k]) & (span <= 3.0 * dt + 1e-9))
+
+    def lin(x: FloatArray) -> FloatArray:
+        return x[j] + f[:, None] * (x[k] - x[j])
+
+    dC = dcm_to_rotvec(np.swapaxes(tr.C_nb[j], 1, 2) @ tr.C_nb[k])
+    C = tr.C_nb[j] @ rotvec_to_dcm(f[:, None] * dC)
+    return C, lin(tr.vel_n_mps), lin(tr.llh), lin(tr.sigma), lin(tr.rho), lin(tr.rho_sigma), ok
+
+
+def _master_at(m: NavSeries, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Main POS at ``t`` (T,): C_nb, vel, llh, omega_eb_b (finite differences of the attitude when
+    the series has none), att_cov, vel_cov, pos_cov (zeros when absent), interpolated."""
+    ts = m.t_s
+    j = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
+    k = j + 1
+    f = np.clip((t - ts[j]) / (ts[k] - ts[j]), 0.0, 1.0)
+    Cm = m.C_nb
+    dC = dcm_to_rotvec(np.swapaxes(Cm[j], 1, 2) @ Cm[k])
+    C = Cm[j] @ rotvec_to_dcm(f[:, None] * dC)
+
+    def lin(x: FloatArray | None, shape: tuple[int, ...]) -> FloatArray:
+        if x is None:
+            return np.zeros((t.size, *shape))
+        fx = f.reshape((-1,) + (1,) * len(shape))
+        return x[j] + fx * (x[k] - x[j])
+
+    if m.omega_eb_b_radps is not None:
+        w = lin(m.omega_eb_b_radps, (3,))
+    else:  # body rate over the Earth from the attitude's change (the Earth and transport rates neglected: < 1e-4 rad/s)
+        w = dC / (ts[k] - ts[j])[:, None]
+    return C, lin(m.vel_n_mps, (3,)), lin(m.llh, (3,)), w, lin(m.att_cov, (3, 3)), lin(m.vel_cov, (3, 3)), lin(m.pos_cov, (3, 3))
+
+
+def _enu_from(llh: FloatArray, llh_ref: FloatArray) -> FloatArray:
+    """(T, 3) vectors from ``llh_ref`` to ``llh`` (each (T, 3)) in the local ENU frame at ``llh_ref``, exactly."""
+    d_e = earth.geodetic_to_ecef(*llh.T) - earth.geodetic_to_ecef(*llh_ref.T)
+    return np.einsum("tji,tj->ti", earth.C_en(llh_ref[:, 0], llh_ref[:, 1]), d_e)
+
+
+def _body_var(C_nb: FloatArray, sig_n: FloatArray) -> FloatArray:
+    """Diagonal (T, 3) of ``C_nb^T diag(sig_n^2) C_nb``: ENU 1-sigma (T, 3) to body-axis variances."""
+    return np.einsum("tij,ti->tj", C_nb**2, sig_n**2)
+
+
+def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[str, float, FloatArray]],
+             max_degree: int = 4, root_span_m: float = 0.0) -> WingFit:
+    """Fit the deformation of one wing along the span (module docstring) and derive its antennas.
+
+    Args:
+        master: the main POS navigation (with ``att_cov``/``vel_cov``/``pos_cov`` when known;
+            ``omega_eb_b_radps`` used for the lever-arm velocity when present).
+        subs: the wing's sub-IMU solutions (at least 2).  The fit epochs are those of ``subs[0]``
+            within the span covered by every sub-IMU and the main POS; at an epoch where a
+            sub-IMU has no row (a gap) it is left out, and an epoch with fewer sub-IMUs than a
+            basis needs has no row.
+        antennas: ``(name, span_m, lever_arm_m (3,) from the master IMU, master axes)``.
+        max_degree: highest candidate degree (4: up to 3-4 coefficients from 6 sub-IMUs).
+        root_span_m: where the cantilever is clamped (|span| measured from the main POS).
+
+    Returns:
+        :class:`WingFit`; antennas' ``sigma`` (T, 9) as :class:`SubImuTrack`.
+    """
+    if len(subs) < 2:
+        raise ValueError(f"the wing fit needs at least 2 sub-IMUs, got {len(subs)}")
+    t = subs[0].t_s
+    lo = max(max(x.t_s[0] for x in subs), master.t_s[0])
+    hi = min(min(x.t_s[-1] for x in subs), master.t_s[-1])
+    t = t[(t >= lo - 1e-9) & (t <= hi + 1e-9)]
+    C, vm, pm, w, Patt, Pvel, Ppos = _master_at(master, t)
+    Cbn = np.swapaxes(C, 1, 2)
+    S, T = len(subs), t.size
+    s = np.array([abs(x.span_m) - root_span_m for x in subs])
+    y = np.full((T, S, 9), np.nan)
+    var = np.full((T, S, 9), np.inf)
+    for i, tr in enumerate(subs):
+        Cs, vs, ps, sg, rho, rsg, ok = _on_grid(tr, t)
+        r0 = np.asarray(tr.lever_arm_m, dtype=float)
+        M = np.asarray(tr.C_b_s0, dtype=float)
+        th = dcm_to_rotvec(Cbn @ Cs @ np.swapaxes(M @ rotvec_to_dcm(rho), 1, 2))
+        d = np.einsum("tji,tj->ti", C, _enu_from(ps, pm)) - r0
+        dd = np.einsum("tji,tj->ti", C, vs - vm) - np.cross(w, r0 + d)
+        v_th = _body_var(C, sg[:, 0:3]) + (rsg**2) @ (M.T**2)
+        y[:, i] = np.where(ok[:, None], np.concatenate([th, d, dd], axis=1), np.nan)
+        var[:, i] = np.where(ok[:, None], np.concatenate([v_th, _body_var(C, sg[:, 6:9]), _body_var(C, sg[:, 3:6])], axis=1), np.inf)
+    degree: dict[str, int] = {}
+    cvs: dict[str, dict[int, dict[str, float]]] = {}
+    s0: dict[str, float] = {}
+    sa = np.array([abs(sp) - root_span_m for _, sp, _ in antennas])
+    val = np.zeros((T, len(antennas), 9))
+    pvar = np.zeros((T, len(antennas), 9))
+    valid = np.ones(T, dtype=bool)
+    for c, comp in enumerate(COMPONENTS):
+        k, cv = choose_degree(comp, s, y[:, :, c], var[:, :, c], max_degree)
+        degree[comp], cvs[comp] = k, cv
+        pw = powers(comp, k)
+        B = design(s, pw)
+        a, P, ok = wls(B, y[:, :, c], var[:, :, c])
+        fin = np.isfinite(var[:, :, c]) & ok[:, None]
+        res = y[:, :, c] - np.where(ok[:, None], np.nan_to_num(a) @ B.T, 0.0)
+        chi2 = float(np.sum(np.where(fin, res**2 / np.where(fin, var[:, :, c], 1.0), 0.0)))
+        dof = float(np.sum(fin) - len(pw) * np.sum(ok))
+        s0[comp] = max(1.0, chi2 / dof) if dof > 0 else 1.0
+        Ba = design(sa, pw)
+        val[:, :, c] = np.nan_to_num(a) @ Ba.T
+        pvar[:, :, c] = s0[comp] * np.einsum("ai,tij,aj->ta", Ba, np.nan_to_num(P), Ba)
+        valid &= ok
+    out = WingFit(t[valid], degree, cvs, s0)
+    # the antennas' offset across the wing from the sub-IMUs' section points (x and z interpolated along the span)
+    order = np.argsort(s)
+    r0s = np.array([np.asarray(x.lever_arm_m, dtype=float) for x in subs])[order]
+    tv = t[valid]
+    Cv, Cbv = C[valid], Cbn[valid]
+    dt = np.gradient(tv) if tv.size > 1 else np.ones(1)
+    for n, (name, _, ra) in enumerate(antennas):
+        ra = np.asarray(ra, dtype=float)
+        o = ra - np.array([np.interp(sa[n], s[order], r0s[:, 0]), ra[1], np.interp(sa[n], s[order], r0s[:, 2])])
+        th = val[valid, n, 0:3]
+        R = rotvec_to_dcm(th)
+        d = val[valid, n, 3:6] + np.einsum("tij,j->ti", R, o) - o
+        r = ra + d
+        th_dot = np.gradient(th, axis=0) / dt[:, None] if tv.size > 1 else np.zeros_like(th)
+        rel_v = np.cross(w[valid], r) + val[valid, n, 6:9] + np.cross(th_dot, o)
+        vel = vm[valid] + np.einsum("tij,tj->ti", Cv, rel_v)
+        llh = earth.offset_llh(pm[valid], np.einsum("tij,tj->ti", Cv, r))
+        C_na = Cv @ R
+
+        def to_n(v_b: FloatArray) -> FloatArray:
+            return Cv @ (v_b[:, :, None] * Cbv)  # C_nb diag(v) C_bn: (T, 3, 3)
+
+        r_n = np.einsum("tij,tj->ti", Cv, r)
+        Sk = skew(r_n)
+        P_att = to_n(pvar[valid, n, 0:3]) + Patt[valid]
+        P_pos = to_n(pvar[valid, n, 3:6]) + Ppos[valid] + Sk @ Patt[valid] @ np.swapaxes(Sk, 1, 2)
+        P_vel = to_n(pvar[valid, n, 6:9]) + Pvel[valid]
+        sigma = np.sqrt(np.concatenate([np.diagonal(P, axis1=1, axis2=2) for P in (P_att, P_vel, P_pos)], axis=1))
+        out.antennas[name] = FittedAntenna(name, NavSeries.from_C_nb(tv, C_na, vel, llh), sigma)
+    return out

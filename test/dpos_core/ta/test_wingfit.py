@@ -1,0 +1,115 @@
+"""The least-squares wing fit ([LSFit] sec. 2, dpos_core.ta.wingfit) on a synthetic deformation field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dpos_core import earth
+from dpos_core.attitude import dcm_to_rotvec, rotvec_to_dcm
+from dpos_core.frames import C_nb_from_hpr
+from dpos_core.series import NavSeries
+from dpos_core.ta.wingfit import COMPONENTS, SubImuTrack, _enu_from, choose_degree, fit_wing, powers
+
+SUB_SPANS = np.array([1.0, 3.0, 5.0, 7.0, 9.0, 11.0])
+ANT_SPANS = np.array([2.0, 4.0, 6.0, 8.0, 10.0, 12.0])
+#: true degrees of the synthetic field: angles s, s^2; deflection and its rate s^2, s^3
+TRUE_DEGREE = {c: (2 if c.startswith("theta") else 3) for c in COMPONENTS}
+SIG_ATT, SIG_POS, SIG_VEL = 5e-5, 0.002, 0.001  # sub-IMU noise (1-sigma, ENU): rad, m, m/s
+
+
+def _field(rng: np.random.Generator, T: int) -> dict[str, np.ndarray]:
+    """Coefficients (T, p) per component: a random deformation at every epoch."""
+    scale = {"theta": (3e-4, 3e-5), "d_": (3e-4, 3e-5), "ddot": (3e-3, 3e-4)}
+    out = {}
+    for c in COMPONENTS:
+        k = next(v for key, v in scale.items() if c.startswith(key))
+        out[c] = rng.normal(0.0, 1.0, (T, 2)) * np.array(k)
+    return out
+
+
+def _at(coef: dict[str, np.ndarray], s: float) -> np.ndarray:
+    """(T, 9) field values at span s."""
+    return np.stack([coef[c] @ (s ** np.array(powers(c, TRUE_DEGREE[c]), dtype=float)) for c in COMPONENTS], -1)
+
+
+def _scenario(seed: int = 1, T: int = 300):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T) * 0.1
+    llh0 = np.array([np.deg2rad(34.0), np.deg2rad(108.0), 1000.0])
+    C = np.broadcast_to(C_nb_from_hpr(*np.deg2rad([30.0, 2.0, -3.0])), (T, 3, 3)).copy()
+    vm = np.tile([50.0, 86.6, 0.0], (T, 1))
+    llh = earth.offset_llh(np.tile(llh0, (T, 1)), vm * t[:, None])
+    master = NavSeries.from_C_nb(t, C, vm, llh, omega_eb_b_radps=np.zeros((T, 3)))
+    coef = _field(rng, T)
+    subs = []
+    for i, s in enumerate(SUB_SPANS):
+        f = _at(coef, s)
+        r0 = np.array([0.0, -s, 0.0])
+        M = rotvec_to_dcm(np.deg2rad([0.0, 0.0, 90.0 * (i % 2)]))  # every other sub-IMU turned by 90 deg
+        rho = np.deg2rad([0.3, -0.2, 0.4])
+        Cs = C @ rotvec_to_dcm(f[:, 0:3]) @ M @ rotvec_to_dcm(rho)
+        Cs = rotvec_to_dcm(rng.normal(0.0, SIG_ATT, (T, 3))) @ Cs
+        p = earth.offset_llh(llh, np.einsum("tij,tj->ti", C, r0 + f[:, 3:6]) + rng.normal(0.0, SIG_POS, (T, 3)))
+        v = vm + np.einsum("tij,tj->ti", C, f[:, 6:9]) + rng.normal(0.0, SIG_VEL, (T, 3))
+        sig = np.tile([SIG_ATT] * 3 + [SIG_VEL] * 3 + [SIG_POS] * 3, (T, 1))
+        subs.append(SubImuTrack(f"imu{i}", s, r0, M, t, Cs, v, p, sig, np.tile(rho, (T, 1)), np.full((T, 3), 1e-9)))
+    ants = [(f"ant{int(s):02d}", s, np.array([0.0, -s, 0.0])) for s in ANT_SPANS]
+    truth = {}
+    for name, s, ra in ants:
+        f = _at(coef, s)
+        truth[name] = (C @ rotvec_to_dcm(f[:, 0:3]), vm + np.einsum("tij,tj->ti", C, f[:, 6:9]),
+                       earth.offset_llh(llh, np.einsum("tij,tj->ti", C, ra + f[:, 3:6])))
+    return master, subs, ants, truth
+
+
+def test_cv_picks_the_true_degree_and_the_field_is_recovered_within_its_sigma() -> None:
+    master, subs, ants, truth = _scenario()
+    wf = fit_wing(master, subs, ants)
+    assert wf.degree == TRUE_DEGREE, wf.cv
+    for c in COMPONENTS:  # the CV score of the true degree: 1 + var_pred / var_i (1 to ~3 here: the end points are extrapolated); too few terms: far above
+        k = TRUE_DEGREE[c]
+        assert 1.0 < wf.cv[c][k]["score"] < 4.0, (c, wf.cv[c])
+        assert wf.cv[c][k + 1]["score"] > wf.cv[c][k]["score"], (c, wf.cv[c])
+        assert wf.cv[c][0]["score"] > 10.0, (c, wf.cv[c])
+    inside, total = 0, 0
+    for name, (C_t, v_t, p_t) in truth.items():
+        a = wf.antennas[name]
+        assert a.traj.t_s.size == master.t_s.size
+        e_att = dcm_to_rotvec(C_t @ np.swapaxes(a.traj.C_nb, 1, 2))
+        e_vel = a.traj.vel_n_mps - v_t
+        e_pos = _enu_from(a.traj.llh, p_t)
+        z = np.abs(np.concatenate([e_att, e_vel, e_pos], axis=1)) / a.sigma
+        assert np.mean(z < 2.0) > 0.90, (name, np.mean(z < 2.0, axis=0))
+        inside += int(np.sum(z < 2.0))
+        total += z.size
+    # 95.4 % of a normal within 2 sigma: 95 % over 6 antennas x 9 components x 300 epochs
+    assert inside / total > 0.94, inside / total
+    assert inside / total < 0.985, inside / total  # and the sigma is not grossly pessimistic
+
+
+def test_the_extrapolated_antenna_has_the_largest_sigma() -> None:
+    master, subs, ants, _ = _scenario(seed=2, T=50)
+    wf = fit_wing(master, subs, ants)
+    sig = {n: np.median(a.sigma, axis=0) for n, a in wf.antennas.items()}
+    for n in sig:
+        if n != "ant12":
+            assert np.all(sig["ant12"] > sig[n]), (n, sig[n], sig["ant12"])
+    # and beyond the outermost sub-IMU the sigma grows quickly: ant12 (1 m out) vs ant10 (1 m in)
+    assert np.all(sig["ant12"][0:3] > 1.5 * sig["ant10"][0:3])
+
+
+def test_choose_degree_reports_every_candidate() -> None:
+    rng = np.random.default_rng(3)
+    s = SUB_SPANS
+    y = rng.normal(0, 1e-3, (200, 1)) * s**2 + rng.normal(0, 1e-4, (200, 1)) * s**3 + rng.normal(0, 1e-5, (200, 6))
+    k, cv = choose_degree("d_z", s, y, np.full((200, 6), 1e-10))
+    assert k == 3
+    assert set(cv) == {0, 2, 3, 4}
+    assert cv[2]["score"] > 10 * cv[3]["score"]
+
+
+def test_too_few_sub_imus_is_an_error() -> None:
+    master, subs, ants, _ = _scenario(T=20)
+    with pytest.raises(ValueError, match="at least 2"):
+        fit_wing(master, subs[:1], ants)
