@@ -28,6 +28,7 @@ from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import METHODS, ORACLE
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
+from dpos_ros.products import lsfit_tables
 from dpos_ros.products.ta import evaluate, metrics_json, report_md, solve
 
 #: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
@@ -149,6 +150,12 @@ def main(argv: list[str] | None = None) -> int:
         for m in methods:
             r_ = metrics["methods"][m]["mean"]["rmse"]
             report += f"| {m} | " + " | ".join(f"{r_[k] / o[k]:.2f}" if o.get(k) else "—" for k in M.KEYS) + " |\n"
+    if any(lsfit_tables.antenna_number(a.name) is not None for a in scenario.aircraft.antennas):  # an array like [LSFit]'s
+        carried = [a.name for a in scenario.aircraft.antennas if a.sub_imu is not None]
+        fitted = [a.name for a in scenario.aircraft.antennas if a.sub_imu is None]
+        for m in methods:
+            rmse = {n: a["rmse"] for n, a in metrics["methods"][m]["antennas"].items()}
+            report += "\n" + lsfit_tables.report_md(rmse, carried, fitted, f"{m}, {scenario.name}, {args.runs} run(s)")
     (args.out / "report.md").write_text(report)
     print(report)
     print(f"wrote {args.out / 'metrics.json'} and {args.out / 'report.md'}")
