@@ -64,15 +64,13 @@ class StatusTap:
 # ----------------------------------------------------------------------------- ifa_node
 
 
-@pytest.fixture
-def ifa(ros_context, monkeypatch):
-    """An ifa_node fed directly (the test plays pos_master_node and the GNSS receiver): initial
-    /master/nav and 6 s of IMU given; ``fix(j, ...)`` hands GNSS epoch j to the handlers."""
+def _fed_ifa_node(ros_context, monkeypatch, imu_from_s: float = 0.0):
+    """An ifa_node fed directly (the test plays pos_master_node): the initial /master/nav at t = 0
+    and the IMU of 6 s of paper_ifa from ``imu_from_s`` on. Returns (node, session, logger, status tap)."""
     from ifa_node.node import IfaNode
 
     ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=6.0)
-    imu, g = ss.master_imu(), ss.gnss()
-    datum = ss.datum_llh
+    imu, datum = ss.master_imu(), ss.datum_llh
     origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
     tr = ss.truth("master", np.array([0.0]))
     init = initial_state_from_truth(tr.q_nb[0], tr.vel_n_mps[0], tr.llh[0], 0.0, 30.0)
@@ -83,9 +81,19 @@ def ifa(ros_context, monkeypatch):
     node.pub_status = tap
     v0 = cv.odometry_values_cov(init.llh[None], init.vel_n_mps[None], init.q_nb[None], datum, None, np.eye(3), np.eye(3), np.eye(3))
     node._on_nav(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([origin]), v0)[0]))
-    for row in cv.imu_rows(cv.MASTER_FRAME, cv.stamps_ns(ss.scenario.start_time_s, imu.t_s), imu.omega_radps, imu.f_mps2, 1e-6, 1e-4):
+    k = imu.t_s >= imu_from_s
+    for row in cv.imu_rows(cv.MASTER_FRAME, cv.stamps_ns(ss.scenario.start_time_s, imu.t_s[k]), imu.omega_radps[k], imu.f_mps2[k], 1e-6, 1e-4):
         node._on_imu(bytes(row))
-    assert node.al is not None and node.imu_samples == imu.t_s.size
+    return node, ss, log, tap
+
+
+@pytest.fixture
+def ifa(ros_context, monkeypatch):
+    """An ifa_node fed directly (the test plays pos_master_node and the GNSS receiver): initial
+    /master/nav and 6 s of IMU given; ``fix(j, ...)`` hands GNSS epoch j to the handlers."""
+    node, ss, log, tap = _fed_ifa_node(ros_context, monkeypatch)
+    g = ss.gnss()
+    assert node.al is not None and node.imu_samples == ss.master_imu().t_s.size
     assert not [w for w in log.at("warning") if "after the start state" in w]  # the IMU starts with the state: no warning
     t_g = cv.stamps_ns(ss.scenario.start_time_s, g.t_s)
 
@@ -104,25 +112,8 @@ def test_ifa_first_imu_long_after_the_start_state_is_warned(ros_context, monkeyp
     """A replay started before ifa_node subscribed: its first IMU sample is 3 s after the start
     state. The node says so (the navigation integrates across the unmeasured motion) and reports
     the gap in its status."""
-    from ifa_node.node import IfaNode
-
-    ss = SimulatedSession(load_scenario("paper_ifa"), 1, duration_s=6.0)
-    imu, datum = ss.master_imu(), ss.datum_llh
-    origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
-    tr = ss.truth("master", np.array([0.0]))
-    init = initial_state_from_truth(tr.q_nb[0], tr.vel_n_mps[0], tr.llh[0], 0.0, 30.0)
-    node = IfaNode(context=ros_context, parameter_overrides=[
-        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
-    log, tap = FakeLogger(), StatusTap()
-    monkeypatch.setattr(node, "get_logger", lambda: log)
-    node.pub_status = tap
+    node, _, log, tap = _fed_ifa_node(ros_context, monkeypatch, imu_from_s=3.0)
     try:
-        v0 = cv.odometry_values_cov(init.llh[None], init.vel_n_mps[None], init.q_nb[None], datum, None, np.eye(3), np.eye(3), np.eye(3))
-        node._on_nav(bytes(cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, np.array([origin]), v0)[0]))
-        late = imu.t_s >= 3.0
-        for row in cv.imu_rows(cv.MASTER_FRAME, cv.stamps_ns(ss.scenario.start_time_s, imu.t_s[late]), imu.omega_radps[late],
-                               imu.f_mps2[late], 1e-6, 1e-4):
-            node._on_imu(bytes(row))
         assert node.al is not None
         warned = [w for w in log.at("warning") if "first /master/imu sample after the start state" in w]
         assert len(warned) == 1 and "is 3.000 s after it" in warned[0], log.lines

@@ -3,12 +3,14 @@ write products equal to dpos-process on its spill; a killed node loses nothing."
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -137,37 +139,57 @@ def test_killed_node_loses_nothing(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "p" / sid / "status.json").read_text())["antennas"]["ant_r"] == "estimated"
 
 
+@contextlib.contextmanager
+def _su_graph(tmp: Path, duration_s: float, *ta_params: str) -> Iterator[tuple[dict[str, subprocess.Popen], Path]]:
+    """transfer_align_node (ukf, poses at 1 Hz, its log in ``tmp/ta.log``, more ``-p`` ``ta_params``),
+    pos_master_node and sub_r's device on paper_su at 2x real time, as processes; yields them and
+    the output directory; at the end every process is continued and stopped."""
+    out = tmp / "out"
+    env = dict(os.environ)
+    with (tmp / "ta.log").open("w") as log:
+        ta = subprocess.Popen([str(EXE / "transfer_align_node"), "--ros-args", "-p", "method:=ukf", "-p", f"output_dir:={out}",
+                               "-p", "output_rate_hz:=1.0", *ta_params], env=env, stdout=log, stderr=subprocess.STDOUT,
+                              start_new_session=True)
+        common = ["-p", "scenario:=paper_su", "-p", f"duration:={duration_s}", "-p", "rate_factor:=2.0", "-p", "publish_truth:=false",
+                  "-p", "min_subscribers:=1", "-p", "wait_subscribers_s:=30.0"]
+        procs = {"ta": ta,
+                 "master": subprocess.Popen([str(EXE / "pos_master_node"), "--ros-args", *common, "-p", "alignment:=reference"],
+                                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True),
+                 "sub": subprocess.Popen([str(EXE / "pos_sub_node"), "--ros-args", "-r", "__node:=sub_r", "-p", "name:=sub_r", *common],
+                                         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)}
+        try:
+            yield procs, out
+        finally:
+            for name in ("master", "sub", "ta"):
+                p = procs[name]
+                if p.poll() is None:
+                    os.killpg(p.pid, signal.SIGCONT)
+                    os.killpg(p.pid, signal.SIGINT)
+                p.wait(60)
+
+
+def _spill_dir(out: Path) -> Path:
+    """The session's spill directory, once its spill.json exists (the directory comes a moment before)."""
+    assert _wait(lambda: (out / "spill").is_dir() and any(spill.is_spill(p) for p in (out / "spill").iterdir()), 60)
+    return next(p for p in (out / "spill").iterdir() if spill.is_spill(p))
+
+
+def _sub_samples(d: Path) -> int:
+    """sub_r's messages in the spill ``d`` (with its late ones)."""
+    return len(spill.read_spill(d)[0].get("/sub_imu/sub_r/imu", ("", [], []))[1])
+
+
 def test_sigstopped_sub_imu_catches_up_and_nothing_is_lost(tmp_path: Path) -> None:
     """SIGSTOP the sub-IMU's device for 4 s mid-session, then SIGCONT: it catches up, the spill
     holds every 100 Hz sample without a gap and the session's products are estimated."""
-    domain = int(os.environ["ROS_DOMAIN_ID"])
-    out = tmp_path / "out"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    ta = subprocess.Popen([str(EXE / "transfer_align_node"), "--ros-args", "-p", "method:=ukf", "-p", f"output_dir:={out}",
-                           "-p", "output_rate_hz:=1.0"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          start_new_session=True)
-    common = ["-p", "scenario:=paper_su", "-p", "duration:=40.0", "-p", "rate_factor:=2.0", "-p", "publish_truth:=false",
-              "-p", "min_subscribers:=1", "-p", "wait_subscribers_s:=30.0"]
-    master = subprocess.Popen([str(EXE / "pos_master_node"), "--ros-args", *common, "-p", "alignment:=reference"],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    sub = subprocess.Popen([str(EXE / "pos_sub_node"), "--ros-args", "-r", "__node:=sub_r", "-p", "name:=sub_r", *common],
-                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        assert _wait(lambda: (out / "spill").is_dir() and any(spill.is_spill(p) for p in (out / "spill").iterdir()), 60)
-        d = next(p for p in (out / "spill").iterdir() if spill.is_spill(p))
-        n_sub = lambda: len(spill.read_spill(d)[0].get("/sub_imu/sub_r/imu", ("", [], []))[1])  # noqa: E731
-        assert _wait(lambda: n_sub() > 1000, 60)
-        os.killpg(sub.pid, signal.SIGSTOP)
+    with _su_graph(tmp_path, 40.0) as (procs, out):
+        d = _spill_dir(out)
+        assert _wait(lambda: _sub_samples(d) > 1000, 60)
+        os.killpg(procs["sub"].pid, signal.SIGSTOP)
         time.sleep(4.0)  # the fault itself: a device frozen for 4 s of wall time
-        frozen = n_sub()
-        os.killpg(sub.pid, signal.SIGCONT)
+        frozen = _sub_samples(d)
+        os.killpg(procs["sub"].pid, signal.SIGCONT)
         assert _wait(lambda: any(out.glob("paper_su_seed1/status.json")), 180)
-    finally:
-        for p in (master, sub, ta):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGCONT)
-                os.killpg(p.pid, signal.SIGINT)
-            p.wait(60)
     t = np.array(spill.read_spill(d)[0]["/sub_imu/sub_r/imu"][1])
     assert t.size == 4000 and np.all(np.diff(t) == 10_000_000) and frozen < 3000, (t.size, frozen)
     st = json.loads((out / "paper_su_seed1" / "status.json").read_text())
@@ -179,37 +201,15 @@ def test_sub_imu_frozen_past_the_session_end_its_late_data_are_kept_and_used_by_
     waiting (finalize_timeout_s 2 s), then SIGCONT: its remaining samples arrive after the session
     closed. They are kept in <spill>/late, counted in status.json, and dpos-process on the spill
     has every sample of the flight."""
-    domain = int(os.environ["ROS_DOMAIN_ID"])
-    out = tmp_path / "out"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    log = tmp_path / "ta.log"
-    ta = subprocess.Popen([str(EXE / "transfer_align_node"), "--ros-args", "-p", "method:=ukf", "-p", f"output_dir:={out}",
-                           "-p", "output_rate_hz:=1.0", "-p", "finalize_timeout_s:=2.0"], env=env, stdout=log.open("w"),
-                          stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    common = ["-p", "scenario:=paper_su", "-p", "duration:=30.0", "-p", "rate_factor:=2.0", "-p", "publish_truth:=false",
-              "-p", "min_subscribers:=1", "-p", "wait_subscribers_s:=30.0"]
-    master = subprocess.Popen([str(EXE / "pos_master_node"), "--ros-args", *common, "-p", "alignment:=reference"],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    sub = subprocess.Popen([str(EXE / "pos_sub_node"), "--ros-args", "-r", "__node:=sub_r", "-p", "name:=sub_r", *common],
-                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        assert _wait(lambda: (out / "spill").is_dir() and any(spill.is_spill(p) for p in (out / "spill").iterdir()), 60)
-        d = next(p for p in (out / "spill").iterdir() if spill.is_spill(p))
-        n_sub = lambda: len(spill.read_spill(d)[0].get("/sub_imu/sub_r/imu", ("", [], []))[1])  # noqa: E731
-        assert _wait(lambda: n_sub() > 1500, 60)
-        os.killpg(sub.pid, signal.SIGSTOP)
+    with _su_graph(tmp_path, 30.0, "-p", "finalize_timeout_s:=2.0") as (procs, out):
+        d = _spill_dir(out)
+        assert _wait(lambda: _sub_samples(d) > 1500, 60)
+        os.killpg(procs["sub"].pid, signal.SIGSTOP)
         # the master ends the session, finalize waits 2 s for sub_r and closes the spill without its tail
         assert _wait(lambda: any(out.glob("paper_su_seed1/status.json")), 120)
-        os.killpg(sub.pid, signal.SIGCONT)
-        _wait(lambda: n_sub() >= 3000, 90)  # read_spill merges late/
-    finally:
-        for p in (master, sub, ta):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGCONT)
-                os.killpg(p.pid, signal.SIGINT)
-            p.wait(60)
-    tail = log.read_text().splitlines()[-12:]
-    assert n_sub() == 3000, (n_sub(), tail)
+        os.killpg(procs["sub"].pid, signal.SIGCONT)
+        _wait(lambda: _sub_samples(d) >= 3000, 90)  # read_spill merges late/
+    assert _sub_samples(d) == 3000, (_sub_samples(d), (tmp_path / "ta.log").read_text().splitlines()[-12:])
     st = json.loads((out / "paper_su_seed1" / "status.json").read_text())
     n_late = st["late_after_close"]["messages"]["/sub_imu/sub_r/imu"]
     own = len(spill.read_spill(d, include_late=False)[0]["/sub_imu/sub_r/imu"][1])
