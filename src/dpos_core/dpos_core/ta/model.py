@@ -65,7 +65,7 @@ import numpy as np
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import compose_rotvec, mount_dcm, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
+from ..attitude import compose_rotvec, dcm_to_rotvec, mount_dcm, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
 from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
@@ -76,6 +76,39 @@ from ..strapdown import NavState, Strapdown
 N_STATES = 24
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
 NAV = slice(0, 9)
+
+
+#: master epochs further apart than this [s] are a gap of the main-system navigation (no
+#: measurement in between)
+MASTER_GAP_S = 0.5
+
+
+def check_imu_stamps(t_s: FloatArray) -> None:
+    """Sub-IMU stamps (N,) usable for alignment: ValueError for a wrong shape, RejectedInput
+    (``too_short`` / ``out_of_order``) for fewer than 2 or not strictly increasing."""
+    if t_s.ndim != 1:
+        raise ValueError(f"sub-IMU stamps must have shape (N,), got {t_s.shape}")
+    if t_s.size < 2:
+        raise RejectedInput(f"{t_s.size} sub-IMU sample(s): at least 2 are needed", what="sub-IMU samples", reason="too_short")
+    if np.any(np.diff(t_s) <= 0):
+        raise RejectedInput("sub-IMU stamps must be strictly increasing", what="sub-IMU samples", reason="out_of_order")
+
+
+def master_at(master: NavSeries, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """The master's llh (3,), velocity (3,), C_nb (3, 3) and body rate (3,) at ``t_s``: an epoch's
+    own values, or interpolated between the two around it (attitude along the geodesic); None
+    outside the data or between epochs more than ``MASTER_GAP_S`` apart."""
+    (w,) = master.required("omega_eb_b_radps")
+    m = master
+    j = int(np.searchsorted(m.t_s, t_s))
+    if j < m.t_s.size and abs(m.t_s[j] - t_s) < 1e-6:
+        return m.llh[j], m.vel_n_mps[j], m.C_nb[j], w[j]
+    if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > MASTER_GAP_S:
+        return None
+    a = (t_s - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
+    C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
+    return ((1 - a) * m.llh[j - 1] + a * m.llh[j], (1 - a) * m.vel_n_mps[j - 1] + a * m.vel_n_mps[j], C,
+            (1 - a) * w[j - 1] + a * w[j])
 
 
 @dataclass(frozen=True)
@@ -187,12 +220,7 @@ class TransferAlignmentModel:
         # the master's body rate and covariances (ValueError without them)
         self._w_m, self._cov_att, self._cov_vel, self._cov_pos = self.master.required("omega_eb_b_radps", "att_cov", "vel_cov", "pos_cov")
         t_imu = self.imu.t_s
-        if t_imu.ndim != 1:
-            raise ValueError(f"sub-IMU stamps must have shape (N,), got {t_imu.shape}")
-        if t_imu.size < 2:
-            raise RejectedInput(f"{t_imu.size} sub-IMU sample(s): at least 2 are needed", what="sub-IMU samples", reason="too_short")
-        if np.any(np.diff(t_imu) <= 0):
-            raise RejectedInput("sub-IMU stamps must be strictly increasing", what="sub-IMU samples", reason="out_of_order")
+        check_imu_stamps(t_imu)
         if not np.all(np.isfinite(self.imu.omega_radps)) or not np.all(np.isfinite(self.imu.f_mps2)):
             raise RejectedInput("sub-IMU samples contain NaN or infinite values", what="sub-IMU samples", reason="nan")
         after = t_imu > self.initial.t_s + 1e-9  # samples before the first master epoch cannot be aligned
@@ -229,21 +257,13 @@ class TransferAlignmentModel:
 
     # ------------------------------------------------------------------ nominal / epochs
     def _master_at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
-        """Master llh, velocity, C_nb, body rate, attitude / velocity / position covariance at t."""
-        m = self.master
-        w, ca, cv, cp = self._w_m, self._cov_att, self._cov_vel, self._cov_pos
-        j = int(np.searchsorted(m.t_s, t))
-        if j < m.t_s.size and abs(m.t_s[j] - t) < 1e-6:
-            return m.llh[j], m.vel_n_mps[j], m.C_nb[j], w[j], ca[j], cv[j], cp[j]
-        if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > 0.5:
+        """Master llh, velocity, C_nb, body rate (:func:`master_at`) and the attitude / velocity /
+        position covariance of the epoch at or after t; None where :func:`master_at` has none."""
+        at = master_at(self.master, t)
+        if at is None:
             return None  # outside the master data or inside a gap: no measurement
-        a = (t - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
-        from ..attitude import dcm_to_rotvec
-
-        C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
-        lerp = lambda u, v: (1 - a) * u + a * v  # noqa: E731
-        return (lerp(m.llh[j - 1], m.llh[j]), lerp(m.vel_n_mps[j - 1], m.vel_n_mps[j]), C,
-                lerp(w[j - 1], w[j]), ca[j], cv[j], cp[j])
+        j = int(np.searchsorted(self.master.t_s, t))  # the epoch itself, or the one after t (as master_at)
+        return (*at, self._cov_att[j], self._cov_vel[j], self._cov_pos[j])
 
     def _build_epoch(self, k: int) -> None:
         nom = self._nominal_at[k]
@@ -256,8 +276,6 @@ class TransferAlignmentModel:
         llh_m, v_m, C_m, w_m, cov_att, cov_v, cov_p = ms
         A = C_m @ ins.C_b_s0
         C_est = nom.C_nb
-        from ..attitude import dcm_to_rotvec
-
         z_att = dcm_to_rotvec(A @ C_est.T)
         z_vel = nom.vel_n_mps - v_m - C_m @ np.cross(w_m, ins.lever_arm_m)
         R = np.zeros((p, p))

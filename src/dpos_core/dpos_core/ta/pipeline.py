@@ -33,7 +33,7 @@ import numpy as np
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import compose_rotvec, dcm_to_quat, dcm_to_rotvec, quat_to_dcm, rotvec_to_dcm
+from ..attitude import compose_rotvec, dcm_to_quat, quat_to_dcm, rotvec_to_dcm
 from ..errors import RejectedInput
 from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
@@ -42,11 +42,7 @@ from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
 from . import flags as F
-from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, gap_limit_s, nominal_dt_s
-
-#: master epochs further apart than this [s] are a gap of the main-system navigation (no
-#: measurement in between, as TransferAlignmentModel._master_at)
-MASTER_GAP_S = 0.5
+from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 
 METHODS = ("ukf", "urtss", "upf", "ups")
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
@@ -109,23 +105,6 @@ def initial_from_master(master: NavSeries, install: Installation, attitude_error
     return NavState(t, dcm_to_quat(C_s), v, earth.offset_llh(llh_m, C_m @ r))
 
 
-def master_at(master: NavSeries, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
-    """The master's llh (3,), velocity (3,), C_nb (3, 3) and body rate (3,) at ``t_s``: an epoch's
-    own values, or interpolated between the two around it (attitude along the geodesic); None
-    outside the data or between epochs more than ``MASTER_GAP_S`` apart."""
-    (w,) = master.required("omega_eb_b_radps")
-    m = master
-    j = int(np.searchsorted(m.t_s, t_s))
-    if j < m.t_s.size and abs(m.t_s[j] - t_s) < 1e-6:
-        return m.llh[j], m.vel_n_mps[j], m.C_nb[j], w[j]
-    if j == 0 or j >= m.t_s.size or m.t_s[j] - m.t_s[j - 1] > MASTER_GAP_S:
-        return None
-    a = (t_s - m.t_s[j - 1]) / (m.t_s[j] - m.t_s[j - 1])
-    C = m.C_nb[j - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(m.C_nb[j - 1].T @ m.C_nb[j]))
-    return ((1 - a) * m.llh[j - 1] + a * m.llh[j], (1 - a) * m.vel_n_mps[j - 1] + a * m.vel_n_mps[j], C,
-            (1 - a) * w[j - 1] + a * w[j])
-
-
 def split_at_gaps(t_s: FloatArray, limit_s: float) -> list[slice]:
     """The runs of stamps ``t_s`` (N,) without a step longer than ``limit_s`` [s], as slices (in order)."""
     cuts = np.nonzero(np.diff(t_s) > limit_s)[0] + 1
@@ -159,12 +138,7 @@ def run_segments(
     ``TAResult.not_estimated`` instead of raising.  RejectedInput when no segment can be aligned
     (or as :func:`run` for NaN samples, stamps out of order); NumericalFailure as :func:`run`."""
     t = imu.t_s
-    if t.ndim != 1:
-        raise ValueError(f"sub-IMU stamps must have shape (N,), got {t.shape}")
-    if t.size < 2:
-        raise RejectedInput(f"{t.size} sub-IMU sample(s): at least 2 are needed", what="sub-IMU samples", reason="too_short")
-    if np.any(np.diff(t) <= 0):
-        raise RejectedInput("sub-IMU stamps must be strictly increasing", what="sub-IMU samples", reason="out_of_order")
+    check_imu_stamps(t)
     step = 1.0 / cfg.filter_rate_hz
     parts: list[TAResult] = []
     spans: list[tuple[float, float, str]] = []
