@@ -140,10 +140,14 @@ def test_killed_node_loses_nothing(tmp_path: Path) -> None:
 
 
 @contextlib.contextmanager
-def _su_graph(tmp: Path, duration_s: float, *ta_params: str) -> Iterator[tuple[dict[str, subprocess.Popen], Path]]:
+def _su_graph(tmp: Path, duration_s: float, *ta_params: str,
+              master_wait_s: float = 8.0) -> Iterator[tuple[dict[str, subprocess.Popen], Path]]:
     """transfer_align_node (ukf, poses at 1 Hz, its log in ``tmp/ta.log``, more ``-p`` ``ta_params``),
     pos_master_node and sub_r's device on paper_su at 2x real time, as processes; yields them and
-    the output directory; at the end every process is continued and stopped."""
+    the output directory; at the end every process is continued and stopped.
+
+    Nobody subscribes to /master/imu and /master/gnss here, so the master starts after its
+    ``wait_subscribers_s`` (``master_wait_s``), the sub-IMU as soon as transfer_align_node listens."""
     out = tmp / "out"
     env = dict(os.environ)
     with (tmp / "ta.log").open("w") as log:
@@ -153,7 +157,8 @@ def _su_graph(tmp: Path, duration_s: float, *ta_params: str) -> Iterator[tuple[d
         common = ["-p", "scenario:=paper_su", "-p", f"duration:={duration_s}", "-p", "rate_factor:=2.0", "-p", "publish_truth:=false",
                   "-p", "min_subscribers:=1", "-p", "wait_subscribers_s:=30.0"]
         procs = {"ta": ta,
-                 "master": subprocess.Popen([str(EXE / "pos_master_node"), "--ros-args", *common, "-p", "alignment:=reference"],
+                 "master": subprocess.Popen([str(EXE / "pos_master_node"), "--ros-args", *common, "-p", "alignment:=reference",
+                                             "-p", f"wait_subscribers_s:={master_wait_s}"],
                                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True),
                  "sub": subprocess.Popen([str(EXE / "pos_sub_node"), "--ros-args", "-r", "__node:=sub_r", "-p", "name:=sub_r", *common],
                                          env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)}
@@ -200,10 +205,16 @@ def test_sub_imu_frozen_past_the_session_end_its_late_data_are_kept_and_used_by_
     """SIGSTOP the sub-IMU's device until the master has ended the session and finalize gave up
     waiting (finalize_timeout_s 2 s), then SIGCONT: its remaining samples arrive after the session
     closed. They are kept in <spill>/late, counted in status.json, and dpos-process on the spill
-    has every sample of the flight."""
-    with _su_graph(tmp_path, 30.0, "-p", "finalize_timeout_s:=2.0") as (procs, out):
+    has every sample of the flight.
+
+    The freeze is kept well below the DDS participant lease (Fast DDS: 20 s): a device frozen longer
+    is dropped from discovery, and what it sends in the moment before it is rediscovered is lost in
+    transport before any node sees it (measured: the whole 15 s tail, with the master starting 30 s
+    after the sub-IMU). So the master starts a few seconds after the sub-IMU, and the sub-IMU is
+    frozen near the end of its flight: about 10 s frozen, 6-8 s of late data."""
+    with _su_graph(tmp_path, 30.0, "-p", "finalize_timeout_s:=2.0", master_wait_s=5.0) as (procs, out):
         d = _spill_dir(out)
-        assert _wait(lambda: _sub_samples(d) > 1500, 60)
+        assert _wait(lambda: _sub_samples(d) > 2200, 60)
         os.killpg(procs["sub"].pid, signal.SIGSTOP)
         # the master ends the session, finalize waits 2 s for sub_r and closes the spill without its tail
         assert _wait(lambda: any(out.glob("paper_su_seed1/status.json")), 120)
