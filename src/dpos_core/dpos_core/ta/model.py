@@ -61,6 +61,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import chi2
 
 from dpos_core.units import DEG, FloatArray
 
@@ -161,6 +162,9 @@ class TAConfig:
     max_imu_gap_s: float = 0.05
     #: rows within this time [s] after a restart (a gap above) carry :data:`.flags.RESTARTED_AFTER_GAP`
     restart_flag_s: float = 10.0
+    #: add the wing vibration the filter epochs cannot follow to the velocity and position noise
+    #: (:meth:`TransferAlignmentModel.vibration_variance`)
+    vibration_noise: bool = True
 
     def __post_init__(self) -> None:
         if not self.filter_rate_hz > 0:
@@ -281,12 +285,62 @@ class TransferAlignmentModel:
         R = np.zeros((p, p))
         R[:3, :3] = cov_att + np.eye(3) * (self.cfg.att_noise_floor_deg * DEG) ** 2
         R[3:6, 3:6] = cov_v + np.eye(3) * self.cfg.vel_noise_floor_mps**2
+        vib_v, vib_p = self.vibration_variance(k) if self.cfg.vibration_noise else (np.zeros(3), np.zeros(3))
+        R[3:6, 3:6] += np.diag(vib_v)
         z = [z_att, z_vel]
         if self.cfg.use_position:
             # p_est - p_m - C_m r0 in local ENU metres at the sub-IMU
             z.append(earth.enu_between(nom.llh, llh_m) - C_m @ ins.lever_arm_m)
-            R[6:, 6:] = cov_p + np.eye(3) * self.cfg.pos_noise_floor_m**2
+            R[6:, 6:] = cov_p + np.eye(3) * self.cfg.pos_noise_floor_m**2 + np.diag(vib_p)
         self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m)
+
+    def vibration_variance(self, k: int) -> tuple[FloatArray, FloatArray]:
+        """Variance (3,) + (3,) of the velocity and position match at epoch k that the wing's
+        vibration adds and the model cannot represent (ENU; zeros when none is detected).
+
+        The model's flexure (eq. 13, a 2nd-order Gauss-Markov process with correlation times of
+        seconds) has almost no power above the filter rate; a real wing's bending modes (1-6 Hz)
+        move a tip IMU by centimetres at tenths of a m/s, and a match sampled once per epoch takes
+        a random phase of that motion, which the filter would read as navigation error (on
+        paper_wing's modal wing with the datasheet noise the rho_x estimate of the tip IMU erred by
+        4.6 sigmas).  Over the interval before epoch k, at each main-POS epoch, the matching
+        residuals ``v_nom - v_m - C_m (w_m x r0)`` and ``p_nom - p_m - C_m r0`` are detrended
+        (a straight line: the filter's states follow that); their residual variance ``s^2``
+        (N - 2 degrees of freedom) is compared with the main POS's reported noise ``sigma^2``
+        (mean of its covariance diagonal, plus the noise floor): where ``s^2 / sigma^2`` exceeds the 99 % point of
+        ``chi^2_{N-2} / (N - 2)`` (the main POS alone would exceed it once in 100 intervals) the
+        excess ``s^2 - sigma^2`` is added to the epoch's noise.  A rigid or slowly flexing wing adds
+        nothing; fewer than 6 main-POS epochs in the interval add nothing."""
+        zero = (np.zeros(3), np.zeros(3))
+        if k == 0 or k - 1 >= len(self._chunks):
+            return zero
+        ch = self._chunks[k - 1]
+        t0, t1 = float(self.epochs_s[k - 1]), float(self.epochs_s[k])
+        m = self.master
+        j = np.nonzero((m.t_s > t0 + 1e-9) & (m.t_s <= t1 + 1e-9) & (m.t_s >= ch.t_s[0]) & (m.t_s <= ch.t_s[-1]))[0]
+        n = j.size
+        if n < 6:
+            return zero
+        tm = m.t_s[j]
+        r0 = self.install.lever_arm_m
+        v_nom = np.stack([np.interp(tm, ch.t_s, ch.vel_n_mps[:, i]) for i in range(3)], -1)
+        llh_nom = np.stack([np.interp(tm, ch.t_s, ch.llh[:, i]) for i in range(3)], -1)
+        C_m = m.C_nb[j]
+        arm = C_m @ r0
+        dv = v_nom - m.vel_n_mps[j] - np.einsum("tij,tj->ti", C_m, np.cross(self._w_m[j], r0[None, :]))
+        per_m = earth.llh_rate(llh_nom[:, 0], llh_nom[:, 2], np.ones((n, 3)))  # rad (or m) per metre E, N, U
+        dp = (llh_nom - m.llh[j]) / per_m - arm
+        X = np.column_stack([np.ones(n), tm - tm.mean()])
+        gate = float(chi2.ppf(0.99, n - 2)) / (n - 2)
+
+        def excess(r: FloatArray, cov: FloatArray, floor: float) -> FloatArray:
+            res = r - X @ np.linalg.lstsq(X, r, rcond=None)[0]
+            s2 = np.sum(res**2, axis=0) / (n - 2)
+            sig2 = np.mean(np.diagonal(cov, axis1=1, axis2=2), axis=0) + floor**2
+            return np.where(s2 > gate * sig2, s2 - sig2, 0.0)
+
+        return (excess(dv, self._cov_vel[j], self.cfg.vel_noise_floor_mps),
+                excess(dp, self._cov_pos[j], self.cfg.pos_noise_floor_m))
 
     def _propagate(self, k: int) -> None:
         """Integrate the (corrected) nominal from epoch k to k + 1 and store the interval data."""
