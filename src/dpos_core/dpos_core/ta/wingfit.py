@@ -12,13 +12,29 @@ the outermost IMU (its antenna No. 12).  Here instead:
 
   - flexure angles ``theta_i`` (3, rad): ``expm([theta_i x]) = C_nb^T C_ns,i (C_mount,i expm([rho_i x]))^T``
     with the sub-IMU's smoothed attitude ``C_ns,i``, the main POS attitude ``C_nb``, the nominal
-    mount and the rigid misalignment ``rho_i`` the transfer alignment estimated (state 15:18);
+    mount and the rigid misalignment ``rho_i`` (:func:`rigid_misalignment`);
   - deflection ``d_i`` (3, m): ``C_nb^T (p_i - p_m) - r0_i`` (``r0_i`` the nominal lever arm);
   - deflection rate ``d_dot_i`` (3, m/s): ``C_nb^T (v_i - v_m) - omega_eb^b x (r0_i + d_i)``,
 
-  each with the variance from the sub-IMU's smoothed 1-sigma (and the rho estimate's for the
-  angles).  The rigid part (the lever arm, 12 m at the tip) is then exact, and what is fitted is
+  each with the variance from the sub-IMU's smoothed 1-sigma.  The rigid part (the lever arm, 12 m at the tip) is then exact, and what is fitted is
   centimetres and tenths of a degree that vanish at the wing root.
+* The rigid misalignment ``rho_i``: the total rotation ``Theta_i = log(C_nb^T C_ns,i C_mount,i^T)``
+  is what the sub-IMU measures (its attitude error is 0.001-0.005 deg); splitting it into a
+  constant and the flexure needs a convention, and the one that holds for a wing is that the
+  elastic deformation is the departure from the 1 g flight shape: zero mean at a load factor of 1,
+  plus the quasi-static bending proportional to ``n - 1``.  So ``rho_i`` is the intercept of the
+  regression of ``Theta_i(t)`` on ``[1, n(t) - 1]`` over the session (``n`` from the main POS's
+  specific force; the slope only where the load factor varies, std(n - 1) > 0.01), its variance
+  from batch means of the residuals (the residual is the wing's vibration, correlated over
+  seconds).  Its error is the session mean of the flexure, smooth along the span: the fit absorbs
+  it like a deformation, so it is no point noise of the fit; it is added to the fitted antenna's
+  attitude variance (the sub-IMUs' values interpolated along the span) instead.  Not the transfer alignment's rho state (15:18): its Gauss-Markov flexure prior
+  ([Gong2018] eq. 13: tau 5 s, a low-pass process with most of its power near 0 Hz) cannot tell a
+  lightly damped 1 Hz bending mode, whose power at 0 Hz is ~1e-4 of its variance, from a constant,
+  and on paper_wing's modal wing its rho_x erred by 0.94 deg at 11 m (4.6 of its sigmas) where the
+  session mean of ``Theta`` erred by 0.012 deg (120 s, seed 1).  A constant attitude error of the
+  sub-IMU (its heading, which straight flight does not observe) enters ``Theta`` and ``rho_i``
+  alike and cancels in ``theta_i``.
 * Basis: a clamped cantilever's deflection and slope vanish at the root ``s = 0`` (span measured
   from the main POS; ``root_span_m`` moves it), so the candidates are ``sum_{j=1..k} a_j s^j`` for
   the angles and ``sum_{j=2..k} a_j s^j`` for the deflection and its rate, k = 0..``max_degree``
@@ -30,6 +46,11 @@ the outermost IMU (its antenna No. 12).  Here instead:
   hold the unmodelled shape; too many: the prediction's variance grows, most at the ends).
   Extrapolation (antenna 12 beyond the sub-IMU at 11 m) enters the score for the outermost IMU, so
   a basis that swings outside the IMUs loses.
+* The main POS's error at an epoch (paper_wing's reference: white, 5 cm, 0.005 m/s, 0.002-0.005
+  deg) is in every sub-IMU's deflection, rate and angle alike; with 4 or more sub-IMUs each
+  component gets a constant term that estimates it (:func:`powers`), so the antennas carry the fit's
+  error instead of the raw main POS's (on paper_wing, 120 s: ant02's position error 3.9 cm with the
+  raw main POS beside 1.3 cm at its IMU-carrying neighbours).
 * Fit: per epoch and component, weighted least squares with the sub-IMUs' variances (Cholesky
   solves of the normal equations, vectorised over epochs); the parameter covariance is scaled by
   the a posteriori variance factor of the session (chi^2 / degrees of freedom, at least 1: the
@@ -105,19 +126,27 @@ class WingFit:
     degree: dict[str, int]
     cv: dict[str, dict[int, dict[str, float]]]
     variance_factor: dict[str, float]
+    #: the basis has the constant (common) term: the main POS's epoch error (:func:`powers`)
+    common: bool = False
+    #: per sub-IMU: the rigid misalignment (3,) and its 1-sigma (3,) [rad, master axes] the fit used
+    rigid_misalignment: dict[str, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
     antennas: dict[str, FittedAntenna] = field(default_factory=dict)
 
     def basis_text(self) -> str:
         """``angles k=(2, 1, 1), deflection k=(2, 3, 2), rate k=(...)`` for status lines."""
         k = [self.degree[c] for c in COMPONENTS]
-        return f"polynomial in span, degree: angles {tuple(k[0:3])}, deflection {tuple(k[3:6])}, deflection rate {tuple(k[6:9])}"
+        c = " with a common term" if self.common else ""
+        return (f"polynomial in span{c}, degree: angles {tuple(k[0:3])}, deflection {tuple(k[3:6])}, "
+                f"deflection rate {tuple(k[6:9])}")
 
 
-def powers(component: str, degree: int) -> list[int]:
+def powers(component: str, degree: int, common: bool = False) -> list[int]:
     """The exponents of the basis of ``component`` at ``degree``: clamped root, so angles start at
-    s^1 and deflections (and rates) at s^2; empty for degree 0 (or 1 for a deflection)."""
+    s^1 and deflections (and rates) at s^2; empty for degree 0 (or 1 for a deflection).  With
+    ``common``, the constant ``s^0`` first: no deformation (a clamped wing has none at the root) but
+    the main POS's own error at the epoch, which every sub-IMU sees alike (:func:`fit_wing`)."""
     lo = 1 if component.startswith("theta") else 2
-    return list(range(lo, degree + 1))
+    return ([0] if common else []) + list(range(lo, degree + 1))
 
 
 def candidates(component: str, max_degree: int) -> list[int]:
@@ -181,13 +210,13 @@ def cross_validate(s: FloatArray, y: FloatArray, var: FloatArray, pw: list[int])
 
 
 def choose_degree(component: str, s: FloatArray, y: FloatArray, var: FloatArray,
-                  max_degree: int = 4) -> tuple[int, dict[int, dict[str, float]]]:
+                  max_degree: int = 4, common: bool = False) -> tuple[int, dict[int, dict[str, float]]]:
     """The degree of ``component`` with the smallest leave-one-out score (:func:`cross_validate`)
     among :func:`candidates` that leave at least one redundant point (p <= S - 2); returns it and
     every candidate's ``{"score", "rms"}``."""
     cv: dict[int, dict[str, float]] = {}
     for k in candidates(component, max_degree):
-        pw = powers(component, k)
+        pw = powers(component, k, common)
         if len(pw) > s.size - 2:
             continue
         score, rms = cross_validate(s, y, var, pw)
@@ -253,6 +282,54 @@ def _body_var(C_nb: FloatArray, sig_n: FloatArray) -> FloatArray:
     return np.einsum("tij,ti->tj", C_nb**2, sig_n**2)
 
 
+#: the load-factor regressor is used when std(n - 1) over the session exceeds this (0.01 g: a 8 deg bank)
+MIN_LOAD_STD = 0.01
+#: batches for the variance of the session mean of the flexure (batch means)
+N_BATCHES = 10
+
+
+def load_factor_minus_1(master_vel_n_mps: FloatArray, C_nb: FloatArray, t_s: FloatArray, llh: FloatArray) -> FloatArray:
+    """``n - 1`` (T,) of the main POS: the body-up component of ``f^n = dv^n/dt + [0, 0, g]`` (ENU)
+    over the normal gravity, ``dv/dt`` by central differences of the velocity at the epochs ``t_s``
+    (T,); Coriolis and transport terms (~1e-3 g) are left out, as in the simulator's load."""
+    if t_s.size < 3:
+        return np.zeros(t_s.size)
+    a = np.gradient(master_vel_n_mps, t_s, axis=0)
+    g = earth.normal_gravity(llh[:, 0], llh[:, 2])
+    a[:, 2] += g
+    return np.einsum("ti,ti->t", C_nb[:, :, 2], a) / g - 1.0
+
+
+def rigid_misalignment(Theta: FloatArray, n1: FloatArray, ok: NDArray[np.bool_]) -> tuple[FloatArray, FloatArray]:
+    """The rigid misalignment of a sub-IMU from its total rotation (module docstring).
+
+    Args:
+        Theta: (T, 3) total rotation master -> sub-IMU section [rad], master axes.
+        n1: (T,) load factor minus 1.
+        ok: (T,) epochs with data.
+
+    Returns:
+        ``rho_b`` (3,) [rad, master axes] and its variance (3,) [rad^2] (batch means of the
+        regression residuals; ``inf`` with fewer than ``2 N_BATCHES`` epochs).
+    """
+    y, x = Theta[ok], n1[ok]
+    if y.shape[0] == 0:
+        return np.zeros(3), np.full(3, np.inf)
+    X = np.ones((x.size, 1))
+    if x.size > 2 and float(np.std(x)) > MIN_LOAD_STD:
+        X = np.column_stack([X, x - x.mean()])  # centred: the intercept is the mean at the session's mean load
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    rho = coef[0]
+    if X.shape[1] == 2:
+        rho = rho - coef[1] * x.mean()  # back to n = 1
+    res = y - X @ coef
+    if x.size < 2 * N_BATCHES:
+        return rho, np.full(3, np.inf)
+    means = np.array([b.mean(axis=0) for b in np.array_split(res, N_BATCHES)])
+    var = np.sum(means**2, axis=0) / ((N_BATCHES - 1) * N_BATCHES)  # variance of the mean of the batch means
+    return rho, np.maximum(var, 1e-16)
+
+
 def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[str, float, FloatArray]],
              max_degree: int = 4, root_span_m: float = 0.0) -> WingFit:
     """Fit the deformation of one wing along the span (module docstring) and derive its antennas.
@@ -283,16 +360,26 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
     s = np.array([abs(x.span_m) - root_span_m for x in subs])
     y = np.full((T, S, 9), np.nan)
     var = np.full((T, S, 9), np.inf)
+    rho_by_sub: dict[str, tuple[FloatArray, FloatArray]] = {}
+    n1 = load_factor_minus_1(vm, C, t, pm)
     for i, tr in enumerate(subs):
-        Cs, vs, ps, sg, rho, rsg, ok = _on_grid(tr, t)
+        Cs, vs, ps, sg, _, _, ok = _on_grid(tr, t)
         r0 = np.asarray(tr.lever_arm_m, dtype=float)
         M = np.asarray(tr.C_b_s0, dtype=float)
-        th = dcm_to_rotvec(Cbn @ Cs @ np.swapaxes(M @ rotvec_to_dcm(rho), 1, 2))
+        Theta = dcm_to_rotvec(Cbn @ Cs @ M.T)  # rigid misalignment + flexure, master axes
+        rho_b, rho_var = rigid_misalignment(Theta, n1, ok)
+        th = dcm_to_rotvec(Cbn @ Cs @ np.swapaxes(M, 0, 1) @ rotvec_to_dcm(-rho_b)[None])
         d = np.einsum("tji,tj->ti", C, _enu_from(ps, pm)) - r0
         dd = np.einsum("tji,tj->ti", C, vs - vm) - np.cross(w, r0 + d)
-        v_th = _body_var(C, sg[:, 0:3]) + (rsg**2) @ (M.T**2)
+        v_th = _body_var(C, sg[:, 0:3])
+        rho_by_sub[tr.name] = (rho_b, np.sqrt(rho_var))
         y[:, i] = np.where(ok[:, None], np.concatenate([th, d, dd], axis=1), np.nan)
         var[:, i] = np.where(ok[:, None], np.concatenate([v_th, _body_var(C, sg[:, 6:9]), _body_var(C, sg[:, 3:6])], axis=1), np.inf)
+    # with 4 or more sub-IMUs every component also gets a constant (common) term: the main POS's error at
+    # the epoch (paper_wing's reference: 5 cm, 0.005 m/s, 0.002-0.005 deg white) enters every sub-IMU's
+    # deflection, rate and angle alike, and the sub-IMUs' smoothed solutions, which average it out,
+    # estimate it; the antennas then carry the fit's error instead of the raw main POS's.
+    common = S >= 4
     degree: dict[str, int] = {}
     cvs: dict[str, dict[int, dict[str, float]]] = {}
     s0: dict[str, float] = {}
@@ -301,9 +388,9 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
     pvar = np.zeros((T, len(antennas), 9))
     valid = np.ones(T, dtype=bool)
     for c, comp in enumerate(COMPONENTS):
-        k, cv = choose_degree(comp, s, y[:, :, c], var[:, :, c], max_degree)
+        k, cv = choose_degree(comp, s, y[:, :, c], var[:, :, c], max_degree, common)
         degree[comp], cvs[comp] = k, cv
-        pw = powers(comp, k)
+        pw = powers(comp, k, common)
         B = design(s, pw)
         a, P, ok = wls(B, y[:, :, c], var[:, :, c])
         fin = np.isfinite(var[:, :, c]) & ok[:, None]
@@ -315,11 +402,24 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         val[:, :, c] = np.nan_to_num(a) @ Ba.T
         pvar[:, :, c] = s0[comp] * np.einsum("ai,tij,aj->ta", Ba, np.nan_to_num(P), Ba)
         valid &= ok
-    out = WingFit(t[valid], degree, cvs, s0)
+    out = WingFit(t[valid], degree, cvs, s0, common=common, rigid_misalignment=rho_by_sub)
     # the antennas' offset across the wing from the sub-IMUs' section points (x and z interpolated along the span)
     order = np.argsort(s)
     r0s = np.array([np.asarray(x.lever_arm_m, dtype=float) for x in subs])[order]
     tv = t[valid]
+    rho_sd = np.array([rho_by_sub[x.name][1] for x in subs])[order]  # (S, 3) by span
+
+    def rho_var_at(sq: float) -> FloatArray:
+        """Variance (3,) of the rigid-misalignment split at span ``sq``: the sub-IMUs' (the error of
+        the session mean of the flexure, smooth along the span: not a point noise of the fit but
+        common to the whole field) linearly interpolated, extrapolated by the outermost segment."""
+        ss = s[order]
+        if ss.size == 1 or not np.all(np.isfinite(rho_sd)):
+            return np.max(rho_sd, axis=0) ** 2
+        j = int(np.clip(np.searchsorted(ss, sq) - 1, 0, ss.size - 2))
+        f = (sq - ss[j]) / (ss[j + 1] - ss[j])
+        return np.maximum(rho_sd[j] + f * (rho_sd[j + 1] - rho_sd[j]), 0.0) ** 2
+
     Cv, Cbv = C[valid], Cbn[valid]
     dt = np.gradient(tv) if tv.size > 1 else np.ones(1)
     for n, (name, _, ra) in enumerate(antennas):
@@ -340,9 +440,12 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
 
         r_n = np.einsum("tij,tj->ti", Cv, r)
         Sk = skew(r_n)
-        P_att = to_n(pvar[valid, n, 0:3]) + Patt[valid]
-        P_pos = to_n(pvar[valid, n, 3:6]) + Ppos[valid] + Sk @ Patt[valid] @ np.swapaxes(Sk, 1, 2)
-        P_vel = to_n(pvar[valid, n, 6:9]) + Pvel[valid]
+        # the main POS's covariance: replaced by the common term's (in pvar) when it is fitted; its
+        # attitude error turning the lever arm is linear in the span, which the basis does not hold
+        keep_m = 0.0 if common else 1.0
+        P_att = to_n(pvar[valid, n, 0:3] + rho_var_at(sa[n])) + keep_m * Patt[valid]
+        P_pos = to_n(pvar[valid, n, 3:6]) + keep_m * Ppos[valid] + Sk @ Patt[valid] @ np.swapaxes(Sk, 1, 2)
+        P_vel = to_n(pvar[valid, n, 6:9]) + keep_m * Pvel[valid]
         sigma = np.sqrt(np.concatenate([np.diagonal(P, axis1=1, axis2=2) for P in (P_att, P_vel, P_pos)], axis=1))
         out.antennas[name] = FittedAntenna(name, NavSeries.from_C_nb(tv, C_na, vel, llh), sigma)
     return out
