@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import json
-import multiprocessing as mp
 import os
 import tempfile
 import threading
@@ -90,6 +89,7 @@ from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
+from dpos_ros.runtime.pool import process_pool
 from transfer_align_node.params import TransferAlignConfig
 
 NODE_NAME = "transfer_align_node"
@@ -135,7 +135,7 @@ def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, par
 def _pool(n_workers: int) -> cf.Executor:
     """The executor of the smoothers: spawned worker processes (one sub-IMU each).  A module
     function so that tests can run the smoothers in-process (and inject failures)."""
-    return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn"))
+    return process_pool(n_workers)
 
 
 def _describe(e: BaseException) -> str:

@@ -178,6 +178,7 @@ def test_chmod_readonly_out_is_refused(bags, tmp_path):
 @pytest.mark.parametrize(("args", "needle"), [
     (["--seed", "-1"], "--seed must be >= 0"),
     (["--particles", "0"], "--particles must be >= 1"),
+    (["--workers", "-1"], "--workers must be >= 0"),
     (["--filter-rate", "0"], "--filter-rate must be > 0"),
     (["--output-rate", "nan"], "--output-rate must be >= 0"),
     (["--initial-attitude-error", "inf"], "--initial-attitude-error must be a finite"),

@@ -5,6 +5,7 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
     dpos-process /tmp/paper_su_s1 --method ups --particles 100 --out /tmp/products
     dpos-process BAG --method ups --aircraft my_aircraft.yaml --out DIR
     dpos-process BAG --out DIR --overwrite                            # replace DIR/<session id>/
+    dpos-process BAG --out DIR --workers 1                            # the sub-IMUs one after the other
 
 Exit status: 0 when every antenna of the aircraft is estimated; 1 when some (or all) are not
 (named, with why; the products are written); 2 for unusable input or output (a bad option, an
@@ -42,6 +43,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0, help="random seed of the particle methods")
     ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, [Gong2018])")
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
+    ap.add_argument("--workers", type=int, default=0, metavar="N",
+                    help="worker processes aligning the sub-IMUs in parallel (default 0 = one per core; 1 = serial); "
+                         "the results do not depend on it")
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
                     help="initial sub-IMU attitude error per axis (default: the recording's transfer_alignment setting, else 0)")
@@ -57,6 +61,8 @@ def _check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Non
         ap.error(f"--particles must be >= 1, got {args.particles}")
     if args.seed < 0:
         ap.error(f"--seed must be >= 0, got {args.seed}")
+    if args.workers < 0:
+        ap.error(f"--workers must be >= 0 (0 = one per core), got {args.workers}")
     if not (math.isfinite(args.filter_rate) and args.filter_rate > 0):
         ap.error(f"--filter-rate must be > 0 Hz, got {args.filter_rate:g}")
     if not (math.isfinite(args.output_rate) and args.output_rate >= 0):
@@ -117,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"dpos-process: session {sess.session_id}: {len(sess.sub_imus)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg")
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
-                             filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate)
+                             filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate, workers=args.workers)
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite)

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import contextlib
 import errno
 import json
 import os
@@ -26,7 +28,7 @@ from dpos_core.attitude import dcm_to_quat, mount_dcm
 from dpos_core.config import AircraftConfig
 from dpos_core.errors import RejectedInput
 from dpos_core.frames import hpr_from_C_nb
-from dpos_core.series import NavSeries
+from dpos_core.series import ImuSeries, NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
@@ -37,6 +39,7 @@ from dpos_core.units import FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.session import RecordedSession
+from dpos_ros.runtime.pool import process_pool, worker_count
 
 
 @dataclass
@@ -74,6 +77,7 @@ def solve(
     filter_rate_hz: float = 1.0,
     output_rate_hz: float = 0.0,
     master_aligned_sigma_deg: float = 0.1,
+    workers: int = 1,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
     with their antennas) from the first epoch at which the main POS is aligned
@@ -85,7 +89,12 @@ def solve(
     (the status says ``estimated (not estimated over <from>-<to> s: <why>)`` and a warning names
     the spans); a sub-IMU whose data cannot be aligned at all (empty or all-NaN topic, too short,
     rejected by the core) gives its antennas ``not estimated: <why>`` and a warning, the other
-    sub-IMUs going on."""
+    sub-IMUs going on.
+
+    ``workers``: the sub-IMUs are aligned in that many spawned worker processes (0 = one per
+    core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
+    the main POS, its installation and the configuration; every sub-IMU uses ``seed`` either way,
+    so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it."""
     cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
     results = {}
     unusable: dict[str, str] = {}  # sub-IMU -> why it is not estimated
@@ -96,25 +105,33 @@ def solve(
 
         aircraft = replace(aircraft, sub_imus=tuple(s for s in aircraft.sub_imus if s.name in only),
                            antennas=tuple(a for a in aircraft.antennas if a.sub_imu in only))
-    for s in aircraft.sub_imus:
-        if s.name not in sess.sub_imus:
-            sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
-            continue
-        ins = Installation.from_aircraft(aircraft, s.name)
-        e = initial_attitude_error_deg
-        if master is None:
-            continue
-        try:
-            res = pipeline.run_segments(sess.sub_imus[s.name], master, ins, cfg, method, particles, seed, (e, e, e),
-                                        oracle_truth=None if oracle_truth is None else oracle_truth[s.name])
-        except RejectedInput as ex:
-            unusable[s.name] = f"sub-IMU {s.name}: {ex}"
-            sess.warnings.append(f"sub-IMU {s.name}: {ex}; its antennas are not estimated")
-            continue
-        if res.not_estimated:
-            sess.warnings.append(f"sub-IMU {s.name}: no pose over {_spans(res.not_estimated)}; each part after a gap "
-                                 f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
-        results[s.name] = res
+    e = initial_attitude_error_deg
+    tasks = {s.name: (sess.sub_imus[s.name], master, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed,
+                      (e, e, e), None if oracle_truth is None else oracle_truth[s.name])
+             for s in aircraft.sub_imus if s.name in sess.sub_imus and master is not None}
+    n_workers = worker_count(workers, len(tasks))
+    futs: dict[str, cf.Future[pipeline.TAResult]] = {}
+    with contextlib.ExitStack() as stack:
+        if n_workers > 1:  # submitted all at once, collected below in the aircraft's order
+            pool = process_pool(n_workers)
+            stack.callback(pool.shutdown, wait=True, cancel_futures=True)  # on an error: the queued ones are not run
+            futs = {name: pool.submit(_align_sub_imu, *args) for name, args in tasks.items()}
+        for s in aircraft.sub_imus:
+            if s.name not in sess.sub_imus:
+                sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
+                continue
+            if master is None:
+                continue
+            try:
+                res = futs[s.name].result() if futs else _align_sub_imu(*tasks[s.name])
+            except RejectedInput as ex:
+                unusable[s.name] = f"sub-IMU {s.name}: {ex}"
+                sess.warnings.append(f"sub-IMU {s.name}: {ex}; its antennas are not estimated")
+                continue
+            if res.not_estimated:
+                sess.warnings.append(f"sub-IMU {s.name}: no pose over {_spans(res.not_estimated)}; each part after a gap "
+                                     f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
+            results[s.name] = res
     for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
@@ -139,6 +156,13 @@ def solve(
     if any(a.sub_imu is None for a in aircraft.antennas):
         out.update(fit_antennas(sess, aircraft, out))
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
+
+
+def _align_sub_imu(imu: ImuSeries, master: NavSeries, ins: Installation, cfg: TAConfig, method: str, particles: int,
+                   seed: int, err0_deg: tuple[float, float, float], oracle_truth) -> pipeline.TAResult:
+    """One sub-IMU's transfer alignment (:func:`solve`), in this process or in a worker (a module
+    function: it is pickled by name); what it needs is all it gets."""
+    return pipeline.run_segments(imu, master, ins, cfg, method, particles, seed, err0_deg, oracle_truth=oracle_truth)
 
 
 def _carrier(aircraft: AircraftConfig, sub: str, r: pipeline.TAResult, keep: NDArray[np.intp]) -> SubImuTrack:

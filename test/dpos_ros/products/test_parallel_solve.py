@@ -1,0 +1,70 @@
+"""solve() aligns the sub-IMUs in worker processes (``workers``, dpos-process --workers) with the
+same results, warnings and error handling as one after the other (issue #12 item 3)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dpos_core.config import config_text
+from dpos_core.sim.scenario import load_scenario
+from dpos_core.sim.session import SimulatedSession
+from dpos_ros.devices.sim_streams import session_custom_data, session_streams
+from dpos_ros.io.session import RecordedSession, session_from_streams
+from dpos_ros.products.ta import AntennaSolution, solve
+
+AIRCRAFT = "paper_su_pair"
+
+
+@pytest.fixture(scope="module")
+def session() -> tuple[RecordedSession, object]:
+    """20 s of paper_su with both wings (two sub-IMUs), in memory."""
+    scenario = load_scenario("paper_su", aircraft=AIRCRAFT)
+    ss = SimulatedSession(scenario, 2, 20.0)
+    sess = session_from_streams(session_streams(ss), session_custom_data(ss, config_text("aircraft", AIRCRAFT)), "paper_su_seed2")
+    return sess, scenario.aircraft
+
+
+def _solve(sess: RecordedSession, aircraft, workers: int, method: str = "urtss") -> tuple[dict[str, AntennaSolution], list[str]]:
+    s = replace(sess, warnings=list(sess.warnings))
+    ants, _ = solve(s, aircraft, method, particles=10, seed=3, initial_attitude_error_deg=1.0, workers=workers)
+    return ants, s.warnings
+
+
+def _same(a: dict[str, AntennaSolution], b: dict[str, AntennaSolution]) -> None:
+    assert list(a) == list(b)
+    for name in a:
+        x, y = a[name], b[name]
+        assert x.status == y.status, name
+        if x.traj is None:
+            assert y.traj is None, name
+            continue
+        assert y.traj is not None and y.sigma is not None and x.sigma is not None
+        for k in ("t_s", "q_nb", "vel_n_mps", "llh"):
+            assert np.array_equal(getattr(x.traj, k), getattr(y.traj, k)), (name, k)
+        assert np.array_equal(x.sigma, y.sigma), name
+        assert np.array_equal(x.flags, y.flags), name
+        assert x.chol_jitter_repairs == y.chol_jitter_repairs
+
+
+@pytest.mark.parametrize("method", ["urtss", "ups"])
+def test_two_workers_give_the_serial_results(session, method: str) -> None:
+    sess, aircraft = session
+    serial, w1 = _solve(sess, aircraft, 1, method)
+    parallel, w2 = _solve(sess, aircraft, 2, method)
+    assert {a.status for a in serial.values()} == {"estimated"}
+    _same(serial, parallel)
+    assert w1 == w2
+
+
+def test_a_rejected_sub_imu_in_a_worker_leaves_the_other_estimated(session) -> None:
+    sess, aircraft = session
+    broken = replace(sess, sub_imus={**sess.sub_imus, "sub_r": sess.sub_imus["sub_r"].select(slice(0, 3))})
+    serial, w1 = _solve(broken, aircraft, 1)
+    parallel, w2 = _solve(broken, aircraft, 2)
+    _same(serial, parallel)
+    assert parallel["ant_l"].status == "estimated"
+    assert parallel["ant_r"].status.startswith("not estimated: sub-IMU sub_r: "), parallel["ant_r"].status
+    assert w1 == w2 and any(w.startswith("sub-IMU sub_r: ") and "not estimated" in w for w in w2), w2
