@@ -14,6 +14,10 @@ Keys (in order):
   sim_paper_su_time_ratio      simulating paper_su (1300 s, one sub-IMU, every topic) / data duration
   urtss_paper_su_time_ratio    UKF + URTSS of one sub-IMU over paper_su (40 deg initial errors) / duration
   ups_paper_su_time_ratio      UPF (100 particles) + FFBSm of one sub-IMU over paper_su / duration
+  wing_paper_wing_time_ratio   the whole paper_wing session (6 sub-IMUs at 200 Hz, 12 antennas: UPS with 100
+                               particles, the wing fit) through solve() on 2 workers / session duration (300 s);
+                               wing_paper_wing_serial_time_ratio: the same one sub-IMU after the other;
+                               *_split_s: seconds of the transfer alignment and of the rest (the wing fit)
   ifa_add2_paper_ifa_time_ratio   in-flight alignment (ADD2, bank of 6 hypotheses) of paper_ifa / duration
   ifa_add2_mems_vehicle_time_ratio  the same on the MEMS scenario (24 states, real-device timing)
   ifa_add2_walk_0827_time_ratio   the same on the real recording walk_0827 (GNSS at 1 Hz)
@@ -154,6 +158,34 @@ def bench_transfer_alignment(results: dict, repeats: int) -> None:
         el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, particles=100, initial=init), 1)
         results[key] = el / dur
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
+
+
+def bench_wing(results: dict, repeats: int) -> None:
+    """The whole paper_wing session (300 s, 6 sub-IMUs at 200 Hz, 12 antennas) through solve() as
+    dpos-process runs it (UPS, 100 particles, the recording's initial attitude error): the six
+    sub-IMUs on 2 workers and, in the same run, one after the other; the wing fit included."""
+    from dpos_core.config import config_text
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+    from dpos_ros.devices.sim_streams import session_custom_data, session_streams
+    from dpos_ros.io.session import session_from_streams
+    from dpos_ros.products.ta import solve
+
+    scenario = load_scenario("paper_wing")
+    ss = SimulatedSession(scenario, 1)
+    sess = session_from_streams(session_streams(ss), session_custom_data(ss, config_text("aircraft", "paper_wing")), "paper_wing_seed1")
+    dur = float(sess.master.t_s[-1] - sess.master.t_s[0])
+    err0 = float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
+    for workers, key in ((2, "wing_paper_wing_time_ratio"), (1, "wing_paper_wing_serial_time_ratio")):
+        t0 = time.perf_counter()
+        ants, timing = solve(sess, scenario.aircraft, "ups", 100, 0, err0, workers=workers)
+        el = time.perf_counter() - t0
+        n_est = sum(a.traj is not None for a in ants.values())
+        results[key] = el / dur
+        results[f"{key}_split_s"] = {"transfer_alignment": timing["processing_s"], "antennas_and_wing_fit": el - timing["processing_s"]}
+        print(f"paper_wing ups, {len(sess.sub_imus)} sub-IMUs on {workers} worker(s): {dur:.0f} s of session in {el:.2f} s "
+              f"(ratio {el / dur:.4f}: transfer alignment {timing['processing_s']:.2f} s, antennas + wing fit "
+              f"{el - timing['processing_s']:.2f} s; {n_est}/{len(ants)} antennas estimated)")
 
 
 def bench_ifa(results: dict, repeats: int) -> None:
@@ -518,6 +550,7 @@ BENCHES: dict[str, Callable[..., None]] = {
     "strapdown": bench_strapdown,
     "sim": bench_sim,
     "transfer_alignment": bench_transfer_alignment,
+    "wing": bench_wing,
     "ifa": bench_ifa,
     "graph": bench_graph,
     "replay": bench_replay,
