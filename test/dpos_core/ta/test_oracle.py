@@ -234,3 +234,27 @@ def test_the_oracle_is_not_worse_than_the_urtss() -> None:
     o, u = (np.sqrt(np.mean(np.square(rmse[m]), axis=0)) for m in ("oracle", "urtss"))
     ratio = dict(zip(keys, o / u))
     assert all(r <= 1.1 for r in ratio.values()), ratio
+
+
+def test_the_known_wing_is_the_simulated_wing() -> None:
+    """``from_sim.known_wing`` (the oracle that knows the wing) against the modal wing's own
+    deformation: the section's rotation is the flexure angle at the sub-IMU's span and the lever
+    arm is the undeformed one plus the deflection and the section's turn of its offset."""
+    from dpos_core.attitude import rotvec_to_dcm
+
+    ss = SimulatedSession(load_scenario("paper_wing"), 3, 10.0)
+    s = ss.scenario.aircraft.sub_imu("imu11")
+    wing = from_sim.known_wing(ss, "imu11")
+    fr = ss.flexure(1 if s.span_m > 0 else -1)
+    r0 = np.asarray(s.lever_arm_m, dtype=float)
+    r_off = r0 * np.array([1.0, 0.0, 1.0])
+    for t in (2.0, 5.37, 9.5):
+        th, thd, d, dd = fr.deformation(np.array([t]), s.span_m)
+        th_b, r_b, r_dot_b = wing(t)
+        # the local-level frames at the master and at 11 m differ by 11 m / 6.4e6 m = 1.7e-6 rad
+        np.testing.assert_allclose(th_b, th[0], atol=3e-6)
+        np.testing.assert_allclose(r_b, r0 + d[0] + rotvec_to_dcm(th[0]) @ r_off - r_off, atol=1e-6)
+        assert np.linalg.norm(r_dot_b) > 1e-3  # the tip moves (tenths of a m/s)
+    with pytest.raises(ValueError, match="known_wing"):
+        imu, master, ins = from_sim.sub_imu(ss, "imu11"), from_sim.master_nav(ss), from_sim.installation(ss, "imu11")
+        pipeline.run(imu, master, ins, TAConfig(), pipeline.ORACLE_WING)

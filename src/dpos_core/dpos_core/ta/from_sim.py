@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .. import earth
 from ..series import ImuSeries, NavSeries
 from ..sim.session import SimulatedSession
 from ..units import DEG, FloatArray
@@ -46,3 +47,28 @@ def oracle_truth(
         return np.concatenate([gb, ab, rho, th[0], thd[0]])
 
     return nav, other
+
+
+def known_wing(session: SimulatedSession, name: str) -> Callable[[float], tuple[FloatArray, FloatArray, FloatArray]]:
+    """The true wing at sub-IMU ``name`` (``Installation.known_wing``, the oracle that knows the
+    wing): ``t -> (theta_b (3,) [rad], r_b (3,) [m], r_dot_b (3,) [m/s])``, the flexure rotation of its
+    section and its true lever arm and lever-arm rate from the main IMU, master axes (from the
+    simulated truth of both bodies, so any wing model: Gauss-Markov or modal)."""
+    from ..attitude import dcm_to_rotvec, mount_dcm
+
+    s = session.scenario.aircraft.sub_imu(name)
+    C_s0 = mount_dcm(s.mount_rpy_deg, s.rho_deg)  # sub-IMU axes -> master axes, no flexure
+
+    def at(t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        tt = np.array([t])
+        m, b = session.truth("master", tt), session.truth(f"sub_imu/{name}", tt)
+        C_bn = m.C_nb[0].T
+        th_b = dcm_to_rotvec((C_bn @ b.C_nb[0] @ C_s0.T)[None])[0]
+        p_m, p_b = earth.geodetic_to_ecef(*m.llh[0]), earth.geodetic_to_ecef(*b.llh[0])
+        C_en = earth.C_en(m.llh[0, 0], m.llh[0, 1])
+        r_b = C_bn @ (C_en.T @ (p_b - p_m))
+        w = m.omega_eb_b_radps[0] if m.omega_eb_b_radps is not None else np.zeros(3)
+        r_dot_b = C_bn @ (b.vel_n_mps[0] - m.vel_n_mps[0]) - np.cross(w, r_b)
+        return th_b, r_b, r_dot_b
+
+    return at

@@ -58,6 +58,7 @@ strapdown and the error states shifted by the applied correction.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -122,6 +123,11 @@ class Installation:
     flexure: FlexureModel
     imu: ImuErrorModel
     k_bend: float = K_BEND
+    #: evaluation only (the oracle that knows the true wing): ``t -> (theta_b (3,) [rad], r_b (3,) [m],
+    #: r_dot_b (3,) [m/s])``, the true flexure rotation of the sub-IMU's section and its true lever arm
+    #: and lever-arm rate, master axes.  The matches then use the true deformed installation and the
+    #: flexure states are held at zero (:class:`TransferAlignmentModel`)
+    known_wing: Callable[[float], tuple[FloatArray, FloatArray, FloatArray]] | None = None
 
     @classmethod
     def from_aircraft(cls, aircraft, name: str) -> Installation:
@@ -278,19 +284,24 @@ class TransferAlignmentModel:
             self._epochs[k] = _Epoch(None, np.eye(p), np.eye(3), np.eye(3), np.zeros(3))
             return
         llh_m, v_m, C_m, w_m, cov_att, cov_v, cov_p = ms
+        r_b, r_dot_b = ins.lever_arm_m, np.zeros(3)
         A = C_m @ ins.C_b_s0
+        if ins.known_wing is not None:  # the oracle that knows the wing: the true deformed installation
+            th_b, r_b, r_dot_b = ins.known_wing(float(self.epochs_s[k]))
+            A = C_m @ rotvec_to_dcm(th_b) @ ins.C_b_s0
         C_est = nom.C_nb
         z_att = dcm_to_rotvec(A @ C_est.T)
-        z_vel = nom.vel_n_mps - v_m - C_m @ np.cross(w_m, ins.lever_arm_m)
+        z_vel = nom.vel_n_mps - v_m - C_m @ (np.cross(w_m, r_b) + r_dot_b)
         R = np.zeros((p, p))
         R[:3, :3] = cov_att + np.eye(3) * (self.cfg.att_noise_floor_deg * DEG) ** 2
         R[3:6, 3:6] = cov_v + np.eye(3) * self.cfg.vel_noise_floor_mps**2
-        vib_v, vib_p = self.vibration_variance(k) if self.cfg.vibration_noise else (np.zeros(3), np.zeros(3))
+        vib = self.cfg.vibration_noise and ins.known_wing is None
+        vib_v, vib_p = self.vibration_variance(k) if vib else (np.zeros(3), np.zeros(3))
         R[3:6, 3:6] += np.diag(vib_v)
         z = [z_att, z_vel]
         if self.cfg.use_position:
             # p_est - p_m - C_m r0 in local ENU metres at the sub-IMU
-            z.append(earth.enu_between(nom.llh, llh_m) - C_m @ ins.lever_arm_m)
+            z.append(earth.enu_between(nom.llh, llh_m) - C_m @ r_b)
             R[6:, 6:] = cov_p + np.eye(3) * self.cfg.pos_noise_floor_m**2 + np.diag(vib_p)
         self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m)
 
@@ -426,6 +437,8 @@ class TransferAlignmentModel:
         Q[EPS, EPS] += np.eye(3) * q_g
         Q[NAB, NAB] += np.eye(3) * q_a
         Qf = self._flex_discrete(T)[1]
+        if self.install.known_wing is not None:  # the flexure is known: its states stay at zero
+            Qf = np.broadcast_to(np.eye(2) * 1e-16, Qf.shape)
         for i in range(3):
             ii = [18 + i, 21 + i]
             Q[np.ix_(ii, ii)] = Qf[i]
@@ -494,6 +507,8 @@ class TransferAlignmentModel:
         d[RHO] = (cfg.rho_sigma_deg * DEG) ** 2
         P = np.diag(d)
         Pf = self._flex.stationary_cov()
+        if ins.known_wing is not None:
+            Pf = np.zeros_like(Pf)
         for i in range(3):
             ii = [18 + i, 21 + i]
             P[np.ix_(ii, ii)] = Pf[i] + np.diag([1e-16, 1e-16])

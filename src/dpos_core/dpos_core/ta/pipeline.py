@@ -46,6 +46,9 @@ from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, 
 
 METHODS = ("ukf", "urtss", "upf", "ups")
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
+#: evaluation only: the URTSS of a model that knows the true wing (``Installation.known_wing``:
+#: the true deformed lever arm and flexure rotation in the matches, the flexure states held at zero)
+ORACLE_WING = "oracle_wing"
 
 
 @dataclass
@@ -235,6 +238,10 @@ def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
 
 def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig, method: str, particles: int, seed: int,
          initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine) -> TAResult:
+    if method == ORACLE_WING:
+        if install.known_wing is None:
+            raise ValueError("the oracle with the true wing needs Installation.known_wing (evaluation of simulations only)")
+        method = "urtss"
     if method not in METHODS + (ORACLE,):
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:

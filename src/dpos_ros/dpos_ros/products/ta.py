@@ -18,6 +18,7 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +79,7 @@ def solve(
     output_rate_hz: float = 0.0,
     master_aligned_sigma_deg: float = 0.1,
     workers: int = 1,
+    known_wing: dict | None = None,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
     with their antennas) from the first epoch at which the main POS is aligned
@@ -94,7 +96,10 @@ def solve(
     ``workers``: the sub-IMUs are aligned in that many spawned worker processes (0 = one per
     core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
     the main POS, its installation and the configuration; every sub-IMU uses ``seed`` either way,
-    so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it."""
+    so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it.
+
+    ``known_wing`` (evaluation only, with ``method`` ``oracle_wing``): per sub-IMU the true wing
+    (:func:`dpos_core.ta.from_sim.known_wing`), set as ``Installation.known_wing``."""
     cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
     results = {}
     unusable: dict[str, str] = {}  # sub-IMU -> why it is not estimated
@@ -106,7 +111,11 @@ def solve(
         aircraft = replace(aircraft, sub_imus=tuple(s for s in aircraft.sub_imus if s.name in only),
                            antennas=tuple(a for a in aircraft.antennas if a.sub_imu in only))
     e = initial_attitude_error_deg
-    tasks = {s.name: (sess.sub_imus[s.name], master, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed,
+    def install(name: str) -> Installation:
+        ins = Installation.from_aircraft(aircraft, name)
+        return ins if known_wing is None else dc_replace(ins, known_wing=known_wing[name])
+
+    tasks = {s.name: (sess.sub_imus[s.name], master, install(s.name), cfg, method, particles, seed,
                       (e, e, e), None if oracle_truth is None else oracle_truth[s.name])
              for s in aircraft.sub_imus if s.name in sess.sub_imus and master is not None}
     n_workers = worker_count(workers, len(tasks))
