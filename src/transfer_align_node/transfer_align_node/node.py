@@ -89,7 +89,7 @@ from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
-from dpos_ros.runtime.pool import process_pool
+from dpos_ros.runtime.pool import process_pool, worker_count
 from transfer_align_node.params import TransferAlignConfig
 
 NODE_NAME = "transfer_align_node"
@@ -508,7 +508,7 @@ class TransferAlignNode(Node):
         cfg = self.config
         log = self.get_logger()
         t0 = time.perf_counter()
-        n_workers = min(len(self.sub_names), cfg.workers or (os.cpu_count() or 1))
+        n_workers = worker_count(cfg.workers, len(self.sub_names))
         self._progress = f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {n_workers} worker(s)"
         log.info(self._progress)
         antennas: dict[str, AntennaSolution] = {}
