@@ -137,3 +137,21 @@ def test_wing_vibration_noise_is_found_on_a_bending_wing_and_not_on_a_slow_one()
     assert np.median(root[1:, 2]) < 0.05 * np.median(tip[1:, 2])
     su_v, su_p = _vibration("paper_su", "sub_r")
     assert float(np.sqrt(su_v.max())) < 0.01 and not np.any(su_p > 0), (np.sqrt(su_v.max(axis=0)), np.sqrt(su_p.max(axis=0)))
+
+
+def test_between_epochs_the_vibration_turned_by_the_attitude_error_is_in_the_output() -> None:
+    """On paper_wing's bending wing the IMU gains ~0.4 m/s of in-plane vibration within each 1 s
+    interval; its (straight-flight, unobservable) heading error turns that into a cross-axis velocity
+    error that a linear interpolation of the epoch errors misses (measured before: 2.2 mm/s rms
+    between epochs against 1.0 at them, peaking at 2 Hz).  The output applies ``f x phi`` within the
+    interval: the velocity error is as small between the epochs as at them (its sigma's coverage
+    under this mismatch is issue #15's: 54-84 % within 2 sigma on the north axis)."""
+    ss = SimulatedSession(load_scenario("paper_wing"), 2, 60.0)
+    imu, master, ins = from_sim.sub_imu(ss, "imu09"), from_sim.master_nav(ss), from_sim.installation(ss, "imu09")
+    r = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=1.0), "urtss", initial=pipeline.initial_from_master(master, ins))
+    tr = ss.truth("sub_imu/imu09", r.t_s)
+    e = r.vel_n_mps - tr.vel_n_mps
+    late = r.t_s > r.t_s[0] + 20.0  # after the first 20 s (the large initial errors)
+    phase = np.floor(((r.t_s - r.epochs_s[0]) % 1.0) * 10).astype(int)
+    by_phase = np.array([np.sqrt(np.mean(e[late & (phase == b)] ** 2, axis=0)) for b in range(10)])  # (10, 3)
+    assert np.all(by_phase.max(axis=0) < 1.4 * by_phase.min(axis=0)), by_phase * 1e3
