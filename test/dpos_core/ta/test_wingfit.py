@@ -136,3 +136,27 @@ def test_a_constant_attitude_error_of_a_sub_imu_cancels_in_the_fit() -> None:
     rho_ref, rho_bad = ref.rigid_misalignment[subs[2].name][0], wf.rigid_misalignment[subs[2].name][0]
     want = master.C_nb[0].T @ np.array([0.02, -0.03, 0.1])  # the nav-frame error in the master's axes (constant attitude here)
     np.testing.assert_allclose(np.rad2deg(rho_bad - rho_ref), want, atol=5e-4)
+
+
+def test_a_fitted_antenna_is_never_surer_of_its_position_than_its_sub_imus() -> None:
+    """The sub-IMUs' velocity and position errors share the main POS reference of the transfer
+    alignment: a common error the fit cannot average.  A sub-IMU position error common to all six
+    (2 cm north, inside their 3 cm sigma) reaches every fitted antenna whole, and their sigma (the
+    sub-IMUs', interpolated along the span) still covers it, where the fit's own (six independent
+    points, plus the common term) was far below it."""
+    from dataclasses import replace
+
+    master, subs, ants, truth = _scenario(seed=4, T=60)
+    common = np.array([0.0, 0.02, 0.0])  # ENU metres
+    sig = 0.03
+    moved = []
+    for tr in subs:
+        sg = tr.sigma.copy()
+        sg[:, 6:9] = sig
+        moved.append(replace(tr, llh=earth.offset_llh(tr.llh, np.broadcast_to(common, tr.llh.shape)), sigma=sg))
+    wf = fit_wing(master, moved, ants)
+    for name, (_, _, p_t) in truth.items():
+        a = wf.antennas[name]
+        e_pos = _enu_from(a.traj.llh, p_t)
+        assert np.all(a.sigma[:, 6:9] >= sig - 1e-12), (name, a.sigma[:, 6:9].min())
+        assert np.all(np.abs(e_pos) < 2.0 * a.sigma[:, 6:9]), (name, np.abs(e_pos).max(axis=0))
