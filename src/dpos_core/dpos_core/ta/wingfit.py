@@ -348,7 +348,7 @@ def _along_span(ss: FloatArray, v: FloatArray, sq: float) -> FloatArray:
         vj = v[:, :, j]
         fin = np.isfinite(vj)
         if fin.all():
-            out[:, j] = np.array([np.interp(sq, ss, row) for row in vj]) if T < 64 else _interp_rows(ss, vj, sq)
+            out[:, j] = _interp_rows(ss, vj, sq)
         else:
             out[:, j] = [np.interp(sq, ss[f], row[f]) if f.any() else np.nan for row, f in zip(vj, fin)]
     return out
