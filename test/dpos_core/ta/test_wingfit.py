@@ -55,7 +55,7 @@ def _scenario(seed: int = 1, T: int = 300):
         p = earth.offset_llh(llh, np.einsum("tij,tj->ti", C, r0 + f[:, 3:6]) + rng.normal(0.0, SIG_POS, (T, 3)))
         v = vm + np.einsum("tij,tj->ti", C, f[:, 6:9]) + rng.normal(0.0, SIG_VEL, (T, 3))
         sig = np.tile([SIG_ATT] * 3 + [SIG_VEL] * 3 + [SIG_POS] * 3, (T, 1))
-        subs.append(SubImuTrack(f"imu{i}", s, r0, M, t, Cs, v, p, sig, np.tile(rho, (T, 1)), np.full((T, 3), 1e-9)))
+        subs.append(SubImuTrack(f"imu{i}", s, r0, M, t, Cs, v, p, sig))
     ants = [(f"ant{int(s):02d}", s, np.array([0.0, -s, 0.0])) for s in ANT_SPANS]
     truth = {}
     for name, s, ra in ants:

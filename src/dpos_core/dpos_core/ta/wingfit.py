@@ -16,8 +16,9 @@ the outermost IMU (its antenna No. 12).  Here instead:
   - deflection ``d_i`` (3, m): ``C_nb^T (p_i - p_m) - r0_i`` (``r0_i`` the nominal lever arm);
   - deflection rate ``d_dot_i`` (3, m/s): ``C_nb^T (v_i - v_m) - omega_eb^b x (r0_i + d_i)``,
 
-  each with the variance from the sub-IMU's smoothed 1-sigma.  The rigid part (the lever arm, 12 m at the tip) is then exact, and what is fitted is
-  centimetres and tenths of a degree that vanish at the wing root.
+  each with the variance from the sub-IMU's smoothed 1-sigma.  The rigid part (the lever arm,
+  12 m at the tip) is then exact, and what is fitted is centimetres and tenths of a degree that
+  vanish at the wing root.
 * The rigid misalignment ``rho_i``: the total rotation ``Theta_i = log(C_nb^T C_ns,i C_mount,i^T)``
   is what the sub-IMU measures (its attitude error is 0.001-0.005 deg); splitting it into a
   constant and the flexure needs a convention, and the one that holds for a wing is that the
@@ -28,8 +29,8 @@ the outermost IMU (its antenna No. 12).  Here instead:
   from batch means of the residuals (the residual is the wing's vibration, correlated over
   seconds).  Its error is the session mean of the flexure, smooth along the span: the fit absorbs
   it like a deformation, so it is no point noise of the fit; it is added to the fitted antenna's
-  attitude variance (the sub-IMUs' values interpolated along the span) instead.  Not the transfer alignment's rho state (15:18): its Gauss-Markov flexure prior
-  ([Gong2018] eq. 13: tau 5 s, a low-pass process with most of its power near 0 Hz) cannot tell a
+  attitude variance (the sub-IMUs' values interpolated along the span) instead.  Not the
+  transfer alignment's rho state (15:18): its Gauss-Markov flexure prior ([Gong2018] eq. 13: tau 5 s, a low-pass process with most of its power near 0 Hz) cannot tell a
   lightly damped 1 Hz bending mode, whose power at 0 Hz is ~1e-4 of its variance, from a constant,
   and on paper_wing's modal wing its rho_x erred by 0.94 deg at 11 m (4.6 of its sigmas) where the
   session mean of ``Theta`` erred by 0.012 deg (120 s, seed 1).  A constant attitude error of the
@@ -87,8 +88,7 @@ class SubImuTrack:
     """A sub-IMU's smoothed solution on one wing, the input of the fit.
 
     t_s (N,); C_nb (N, 3, 3) sub-IMU axes -> ENU; vel_n_mps (N, 3); llh (N, 3); sigma (N, 9):
-    1-sigma [attitude (3, rad, ENU), velocity (3, m/s, ENU), position (3, m, ENU)]; rho (N, 3) the
-    estimated rigid misalignment (rad, sub-IMU axes) and rho_sigma (N, 3) its 1-sigma; span_m and
+    1-sigma [attitude (3, rad, ENU), velocity (3, m/s, ENU), position (3, m, ENU)]; span_m and
     lever_arm_m (3,) (master axes) and C_b_s0 (3, 3) (nominal mount, sub-IMU -> master axes) from
     the aircraft configuration."""
 
@@ -101,8 +101,6 @@ class SubImuTrack:
     vel_n_mps: FloatArray
     llh: FloatArray
     sigma: FloatArray
-    rho: FloatArray
-    rho_sigma: FloatArray
 
 
 @dataclass
@@ -234,10 +232,9 @@ def choose_degree(component: str, s: FloatArray, y: FloatArray, var: FloatArray,
     return best, cv
 
 
-def _on_grid(tr: SubImuTrack, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
-                                                      NDArray[np.bool_]]:
+def _on_grid(tr: SubImuTrack, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
     """The track at the epochs ``t`` (T,): C_nb (T, 3, 3) (geodesic interpolation), vel, llh,
-    sigma, rho, rho_sigma (linear) and a mask (T,) of epochs bracketed by rows at most 3 nominal
+    sigma (linear) and a mask (T,) of epochs bracketed by rows at most 3 nominal
     steps apart (or matching a row)."""
     ts = tr.t_s
     dt = float(np.median(np.diff(ts))) if ts.size > 1 else 1.0
@@ -253,7 +250,7 @@ def _on_grid(tr: SubImuTrack, t: FloatArray) -> tuple[FloatArray, FloatArray, Fl
 
     dC = dcm_to_rotvec(np.swapaxes(tr.C_nb[j], 1, 2) @ tr.C_nb[k])
     C = tr.C_nb[j] @ rotvec_to_dcm(f[:, None] * dC)
-    return C, lin(tr.vel_n_mps), lin(tr.llh), lin(tr.sigma), lin(tr.rho), lin(tr.rho_sigma), ok
+    return C, lin(tr.vel_n_mps), lin(tr.llh), lin(tr.sigma), ok
 
 
 def _master_at(m: NavSeries, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -399,7 +396,7 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
     sub_sigma = np.full((T, S, 9), np.nan)  # the sub-IMUs' own 1-sigma on the fit epochs
     n1 = load_factor_minus_1(vm, C, t, pm)
     for i, tr in enumerate(subs):
-        Cs, vs, ps, sg, _, _, ok = _on_grid(tr, t)
+        Cs, vs, ps, sg, ok = _on_grid(tr, t)
         sub_sigma[:, i] = np.where(ok[:, None], sg, np.nan)
         r0 = np.asarray(tr.lever_arm_m, dtype=float)
         M = np.asarray(tr.C_b_s0, dtype=float)

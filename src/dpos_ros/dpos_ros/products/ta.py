@@ -34,7 +34,7 @@ from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta.antenna import antenna_motion
-from dpos_core.ta.model import RHO, Installation, TAConfig
+from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
 from dpos_ros.contract import conversions as cv
@@ -175,18 +175,10 @@ def _align_sub_imu(imu: ImuSeries, master: NavSeries, ins: Installation, cfg: TA
 
 
 def _carrier(aircraft: AircraftConfig, sub: str, r: pipeline.TAResult, keep: NDArray[np.intp]) -> SubImuTrack:
-    """The sub-IMU's smoothed solution at the output rows ``keep`` with its rigid misalignment
-    estimate (state 15:18 at the epochs, interpolated to the rows) for the wing fit."""
+    """The sub-IMU's smoothed solution at the output rows ``keep``, for the wing fit."""
     s = aircraft.sub_imu(sub)
-    t = r.t_s[keep]
-    if r.epochs_s.size:
-        rho = np.stack([np.interp(t, r.epochs_s, r.x[:, RHO][:, i]) for i in range(3)], -1)
-        sd = np.sqrt(np.diagonal(r.P[:, RHO, RHO], axis1=1, axis2=2))
-        rho_sd = np.stack([np.interp(t, r.epochs_s, sd[:, i]) for i in range(3)], -1)
-    else:
-        rho, rho_sd = np.zeros((t.size, 3)), np.full((t.size, 3), np.inf)
     return SubImuTrack(sub, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
-                       t, r.C_nb[keep], r.vel_n_mps[keep], r.llh[keep], r.sigma[keep], rho, rho_sd)
+                       r.t_s[keep], r.C_nb[keep], r.vel_n_mps[keep], r.llh[keep], r.sigma[keep])
 
 
 #: the status of an antenna estimated by the wing fit starts with this
