@@ -362,13 +362,14 @@ def _along_span(ss: FloatArray, v: FloatArray, sq: float) -> FloatArray:
     return out
 
 
-def _interp_rows(ss: FloatArray, v: FloatArray, sq: float) -> FloatArray:
-    """Vectorised ``np.interp(sq, ss, v[t])`` over the rows of ``v`` (T, S) (no NaN)."""
-    if sq <= ss[0]:
+def _interp_rows(ss: FloatArray, v: FloatArray, sq: float, extrapolate: bool = False) -> FloatArray:
+    """Vectorised ``np.interp(sq, ss, v[t])`` over the rows of ``v`` (T, S) (no NaN); with
+    ``extrapolate`` the end segments continue beyond ``ss`` instead of holding the end values."""
+    if not extrapolate and sq <= ss[0]:
         return v[:, 0]
-    if sq >= ss[-1]:
+    if not extrapolate and sq >= ss[-1]:
         return v[:, -1]
-    j = int(np.searchsorted(ss, sq) - 1)
+    j = int(np.clip(np.searchsorted(ss, sq) - 1, 0, ss.size - 2))
     f = (sq - ss[j]) / (ss[j + 1] - ss[j])
     return v[:, j] + f * (v[:, j + 1] - v[:, j])
 
@@ -411,9 +412,9 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         sub_sigma[:, i] = np.where(ok[:, None], sg, np.nan)
         r0 = np.asarray(tr.lever_arm_m, dtype=float)
         M = np.asarray(tr.C_b_s0, dtype=float)
-        Theta = dcm_to_rotvec(Cbn @ Cs @ M.T)  # rigid misalignment + flexure, master axes
-        rho_b, rho_var = rigid_misalignment(Theta, n1, ok)
-        th = dcm_to_rotvec(Cbn @ Cs @ np.swapaxes(M, 0, 1) @ rotvec_to_dcm(-rho_b)[None])
+        R_tot = Cbn @ Cs @ M.T  # rigid misalignment and flexure of the section, master axes
+        rho_b, rho_var = rigid_misalignment(dcm_to_rotvec(R_tot), n1, ok)
+        th = dcm_to_rotvec(R_tot @ rotvec_to_dcm(-rho_b)[None])
         d = np.einsum("tji,tj->ti", C, _enu_from(ps, pm)) - r0
         dd = np.einsum("tji,tj->ti", C, vs - vm) - np.cross(w, r0 + d)
         v_th = _body_var(C, sg[:, 0:3])
@@ -458,12 +459,9 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         """Variance (3,) of the rigid-misalignment split at span ``sq``: the sub-IMUs' (the error of
         the session mean of the flexure, smooth along the span: not a point noise of the fit but
         common to the whole field) linearly interpolated, extrapolated by the outermost segment."""
-        ss = s[order]
-        if ss.size == 1 or not np.all(np.isfinite(rho_sd)):
+        if s.size == 1 or not np.all(np.isfinite(rho_sd)):
             return np.max(rho_sd, axis=0) ** 2
-        j = int(np.clip(np.searchsorted(ss, sq) - 1, 0, ss.size - 2))
-        f = (sq - ss[j]) / (ss[j + 1] - ss[j])
-        return np.maximum(rho_sd[j] + f * (rho_sd[j + 1] - rho_sd[j]), 0.0) ** 2
+        return np.maximum(_interp_rows(s[order], rho_sd.T, sq, extrapolate=True), 0.0) ** 2
 
     Cv, Cbv = C[valid], Cbn[valid]
     dt = np.gradient(tv) if tv.size > 1 else np.ones(1)
