@@ -106,11 +106,10 @@ def solve(
     t0 = time.perf_counter()
     master = aligned_master(sess, master_aligned_sigma_deg)
     if only is not None:
-        from dataclasses import replace
-
-        aircraft = replace(aircraft, sub_imus=tuple(s for s in aircraft.sub_imus if s.name in only),
-                           antennas=tuple(a for a in aircraft.antennas if a.sub_imu in only))
+        aircraft = dc_replace(aircraft, sub_imus=tuple(s for s in aircraft.sub_imus if s.name in only),
+                              antennas=tuple(a for a in aircraft.antennas if a.sub_imu in only))
     e = initial_attitude_error_deg
+
     def install(name: str) -> Installation:
         ins = Installation.from_aircraft(aircraft, name)
         return ins if known_wing is None else dc_replace(ins, known_wing=known_wing[name])
