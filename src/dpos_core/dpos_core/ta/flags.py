@@ -1,13 +1,17 @@
 """Quality flags of the transfer alignment's output rows: an integer bitmask per sample.
 
 ``0`` is a row estimated from uninterrupted sub-IMU data.  A set bit says why the row deserves
-care; its 1-sigma already accounts for the cause (the flags say *why* a sigma is what it is, they
-do not replace it).  Written as the ``flags`` column of the antenna CSV (design.md "Session
-products").
+care (or, :data:`WING_FIT`, how it was made); its 1-sigma already accounts for the cause (the flags
+say *why* a sigma is what it is, they do not replace it).  Written as the ``flags`` column of the
+antenna CSV (design.md "Session products").
 
-Bits 0-1 are set by :func:`dpos_core.ta.pipeline.run_segments` / :func:`~dpos_core.ta.pipeline.run`;
-bits from 2 on are reserved for later checks (e.g. an unaligned main POS, inconsistent
-innovations) and never set today.
+Bits 0-1 are set by :func:`dpos_core.ta.pipeline.run_segments` / :func:`~dpos_core.ta.pipeline.run`
+on a sub-IMU's rows (and on its antennas'); a ``fit`` antenna's row carries them when any sub-IMU
+that entered the least-squares wing fit at that epoch has them.  Bits 2-4 are set on the rows of
+the ``fit`` antennas by :func:`dpos_core.ta.wingfit.fit_wing` (and
+``dpos_ros.products.ta.fit_antennas``: :data:`FEWER_SUB_IMUS` on every row when a sub-IMU of the
+wing is not estimated at all).  Bits from 5 on are reserved for later checks (e.g. an unaligned
+main POS, inconsistent innovations) and never set today.
 """
 
 from __future__ import annotations
@@ -22,8 +26,20 @@ RESTARTED_AFTER_GAP = 1 << 0
 #: ``dpos_core.series.GAP_FACTOR`` nominal steps, up to ``TAConfig.max_imu_gap_s``) that the strapdown
 #: integrated across; its process noise includes what the IMU did not measure
 BRIDGED_GAP = 1 << 1
+#: the row is from the least-squares wing fit (a ``fit`` antenna, no IMU of its own): set on every
+#: such row, so that they can be selected
+WING_FIT = 1 << 2
+#: wing fit: the antenna's span is outside the spans of the sub-IMUs that entered the fit at this
+#: epoch (beyond the outermost or inside the innermost): the polynomial is extrapolated there
+EXTRAPOLATED = 1 << 3
+#: wing fit: fewer sub-IMUs entered the fit at this epoch than the wing carries (one in a gap, or
+#: not estimated in this session)
+FEWER_SUB_IMUS = 1 << 4
 
-NAMES = {RESTARTED_AFTER_GAP: "restarted_after_gap", BRIDGED_GAP: "bridged_gap"}
+NAMES = {RESTARTED_AFTER_GAP: "restarted_after_gap", BRIDGED_GAP: "bridged_gap", WING_FIT: "wing_fit",
+         EXTRAPOLATED: "extrapolated", FEWER_SUB_IMUS: "fewer_sub_imus"}
+#: the bits a sub-IMU's own rows carry into the wing fit's rows (OR over the sub-IMUs used at the epoch)
+CARRIER_BITS = RESTARTED_AFTER_GAP | BRIDGED_GAP
 
 #: the dtype of the flags arrays
 FlagArray = NDArray[np.uint32]

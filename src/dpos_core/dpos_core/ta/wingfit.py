@@ -65,6 +65,10 @@ the outermost IMU (its antenna No. 12).  Here instead:
   Covariance: ``b^T P_a b`` per component (grows beyond the outermost IMU through the basis) rotated
   to ENU, plus the main POS's attitude, velocity and position covariances and the attitude's
   effect through the lever arm.
+* Flags (:mod:`dpos_core.ta.flags`) per antenna row: ``WING_FIT`` always; ``EXTRAPOLATED`` where
+  the antenna's span is outside those of the sub-IMUs used at the epoch; ``FEWER_SUB_IMUS`` where a
+  sub-IMU has no row at the epoch (a gap); and the OR of the used sub-IMUs' own
+  ``RESTARTED_AFTER_GAP`` / ``BRIDGED_GAP`` (``SubImuTrack.flags``).
 """
 
 from __future__ import annotations
@@ -78,6 +82,7 @@ from .. import earth
 from ..attitude import dcm_to_rotvec, rotvec_to_dcm, skew
 from ..series import NavSeries
 from ..units import FloatArray
+from . import flags as ta_flags
 
 #: the 9 fitted components: flexure angles about x, y, z (rad), deflection, deflection rate (body axes)
 COMPONENTS = ("theta_x", "theta_y", "theta_z", "d_x", "d_y", "d_z", "ddot_x", "ddot_y", "ddot_z")
@@ -101,15 +106,21 @@ class SubImuTrack:
     vel_n_mps: FloatArray
     llh: FloatArray
     sigma: FloatArray
+    #: (N,) the rows' quality bits (:mod:`dpos_core.ta.flags`); None: none set.  The fit's rows
+    #: carry those of the sub-IMUs used (:data:`~dpos_core.ta.flags.CARRIER_BITS`)
+    flags: ta_flags.FlagArray | None = None
 
 
 @dataclass
 class FittedAntenna:
-    """An antenna from the fit: ``traj`` at the fit epochs and ``sigma`` (N, 9) as :class:`SubImuTrack`."""
+    """An antenna from the fit: ``traj`` at the fit epochs, ``sigma`` (N, 9) as :class:`SubImuTrack`
+    and ``flags`` (N,) (:mod:`dpos_core.ta.flags`: ``WING_FIT`` on every row, ``EXTRAPOLATED``,
+    ``FEWER_SUB_IMUS`` and the used sub-IMUs' own bits)."""
 
     name: str
     traj: NavSeries
     sigma: FloatArray
+    flags: ta_flags.FlagArray | None = None
 
 
 @dataclass
@@ -253,6 +264,19 @@ def _on_grid(tr: SubImuTrack, t: FloatArray) -> tuple[FloatArray, FloatArray, Fl
     return C, lin(tr.vel_n_mps), lin(tr.llh), lin(tr.sigma), ok
 
 
+def _flags_on_grid(tr: SubImuTrack, t: FloatArray) -> ta_flags.FlagArray:
+    """The track's own flags (:data:`~dpos_core.ta.flags.CARRIER_BITS`) at the epochs ``t`` (T,): the
+    row's at a row's stamp, the OR of the two bracketing rows' between them (as :func:`_on_grid`)."""
+    ts = tr.t_s
+    if tr.flags is None or ts.size == 0:
+        return ta_flags.none(t.size)
+    fl = np.asarray(tr.flags, dtype=np.uint32) & np.uint32(ta_flags.CARRIER_BITS)
+    j = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 1)
+    k = np.minimum(j + 1, ts.size - 1)
+    at_j, at_k = np.abs(ts[j] - t) < 1e-6, np.abs(ts[k] - t) < 1e-6
+    return np.where(at_j, fl[j], np.where(at_k, fl[k], fl[j] | fl[k])).astype(np.uint32)
+
+
 def _master_at(m: NavSeries, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """Main POS at ``t`` (T,): C_nb, vel, llh, omega_eb_b (finite differences of the attitude when
     the series has none), att_cov, vel_cov, pos_cov (zeros when absent), interpolated."""
@@ -390,7 +414,8 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         root_span_m: where the cantilever is clamped (|span| measured from the main POS).
 
     Returns:
-        :class:`WingFit`; antennas' ``sigma`` (T, 9) as :class:`SubImuTrack`.
+        :class:`WingFit`; antennas' ``sigma`` (T, 9) as :class:`SubImuTrack`, their ``flags`` (T,)
+        (module docstring).
     """
     if len(subs) < 2:
         raise ValueError(f"the wing fit needs at least 2 sub-IMUs, got {len(subs)}")
@@ -406,10 +431,13 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
     var = np.full((T, S, 9), np.inf)
     rho_by_sub: dict[str, tuple[FloatArray, FloatArray]] = {}
     sub_sigma = np.full((T, S, 9), np.nan)  # the sub-IMUs' own 1-sigma on the fit epochs
+    used = np.zeros((T, S), dtype=bool)  # the sub-IMUs with a row at each epoch (the flags)
+    sub_flags = np.zeros((T, S), dtype=np.uint32)
     n1 = load_factor_minus_1(vm, C, t, pm)
     for i, tr in enumerate(subs):
         Cs, vs, ps, sg, ok = _on_grid(tr, t)
         sub_sigma[:, i] = np.where(ok[:, None], sg, np.nan)
+        used[:, i], sub_flags[:, i] = ok, np.where(ok, _flags_on_grid(tr, t), 0)
         r0 = np.asarray(tr.lever_arm_m, dtype=float)
         M = np.asarray(tr.C_b_s0, dtype=float)
         R_tot = Cbn @ Cs @ M.T  # rigid misalignment and flexure of the section, master axes
@@ -464,6 +492,13 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         return np.maximum(_interp_rows(s[order], rho_sd.T, sq, extrapolate=True), 0.0) ** 2
 
     Cv, Cbv = C[valid], Cbn[valid]
+    # the rows' flags (dpos_core.ta.flags): the used sub-IMUs' own bits, fewer sub-IMUs than given, and
+    # (per antenna, below) an antenna outside the spans of the sub-IMUs used at the epoch
+    uv = used[valid]
+    row_flags = np.bitwise_or.reduce(sub_flags[valid], axis=1) | np.uint32(ta_flags.WING_FIT)
+    row_flags |= np.where(uv.sum(axis=1) < S, np.uint32(ta_flags.FEWER_SUB_IMUS), np.uint32(0))
+    s_in = np.min(np.where(uv, s[None, :], np.inf), axis=1)
+    s_out = np.max(np.where(uv, s[None, :], -np.inf), axis=1)
     dt = np.gradient(tv) if tv.size > 1 else np.ones(1)
     for n, (name, _, ra) in enumerate(antennas):
         ra = np.asarray(ra, dtype=float)
@@ -498,5 +533,7 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         # exempt: a sub-IMU's own heading error is in its rigid misalignment and cancels in the fit
         floor = _along_span(s[order], sub_sigma[valid][:, order, 3:9], sa[n])
         sigma[:, 3:9] = np.fmax(sigma[:, 3:9], floor)
-        out.antennas[name] = FittedAntenna(name, NavSeries.from_C_nb(tv, C_na, vel, llh), sigma)
+        outside = (sa[n] < s_in - 1e-9) | (sa[n] > s_out + 1e-9)
+        fl = (row_flags | np.where(outside, np.uint32(ta_flags.EXTRAPOLATED), np.uint32(0))).astype(np.uint32)
+        out.antennas[name] = FittedAntenna(name, NavSeries.from_C_nb(tv, C_na, vel, llh), sigma, fl)
     return out

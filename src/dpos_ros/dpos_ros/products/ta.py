@@ -177,7 +177,7 @@ def _carrier(aircraft: AircraftConfig, sub: str, r: pipeline.TAResult, keep: NDA
     """The sub-IMU's smoothed solution at the output rows ``keep``, for the wing fit."""
     s = aircraft.sub_imu(sub)
     return SubImuTrack(sub, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
-                       r.t_s[keep], r.C_nb[keep], r.vel_n_mps[keep], r.llh[keep], r.sigma[keep])
+                       r.t_s[keep], r.C_nb[keep], r.vel_n_mps[keep], r.llh[keep], r.sigma[keep], r.flags[keep])
 
 
 #: the status of an antenna estimated by the wing fit starts with this
@@ -190,7 +190,10 @@ def fit_antennas(sess: RecordedSession, aircraft: AircraftConfig, antennas: dict
     (the ``carrier`` of ``antennas``, the solutions of :func:`solve`, or collected from the
     transfer_align_node's workers) and the main POS of ``sess``.  Each wing side with at least 2
     estimated sub-IMUs gives its ``fit`` antennas the status ``estimated (least-squares wing fit,
-    <basis>; from sub-IMUs ...)``; otherwise ``not estimated: ...``."""
+    <basis>; from sub-IMUs ...)``; otherwise ``not estimated: ...``.  Their rows' flags are the
+    fit's (:mod:`dpos_core.ta.flags`: ``WING_FIT``, ``EXTRAPOLATED``, ``FEWER_SUB_IMUS``, the used
+    sub-IMUs' own bits), with ``FEWER_SUB_IMUS`` on every row when a sub-IMU of the wing side in
+    the aircraft is not estimated."""
     out: dict[str, AntennaSolution] = {}
     tracks: dict[str, SubImuTrack] = {}
     for sol in antennas.values():
@@ -214,6 +217,8 @@ def fit_antennas(sess: RecordedSession, aircraft: AircraftConfig, antennas: dict
             out.update({a.name: AntennaSolution(a.name, None, f"not estimated: the least-squares wing fit failed: {ex}") for a in fits})
             continue
         names = ", ".join(sorted(tr.name for tr in subs))
+        n_wing = sum(1 for s in aircraft.sub_imus if np.sign(s.span_m) == side)
+        fewer = np.uint32(ta_flags.FEWER_SUB_IMUS if len(subs) < n_wing else 0)  # a sub-IMU of the wing not estimated at all
         info = {"wing": wing, "sub_imus": sorted(tr.name for tr in subs), "degree": wf.degree,
                 "variance_factor": wf.variance_factor,
                 "cv": {c: {str(k): v for k, v in cv.items()} for c, cv in wf.cv.items()}}
@@ -223,7 +228,8 @@ def fit_antennas(sess: RecordedSession, aircraft: AircraftConfig, antennas: dict
             if fa.traj.t_s.size == 0:
                 out[a.name] = AntennaSolution(a.name, None, "not estimated: the least-squares wing fit has no epoch with enough sub-IMUs")
                 continue
-            out[a.name] = AntennaSolution(a.name, None, status, fa.traj, fa.sigma, wing_fit=info)
+            fl = (ta_flags.none(fa.traj.t_s.size) | np.uint32(ta_flags.WING_FIT) if fa.flags is None else fa.flags) | fewer
+            out[a.name] = AntennaSolution(a.name, None, status, fa.traj, fa.sigma, flags=fl.astype(np.uint32), wing_fit=info)
     return out
 
 
