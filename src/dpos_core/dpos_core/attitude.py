@@ -26,15 +26,26 @@ _SMALL_ANGLE_RAD = 1e-6
 def skew(v: ArrayLike) -> FloatArray:
     """Cross-product matrix ``[v x]``, shape ``(..., 3, 3)``."""
     v = np.asarray(v, dtype=float)
-    z = np.zeros_like(v[..., 0])
-    return np.stack(
-        [
-            np.stack([z, -v[..., 2], v[..., 1]], axis=-1),
-            np.stack([v[..., 2], z, -v[..., 0]], axis=-1),
-            np.stack([-v[..., 1], v[..., 0], z], axis=-1),
-        ],
-        axis=-2,
-    )
+    K = np.zeros(v.shape[:-1] + (3, 3))
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    K[..., 0, 1], K[..., 0, 2] = -z, y
+    K[..., 1, 0], K[..., 1, 2] = z, -x
+    K[..., 2, 0], K[..., 2, 1] = -y, x
+    return K
+
+
+def cross(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """``a x b`` of 3-vectors ``(..., 3)``, broadcast together (``np.cross`` without its
+    per-call overhead)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def quat_mul(p: ArrayLike, q: ArrayLike) -> FloatArray:
@@ -43,15 +54,12 @@ def quat_mul(p: ArrayLike, q: ArrayLike) -> FloatArray:
     q = np.asarray(q, dtype=float)
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+    out = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    out[..., 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[..., 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[..., 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[..., 3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
 
 
 def quat_conj(q: ArrayLike) -> FloatArray:
@@ -63,7 +71,7 @@ def quat_conj(q: ArrayLike) -> FloatArray:
 def quat_normalize(q: ArrayLike) -> FloatArray:
     """Unit quaternion with non-negative scalar part, shape ``(..., 4)``."""
     u = np.asarray(q, dtype=float)
-    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    u = u / np.sqrt(np.sum(u * u, axis=-1, keepdims=True))
     return np.where(u[..., :1] < 0.0, -u, u)
 
 
@@ -71,14 +79,17 @@ def quat_to_dcm(q: ArrayLike) -> FloatArray:
     """Unit quaternion ``q_nb`` -> DCM ``C_nb``, shape ``(..., 3, 3)``."""
     q = np.asarray(q, dtype=float)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=-2,
-    )
+    C = np.empty(q.shape[:-1] + (3, 3))
+    C[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    C[..., 0, 1] = 2 * (x * y - w * z)
+    C[..., 0, 2] = 2 * (x * z + w * y)
+    C[..., 1, 0] = 2 * (x * y + w * z)
+    C[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    C[..., 1, 2] = 2 * (y * z - w * x)
+    C[..., 2, 0] = 2 * (x * z - w * y)
+    C[..., 2, 1] = 2 * (y * z + w * x)
+    C[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return C
 
 
 def dcm_to_quat(C: ArrayLike) -> FloatArray:
@@ -91,17 +102,20 @@ def dcm_to_quat(C: ArrayLike) -> FloatArray:
     m10, m11, m12 = C[..., 1, 0], C[..., 1, 1], C[..., 1, 2]
     m20, m21, m22 = C[..., 2, 0], C[..., 2, 1], C[..., 2, 2]
     tr = m00 + m11 + m22
-    cands = np.stack(
-        [
-            np.stack([1.0 + tr, m21 - m12, m02 - m20, m10 - m01], axis=-1),
-            np.stack([m21 - m12, 1.0 + m00 - m11 - m22, m01 + m10, m02 + m20], axis=-1),
-            np.stack([m02 - m20, m01 + m10, 1.0 - m00 + m11 - m22, m12 + m21], axis=-1),
-            np.stack([m10 - m01, m02 + m20, m12 + m21, 1.0 - m00 - m11 + m22], axis=-1),
-        ],
-        axis=-2,
+    d21, d02, d10 = m21 - m12, m02 - m20, m10 - m01
+    s01, s02, s12 = m01 + m10, m02 + m20, m12 + m21
+    rows = (
+        (1.0 + tr, d21, d02, d10),
+        (d21, 1.0 + m00 - m11 - m22, s01, s02),
+        (d02, s01, 1.0 - m00 + m11 - m22, s12),
+        (d10, s02, s12, 1.0 - m00 - m11 + m22),
     )
-    k = np.argmax(np.stack([tr, m00, m11, m22], axis=-1), axis=-1)
-    q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
+    piv = np.empty(C.shape[:-2] + (4,))
+    piv[..., 0], piv[..., 1], piv[..., 2], piv[..., 3] = tr, m00, m11, m22
+    k = np.argmax(piv, axis=-1)
+    q = np.empty(C.shape[:-2] + (4,))
+    for i in range(4):
+        q[..., i] = np.choose(k, [r[i] for r in rows])
     return quat_normalize(q)
 
 
@@ -112,16 +126,17 @@ def rotvec_to_quat(phi: ArrayLike) -> FloatArray:
     a = np.sqrt(a2)
     small = a < _SMALL_ANGLE_RAD
     safe = np.where(small, 1.0, a)
-    w = np.where(small, 1.0 - a2 / 8.0, np.cos(0.5 * safe))
-    s = np.where(small, 0.5 - a2 / 48.0, np.sin(0.5 * safe) / safe)
-    return np.concatenate([w[..., None], s[..., None] * phi], axis=-1)
+    q = np.empty(phi.shape[:-1] + (4,))
+    q[..., 0] = np.where(small, 1.0 - a2 / 8.0, np.cos(0.5 * safe))
+    q[..., 1:] = np.where(small, 0.5 - a2 / 48.0, np.sin(0.5 * safe) / safe)[..., None] * phi
+    return q
 
 
 def quat_to_rotvec(q: ArrayLike) -> FloatArray:
     """Unit quaternion -> rotation vector with angle in ``[0, pi]``, shape ``(..., 3)``."""
     q = quat_normalize(q)
     v = q[..., 1:]
-    sn = np.linalg.norm(v, axis=-1)
+    sn = np.sqrt(np.sum(v * v, axis=-1))
     angle = 2.0 * np.arctan2(sn, q[..., 0])
     small = sn < 1e-12
     scale = np.where(small, 2.0 / np.where(small, q[..., 0], 1.0), angle / np.where(small, 1.0, sn))

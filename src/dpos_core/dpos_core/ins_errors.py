@@ -21,13 +21,14 @@ integrated once more.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from dpos_core.units import FloatArray
 
-from . import earth
-from .attitude import rotvec_to_dcm, skew
+from . import _error_kernel, earth
+from .attitude import skew
 from .series import NavSeries
 from .strapdown import NavState
 
@@ -50,6 +51,13 @@ class Interval:
     @property
     def w_in(self) -> FloatArray:
         return self.w_ie + self.w_en
+
+    @cached_property
+    def kernel_consts(self) -> FloatArray:
+        """``[T, R_M + h, R_N + h, sin lat, cos lat, 2 g / (R_M + h)]`` (6,): the scalars of
+        :func:`propagate_nav_errors` (computed once per interval)."""
+        r_m, r_n = (float(r) for r in earth.radii_of_curvature(self.lat))
+        return np.array([self.T, r_m + self.h, r_n + self.h, np.sin(self.lat), np.cos(self.lat), 2.0 * self.g / (r_m + self.h)])
 
 
 class IntervalIntegrals:
@@ -102,30 +110,15 @@ def propagate_nav_errors(
     """One interval of the error dynamics (module docstring); every input (..., 3), vectorized.
     ``gyro_extra`` (..., 3): a further integrated gyro error in ENU, ``int C_est delta_omega dt``
     over the interval, beside the bias's ``C_int eps`` (the gyro axis errors of dpos_core.ifa.model)."""
-    T = it.T
-    E = rotvec_to_dcm(phi)
-    Et = np.swapaxes(E, -1, -2)
-    r_m, r_n = (float(r) for r in earth.radii_of_curvature(it.lat))
-    Rm, Rn = r_m + it.h, r_n + it.h
-    sl, cl = np.sin(it.lat), np.cos(it.lat)
-    ve, vn = it.v[0], it.v[1]
-    dL = dp[..., 1] / Rm
-    dh = dp[..., 2]
-    om = earth.OMEGA_IE_RADPS
-    dw_ie = np.stack([np.zeros_like(dL), -om * sl * dL, om * cl * dL], -1)
-    dw_en = np.stack([
-        -dv[..., 1] / Rm + vn * dh / Rm**2,
-        dv[..., 0] / Rn - ve * dh / Rn**2,
-        dv[..., 0] * sl / cl / Rn + ve / (cl * cl) * dL / Rn - ve * sl / cl * dh / Rn**2,
-    ], -1)
-    w_in = it.w_in
-    rate = (w_in - np.einsum("...ij,j->...i", Et, w_in)) + np.einsum("...ij,...j->...i", Et, dw_ie + dw_en)
-    gyro = eps @ it.C_int.T if gyro_extra is None else eps @ it.C_int.T + gyro_extra
-    phi_new = phi + np.einsum("...ij,...j->...i", right_jacobian_inv(phi), rate * T - gyro)
-    cor = np.cross(2.0 * it.w_ie + it.w_en, dv) + np.cross(2.0 * dw_ie + dw_en, it.v)
-    dg = np.stack([np.zeros_like(dh), np.zeros_like(dh), 2.0 * it.g / (r_m + it.h) * dh], -1)
-    dv_new = dv + np.einsum("...ij,j->...i", np.eye(3) - E, it.F_n) + np.einsum("...ij,...j->...i", E, nabla @ it.C_int.T) - (cor - dg) * T
-    dp_new = dp + 0.5 * (dv + dv_new) * T
+    ins = (phi, dv, dp, eps, nabla) if gyro_extra is None else (phi, dv, dp, eps, nabla, gyro_extra)
+    arrs = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in ins))
+    shape = arrs[0].shape
+    rows = [np.ascontiguousarray(a).reshape(-1, 3) for a in arrs]
+    if gyro_extra is None:
+        rows.append(np.zeros_like(rows[0]))
+    out = np.empty((3,) + rows[0].shape)
+    _error_kernel.nav_errors(*rows, it.kernel_consts, it.F_n, it.C_int, it.w_ie, it.w_en, it.v, out[0], out[1], out[2])
+    phi_new, dv_new, dp_new = (o.reshape(shape) for o in out)
     return phi_new, dv_new, dp_new
 
 

@@ -228,7 +228,9 @@ def _predict_given_sampled(m: FloatArray, P: FloatArray, S: NDArray[np.intp], f,
     are known exactly (zero rows/columns of P): sigma points span only the other components.
     Returns the predicted means (N, n), covariances and cross-covariances Cov(x_k, x_k+1) (N, n, n)."""
     N, n = m.shape
-    rest_idx = np.setdiff1d(np.arange(n), S)
+    keep = np.ones(n, dtype=bool)
+    keep[S] = False
+    rest_idx = np.flatnonzero(keep)
     if rest_idx.size == 0:
         return f(m), np.broadcast_to(Q, (N, n, n)).copy(), np.zeros((N, n, n))
     r = _index(rest_idx)

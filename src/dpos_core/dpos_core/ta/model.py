@@ -66,12 +66,12 @@ from scipy.stats import chi2
 
 from dpos_core.units import DEG, FloatArray
 
-from .. import earth
-from ..attitude import compose_rotvec, dcm_to_rotvec, mount_dcm, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_dcm, rotvec_to_quat
+from .. import _error_kernel, earth
+from ..attitude import compose_rotvec, cross, dcm_to_rotvec, mount_dcm, rotvec_to_dcm
 from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
-from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors
+from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise
 from ..series import GAP_FACTOR, ImuSeries, NavSeries
 from ..strapdown import NavState, Strapdown
 
@@ -261,6 +261,7 @@ class TransferAlignmentModel:
         self._q_cache: dict[float, FloatArray] = {}
         self._imu_dt_s = nominal_dt_s(t_imu)
         self._gap_q: dict[int, FloatArray] = {}  # interval -> extra (9, 9) noise of its bridged gaps
+        self._vib_gate: dict[int, float] = {}  # vibration_variance's chi^2 gate per number of main-POS epochs
         #: the intervals k (epoch k to k + 1) that contained a short gap integrated across
         self.bridged_intervals: list[int] = []
         self._build_epoch(0)
@@ -291,7 +292,7 @@ class TransferAlignmentModel:
             A = C_m @ rotvec_to_dcm(th_b) @ ins.C_b_s0
         C_est = nom.C_nb
         z_att = dcm_to_rotvec(A @ C_est.T)
-        z_vel = nom.vel_n_mps - v_m - C_m @ (np.cross(w_m, r_b) + r_dot_b)
+        z_vel = nom.vel_n_mps - v_m - C_m @ (cross(w_m, r_b) + r_dot_b)
         R = np.zeros((p, p))
         R[:3, :3] = cov_att + np.eye(3) * (self.cfg.att_noise_floor_deg * DEG) ** 2
         R[3:6, 3:6] = cov_v + np.eye(3) * self.cfg.vel_noise_floor_mps**2
@@ -328,24 +329,33 @@ class TransferAlignmentModel:
         ch = self._chunks[k - 1]
         t0, t1 = float(self.epochs_s[k - 1]), float(self.epochs_s[k])
         m = self.master
-        j = np.nonzero((m.t_s > t0 + 1e-9) & (m.t_s <= t1 + 1e-9) & (m.t_s >= ch.t_s[0]) & (m.t_s <= ch.t_s[-1]))[0]
-        n = j.size
+        # the main-POS epochs in (t0, t1] (with 1e-9 s slack) covered by the chunk (stamps increasing)
+        lo = max(int(np.searchsorted(m.t_s, t0 + 1e-9, side="right")), int(np.searchsorted(m.t_s, ch.t_s[0], side="left")))
+        hi = min(int(np.searchsorted(m.t_s, t1 + 1e-9, side="right")), int(np.searchsorted(m.t_s, ch.t_s[-1], side="right")))
+        n = hi - lo
         if n < 6:
             return zero
+        j = slice(lo, hi)
         tm = m.t_s[j]
         r0 = self.install.lever_arm_m
-        v_nom = np.stack([np.interp(tm, ch.t_s, ch.vel_n_mps[:, i]) for i in range(3)], -1)
-        llh_nom = np.stack([np.interp(tm, ch.t_s, ch.llh[:, i]) for i in range(3)], -1)
+        v_nom = np.empty((n, 3))
+        llh_nom = np.empty((n, 3))
+        for i in range(3):
+            v_nom[:, i] = np.interp(tm, ch.t_s, ch.vel_n_mps[:, i])
+            llh_nom[:, i] = np.interp(tm, ch.t_s, ch.llh[:, i])
         C_m = m.C_nb[j]
         arm = C_m @ r0
-        dv = v_nom - m.vel_n_mps[j] - np.einsum("tij,tj->ti", C_m, np.cross(self._w_m[j], r0[None, :]))
+        dv = v_nom - m.vel_n_mps[j] - np.einsum("tij,tj->ti", C_m, cross(self._w_m[j], r0))
         per_m = earth.llh_rate(llh_nom[:, 0], llh_nom[:, 2], np.ones((n, 3)))  # rad (or m) per metre E, N, U
         dp = (llh_nom - m.llh[j]) / per_m - arm
-        X = np.column_stack([np.ones(n), tm - tm.mean()])
-        gate = float(chi2.ppf(0.99, n - 2)) / (n - 2)
+        tc = tm - tm.mean()
+        gate = self._vib_gate.get(n)
+        if gate is None:
+            gate = self._vib_gate[n] = float(chi2.ppf(0.99, n - 2)) / (n - 2)
 
         def excess(r: FloatArray, cov: FloatArray, floor: float) -> FloatArray:
-            res = r - X @ np.linalg.lstsq(X, r, rcond=None)[0]
+            # residual of the straight-line fit [1, t - mean t] (orthogonal columns: mean and slope)
+            res = r - r.mean(axis=0) - np.outer(tc, tc @ r / (tc @ tc))
             s2 = np.sum(res**2, axis=0) / (n - 2)
             sig2 = np.mean(np.diagonal(cov, axis1=1, axis2=2), axis=0) + floor**2
             return np.where(s2 > gate * sig2, s2 - sig2, 0.0)
@@ -379,16 +389,12 @@ class TransferAlignmentModel:
 
     # ------------------------------------------------------------------ StateSpaceModel
     def f(self, k: int, x: FloatArray) -> FloatArray:
+        """The transition over interval k of states x (..., 24) (numba kernel, module docstring)."""
         it = self._intervals[k]
-        T = it.T
-        phi_new, dv_new, dp_new = propagate_nav_errors(x[..., PHI], x[..., DV], x[..., DP], x[..., EPS], x[..., NAB], it)
-        out = x.copy()
-        out[..., PHI], out[..., DV], out[..., DP] = phi_new, dv_new, dp_new
-        Phi = self._flex_discrete(T)[0]
-        th, thd = x[..., TH], x[..., THD]
-        out[..., TH] = Phi[:, 0, 0] * th + Phi[:, 0, 1] * thd
-        out[..., THD] = Phi[:, 1, 0] * th + Phi[:, 1, 1] * thd
-        return out
+        rows = np.ascontiguousarray(x, dtype=float).reshape(-1, N_STATES)
+        out = np.empty_like(rows)
+        _error_kernel.ta_transition(rows, it.kernel_consts, it.F_n, it.C_int, it.w_ie, it.w_en, it.v, self._flex_discrete(it.T)[0], out)
+        return out.reshape(np.shape(x))
 
     def _flex_discrete(self, T: float) -> tuple[FloatArray, FloatArray]:
         """Exact flexure transition and noise (3, 2, 2) each over T, cached per interval length."""
@@ -458,20 +464,14 @@ class TransferAlignmentModel:
         return self._epoch(k).R
 
     def h(self, k: int, x: FloatArray) -> FloatArray:
+        """The matches (..., 6) or (..., 9) of epoch k for states x (..., 24) (numba kernel, module docstring)."""
         ep = self._epoch(k)
-        A, C_m, w_m = ep.A, ep.C_m, ep.w_m
         ins = self.install
-        q = quat_mul(quat_conj(rotvec_to_quat(x[..., TH] @ A.T)),
-                     quat_mul(quat_conj(rotvec_to_quat(x[..., RHO] @ A.T)), rotvec_to_quat(x[..., PHI])))
-        z_att = quat_to_rotvec(q)
-        C0 = ins.C_b_s0
-        r_flex = ins.k_bend * np.cross(x[..., TH] @ C0.T, ins.lever_arm_m)
-        r_dot = ins.k_bend * np.cross(x[..., THD] @ C0.T, ins.lever_arm_m)
-        z_vel = x[..., DV] + (np.cross(w_m, r_flex) + r_dot) @ C_m.T
-        if not self.cfg.use_position:
-            return np.concatenate([z_att, z_vel], axis=-1)
-        z_pos = x[..., DP] + r_flex @ C_m.T
-        return np.concatenate([z_att, z_vel, z_pos], axis=-1)
+        rows = np.ascontiguousarray(x, dtype=float).reshape(-1, N_STATES)
+        p = 9 if self.cfg.use_position else 6
+        out = np.empty((rows.shape[0], p))
+        _error_kernel.ta_measurement(rows, ep.A, ep.C_m, ep.w_m, ins.C_b_s0, ins.lever_arm_m, float(ins.k_bend), out)
+        return out.reshape(np.shape(x)[:-1] + (p,))
 
     def residual(self, a: FloatArray, b: FloatArray) -> FloatArray:
         return a - b
