@@ -79,9 +79,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import earth
-from ..attitude import dcm_to_rotvec, rotvec_to_dcm, skew
+from ..attitude import cross, dcm_to_rotvec, rotvec_to_dcm, skew
 from ..series import NavSeries
 from ..units import FloatArray
+from . import _wls_kernel
 from . import flags as ta_flags
 
 #: the 9 fitted components: flexure angles about x, y, z (rad), deflection, deflection rate (body axes)
@@ -181,17 +182,27 @@ def wls(B: FloatArray, y: FloatArray, var: FloatArray) -> tuple[FloatArray, Floa
     n_pts = np.sum(w > 0, axis=1)
     if p == 0:
         return np.zeros((T, 0)), np.zeros((T, 0, 0)), n_pts >= 1
-    N = np.einsum("si,ts,sj->tij", B, w, B)
-    rhs = np.einsum("si,ts->ti", B, w * yz)
     ok = n_pts >= p
-    ev = np.linalg.eigvalsh(np.where(ok[:, None, None], N, np.eye(p)))  # symmetric: eigenvalues, not an SVD per epoch
-    ok &= ev[:, 0] > 1e-12 * ev[:, -1]
-    N = np.where(ok[:, None, None], N, np.eye(p))
-    L = np.linalg.cholesky(N)
-    eye = np.broadcast_to(np.eye(p), N.shape)
-    Linv = np.linalg.solve(L, eye)  # triangular factor's solve: (B^T W B)^-1 = L^-T L^-1
-    P = np.swapaxes(Linv, 1, 2) @ Linv
-    a = np.einsum("tij,tj->ti", P, rhs)
+    # the normal equations, Cholesky, (B^T W B)^-1 and the coefficients per epoch (numba kernel)
+    a = np.full((T, p), np.nan)
+    P = np.full((T, p, p), np.nan)
+    bound = np.full(T, np.inf)
+    _wls_kernel.normal_solve(np.ascontiguousarray(B, dtype=float), w, yz, ok, a, P, bound)
+    # rank p: the smallest eigenvalue of B^T W B above 1e-12 of the largest; trace(N) trace(N^-1)
+    # bounds their ratio, so only epochs whose bound exceeds 1e12 need their eigenvalues
+    check = ok & ~(bound < 1e12)
+    if check.any():
+        Nc = np.einsum("si,ts,sj->tij", B, w[check], B)
+        ev = np.linalg.eigvalsh(Nc)  # symmetric: eigenvalues, not an SVD per epoch
+        good = ev[:, 0] > 1e-12 * ev[:, -1]
+        idx = np.flatnonzero(check)
+        ok[idx[~good]] = False
+        redo = idx[good & ~np.isfinite(bound[idx])]  # full rank, but the kernel's factorization failed to rounding
+        if redo.size:
+            L = np.linalg.cholesky(Nc[good & ~np.isfinite(bound[idx])])
+            Linv = np.linalg.solve(L, np.broadcast_to(np.eye(p), L.shape))
+            P[redo] = np.swapaxes(Linv, 1, 2) @ Linv
+            a[redo] = np.einsum("tij,tj->ti", P[redo], np.einsum("si,ts->ti", B, w[redo] * yz[redo]))
     a[~ok] = np.nan
     P[~ok] = np.nan
     return a, P, ok
@@ -203,12 +214,16 @@ def cross_validate(s: FloatArray, y: FloatArray, var: FloatArray, pw: list[int])
     prediction error: for a basis that holds the field it is ``1 + var_pred / var_i``, so a
     basis with more terms than the field needs pays for its larger prediction variance);
     ``s`` (S,), ``y``/``var`` (T, S)."""
+    S, T = s.size, y.shape[0]
+    B = design(s, pw)
+    # every leave-one-out fit in one call: block i of the stacked epochs leaves point i out
+    v = np.tile(var, (S, 1))
+    for i in range(S):
+        v[i * T:(i + 1) * T, i] = np.inf
+    a_all, _, ok_all = wls(B, np.tile(y, (S, 1)), v)
     num, sq, n = 0.0, 0.0, 0
-    for i in range(s.size):
-        v = var.copy()
-        v[:, i] = np.inf
-        B = design(s, pw)
-        a, P, ok = wls(B, y, v)
+    for i in range(S):
+        a, ok = a_all[i * T:(i + 1) * T], ok_all[i * T:(i + 1) * T]
         ok &= np.isfinite(var[:, i]) & np.isfinite(y[:, i])
         b = design(s[i : i + 1], pw)[0]
         pred = a[ok] @ b
@@ -248,6 +263,11 @@ def _on_grid(tr: SubImuTrack, t: FloatArray) -> tuple[FloatArray, FloatArray, Fl
     sigma (linear) and a mask (T,) of epochs bracketed by rows at most 3 nominal
     steps apart (or matching a row)."""
     ts = tr.t_s
+    i0 = int(np.searchsorted(ts, t[0])) if t.size else 0
+    if t.size and i0 + t.size <= ts.size and np.array_equal(ts[i0:i0 + t.size], t):
+        # the epochs are the track's own rows (the interpolation below would return them exactly)
+        rows = slice(i0, i0 + t.size)
+        return tr.C_nb[rows], tr.vel_n_mps[rows], tr.llh[rows], tr.sigma[rows], np.ones(t.size, dtype=bool)
     dt = float(np.median(np.diff(ts))) if ts.size > 1 else 1.0
     j = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, max(ts.size - 2, 0))
     k = np.minimum(j + 1, ts.size - 1)
@@ -444,7 +464,7 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         rho_b, rho_var = rigid_misalignment(dcm_to_rotvec(R_tot), n1, ok)
         th = dcm_to_rotvec(R_tot @ rotvec_to_dcm(-rho_b)[None])
         d = np.einsum("tji,tj->ti", C, _enu_from(ps, pm)) - r0
-        dd = np.einsum("tji,tj->ti", C, vs - vm) - np.cross(w, r0 + d)
+        dd = np.einsum("tji,tj->ti", C, vs - vm) - cross(w, r0 + d)
         v_th = _body_var(C, sg[:, 0:3])
         rho_by_sub[tr.name] = (rho_b, np.sqrt(rho_var))
         y[:, i] = np.where(ok[:, None], np.concatenate([th, d, dd], axis=1), np.nan)
@@ -474,7 +494,8 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         s0[comp] = max(1.0, chi2 / dof) if dof > 0 else 1.0
         Ba = design(sa, pw)
         val[:, :, c] = np.nan_to_num(a) @ Ba.T
-        pvar[:, :, c] = s0[comp] * np.einsum("ai,tij,aj->ta", Ba, np.nan_to_num(P), Ba)
+        # b_a^T P b_a = sum_ij P_ij b_ai b_aj: one product (T, p^2) x (p^2, A)
+        pvar[:, :, c] = s0[comp] * (np.nan_to_num(P).reshape(T, -1) @ (Ba[:, :, None] * Ba[:, None, :]).reshape(len(antennas), -1).T)
         valid &= ok
     out = WingFit(t[valid], degree, cvs, s0, common=common, rigid_misalignment=rho_by_sub)
     # the antennas' offset across the wing from the sub-IMUs' section points (x and z interpolated along the span)
@@ -491,7 +512,12 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
             return np.max(rho_sd, axis=0) ** 2
         return np.maximum(_interp_rows(s[order], rho_sd.T, sq, extrapolate=True), 0.0) ** 2
 
-    Cv, Cbv = C[valid], Cbn[valid]
+    sel = slice(None) if valid.all() else valid  # views, not copies, when every epoch is valid
+    Cv = C[sel]
+    Cv2 = Cv**2  # C_nb diag(v) C_bn has the diagonal C_nb**2 v
+    val_v, pvar_v, w_v, vm_v, pm_v, Patt_v = val[sel], pvar[sel], w[sel], vm[sel], pm[sel], Patt[sel]
+    d_att, d_vel, d_pos = (np.diagonal(X[sel], axis1=1, axis2=2) for X in (Patt, Pvel, Ppos))
+    floor_sig = sub_sigma[sel][:, order, 3:9]
     # the rows' flags (dpos_core.ta.flags): the used sub-IMUs' own bits, fewer sub-IMUs than given, and
     # (per antenna, below) an antenna outside the spans of the sub-IMUs used at the epoch
     uv = used[valid]
@@ -503,35 +529,36 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
     for n, (name, _, ra) in enumerate(antennas):
         ra = np.asarray(ra, dtype=float)
         o = ra - np.array([np.interp(sa[n], s[order], r0s[:, 0]), ra[1], np.interp(sa[n], s[order], r0s[:, 2])])
-        th = val[valid, n, 0:3]
+        th = val_v[:, n, 0:3]
         R = rotvec_to_dcm(th)
-        d = val[valid, n, 3:6] + np.einsum("tij,j->ti", R, o) - o
+        d = val_v[:, n, 3:6] + R @ o - o
         r = ra + d
         th_dot = np.gradient(th, axis=0) / dt[:, None] if tv.size > 1 else np.zeros_like(th)
-        rel_v = np.cross(w[valid], r) + val[valid, n, 6:9] + np.cross(th_dot, o)
-        vel = vm[valid] + np.einsum("tij,tj->ti", Cv, rel_v)
-        llh = earth.offset_llh(pm[valid], np.einsum("tij,tj->ti", Cv, r))
+        rel_v = cross(w_v, r) + val_v[:, n, 6:9] + cross(th_dot, o)
+        vel = vm_v + np.einsum("tij,tj->ti", Cv, rel_v)
+        r_n = np.einsum("tij,tj->ti", Cv, r)
+        llh = earth.offset_llh(pm_v, r_n)
         C_na = Cv @ R
 
         def to_n(v_b: FloatArray) -> FloatArray:
-            return Cv @ (v_b[:, :, None] * Cbv)  # C_nb diag(v) C_bn: (T, 3, 3)
+            return np.einsum("tij,tj->ti", Cv2, v_b)  # the diagonal of C_nb diag(v) C_bn: (T, 3)
 
-        r_n = np.einsum("tij,tj->ti", Cv, r)
         Sk = skew(r_n)
         # the main POS's covariance: replaced by the common term's (in pvar) when it is fitted; its
         # attitude error turning the lever arm is linear in the span, which the basis does not hold
+        # (only the diagonals of the ENU covariances are needed: the 1-sigma)
         keep_m = 0.0 if common else 1.0
-        P_att = to_n(pvar[valid, n, 0:3] + rho_var_at(sa[n])) + keep_m * Patt[valid]
-        P_pos = to_n(pvar[valid, n, 3:6]) + keep_m * Ppos[valid] + Sk @ Patt[valid] @ np.swapaxes(Sk, 1, 2)
-        P_vel = to_n(pvar[valid, n, 6:9]) + keep_m * Pvel[valid]
-        sigma = np.sqrt(np.concatenate([np.diagonal(P, axis1=1, axis2=2) for P in (P_att, P_vel, P_pos)], axis=1))
+        var_att = to_n(pvar_v[:, n, 0:3] + rho_var_at(sa[n])) + keep_m * d_att
+        var_pos = to_n(pvar_v[:, n, 3:6]) + keep_m * d_pos + np.sum((Sk @ Patt_v) * Sk, axis=2)  # diag(Sk P_att Sk^T)
+        var_vel = to_n(pvar_v[:, n, 6:9]) + keep_m * d_vel
+        sigma = np.sqrt(np.concatenate([var_att, var_vel, var_pos], axis=1))
         # velocity and position: never below the sub-IMUs' own sigma at this span (interpolated; the
         # outermost beyond the last).  Their errors share the main POS reference of the transfer
         # alignment, so the fit through them averages nothing of it, although its weights (independent
         # points) say so: on paper_wing 120 s the fit antennas' position sigma was sqrt(6) below their
         # neighbours' for the same error (63-78 % within 2 sigma at ant02 / ant04).  The attitude is
         # exempt: a sub-IMU's own heading error is in its rigid misalignment and cancels in the fit
-        floor = _along_span(s[order], sub_sigma[valid][:, order, 3:9], sa[n])
+        floor = _along_span(s[order], floor_sig, sa[n])
         sigma[:, 3:9] = np.fmax(sigma[:, 3:9], floor)
         outside = (sa[n] < s_in - 1e-9) | (sa[n] > s_out + 1e-9)
         fl = (row_flags | np.where(outside, np.uint32(ta_flags.EXTRAPOLATED), np.uint32(0))).astype(np.uint32)
