@@ -23,6 +23,8 @@ import numpy as np
 from dpos_core.errors import NumericalFailure, NumericalRepairWarning
 from dpos_core.units import FloatArray
 
+from . import _linalg_kernel as _k
+
 #: the largest relative diagonal jitter :func:`chol` tries (of the matrix's largest diagonal element)
 MAX_RELATIVE_JITTER = 1e-6
 
@@ -120,7 +122,11 @@ def chol(P: FloatArray, jitter: float = 1e-12) -> FloatArray:
     non-finite entries (which LAPACK would pass through as a NaN factor) - raises
     :class:`~dpos_core.errors.NumericalFailure`.
     """
-    P = symmetrize(np.asarray(P, dtype=float))
+    P = np.asarray(P, dtype=float)
+    L = chol_unrepaired(P)  # the common case (positive definite, finite); anything else below
+    if L is not None:
+        return L
+    P = symmetrize(P)
     try:
         L = np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
@@ -145,6 +151,16 @@ def chol(P: FloatArray, jitter: float = 1e-12) -> FloatArray:
                            f"diagonal jitter of {MAX_RELATIVE_JITTER:g} ({_why_not_pd(P)})", what="covariance")
 
 
+def chol_unrepaired(P: FloatArray) -> FloatArray | None:
+    """The lower Cholesky factors (..., n, n) of the symmetrized ``P`` (..., n, n) when every matrix
+    is positive definite and finite as it is, else None (no repair: :func:`chol` repairs)."""
+    if P.ndim < 2 or P.shape[-1] != P.shape[-2] or not P.size:
+        return None
+    flat = np.ascontiguousarray(P, dtype=float).reshape((-1,) + P.shape[-2:])
+    L = np.empty_like(flat)
+    return L.reshape(P.shape) if _k.chol(flat, L) else None
+
+
 def _why_not_pd(P: FloatArray) -> str:
     """A short diagnosis of a matrix that has no Cholesky factor (for the error message)."""
     if not np.all(np.isfinite(P)):
@@ -156,11 +172,26 @@ def _why_not_pd(P: FloatArray) -> str:
     return f"smallest eigenvalue {float(np.min(ev)):.3g}, largest {float(np.max(ev)):.3g}"
 
 
+def _lower_solve(L: FloatArray, B: FloatArray, transposed: bool = False) -> FloatArray:
+    """``L^-1 B`` (or ``L^-T B``) for lower-triangular ``L`` (..., n, n) and ``B`` (..., n, k), broadcast together."""
+    n, k = B.shape[-2], B.shape[-1]
+    batch = np.broadcast_shapes(L.shape[:-2], B.shape[:-2])
+    Lb = np.ascontiguousarray(np.broadcast_to(L, batch + (n, n))).reshape(-1, n, n)
+    Bb = np.ascontiguousarray(np.broadcast_to(B, batch + (n, k)), dtype=float).reshape(-1, n, k)
+    out = np.empty_like(Bb)
+    (_k.backward_t if transposed else _k.forward)(Lb, Bb, out)
+    return out.reshape(batch + (n, k))
+
+
+def solve_lower(L: FloatArray, B: FloatArray) -> FloatArray:
+    """``L^-1 B`` for lower-triangular ``L`` (..., n, n) (a :func:`chol` factor) and ``B`` (..., n, k)."""
+    return _lower_solve(L, B)
+
+
 def solve_spd(S: FloatArray, B: FloatArray) -> FloatArray:
     """``S^-1 B`` for SPD ``S`` (..., p, p) and ``B`` (..., p, m) through a Cholesky factor."""
     L = chol(S)
-    y = np.linalg.solve(L, B)
-    return np.linalg.solve(np.swapaxes(L, -1, -2), y)
+    return _lower_solve(L, _lower_solve(L, np.asarray(B, dtype=float)), transposed=True)
 
 
 def gain(Pxy: FloatArray, Pyy: FloatArray) -> FloatArray:
@@ -172,8 +203,7 @@ def gauss_logpdf(r: FloatArray, S: FloatArray) -> FloatArray:
     """log N(r; 0, S) for residuals r (..., p) and covariances S (..., p, p), broadcast together."""
     L = chol(S)
     p = r.shape[-1]
-    batch = np.broadcast_shapes(r.shape[:-1], L.shape[:-2])
-    z = np.linalg.solve(np.broadcast_to(L, batch + (p, p)), np.broadcast_to(r, batch + (p,))[..., None])[..., 0]
+    z = _lower_solve(L, np.asarray(r, dtype=float)[..., None])[..., 0]
     half_logdet = np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     return -0.5 * np.sum(z * z, axis=-1) - half_logdet - 0.5 * p * np.log(2.0 * np.pi)
 
@@ -183,7 +213,7 @@ def whitener(S: FloatArray) -> tuple[FloatArray, float]:
     so that ``log N(r; 0, S) = log_norm - |r W^T|^2 / 2`` for any number of residuals r (..., p)."""
     L = chol(S)
     p = S.shape[-1]
-    W = np.asarray(np.linalg.solve(L, np.eye(p)), dtype=np.float64)
+    W = _lower_solve(L, np.eye(p))
     return W, float(-np.sum(np.log(np.diag(L))) - 0.5 * p * np.log(2.0 * np.pi))
 
 

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from dpos_core.units import FloatArray
 
 from .gaussian import rts_smooth, ut_predict, ut_update
-from .linalg import chol, gain, gauss_logpdf, symmetrize
+from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .points import UnscentedPoints
@@ -348,11 +348,17 @@ def ffbsm(track: ParticleTrack) -> FloatArray:
     S = track.sampled
     logws = np.empty((K, N))
     logws[-1] = track.logw[-1]
+    # every epoch's factors at once when none needs a repair (else epoch by epoch, repaired as chol does)
+    L_all = chol_unrepaired(track.pred_cov) if K > 1 else None
+    W_all = solve_lower(L_all, np.eye(S.size)) if L_all is not None else None
     for k in range(K - 2, -1, -1):
         lwk = track.logw[k]
         nxt = track.proposed[k + 1][:, S]  # x_{k+1}^j (N, s) in the transition's coordinates
-        Li = chol(track.pred_cov[k])  # (N, s, s)
-        Wi = np.linalg.solve(Li, np.broadcast_to(np.eye(S.size), Li.shape))  # L_i^-1
+        if L_all is not None and W_all is not None:
+            Li, Wi = L_all[k], W_all[k]
+        else:
+            Li = chol(track.pred_cov[k])  # (N, s, s)
+            Wi = solve_lower(Li, np.eye(S.size))  # L_i^-1
         z = np.einsum("ist,ijt->ijs", Wi, nxt[None, :, :] - track.pred_mean[k][:, None, :])
         half_logdet = np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)), axis=1)
         L = -0.5 * np.sum(z * z, axis=2) - half_logdet[:, None]  # L[i, j] = log p(x_{k+1}^j | i) + const

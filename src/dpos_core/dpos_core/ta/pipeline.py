@@ -33,7 +33,7 @@ import numpy as np
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import compose_rotvec, dcm_to_quat, quat_to_dcm, rotvec_to_dcm, skew
+from ..attitude import compose_rotvec, cross, dcm_to_quat, quat_to_dcm, rotvec_to_dcm, skew
 from ..errors import RejectedInput
 from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
@@ -279,41 +279,44 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
 
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
            corr: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``."""
+    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``.
+
+    Every interval's rows at once: the interval k (chunk k of the nominal) of each row, the errors
+    at its two epochs (x (K, 24), P (K, 24, 24), corrections (K, 24)) interpolated to the rows."""
     chunks = model.nominal_chunks()
-    ts: list[FloatArray] = []
-    llhs: list[FloatArray] = []
-    vels: list[FloatArray] = []
-    qs: list[FloatArray] = []
-    sigs: list[FloatArray] = []
-    for k, ch in enumerate(chunks):
-        e0 = x[k]
-        e1 = x[k + 1].copy()
-        e1[PHI] = compose_rotvec(x[k + 1, PHI], corr[k + 1, PHI])  # undo the shift of epoch k+1
-        e1[DV] = x[k + 1, DV] + corr[k + 1, DV]
-        e1[DP] = x[k + 1, DP] + corr[k + 1, DP]
-        t0, t1 = model.epochs_s[k], model.epochs_s[k + 1]
-        a = ((ch.t_s - t0) / (t1 - t0))[:, None]
-        err = (1.0 - a) * e0[None, :9] + a * e1[None, :9]
-        var = (1.0 - a) * np.diagonal(P[k])[None, :9] + a * np.diagonal(P[k + 1])[None, :9]
-        # the velocity the IMU gains within the interval beyond a straight line (the wing's vibration):
-        # an attitude error turns it, dv_dot = f x phi (model docstring), which no linear interpolation
-        # of the epoch errors holds: on paper_wing a 0.1 deg heading error turns the 2 Hz in-plane
-        # vibration (0.4 m/s at 9 m) into mm/s across the span, twice the error at the epochs
-        if ch.t_s.size > 2:
-            b = ((ch.t_s - ch.t_s[0]) / (ch.t_s[-1] - ch.t_s[0]))[:, None]
-            D = ch.vel_n_mps - ch.vel_n_mps[0] - b * (ch.vel_n_mps[-1] - ch.vel_n_mps[0])
-            err[:, DV] += np.cross(D, err[:, PHI])
-            Sk = skew(D)  # D x phi = [D x] phi
-            P_phi = (1.0 - a)[:, :, None] * P[k][PHI, PHI][None] + a[:, :, None] * P[k + 1][PHI, PHI][None]
-            var[:, DV] += np.einsum("tij,tjk,tik->ti", Sk, P_phi, Sk)
-        s = np.sqrt(np.maximum(var, 0.0))
-        C = rotvec_to_dcm(err[:, PHI]) @ ch.C_nb
-        v = ch.vel_n_mps - err[:, DV]
-        dllh = earth.enu_to_dllh(err[:, DP], ch.llh)
-        ts.append(ch.t_s)
-        llhs.append(ch.llh - dllh)
-        vels.append(v)
-        qs.append(dcm_to_quat(C))
-        sigs.append(s)
-    return (np.concatenate(ts), np.concatenate(llhs), np.concatenate(vels), np.concatenate(qs), np.concatenate(sigs))
+    sizes = np.array([ch.t_s.size for ch in chunks], dtype=int)
+    kk = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row
+    t = np.concatenate([ch.t_s for ch in chunks])
+    vel = np.concatenate([ch.vel_n_mps for ch in chunks])
+    llh = np.concatenate([ch.llh for ch in chunks])
+    q = np.concatenate([ch.q_nb for ch in chunks])
+    e1 = x[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
+    e1[:, PHI] = compose_rotvec(x[1:, PHI], corr[1:, PHI])
+    e1[:, DV] = x[1:, DV] + corr[1:, DV]
+    e1[:, DP] = x[1:, DP] + corr[1:, DP]
+    t0, t1 = model.epochs_s[:-1][kk], model.epochs_s[1:][kk]
+    a = ((t - t0) / (t1 - t0))[:, None]
+    err = (1.0 - a) * x[kk, :9] + a * e1[kk, :9]
+    dP = np.diagonal(P, axis1=1, axis2=2)[:, :9]
+    var = (1.0 - a) * dP[kk] + a * dP[kk + 1]
+    # the velocity the IMU gains within the interval beyond a straight line (the wing's vibration):
+    # an attitude error turns it, dv_dot = f x phi (model docstring), which no linear interpolation
+    # of the epoch errors holds: on paper_wing a 0.1 deg heading error turns the 2 Hz in-plane
+    # vibration (0.4 m/s at 9 m) into mm/s across the span, twice the error at the epochs
+    ends = np.cumsum(sizes)
+    first, last = ends - sizes, ends - 1
+    vib = np.flatnonzero(sizes[kk] > 2)  # rows of intervals with more than 2 rows
+    if vib.size:
+        kv = kk[vib]
+        f, la = first[kv], last[kv]
+        b = ((t[vib] - t[f]) / (t[la] - t[f]))[:, None]
+        D = vel[vib] - vel[f] - b * (vel[la] - vel[f])
+        err[vib, DV] += cross(D, err[vib, PHI])
+        Sk = skew(D)  # D x phi = [D x] phi
+        av = a[vib][:, :, None]
+        Pp = P[:, PHI, PHI]
+        P_phi = (1.0 - av) * Pp[kv] + av * Pp[kv + 1]
+        var[vib, DV] += np.einsum("tij,tjk,tik->ti", Sk, P_phi, Sk)
+    s = np.sqrt(np.maximum(var, 0.0))
+    C = rotvec_to_dcm(err[:, PHI]) @ quat_to_dcm(q)
+    return t, llh - earth.enu_to_dllh(err[:, DP], llh), vel - err[:, DV], dcm_to_quat(C), s
