@@ -119,7 +119,11 @@ class ParticleTrack:
     density of the backward pass); sampled (s,) indices; corrections (K, n); ess (K,); resampled
     (K,) bool; mixture: the moments of the weighted mixture
     of the particles' Gaussians - filtered, predicted (in the corrected coordinates of the
-    next epoch) and their cross-covariances - as a :class:`GaussianTrack` for the RTS recursion.
+    next epoch) and their cross-covariances - as a :class:`GaussianTrack` for the RTS recursion,
+    with the mixture's innovations: ``nu = sum_i w_i nu^i`` (the measurement minus the weighted mean
+    of the particles' predictions, weights before the update) and
+    ``S = sum_i w_i (S^i + (nu^i - nu)(nu^i - nu)^T)``, the predictive covariance of the mixture
+    (moment matched; NaN where no measurement).
     """
 
     particles: FloatArray
@@ -297,10 +301,14 @@ def run_upf(
     m = np.broadcast_to(np.asarray(x0, dtype=float), (N, n)).copy()  # each particle's UKF (predicted)
     P = engine.init(np.asarray(P0, dtype=float), N)
     logw = np.full(N, -np.log(N))
+    mix_nu: list[tuple[FloatArray, FloatArray] | None] = []  # the mixture's innovation and its covariance
     for k in range(K):
         y = model.y(k)
+        mix_nu.append(None)
         if y is not None:
-            m, P, nu, S_y = engine.update(model, k, m, P, np.exp(logw), y, points)
+            w_pred = np.exp(logw)
+            m, P, nu, S_y = engine.update(model, k, m, P, w_pred, y, points)
+            mix_nu[k] = _mixture(w_pred, nu, S_y)
             logw = log_normalize(logw + gauss_logpdf(nu, S_y))
         # sample the components S from each particle's UKF posterior (eq. 6), condition the rest
         L_SS = chol(P[..., S[:, None], S[None, :]])
@@ -335,7 +343,10 @@ def run_upf(
             m, P = m[idx], engine.take(P, idx)
             logw = np.full(N, -np.log(N))
             res_k[k] = True
-    mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, np.empty((K, 0)), np.empty((K, 0, 0)))
+    p = next((v[0].shape[0] for v in mix_nu if v is not None), 0)
+    nu_k = np.array([v[0] if v is not None else np.full(p, np.nan) for v in mix_nu]).reshape(K, p)
+    S_k = np.array([v[1] if v is not None else np.full((p, p), np.nan) for v in mix_nu]).reshape(K, p, p)
+    mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, nu_k, S_k)
     return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture)
 
 
