@@ -151,4 +151,5 @@ def test_fit_antennas_flags_every_row_when_a_sub_imu_of_the_wing_is_not_estimate
 def test_flag_names() -> None:
     assert F.describe(F.WING_FIT | F.EXTRAPOLATED | F.FEWER_SUB_IMUS | F.BRIDGED_GAP) == [
         "bridged_gap", "wing_fit", "extrapolated", "fewer_sub_imus"]
-    assert F.describe(1 << 5) == ["bit5"]  # reserved
+    assert F.describe(F.MASTER_UNALIGNED | F.INCONSISTENT_INNOVATIONS) == ["master_unaligned", "inconsistent_innovations"]
+    assert F.describe(1 << 7) == ["bit7"]  # reserved

@@ -10,8 +10,9 @@ on a sub-IMU's rows (and on its antennas'); a ``fit`` antenna's row carries them
 that entered the least-squares wing fit at that epoch has them.  Bits 2-4 are set on the rows of
 the ``fit`` antennas by :func:`dpos_core.ta.wingfit.fit_wing` (and
 ``dpos_ros.products.ta.fit_antennas``: :data:`FEWER_SUB_IMUS` on every row when a sub-IMU of the
-wing is not estimated at all).  Bits from 5 on are reserved for later checks (e.g. an unaligned
-main POS, inconsistent innovations) and never set today.
+wing is not estimated at all).  Bits 5-6 are the quality control's (:mod:`.qc`, set by
+``dpos_ros.products.ta.solve`` on a sub-IMU's rows and carried into the wing fit's like bits
+0-1).  Bits from 7 on are reserved.
 """
 
 from __future__ import annotations
@@ -35,11 +36,20 @@ EXTRAPOLATED = 1 << 3
 #: wing fit: fewer sub-IMUs entered the fit at this epoch than the wing carries (one in a gap, or
 #: not estimated in this session)
 FEWER_SUB_IMUS = 1 << 4
+#: the main POS's attitude 1-sigma (its /master/nav covariance) was at or above the aligned
+#: threshold (0.1 deg) at the master epoch before or after the row: the main POS lost its
+#: alignment mid-session (the rows before its first alignment are not output at all)
+MASTER_UNALIGNED = 1 << 5
+#: the transfer alignment's innovations over the 60 s around the row's filter interval are
+#: inconsistent with their covariance (windowed NIS outside its two-sided 99 % bounds,
+#: :func:`.qc.inconsistent`): the sigma of the row may not describe its error
+INCONSISTENT_INNOVATIONS = 1 << 6
 
 NAMES = {RESTARTED_AFTER_GAP: "restarted_after_gap", BRIDGED_GAP: "bridged_gap", WING_FIT: "wing_fit",
-         EXTRAPOLATED: "extrapolated", FEWER_SUB_IMUS: "fewer_sub_imus"}
+         EXTRAPOLATED: "extrapolated", FEWER_SUB_IMUS: "fewer_sub_imus", MASTER_UNALIGNED: "master_unaligned",
+         INCONSISTENT_INNOVATIONS: "inconsistent_innovations"}
 #: the bits a sub-IMU's own rows carry into the wing fit's rows (OR over the sub-IMUs used at the epoch)
-CARRIER_BITS = RESTARTED_AFTER_GAP | BRIDGED_GAP
+CARRIER_BITS = RESTARTED_AFTER_GAP | BRIDGED_GAP | MASTER_UNALIGNED | INCONSISTENT_INNOVATIONS
 
 #: the dtype of the flags arrays
 FlagArray = NDArray[np.uint32]

@@ -43,6 +43,7 @@ from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
 from . import flags as F
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
+from .qc import EpochQC, epoch_qc
 
 METHODS = ("ukf", "urtss", "upf", "ups")
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
@@ -62,7 +63,9 @@ class TAResult:
     flags (N,): the rows' quality bits (:mod:`.flags`); not_estimated: the spans ``(t_from_s,
     t_to_s, reason)`` between output rows that :func:`run_segments` left without rows (sub-IMU
     gaps, data too short to align); the rows at ``t_from_s`` and ``t_to_s`` themselves exist when
-    data do on that side.
+    data do on that side.  qc: the consistency measures at the epochs (:class:`.qc.EpochQC`: NIS of
+    the forward filter's innovations - the UPF's mixture's -, the filtered-minus-smoothed
+    separation of the smoothers), for the quality control without truth.
     """
 
     method: str
@@ -78,6 +81,7 @@ class TAResult:
     chol_jitter_repairs: int = 0
     flags: F.FlagArray = field(default_factory=lambda: F.none(0))
     not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
+    qc: EpochQC | None = None
 
     @property
     def C_nb(self) -> FloatArray:
@@ -178,8 +182,10 @@ def run_segments(
         return parts[0]
     cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
     ess = None if any(p.ess is None for p in parts) else cat("ess")
+    qcs = [p.qc for p in parts if p.qc is not None]
     return TAResult(method, cat("t_s"), cat("llh"), cat("vel_n_mps"), cat("q_nb"), cat("sigma"), cat("epochs_s"), cat("x"), cat("P"),
-                    ess, sum(p.chol_jitter_repairs for p in parts), cat("flags"), spans)
+                    ess, sum(p.chol_jitter_repairs for p in parts), cat("flags"), spans,
+                    EpochQC.concat(qcs) if len(qcs) == len(parts) else None)
 
 
 def _segment_start(master: NavSeries, t_first: float, t_last: float) -> tuple[float, str | None]:
@@ -257,7 +263,8 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         lin = LinearizedAboutTruth(model, *oracle_truth)
         tr = run_sigma_point_filter(lin, x0, P0, points)
         x, P = lin.to_model(*smooth_gaussian(tr))
-        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model))
+        qc = epoch_qc(model.epochs_s, tr.nu, tr.S, *lin.to_model(tr.x_f, tr.P_f), x, P)
+        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model), qc=qc)
     if method in ("ukf", "urtss"):
         tr = run_sigma_point_filter(model, x0, P0, points)
         corr = tr.corrections
@@ -265,6 +272,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             x, P = smooth_gaussian(tr)
         else:
             x, P = tr.x_f, tr.P_f
+        qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if method == "urtss" else (None, None)))
     else:
         ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine)
         corr = ptr.corrections
@@ -273,8 +281,10 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             _, x, P = rb_smooth(ptr)
         else:
             x, P = ptr.mixture.x_f, ptr.mixture.P_f
+        mx = ptr.mixture
+        qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if method == "ups" else (None, None)))
     out = _apply(model, x, P, corr)
-    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model))
+    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc)
 
 
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,

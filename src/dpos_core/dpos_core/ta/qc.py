@@ -1,0 +1,361 @@
+"""Quality control of a transfer alignment without truth (issue #15; docs/qc.md).
+
+What a user can check about a session's poses before handing them on, from the solution itself:
+
+* **NIS** (normalized innovation squared) at every filter epoch, ``nu^T S^-1 nu`` with ``dof`` = the
+  number of measured components at that epoch: chi^2(dof) when the filter's model (its noises,
+  its initial covariance, the main POS's covariance) describes the data.  Per epoch it is compared
+  with its two-sided 99 % bounds; an epoch outside them happens 1 % of the time by chance, so
+  isolated exceedances are counted, not flagged.  The flag is on the **windowed** NIS: over a
+  centered window of ``window_s`` (60 s: 60 epochs at 1 Hz, 360 degrees of freedom for the
+  6-component velocity and position match) the sum of the NIS over the sum of their dofs, which
+  is chi^2(sum dof) / sum dof for a consistent filter (the innovations of a consistent filter are
+  white, so the epochs' NIS are independent).  Above its two-sided 99 % bounds the innovations
+  are *systematically* larger than the filter says (its covariances are optimistic: an
+  unmodelled error, a noise too small, a mis-scaled main-POS covariance): the flag
+  :data:`.flags.INCONSISTENT_INNOVATIONS` goes on every output row of an interval whose end epochs
+  carry it.  Below the lower bound the filter is pessimistic: reported (``qc.md``), not flagged -
+  the sigmas then overstate the errors, and the transfer alignment's own noise floors make it
+  the normal case where the main POS is better than them (paper_su: the 1 cm position-match noise
+  against a noise-free simulated main-POS position, mean NIS per dof 0.6; the per-match ratios
+  ``nz2`` show which match).  The window trades detection delay for power: 60 s (540 dof with the
+  9 matches) catches a covariance 1.3x too small (the 99.5 % point of the mean is 1.17) and is short
+  against a session's manoeuvres, while an epoch's own bound (chi^2_9 99.5 % = 23.6, 2.6x its
+  mean) misses a factor of 2 and fires by chance on 0.5 % of the epochs.
+* **Forward/backward separation**: for a smoother, the difference between the filtered and the
+  smoothed estimate at each epoch, per group (attitude, velocity, position), normalized by the
+  covariance of that difference.  For the Gaussian (RTS) smoother ``x_s = E[x | all data]`` and
+  ``x_f = E[x | data up to k]``, so the smoothed error is orthogonal to ``x_s - x_f`` and
+  ``Cov(x_f - x_s) = P_f - P_s``: ``d^T (P_f - P_s)^+ d`` is chi^2 with the rank of ``P_f - P_s``
+  as dof when the data agree with the model forward and backward.  The rank is what is left
+  after dropping the eigenvalues below ``1e-6`` of ``trace(P_f)`` (the group's): at the last epoch
+  (smoothed = filtered) and wherever the later data add nothing the difference is zero and has
+  no dof.  The filtered sigma would be the other choice; it does not know how much the later data
+  may move the estimate (a separation of 3 filtered sigmas can be expected after a manoeuvre
+  resolves the heading) and tests nothing.  Also reported in physical units (deg, m/s, m): what
+  the smoother moved the estimate by.  Forward-only methods (``ukf``, ``upf``) have none.
+* **Master unaligned**: rows where the main POS's attitude 1-sigma (its ``/master/nav``
+  covariance) is at or above the aligned threshold (:data:`.flags.MASTER_UNALIGNED`).
+
+:func:`summarize` gathers, per antenna, the sigmas' percentiles, the NIS fractions, the
+separation and the flagged time, and a verdict line; ``dpos_ros.products.ta`` writes them as
+``qc.md``, ``status.json`` ``qc`` and ``qc/<antenna>_qc.png``, for every session, without truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from dpos_core.units import DEG, FloatArray
+
+from . import flags as F
+
+#: the state groups of the separation: the first 9 error states (attitude rad, velocity m/s, position m)
+GROUPS = (("attitude", slice(0, 3)), ("velocity", slice(3, 6)), ("position", slice(6, 9)))
+#: window of the averaged NIS [s] and the two-sided probability of its bounds
+WINDOW_S = 60.0
+PROB = 0.99
+#: an eigenvalue of P_f - P_s below this fraction of trace(P_f) (per group) carries no dof
+REL_TOL = 1e-6
+#: a verdict says "check" when a cause holds for more than this fraction of the rows (or epochs)
+CHECK_FRACTION = 0.05
+#: the wing fit's a posteriori variance factor or its cross-validation score above this: "check"
+#: (its residuals twice their sigma)
+FIT_SCORE_LIMIT = 4.0
+
+#: the sigma columns (AntennaSolution.sigma (N, 9): phi E, N, U [rad]; dv E, N, U; dp E, N, U),
+#: the names and scales of the report (the CSV's, deg for attitude)
+SIGMA_COMPONENTS = (("rot_e_deg", 0, 1 / DEG), ("rot_n_deg", 1, 1 / DEG), ("heading_deg", 2, 1 / DEG),
+                    ("vel_e_mps", 3, 1.0), ("vel_n_mps", 4, 1.0), ("vel_u_mps", 5, 1.0),
+                    ("east_m", 6, 1.0), ("north_m", 7, 1.0), ("h_m", 8, 1.0))
+#: the names of the transfer alignment's matches by the measurement size (ta.model: attitude,
+#: velocity and, with ``use_position``, position, each E, N, U)
+MATCHES = {9: tuple(f"{g}_{a}" for g in ("att", "vel", "pos") for a in "enu"), 6: tuple(f"{g}_{a}" for g in ("att", "vel") for a in "enu")}
+#: the separation's unit per group (the attitude difference in deg)
+SEP_UNITS = (("deg", 1 / DEG), ("m/s", 1.0), ("m", 1.0))
+
+
+@dataclass
+class EpochQC:
+    """The consistency measures at the filter epochs ``epochs_s`` (K,): ``nis`` (K,) (NaN without a
+    measurement) with ``dof`` (K,) the measurement size; ``sep`` (K, 3) the normalized
+    forward/backward separation ``d^T (P_f - P_s)^+ d`` per :data:`GROUPS` with ``sep_dof`` (K, 3)
+    (NaN / 0 where there is none) and ``sep_norm`` (K, 3) ``|x_f - x_s|`` per group (rad, m/s, m);
+    ``smoothed``: a backward pass exists (else the separation is all NaN); ``nz2`` (K, p): each
+    innovation component's ``nu_i^2 / S_ii`` (1 on average when consistent; NaN unmeasured)."""
+
+    epochs_s: FloatArray
+    nis: FloatArray
+    dof: NDArray[np.int_]
+    sep: FloatArray
+    sep_dof: NDArray[np.int_]
+    sep_norm: FloatArray
+    smoothed: bool
+    nz2: FloatArray
+
+    @staticmethod
+    def concat(parts: list[EpochQC]) -> EpochQC:
+        """The segments' measures one after the other (``smoothed`` when all are)."""
+        cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+        return EpochQC(cat("epochs_s"), cat("nis"), cat("dof"), cat("sep"), cat("sep_dof"), cat("sep_norm"),
+                       all(p.smoothed for p in parts), cat("nz2"))
+
+
+def nis(nu: FloatArray, S: FloatArray) -> tuple[FloatArray, NDArray[np.int_]]:
+    """NIS ``nu^T S^-1 nu`` (K,) and its dof (K,) of innovations ``nu`` (K, p) with covariances
+    ``S`` (K, p, p); a NaN component is not measured (its rows and columns of S are dropped), an
+    epoch without any gives NaN and dof 0."""
+    nu = np.asarray(nu, dtype=float)
+    S = np.asarray(S, dtype=float)
+    K = nu.shape[0]
+    out = np.full(K, np.nan)
+    meas = np.isfinite(nu)
+    dof = meas.sum(axis=1).astype(int)
+    p = nu.shape[1] if nu.ndim == 2 else 0
+    full = (dof == p) & (p > 0)
+    full &= np.all(np.isfinite(S.reshape(K, -1)), axis=1)
+    if np.any(full):
+        z = np.linalg.solve(S[full], nu[full][..., None])[..., 0]
+        out[full] = np.einsum("ki,ki->k", nu[full], z)
+    for k in np.flatnonzero(~full & (dof > 0)):
+        m = meas[k]
+        Sk = S[k][np.ix_(m, m)]
+        if np.all(np.isfinite(Sk)):
+            out[k] = float(nu[k, m] @ np.linalg.solve(Sk, nu[k, m]))
+        else:
+            dof[k] = 0
+    dof[~np.isfinite(out)] = 0
+    return out, dof
+
+
+def separation(x_f: FloatArray, P_f: FloatArray, x_s: FloatArray, P_s: FloatArray,
+               rel_tol: float = REL_TOL) -> tuple[FloatArray, NDArray[np.int_], FloatArray]:
+    """The forward/backward separation (module docstring) of filtered ``x_f`` (K, n), ``P_f`` and
+    smoothed ``x_s``, ``P_s``: per :data:`GROUPS`, ``d^T (P_f - P_s)^+ d`` (K, 3) on the
+    eigenvalues of ``P_f - P_s`` above ``rel_tol trace(P_f)``, their number (K, 3) (NaN where 0),
+    and ``|d|`` (K, 3)."""
+    K = x_f.shape[0]
+    sep = np.full((K, len(GROUPS)), np.nan)
+    dof = np.zeros((K, len(GROUPS)), dtype=int)
+    norm = np.empty((K, len(GROUPS)))
+    for j, (_, g) in enumerate(GROUPS):
+        d = x_f[:, g] - x_s[:, g]
+        norm[:, j] = np.linalg.norm(d, axis=1)
+        D = P_f[:, g, g] - P_s[:, g, g]
+        D = 0.5 * (D + np.swapaxes(D, 1, 2))
+        lam, V = np.linalg.eigh(D)
+        tol = rel_tol * np.trace(P_f[:, g, g], axis1=1, axis2=2)
+        keep = lam > np.maximum(tol, 1e-300)[:, None]
+        z = np.einsum("kij,ki->kj", V, d)  # V^T d
+        m = np.sum(np.where(keep, z * z / np.where(keep, lam, 1.0), 0.0), axis=1)
+        dof[:, j] = keep.sum(axis=1)
+        sep[:, j] = np.where(dof[:, j] > 0, m, np.nan)
+    return sep, dof, norm
+
+
+def epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArray, P_f: FloatArray,
+             x_s: FloatArray | None = None, P_s: FloatArray | None = None) -> EpochQC:
+    """The :class:`EpochQC` of a filter's innovations and its filtered and (if any) smoothed estimates."""
+    v, dof = nis(nu, S)
+    K = np.asarray(epochs_s).size
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nz2 = np.asarray(nu, dtype=float) ** 2 / np.diagonal(np.asarray(S, dtype=float), axis1=1, axis2=2)
+    if x_s is None or P_s is None:
+        return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, np.full((K, 3), np.nan), np.zeros((K, 3), dtype=int),
+                       np.full((K, 3), np.nan), False, nz2)
+    sep, sdof, norm = separation(x_f, P_f, x_s, P_s)
+    return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, sep, sdof, norm, True, nz2)
+
+
+def chi2_bounds(dof, prob: float = PROB) -> tuple[FloatArray, FloatArray]:
+    """Two-sided ``prob`` bounds of chi^2(dof) (NaN for dof 0)."""
+    d = np.asarray(dof, dtype=float)
+    ok = d > 0
+    lo = np.where(ok, chi2.ppf((1.0 - prob) / 2, np.where(ok, d, 1.0)), np.nan)
+    hi = np.where(ok, chi2.ppf((1.0 + prob) / 2, np.where(ok, d, 1.0)), np.nan)
+    return lo, hi
+
+
+def windowed_nis(epochs_s: FloatArray, nis_k: FloatArray, dof: NDArray[np.int_], window_s: float = WINDOW_S,
+                 prob: float = PROB) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per epoch, over the epochs within ``window_s / 2`` of it (centered): ``sum NIS / sum dof``
+    (K,) and the two-sided ``prob`` bounds of that ratio, ``chi2.ppf(q, D) / D`` with D the sum
+    of the dofs (NaN where the window has no measurement)."""
+    t = np.asarray(epochs_s, dtype=float)
+    ok = np.isfinite(nis_k) & (dof > 0)
+    cs_n = np.concatenate([[0.0], np.cumsum(np.where(ok, nis_k, 0.0))])
+    cs_d = np.concatenate([[0], np.cumsum(np.where(ok, dof, 0))])
+    a = np.searchsorted(t, t - window_s / 2, side="left")
+    b = np.searchsorted(t, t + window_s / 2, side="right")
+    D = (cs_d[b] - cs_d[a]).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(D > 0, (cs_n[b] - cs_n[a]) / D, np.nan)
+    lo, hi = chi2_bounds(D, prob)
+    return ratio, lo / np.where(D > 0, D, 1.0), hi / np.where(D > 0, D, 1.0)
+
+
+def inconsistent(epochs_s: FloatArray, nis_k: FloatArray, dof: NDArray[np.int_], window_s: float = WINDOW_S,
+                 prob: float = PROB) -> NDArray[np.int8]:
+    """Per epoch: +1 where the windowed NIS (:func:`windowed_nis`) is above its upper bound
+    (innovations larger than the filter's covariance says: optimistic), -1 below the lower one
+    (pessimistic), 0 consistent or not measured."""
+    r, lo, hi = windowed_nis(epochs_s, nis_k, dof, window_s, prob)
+    out = np.zeros(r.size, dtype=np.int8)
+    out[np.isfinite(r) & (r > hi)] = 1
+    out[np.isfinite(r) & (r < lo)] = -1
+    return out
+
+
+def rows_from_epochs(epochs_s: FloatArray, mask: NDArray[np.bool_], t_rows: FloatArray) -> NDArray[np.bool_]:
+    """The output rows (stamps ``t_rows``) of a filter interval [t_k, t_k+1) one of whose end
+    epochs has ``mask`` (the rows are interpolated from both); rows before the first or after
+    the last epoch take that epoch's."""
+    t = np.asarray(epochs_s, dtype=float)
+    if t.size == 0:
+        return np.zeros(np.asarray(t_rows).size, dtype=bool)
+    k = np.clip(np.searchsorted(t, t_rows, side="right") - 1, 0, t.size - 1)
+    k1 = np.minimum(k + 1, t.size - 1)
+    at_end = np.asarray(t_rows) >= t[-1]
+    return mask[k] | (mask[k1] & ~at_end)
+
+
+def master_unaligned(t_master: FloatArray, att_sigma_rad: FloatArray, t_rows: FloatArray, threshold_rad: float) -> NDArray[np.bool_]:
+    """Rows (stamps ``t_rows``) where the main POS's attitude 1-sigma ``att_sigma_rad`` (M,) (the
+    largest axis, at ``t_master``) is at or above ``threshold_rad`` at the master epoch before or
+    after the row."""
+    t = np.asarray(t_master, dtype=float)
+    bad = np.asarray(att_sigma_rad) >= threshold_rad
+    if not np.any(bad):
+        return np.zeros(np.asarray(t_rows).size, dtype=bool)
+    i = np.clip(np.searchsorted(t, t_rows, side="right") - 1, 0, t.size - 1)
+    return bad[i] | bad[np.minimum(i + 1, t.size - 1)]
+
+
+def row_flags(t_rows: FloatArray, qc: EpochQC | None, master_t: FloatArray | None = None,
+              master_att_sigma_rad: FloatArray | None = None, master_threshold_rad: float = 0.1 * DEG,
+              window_s: float = WINDOW_S, prob: float = PROB) -> F.FlagArray:
+    """The QC bits of a sub-IMU's rows: :data:`.flags.INCONSISTENT_INNOVATIONS` (from ``qc``,
+    the windowed NIS above its bound: :func:`inconsistent` +1) and :data:`.flags.MASTER_UNALIGNED` (from the main POS's
+    attitude sigma, when given)."""
+    out = F.none(np.asarray(t_rows).size)
+    if qc is not None and qc.epochs_s.size:
+        bad = inconsistent(qc.epochs_s, qc.nis, qc.dof, window_s, prob) > 0
+        out[rows_from_epochs(qc.epochs_s, bad, t_rows)] |= np.uint32(F.INCONSISTENT_INNOVATIONS)
+    if master_t is not None and master_att_sigma_rad is not None:
+        out[master_unaligned(master_t, master_att_sigma_rad, t_rows, master_threshold_rad)] |= np.uint32(F.MASTER_UNALIGNED)
+    return out
+
+
+# ----------------------------------------------------------------------------------- summary
+
+
+def _row_durations(t: FloatArray) -> FloatArray:
+    """Each row's share of the time: the step to the next row (the median step for the last one;
+    steps longer than 5 median steps - gaps - count as one median step)."""
+    if t.size < 2:
+        return np.zeros(t.size)
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    dt = np.where(dt > 5 * med, med, dt)
+    return np.append(dt, med)
+
+
+def _pct(v: FloatArray) -> dict[str, float]:
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"p50": float("nan"), "p95": float("nan"), "max": float("nan")}
+    return {"p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+
+
+def summarize(t_rows: FloatArray, sigma: FloatArray, flags: F.FlagArray | None, qc: EpochQC | None = None,
+              wing_fit: dict | None = None, window_s: float = WINDOW_S, prob: float = PROB) -> dict:
+    """The QC summary of one antenna (docs/qc.md; ``status.json`` ``qc``): rows and duration;
+    ``sigma``: per component of :data:`SIGMA_COMPONENTS` the 50th / 95th percentile and the
+    maximum; ``nis`` (with ``qc``): epochs, mean NIS per dof, the fractions of epochs outside the
+    per-epoch two-sided ``prob`` bounds (chance: ``1 - prob``) and of the windowed NIS above / below
+    its bounds; ``separation`` (with a smoother): per group the largest ``|x_f - x_s|`` (deg, m/s, m),
+    the largest normalized separation as RMS sigmas ``sqrt(chi2 / dof)`` and the fraction of the
+    epochs beyond the 99 % (one-sided) chi^2 bound; ``wing_fit`` (fit antennas): the fit's
+    variance factors and its cross-validation scores at the chosen degree; ``flags``: per bit
+    set on any row the flagged time [s] and fraction; ``verdict``: ``ok`` or ``check: ...``
+    (the causes over :data:`CHECK_FRACTION` of the time), ``notes`` (causes below it)."""
+    t = np.asarray(t_rows, dtype=float)
+    dur = _row_durations(t)
+    total = float(dur.sum())
+    out: dict = {"rows": int(t.size), "duration_s": total}
+    out["sigma"] = {name: _pct(sigma[:, i] * scale) for name, i, scale in SIGMA_COMPONENTS}
+    checks: list[str] = []
+    notes: list[str] = []
+    if qc is not None and qc.epochs_s.size:
+        ok = np.isfinite(qc.nis) & (qc.dof > 0)
+        lo, hi = chi2_bounds(qc.dof, prob)
+        n = int(ok.sum())
+        side = inconsistent(qc.epochs_s, qc.nis, qc.dof, window_s, prob)
+        frac = lambda m: float(np.sum(m & ok) / n) if n else float("nan")  # noqa: E731
+        out["nis"] = {"epochs": n, "dof": int(np.median(qc.dof[ok])) if n else 0,
+                      "mean_per_dof": float(np.sum(qc.nis[ok]) / np.sum(qc.dof[ok])) if n else float("nan"),
+                      "above_bound_fraction": frac(qc.nis > hi), "below_bound_fraction": frac(qc.nis < lo),
+                      "chance_fraction": (1.0 - prob) / 2, "window_s": window_s,
+                      "windowed_above_fraction": frac(side > 0), "windowed_below_fraction": frac(side < 0)}
+        nd = out["nis"]
+        p = qc.nz2.shape[1] if qc.nz2.ndim == 2 else 0
+        names = MATCHES.get(p, tuple(f"m{i}" for i in range(p)))
+        nd["per_match"] = {nm: float(np.nanmean(qc.nz2[ok][:, i])) if n else float("nan") for i, nm in enumerate(names)}
+        a = nd["windowed_above_fraction"]
+        if n and a > 0:
+            (checks if a > CHECK_FRACTION else notes).append(
+                f"inconsistent innovations {100 * a:.0f} % of the time: larger than their covariance (sigmas optimistic)")
+        b = nd["windowed_below_fraction"]
+        if n and b > 0:
+            low = ", ".join(f"{nm} {v:.2f}" for nm, v in nd["per_match"].items() if v < 0.5)
+            notes.append(f"innovations smaller than their covariance {100 * b:.0f} % of the time (sigmas conservative"
+                         + (f"; mean nu^2/S: {low})" if low else ")"))
+        if qc.smoothed:
+            sep: dict = {}
+            for j, (g, _) in enumerate(GROUPS):
+                unit, scale = SEP_UNITS[j]
+                has = qc.sep_dof[:, j] > 0
+                bound = np.where(has, chi2.ppf(prob, np.maximum(qc.sep_dof[:, j], 1)), np.nan)
+                rms = np.sqrt(qc.sep[has, j] / qc.sep_dof[has, j]) if np.any(has) else np.array([])
+                beyond = float(np.mean(qc.sep[has, j] > bound[has])) if np.any(has) else 0.0
+                sep[g] = {"max_diff": float(np.nanmax(qc.sep_norm[:, j]) * scale) if qc.sep_norm.size else float("nan"),
+                          "unit": unit, "max_sigmas": float(rms.max()) if rms.size else float("nan"),
+                          "beyond_bound_fraction": beyond}
+                if beyond > CHECK_FRACTION:
+                    checks.append(f"forward/backward {g} separation beyond its 99 % bound at {100 * beyond:.0f} % of the epochs")
+                elif beyond > 1.0 - prob:
+                    notes.append(f"forward/backward {g} separation beyond its 99 % bound at {100 * beyond:.1f} % of the epochs")
+            out["separation"] = sep
+        else:
+            out["separation"] = None
+    if wing_fit is not None:
+        deg = wing_fit.get("degree", {})
+        score = {c: float(wing_fit["cv"][c][str(k)]["score"]) for c, k in deg.items()
+                 if str(k) in wing_fit.get("cv", {}).get(c, {}) and "score" in wing_fit["cv"][c][str(k)]}
+        vf = {c: float(v) for c, v in wing_fit.get("variance_factor", {}).items()}
+        out["wing_fit"] = {"variance_factor": vf, "cv_score": score}
+        worst = max(list(vf.values()) + list(score.values()), default=0.0)
+        if worst > FIT_SCORE_LIMIT:
+            checks.append(f"wing-fit residuals {np.sqrt(worst):.1f}x their sigma (variance factor / cross-validation score {worst:.1f})")
+    fl = F.none(t.size) if flags is None else np.asarray(flags, dtype=np.uint32)
+    per: dict[str, dict[str, float]] = {}
+    for bit, name in F.NAMES.items():
+        m = (fl & np.uint32(bit)) != 0
+        if np.any(m):
+            s = float(dur[m].sum())
+            per[name] = {"time_s": s, "fraction": s / total if total > 0 else 0.0}
+    out["flags"] = per
+    for name, why in ((F.NAMES[F.MASTER_UNALIGNED], "main POS unaligned"), (F.NAMES[F.RESTARTED_AFTER_GAP], "restarted after a sub-IMU gap"),
+                      (F.NAMES[F.BRIDGED_GAP], "short sub-IMU gaps bridged"), (F.NAMES[F.EXTRAPOLATED], "wing fit extrapolated"),
+                      (F.NAMES[F.FEWER_SUB_IMUS], "fewer sub-IMUs in the wing fit")):
+        if name in per:
+            f = per[name]["fraction"]
+            msg = f"{why} {per[name]['time_s']:.0f} s ({100 * f:.0f} %)"
+            (checks if (f > CHECK_FRACTION or name == F.NAMES[F.MASTER_UNALIGNED]) and name != F.NAMES[F.EXTRAPOLATED] else notes).append(msg)
+    out["verdict"] = "check: " + "; ".join(checks) if checks else "ok"
+    out["notes"] = notes
+    return out

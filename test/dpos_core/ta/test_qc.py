@@ -1,0 +1,172 @@
+"""Quality control without truth (dpos_core.ta.qc, issue #15): NIS and its windowed test, the
+forward/backward separation, the QC flags and the summary, on linear-Gaussian models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dpos_core.filters.model import LinearGaussianModel
+from dpos_core.filters.runners import run_sigma_point_filter, smooth_gaussian
+from dpos_core.ta import flags as F
+from dpos_core.ta import qc
+from dpos_core.units import DEG
+
+
+def _system(K: int, seed: int):
+    """A 9-state system (3 x position/velocity/bias-like random walks) observed in 6 components at
+    1 Hz: the shapes of the TA's first 9 states (the separation's groups)."""
+    rng = np.random.default_rng(seed)
+    n, p = 9, 6
+    F_ = np.eye(n)
+    F_[6:9, 3:6] = np.eye(3)  # position integrates velocity
+    Q = np.diag([1e-4] * 3 + [1e-3] * 3 + [1e-4] * 3)
+    H = np.zeros((p, n))
+    H[0:3, 0:3] = np.eye(3)
+    H[3:6, 6:9] = np.eye(3)
+    R = np.diag([0.01] * 3 + [0.04] * 3)
+    x = rng.normal(size=n) * 0.3
+    ys = np.empty((K, p))
+    for k in range(K):
+        if k:
+            x = F_ @ x + np.sqrt(np.diag(Q)) * rng.normal(size=n)
+        ys[k] = H @ x + np.sqrt(np.diag(R)) * rng.normal(size=p)
+    return F_, Q, H, R, ys, np.zeros(n), np.eye(n) * 0.3**2
+
+
+def _run(K: int = 1200, seed: int = 0, r_scale: float = 1.0):
+    F_, Q, H, R, ys, x0, P0 = _system(K, seed)
+    tr = run_sigma_point_filter(LinearGaussianModel(F_, Q, H, R * r_scale, ys), x0, P0)
+    xs, Ps = smooth_gaussian(tr)
+    return qc.epoch_qc(np.arange(K, dtype=float), tr.nu, tr.S, tr.x_f, tr.P_f, xs, Ps)
+
+
+def test_nis_of_a_consistent_filter_is_chi2_and_not_flagged() -> None:
+    q = _run()
+    assert np.all(q.dof == 6)
+    assert abs(q.nis.mean() - 6.0) < 3 * np.sqrt(12.0 / q.nis.size)  # chi2_6: mean 6, variance 12
+    lo, hi = qc.chi2_bounds(q.dof)
+    out = np.mean((q.nis < lo) | (q.nis > hi))
+    assert out < 0.025  # 1 % by chance
+    side = qc.inconsistent(q.epochs_s, q.nis, q.dof)
+    assert np.mean(side > 0) < 0.03 and np.mean(side != 0) < 0.05
+    np.testing.assert_allclose(np.nanmean(q.nz2, axis=0), 1.0, atol=0.15)
+    s = qc.summarize(q.epochs_s, np.ones((q.epochs_s.size, 9)), F.none(q.epochs_s.size), q)
+    assert s["verdict"] == "ok", s
+
+
+def test_r_too_small_by_ten_lights_the_flag() -> None:
+    q = _run(r_scale=0.1)
+    side = qc.inconsistent(q.epochs_s, q.nis, q.dof)
+    assert np.mean(side > 0) > 0.9
+    fl = qc.row_flags(np.arange(0.0, 1199.0, 0.1), q)
+    assert np.mean((fl & F.INCONSISTENT_INNOVATIONS) != 0) > 0.9
+    s = qc.summarize(q.epochs_s, np.ones((q.epochs_s.size, 9)), qc.row_flags(q.epochs_s, q), q)
+    assert s["verdict"].startswith("check: inconsistent innovations") and "optimistic" in s["verdict"], s
+    assert s["flags"]["inconsistent_innovations"]["fraction"] > 0.9
+
+
+def test_r_too_large_is_a_note_not_a_flag() -> None:
+    q = _run(r_scale=10.0)
+    assert np.mean(qc.inconsistent(q.epochs_s, q.nis, q.dof) < 0) > 0.9
+    assert not np.any(qc.row_flags(q.epochs_s, q))
+    s = qc.summarize(q.epochs_s, np.ones((q.epochs_s.size, 9)), None, q)
+    assert s["verdict"] == "ok" and any("smaller than their covariance" in n for n in s["notes"]), s
+
+
+def test_separation_zero_at_the_last_epoch_and_chi2_elsewhere() -> None:
+    q = _run(K=400)
+    assert q.smoothed and q.sep.shape == (400, 3)
+    np.testing.assert_allclose(q.sep_norm[-1], 0.0, atol=1e-12)
+    assert np.all(q.sep_dof[-1] == 0) and np.all(np.isnan(q.sep[-1]))
+    has = q.sep_dof > 0
+    assert has[:-1].mean() > 0.9
+    ratio = np.sum(q.sep[has]) / np.sum(q.sep_dof[has])
+    assert 0.8 < ratio < 1.2, ratio  # chi2 per dof: 1
+    s = qc.summarize(q.epochs_s, np.ones((400, 9)), None, q)
+    for g in ("attitude", "velocity", "position"):
+        assert s["separation"][g]["beyond_bound_fraction"] < 0.03, s["separation"]
+        assert s["separation"][g]["max_sigmas"] < 3.0
+
+
+def test_separation_of_a_wrong_model_is_large() -> None:
+    """A filter whose R is 10x too small trusts each fix, and the later fixes pull the smoothed
+    estimate beyond what P_f - P_s allows."""
+    q = _run(K=400, r_scale=0.1)
+    has = q.sep_dof > 0
+    assert np.sum(q.sep[has]) / np.sum(q.sep_dof[has]) > 2.0
+
+
+def test_nis_handles_unmeasured_components_and_epochs() -> None:
+    nu = np.array([[1.0, 2.0], [np.nan, 2.0], [np.nan, np.nan]])
+    S = np.array([np.diag([1.0, 4.0]), np.diag([1.0, 4.0]), np.full((2, 2), np.nan)])
+    v, dof = qc.nis(nu, S)
+    np.testing.assert_allclose(v[:2], [2.0, 1.0])
+    assert np.isnan(v[2]) and list(dof) == [2, 1, 0]
+
+
+def test_rows_from_epochs_and_master_unaligned() -> None:
+    ep = np.array([0.0, 1.0, 2.0, 3.0])
+    rows = np.arange(0.0, 3.01, 0.25)
+    got = qc.rows_from_epochs(ep, np.array([False, False, True, False]), rows)
+    np.testing.assert_array_equal(rows[got], [1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75])
+    sig = np.full(31, 0.01 * DEG)
+    sig[10:15] = 0.5 * DEG  # 1.0-1.4 s
+    tm = np.asarray(np.arange(31) * 0.1, dtype=np.float64)
+    un = qc.master_unaligned(tm, sig, rows, 0.1 * DEG)
+    np.testing.assert_array_equal(rows[un], [1.0, 1.25])  # a row between two master epochs: either unaligned
+    fl = qc.row_flags(rows, None, tm, sig)
+    assert np.all((fl[un] & F.MASTER_UNALIGNED) != 0) and not np.any(fl[~un])
+    s = qc.summarize(rows, np.ones((rows.size, 9)), fl)
+    assert s["verdict"].startswith("check: main POS unaligned"), s
+
+
+@pytest.mark.parametrize("vf, verdict", [(1.2, "ok"), (9.0, "check")])
+def test_fit_antenna_summary_reports_the_fit(vf: float, verdict: str) -> None:
+    wing = {"degree": {"theta_x": 2}, "cv": {"theta_x": {"1": {"score": 3.0}, "2": {"score": 1.1}}},
+            "variance_factor": {"theta_x": vf}}
+    t = np.asarray(np.arange(100) * 0.1, dtype=np.float64)
+    s = qc.summarize(t, np.ones((100, 9)), F.none(100) | np.uint32(F.WING_FIT), None, wing)
+    assert "nis" not in s and s["wing_fit"]["cv_score"] == {"theta_x": 1.1}
+    assert s["verdict"].startswith(verdict)
+    assert s["flags"]["wing_fit"]["fraction"] == pytest.approx(1.0)
+
+
+@pytest.fixture(scope="module")
+def short_flight():
+    from dataclasses import replace
+
+    from dpos_core.sim.flight import Segment
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+    from dpos_core.ta import from_sim
+
+    sc = load_scenario("paper_su")
+    sc = replace(sc, segments=(Segment(20.0, name="lead_in"), Segment(25.0, heading_change_deg=30.0, name="turn")))
+    ss = SimulatedSession(sc, 1, None)
+    return from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
+
+
+@pytest.mark.parametrize("method", ["urtss", "ups", "ukf"])
+def test_pipeline_carries_the_epoch_qc(short_flight, method: str) -> None:
+    """Every method's TAResult has the NIS of its 9 matches at the epochs and, for the smoothers,
+    the separation (zero at the last epoch of each segment); across a gap the segments' measures
+    are concatenated."""
+    from dpos_core.ta import pipeline
+    from dpos_core.ta.model import TAConfig
+
+    imu, master, ins = short_flight
+    cut = imu.select((imu.t_s < 20.0) | (imu.t_s > 23.0))
+    r = pipeline.run_segments(cut, master, ins, TAConfig(attitude_sigma_deg=1.0), method, particles=20)
+    q = r.qc
+    assert q is not None and len(r.not_estimated) == 1
+    np.testing.assert_array_equal(q.epochs_s, r.epochs_s)
+    assert np.all(q.dof[1:] == 9) and np.all(np.isfinite(q.nis[1:]))
+    assert 0.2 < np.nansum(q.nis) / q.dof.sum() < 2.0
+    assert q.smoothed == (method != "ukf")
+    if q.smoothed:
+        last = [int(np.flatnonzero(q.epochs_s < 20.0)[-1]), q.epochs_s.size - 1]  # each segment's last epoch
+        np.testing.assert_allclose(q.sep_norm[last], 0.0, atol=1e-9)
+        assert np.all(np.isfinite(q.sep_norm)) and np.nanmax(q.sep / np.maximum(q.sep_dof, 1)) < 20.0
+    else:
+        assert np.all(np.isnan(q.sep))
