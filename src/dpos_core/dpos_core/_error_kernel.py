@@ -16,66 +16,10 @@ import math
 import numba as nb
 import numpy as np
 
+from ._attitude_kernel import quat_dcm, quat_mul, quat_rotvec, rotvec_quat
 from .earth import OMEGA_IE_RADPS
 
-_SMALL_ANGLE_RAD = 1e-6  # attitude.rotvec_to_quat's series threshold
 _SMALL_JR_RAD = 1e-4  # ins_errors.right_jacobian_inv's series threshold
-
-
-@nb.njit(cache=True, nogil=True)
-def rotvec_quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
-    """:func:`dpos_core.attitude.rotvec_to_quat` of one rotation vector."""
-    a2 = x * x + y * y + z * z
-    a = math.sqrt(a2)
-    if a < _SMALL_ANGLE_RAD:
-        w = 1.0 - a2 / 8.0
-        s = 0.5 - a2 / 48.0
-    else:
-        w = math.cos(0.5 * a)
-        s = math.sin(0.5 * a) / a
-    return w, s * x, s * y, s * z
-
-
-@nb.njit(cache=True, nogil=True)
-def quat_mul(aw: float, ax: float, ay: float, az: float,
-             bw: float, bx: float, by: float, bz: float) -> tuple[float, float, float, float]:
-    """Hamilton product ``a * b`` (:func:`dpos_core.attitude.quat_mul`)."""
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-@nb.njit(cache=True, nogil=True)
-def quat_rotvec(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """:func:`dpos_core.attitude.quat_to_rotvec` (normalized, non-negative scalar part first)."""
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    sn = math.sqrt(x * x + y * y + z * z)
-    if sn < 1e-12:
-        scale = 2.0 / w
-    else:
-        scale = 2.0 * math.atan2(sn, w) / sn
-    return scale * x, scale * y, scale * z
-
-
-@nb.njit(cache=True, nogil=True)
-def quat_dcm(q: tuple[float, float, float, float], out: np.ndarray) -> None:
-    """:func:`dpos_core.attitude.quat_to_dcm` of one quaternion into ``out`` (3, 3)."""
-    w, x, y, z = q
-    out[0, 0] = 1 - 2 * (y * y + z * z)
-    out[0, 1] = 2 * (x * y - w * z)
-    out[0, 2] = 2 * (x * z + w * y)
-    out[1, 0] = 2 * (x * y + w * z)
-    out[1, 1] = 1 - 2 * (x * x + z * z)
-    out[1, 2] = 2 * (y * z - w * x)
-    out[2, 0] = 2 * (x * z - w * y)
-    out[2, 1] = 2 * (y * z + w * x)
-    out[2, 2] = 1 - 2 * (x * x + y * y)
 
 
 @nb.njit(cache=True, nogil=True)

@@ -20,7 +20,21 @@ from numpy.typing import ArrayLike
 
 from dpos_core.units import FloatArray
 
+from . import _attitude_kernel as _ak
+
 _SMALL_ANGLE_RAD = 1e-6
+
+
+def _rows(kernel, x: ArrayLike, item_in: tuple[int, ...], item_out: tuple[int, ...]) -> FloatArray:
+    """Apply a row kernel of :mod:`._attitude_kernel` to ``x`` (..., *item_in): (..., *item_out)."""
+    a = np.asarray(x, dtype=float)
+    lead = a.shape[: a.ndim - len(item_in)]
+    if a.shape[a.ndim - len(item_in):] != item_in:
+        raise ValueError(f"expected shape (..., {', '.join(map(str, item_in))}), got {a.shape}")
+    flat = np.ascontiguousarray(a).reshape((-1,) + item_in)
+    out = np.empty((flat.shape[0],) + item_out)
+    kernel(flat, out)
+    return out.reshape(lead + item_out)
 
 
 def skew(v: ArrayLike) -> FloatArray:
@@ -77,70 +91,27 @@ def quat_normalize(q: ArrayLike) -> FloatArray:
 
 def quat_to_dcm(q: ArrayLike) -> FloatArray:
     """Unit quaternion ``q_nb`` -> DCM ``C_nb``, shape ``(..., 3, 3)``."""
-    q = np.asarray(q, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    C = np.empty(q.shape[:-1] + (3, 3))
-    C[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    C[..., 0, 1] = 2 * (x * y - w * z)
-    C[..., 0, 2] = 2 * (x * z + w * y)
-    C[..., 1, 0] = 2 * (x * y + w * z)
-    C[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    C[..., 1, 2] = 2 * (y * z - w * x)
-    C[..., 2, 0] = 2 * (x * z - w * y)
-    C[..., 2, 1] = 2 * (y * z + w * x)
-    C[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return C
+    return _rows(_ak.rows_quat_to_dcm, q, (4,), (3, 3))
 
 
 def dcm_to_quat(C: ArrayLike) -> FloatArray:
     """DCM ``C_nb`` -> unit quaternion ``q_nb`` (Shepperd's method, robust for all angles).
 
-    Each candidate row equals ``4 q_i * q``; the one with the largest pivot ``q_i`` is used.
+    Each candidate row ``[1 + tr, ...]`` equals ``4 q_i * q``; the one with the largest pivot
+    ``q_i`` (of ``tr, C_00, C_11, C_22``) is used, normalized, scalar part made non-negative.
     """
-    C = np.asarray(C, dtype=float)
-    m00, m01, m02 = C[..., 0, 0], C[..., 0, 1], C[..., 0, 2]
-    m10, m11, m12 = C[..., 1, 0], C[..., 1, 1], C[..., 1, 2]
-    m20, m21, m22 = C[..., 2, 0], C[..., 2, 1], C[..., 2, 2]
-    tr = m00 + m11 + m22
-    d21, d02, d10 = m21 - m12, m02 - m20, m10 - m01
-    s01, s02, s12 = m01 + m10, m02 + m20, m12 + m21
-    rows = (
-        (1.0 + tr, d21, d02, d10),
-        (d21, 1.0 + m00 - m11 - m22, s01, s02),
-        (d02, s01, 1.0 - m00 + m11 - m22, s12),
-        (d10, s02, s12, 1.0 - m00 - m11 + m22),
-    )
-    piv = np.empty(C.shape[:-2] + (4,))
-    piv[..., 0], piv[..., 1], piv[..., 2], piv[..., 3] = tr, m00, m11, m22
-    k = np.argmax(piv, axis=-1)
-    q = np.empty(C.shape[:-2] + (4,))
-    for i in range(4):
-        q[..., i] = np.choose(k, [r[i] for r in rows])
-    return quat_normalize(q)
+    return _rows(_ak.rows_dcm_to_quat, C, (3, 3), (4,))
 
 
 def rotvec_to_quat(phi: ArrayLike) -> FloatArray:
     """Rotation vector -> unit quaternion, shape ``(..., 4)`` (series below 1e-6 rad)."""
-    phi = np.asarray(phi, dtype=float)
-    a2 = np.sum(phi * phi, axis=-1)
-    a = np.sqrt(a2)
-    small = a < _SMALL_ANGLE_RAD
-    safe = np.where(small, 1.0, a)
-    q = np.empty(phi.shape[:-1] + (4,))
-    q[..., 0] = np.where(small, 1.0 - a2 / 8.0, np.cos(0.5 * safe))
-    q[..., 1:] = np.where(small, 0.5 - a2 / 48.0, np.sin(0.5 * safe) / safe)[..., None] * phi
-    return q
+    return _rows(_ak.rows_rotvec_to_quat, phi, (3,), (4,))
 
 
 def quat_to_rotvec(q: ArrayLike) -> FloatArray:
-    """Unit quaternion -> rotation vector with angle in ``[0, pi]``, shape ``(..., 3)``."""
-    q = quat_normalize(q)
-    v = q[..., 1:]
-    sn = np.sqrt(np.sum(v * v, axis=-1))
-    angle = 2.0 * np.arctan2(sn, q[..., 0])
-    small = sn < 1e-12
-    scale = np.where(small, 2.0 / np.where(small, q[..., 0], 1.0), angle / np.where(small, 1.0, sn))
-    return scale[..., None] * v
+    """Unit quaternion -> rotation vector with angle in ``[0, pi]``, shape ``(..., 3)`` (the
+    quaternion normalized first; ``2 v / w`` below ``|v|`` = 1e-12)."""
+    return _rows(_ak.rows_quat_to_rotvec, q, (4,), (3,))
 
 
 def rotvec_to_dcm(phi: ArrayLike) -> FloatArray:
@@ -150,7 +121,7 @@ def rotvec_to_dcm(phi: ArrayLike) -> FloatArray:
 
 def dcm_to_rotvec(C: ArrayLike) -> FloatArray:
     """DCM -> rotation vector (``logm``), shape ``(..., 3)``; valid up to pi."""
-    return quat_to_rotvec(dcm_to_quat(C))
+    return _rows(_ak.rows_dcm_to_rotvec, C, (3, 3), (3,))
 
 
 def attitude_error(C_nb_est: ArrayLike, C_nb_true: ArrayLike) -> FloatArray:
@@ -207,5 +178,9 @@ def mount_dcm(mount_rpy_deg: ArrayLike, rho_deg: ArrayLike) -> FloatArray:
 
 
 def compose_rotvec(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``log(expm([a x]) expm([b x]))`` (..., 3)."""
-    return quat_to_rotvec(quat_mul(rotvec_to_quat(a), rotvec_to_quat(b)))
+    """``log(expm([a x]) expm([b x]))`` (..., 3), a and b broadcast together."""
+    a_, b_ = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    fa = np.ascontiguousarray(a_).reshape(-1, 3)
+    out = np.empty_like(fa)
+    _ak.rows_compose_rotvec(fa, np.ascontiguousarray(b_).reshape(-1, 3), out)
+    return out.reshape(a_.shape)
