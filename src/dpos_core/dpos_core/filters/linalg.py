@@ -123,9 +123,9 @@ def chol(P: FloatArray, jitter: float = 1e-12) -> FloatArray:
     :class:`~dpos_core.errors.NumericalFailure`.
     """
     P = np.asarray(P, dtype=float)
-    L = chol_unrepaired(P)  # the common case (positive definite, finite); anything else below
-    if L is not None:
-        return L
+    fast = chol_unrepaired(P)  # the common case (positive definite, finite); anything else below
+    if fast is not None:
+        return fast
     P = symmetrize(P)
     try:
         L = np.linalg.cholesky(P)
