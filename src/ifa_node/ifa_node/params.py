@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from dpos_core.config.sensors import IMU_PRESETS
-from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS
+from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS, R_ESTIMATORS
 from dpos_core.ifa.pipeline import METHODS
 from dpos_ros.runtime.params import ParameterError, aircraft_config_param, datum_param, param, scenario_param
 
@@ -31,7 +31,11 @@ class IfaConfig:
         scenario: a simulated session's scenario (only to find its aircraft when aircraft_config
             is ''); '' = none.
         method: alignment filter, one of :data:`dpos_core.ifa.pipeline.METHODS` (default ``add2``).
-        window: window length of the adaptive estimation, in GNSS epochs (>= 2).
+        window: window length of the adaptive estimation, in GNSS epochs (>= 2): eq. 22's window
+            (``r_estimator: window``) and the NIS consistency window.
+        r_estimator, r_window_max, r_min_epochs, r_change_quantile: ADD2 / AEKF's estimate of the
+            GNSS noise (``changepoint``: a window of up to ``r_window_max`` epochs restarted at
+            detected noise changes; ``window``: eq. 22), see :class:`dpos_core.ifa.model.IfaFilterConfig`.
         gnss_pos_sigma_m, gnss_vel_sigma_mps: nominal GNSS noise (E, N, U) of the filter's R.
         use_reported_sigma: R from each fix's own covariance instead of the nominal sigmas.
         aligned_heading_sigma_deg: heading 1 sigma below which ALIGNED may be declared (with a
@@ -58,6 +62,12 @@ class IfaConfig:
     scenario: str = scenario_param("a simulated session's scenario: its aircraft gives the GNSS lever arm when aircraft_config is ''", default="")
     method: str = param("add2", "in-flight alignment filter", choices=METHODS)
     window: int = param(10, "window length of the adaptive estimation (GNSS epochs)", minimum=2)
+    r_estimator: str = param("changepoint", "GNSS noise estimate of add2 / aekf: changepoint (window restarted at noise changes) or window (eq. 22)",
+                             choices=R_ESTIMATORS)
+    r_window_max: int = param(30, "changepoint: longest window of the noise estimate (GNSS epochs)", minimum=2)
+    r_min_epochs: int = param(3, "changepoint: epochs before the estimate is used, also the change-test length (<= r_window_max)", minimum=1)
+    r_change_quantile: float = param(0.999, "changepoint: two-sided chi-square quantile of the change test, in (0.5, 1)",
+                                     check=lambda v: None if 0.5 < v < 1.0 else "must be in (0.5, 1)")
     gnss_pos_sigma_m: tuple[float, float, float] = param((1.5, 1.5, 1.5), "nominal GNSS position sigma E, N, U [m]", minimum=0.0, exclusive_minimum=True)
     gnss_vel_sigma_mps: tuple[float, float, float] = param((0.03, 0.03, 0.03), "nominal GNSS velocity sigma E, N, U [m/s]", minimum=0.0, exclusive_minimum=True)
     use_reported_sigma: bool = param(False, "R from each fix's covariance instead of the nominal sigmas")
@@ -101,6 +111,8 @@ class IfaConfig:
         from dpos_core.config.sensors import imu_model
         from dpos_core.ifa.model import PAPER_IFA_IMU, IfaFilterConfig
 
+        if self.r_min_epochs > self.r_window_max:
+            raise ParameterError("r_min_epochs", self.r_min_epochs, f"must be <= r_window_max ({self.r_window_max})")
         if self.imu_preset:
             imu = imu_model({"preset": self.imu_preset}, "ifa_node imu_preset")
         else:
@@ -109,7 +121,9 @@ class IfaConfig:
                                max_fix_bridge_s=self.max_fix_bridge_s, predict_interval_s=self.predict_interval_s,
                                restart_on_divergence=self.restart_on_divergence, bias_feedback=self.bias_feedback,
                                gyro_axis_errors=self.gyro_axis_errors,
-                               vertical=self.vertical, window=self.window,
+                               vertical=self.vertical, window=self.window, r_estimator=self.r_estimator,
+                               r_window_max=self.r_window_max, r_min_epochs=self.r_min_epochs,
+                               r_change_quantile=self.r_change_quantile,
                                gnss_pos_sigma_m=_enu3("gnss_pos_sigma_m", self.gnss_pos_sigma_m),
                                gnss_vel_sigma_mps=_enu3("gnss_vel_sigma_mps", self.gnss_vel_sigma_mps), use_reported_sigma=self.use_reported_sigma,
                                aligned_heading_sigma_deg=self.aligned_heading_sigma_deg, heading_sigma_deg=self.heading_sigma_deg)

@@ -61,10 +61,13 @@ covariance ``C_v``, guarded the same way.  Jacobians are central differences of 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.linalg import cho_solve, solve_triangular
+from scipy.stats import chi2
 
 from dpos_core.errors import NumericalFailure
 from dpos_core.units import FloatArray
@@ -256,6 +259,155 @@ class InnovationWindow:
         return w
 
 
+@lru_cache(maxsize=64)
+def _chi2_ppf(q: float, dof: int) -> float:
+    """Chi-square quantile (cached: the change test asks for the same few at every epoch)."""
+    return float(chi2.ppf(q, dof))
+
+
+class ChangePointWindow:
+    """Innovation window of adaptive length with a pooled, debiased noise estimate: ADD2's R
+    estimate ([Fang2012] eq. 21-22) for a measurement noise that is piecewise constant with jumps.
+
+    The noise model is ``R_k = diag(s_g,k^2 R_nom,i)`` with one scale per channel group ``g``
+    (``groups``; default one per channel): each group's scale is estimated by pooling the
+    whitened, debiased outer products of its channels over the epochs since the last detected
+    change (at most ``N_max``)::
+
+        s_g^2 = 1/(n |g|) sum_{k in window} sum_{i in g} (z_k,i^2 - (H P_k H^T)_ii) / R_nom,i
+
+    (the diagonal of eq. 22 minus each innovation's own state part, :meth:`InnovationWindow.noise_cov`).
+    Pooling ``|g|`` channels and a window longer than eq. 22's N = 10 lower the estimate's
+    relative variance from ``2/N`` (one channel, N epochs) to ``2/(n |g|)``.  A longer window alone
+    would lag a jump; so each epoch tests the last ``m`` epochs' normalized innovations against
+    the scale estimated from the epochs before them::
+
+        T = sum_{last m epochs} sum_{i in g} z_k,i^2 / ((H P_k H^T)_ii + s_g^2 R_nom,i)  ~  chi^2(m |g|)
+
+    and a ``T`` beyond the two-sided ``quantile`` (upper ``quantile``, lower ``1 - quantile``)
+    is a change: the group's window restarts from those ``m`` epochs.  An estimate is available
+    once ``n_min`` epochs are held (:attr:`full`).
+
+    Args:
+        N_max: longest window [epochs] (>= n_min).
+        n_min: epochs before the estimate is used (>= 1), also the test length ``m``.
+        groups: channel index groups sharing one scale, e.g. ``((0, 1, 2), (3, 4, 5))`` for GNSS
+            position and velocity; ``None``: each channel its own.
+        quantile: chi-square quantile of the change test, in (0.5, 1).
+    """
+
+    def __init__(self, N_max: int = 30, n_min: int = 3, groups: tuple[tuple[int, ...], ...] | None = None,
+                 quantile: float = 0.999) -> None:
+        if int(n_min) < 1 or int(N_max) < int(n_min):
+            raise ValueError(f"need 1 <= n_min <= N_max, got n_min={n_min}, N_max={N_max}")
+        if not 0.5 < float(quantile) < 1.0:
+            raise ValueError(f"change-test quantile must be in (0.5, 1), got {quantile}")
+        self.N = int(N_max)
+        self.n_min = int(n_min)
+        self.groups = None if groups is None else tuple(tuple(int(i) for i in g) for g in groups)
+        self.quantile = float(quantile)
+        self._z2: list[FloatArray] = []  # z_k,i^2 (p,)
+        self._pst: list[FloatArray] = []  # (H P_k H^T)_ii (p,)
+        self._start: FloatArray | None = None  # per channel: index in the buffer where its group's window starts
+        self._tested = 0  # epochs of the buffer that went through the change test
+        self._pushed = 0
+        self.changes: list[int] = []  #: pushes (1-based count) whose test detected a change
+
+    def __len__(self) -> int:
+        return len(self._z2)
+
+    @property
+    def full(self) -> bool:
+        """Every group's window holds at least ``n_min`` epochs."""
+        if self._start is None:
+            return False
+        return bool(len(self._z2) - np.max(self._start) >= self.n_min)
+
+    def _group_index(self, p: int) -> list[NDArray[np.int_]]:
+        gs = [tuple(range(p))[i:i + 1] for i in range(p)] if self.groups is None else self.groups
+        return [np.asarray(g, dtype=int) for g in gs]
+
+    def push(self, nu: FloatArray, P_state: FloatArray | None = None) -> None:
+        """Add an innovation (p,) and the state part ``H P H^T`` (p, p) of its covariance
+        (required).  A non-finite innovation raises :class:`~dpos_core.errors.NumericalFailure`."""
+        nu = np.asarray(nu, dtype=float)
+        if nu.ndim != 1:
+            raise ValueError(f"ChangePointWindow takes one innovation (p,), got shape {nu.shape}")
+        if not np.all(np.isfinite(nu)):
+            raise NumericalFailure("innovation is not finite (the prediction diverged)", what="innovation window")
+        if P_state is None:
+            raise ValueError("ChangePointWindow.push needs the state part H P H^T of the innovation covariance")
+        if self._start is None:
+            self._start = np.zeros(nu.size)
+        self._z2.append(nu * nu)
+        self._pst.append(np.diag(np.asarray(P_state, dtype=float)).copy())
+        self._pushed += 1
+        if len(self._z2) > self.N:
+            self._z2.pop(0)
+            self._pst.pop(0)
+            self._start = np.maximum(self._start - 1, 0)
+            self._tested = max(self._tested - 1, 0)
+
+    def _scale(self, g: NDArray[np.int_], a: int, b: int, R: FloatArray) -> float:
+        """Pooled debiased scale of group ``g`` over buffer epochs ``[a, b)`` (see class docstring)."""
+        z2 = np.asarray(self._z2[a:b])[:, g]
+        ps = np.asarray(self._pst[a:b])[:, g]
+        return float(np.mean((z2 - ps) / R[g]))
+
+    def noise_estimate(self, R: FloatArray, r_floor: float = 0.0) -> FloatArray:
+        """Run the change test over the epochs not tested yet, then return the estimate
+        ``diag(s_g^2 R_nom,i)`` (p, p) of the measurement noise (class docstring; ``R`` (p, p) is the
+        nominal covariance, its diagonal is used).  The scale in the test is floored at ``r_floor``
+        (the guard's floor), so that an estimate that fell below it does not raise false changes."""
+        if self._start is None:
+            raise ValueError("empty innovation window")
+        Rd = np.diag(np.asarray(R, dtype=float))
+        n, m = len(self._z2), self.n_min
+        idx = self._group_index(Rd.size)
+        hi = {g.size: _chi2_ppf(self.quantile, m * g.size) for g in idx}
+        lo = {g.size: _chi2_ppf(1.0 - self.quantile, m * g.size) for g in idx}
+        for k in range(max(self._tested, 0) + 1, n + 1):  # epoch k-1 is the newest of the test
+            for g in idx:
+                a = int(self._start[g[0]])
+                if k - m - a < m:  # the reference part (before the last m) needs m epochs itself
+                    continue
+                s2 = max(self._scale(g, a, k - m, Rd), r_floor)
+                z2 = np.asarray(self._z2[k - m:k])[:, g]
+                ps = np.asarray(self._pst[k - m:k])[:, g]
+                T = float(np.sum(z2 / (ps + s2 * Rd[g])))
+                if T > hi[g.size] or T < lo[g.size]:
+                    self._start[g] = k - m
+                    self.changes.append(self._pushed - n + k)
+        self._tested = n
+        scale = np.empty(Rd.size)
+        for g in idx:
+            scale[g] = self._scale(g, int(self._start[g[0]]), n, Rd)
+        return np.diag(scale * Rd)
+
+    def copy(self) -> ChangePointWindow:
+        w = ChangePointWindow(self.N, self.n_min, self.groups, self.quantile)
+        w._z2 = [z.copy() for z in self._z2]
+        w._pst = [p.copy() for p in self._pst]
+        w._start = None if self._start is None else self._start.copy()
+        w._tested, w._pushed = self._tested, self._pushed
+        w.changes = list(self.changes)
+        return w
+
+
+#: the innovation windows the adaptive updates take
+NoiseWindow = InnovationWindow | ChangePointWindow
+
+
+def window_noise_estimate(window: NoiseWindow, P_state: FloatArray, R: FloatArray, debias: bool = False,
+                          r_floor: float = 0.0) -> FloatArray:
+    """The unguarded measurement-noise estimate (p, p) of a full window: ``D_k - H P H^T`` (eq. 22
+    minus the current state part), ``debias``: :meth:`InnovationWindow.noise_cov`; a
+    :class:`ChangePointWindow` gives its pooled estimate (``debias`` does not apply: it is debiased)."""
+    if isinstance(window, ChangePointWindow):
+        return window.noise_estimate(R, r_floor)
+    return window.noise_cov() if debias else symmetrize(window.cov() - P_state)
+
+
 def guard_innovation_cov(D: FloatArray, P_state: FloatArray, R: FloatArray, r_floor: float = 1e-2,
                          diagonal: bool = False, r_ceiling: float = np.inf) -> tuple[FloatArray, FloatArray]:
     """Implied measurement noise of a windowed innovation covariance, guarded (module docstring).
@@ -293,7 +445,7 @@ def guard_noise_cov(R_hat: FloatArray, R: FloatArray, r_floor: float = 1e-2, dia
     return symmetrize(L @ Wc @ L.T)
 
 
-def add2_update(x: FloatArray, S: FloatArray, y: FloatArray, h: Fn, SR: FloatArray, window: InnovationWindow,
+def add2_update(x: FloatArray, S: FloatArray, y: FloatArray, h: Fn, SR: FloatArray, window: NoiseWindow,
                 residual: Residual | None = None, r_floor: float = 1e-2, step: float = H_STEP,
                 diagonal: bool = False, debias: bool = False, r_ceiling: float = np.inf,
                 adapt: bool = True) -> tuple[DD2Update, FloatArray]:
@@ -314,11 +466,8 @@ def add2_update(x: FloatArray, S: FloatArray, y: FloatArray, h: Fn, SR: FloatArr
     P_state = symmetrize(fac.S1 @ fac.S1.T + fac.S2 @ fac.S2.T)
     window.push(nu, P_state)
     if window.full and adapt:
-        if debias:
-            R_eff = guard_noise_cov(window.noise_cov(), R, r_floor, diagonal, r_ceiling)
-            P_gain = symmetrize(P_state + R_eff)
-        else:
-            R_eff, P_gain = guard_innovation_cov(window.cov(), P_state, R, r_floor, diagonal, r_ceiling)
+        R_eff = guard_noise_cov(window_noise_estimate(window, P_state, R, debias, r_floor), R, r_floor, diagonal, r_ceiling)
+        P_gain = symmetrize(P_state + R_eff)
         SR_eff = chol(R_eff)
     else:
         R_eff, P_gain, SR_eff = R, P_state + R, SR
@@ -337,7 +486,7 @@ def aekf_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, rel_step: f
     return xp, symmetrize(F @ P @ F.T + Q), F
 
 
-def aekf_update(x: FloatArray, P: FloatArray, y: FloatArray, h: Fn, R: FloatArray, window: InnovationWindow,
+def aekf_update(x: FloatArray, P: FloatArray, y: FloatArray, h: Fn, R: FloatArray, window: NoiseWindow,
                 residual: Residual | None = None, r_floor: float = 1e-2, rel_step: float = 1e-6,
                 diagonal: bool = False, debias: bool = False, r_ceiling: float = np.inf, adapt: bool = True
                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -353,11 +502,9 @@ def aekf_update(x: FloatArray, P: FloatArray, y: FloatArray, h: Fn, R: FloatArra
     nu = res(np.asarray(y, dtype=float), h(x[None])[0])
     HPH = symmetrize(H @ P @ H.T)
     window.push(nu, HPH)
-    if window.full and adapt and debias:
-        R_used = guard_noise_cov(window.noise_cov(), R, r_floor, diagonal, r_ceiling)
+    if window.full and adapt:
+        R_used = guard_noise_cov(window_noise_estimate(window, HPH, R, debias, r_floor), R, r_floor, diagonal, r_ceiling)
         S_nu = symmetrize(HPH + R_used)
-    elif window.full and adapt:
-        R_used, S_nu = guard_innovation_cov(window.cov(), HPH, R, r_floor, diagonal, r_ceiling)
     else:
         R_used, S_nu = R, symmetrize(HPH + R)
     K = gain(P @ H.T, S_nu)

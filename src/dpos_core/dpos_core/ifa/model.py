@@ -107,6 +107,8 @@ _NAV_ORDER = np.r_[PHI, DV, DP]
 GYRO_AXIS_ERRORS = ("auto", "states", "noise")
 #: when the bias estimates are fed back (IfaFilterConfig.bias_feedback)
 BIAS_FEEDBACK = ("auto", "aligned", "always")
+
+R_ESTIMATORS = ("window", "changepoint")
 #: [Fang2012] Table 1: the main IMU of the seed's simulation
 PAPER_IFA_IMU = ImuErrorModel(gyro_bias_deg_h=0.02, gyro_noise_deg_h=0.01, accel_bias_ug=100.0, accel_noise_ug=50.0)
 
@@ -124,6 +126,16 @@ class IfaFilterConfig:
         adapt_debias: estimate R from each innovation minus its own state part
             (dd2.InnovationWindow.noise_cov) instead of the window covariance minus the current one
             (off: eq. 22-23 as printed; on was less robust on paper_ifa).
+        r_estimator: ADD2 / AEKF's estimate of the GNSS noise: ``changepoint`` (default,
+            :class:`~dpos_core.filters.dd2.ChangePointWindow`: each channel's variance from its
+            debiased innovations since the last detected noise change, at most ``r_window_max``
+            epochs, used from the first epoch on, through the fine-phase restart) or ``window``
+            (eq. 22's window of ``window`` epochs, adapting only in the fine phase).  paper_ifa,
+            seeds 11-16 (docs: README, in-flight alignment): final level errors 1.12-1.16x and
+            heading 1.25x those of DD2 with the true GNSS sigmas (``window``: 1.6-6.7x).
+        r_window_max, r_min_epochs, r_change_quantile: the change-point window's longest window,
+            the epochs before its estimate is used (also the change-test length) and the
+            two-sided chi-square quantile of its change test.
         lever_arm_coupling: include the attitude error's lever-arm term in h (module docstring).
         gnss_pos_sigma_m, gnss_vel_sigma_mps: nominal (E, N, U) GNSS noise of the filter's R.
         use_reported_sigma: take R from each fix's own sigmas instead of the nominal ones.
@@ -186,6 +198,10 @@ class IfaFilterConfig:
     r_ceiling: float = 100.0
     adapt_diagonal: bool = True
     adapt_debias: bool = False
+    r_estimator: str = "changepoint"
+    r_window_max: int = 30
+    r_min_epochs: int = 3
+    r_change_quantile: float = 0.999
     lever_arm_coupling: bool = False
     coarse_heading_sigma_deg: float = 1.0
     fine_heading_sigma_deg: float = 3.0
@@ -228,6 +244,12 @@ class IfaFilterConfig:
             raise ValueError("predict_interval_s must be > 0, diverged_nis_factor > 1 and diverged_epochs >= 1")
         if self.gyro_axis_errors not in GYRO_AXIS_ERRORS:
             raise ValueError(f"gyro_axis_errors must be one of {GYRO_AXIS_ERRORS}, got {self.gyro_axis_errors!r}")
+        if self.r_estimator not in R_ESTIMATORS:
+            raise ValueError(f"r_estimator must be one of {R_ESTIMATORS}, got {self.r_estimator!r}")
+        if not 1 <= self.r_min_epochs <= self.r_window_max:
+            raise ValueError(f"need 1 <= r_min_epochs <= r_window_max, got {self.r_min_epochs} and {self.r_window_max}")
+        if not 0.5 < self.r_change_quantile < 1.0:
+            raise ValueError(f"r_change_quantile must be in (0.5, 1), got {self.r_change_quantile}")
         if self.bias_feedback not in BIAS_FEEDBACK:
             raise ValueError(f"bias_feedback must be one of {BIAS_FEEDBACK}, got {self.bias_feedback!r}")
         if not np.isfinite(self.gnss_time_offset_s):

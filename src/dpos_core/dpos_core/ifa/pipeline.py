@@ -49,7 +49,9 @@ from dpos_core.units import DEG, FloatArray
 from ..attitude import dcm_to_quat, quat_to_dcm
 from ..errors import NumericalFailure, RejectedInput
 from ..filters.dd2 import (
+    ChangePointWindow,
     InnovationWindow,
+    NoiseWindow,
     add2_update,
     aekf_predict,
     aekf_update,
@@ -68,6 +70,16 @@ from .states import AlignmentState
 STAMP_TOL_S = 1e-6
 
 METHODS = ("add2", "dd2", "aekf")
+
+
+def noise_window(cfg: IfaFilterConfig) -> NoiseWindow:
+    """The innovation window of ADD2 / AEKF's R estimate (``cfg.r_estimator``): ``window``, eq. 22's
+    moving window of ``cfg.window`` epochs (:class:`~dpos_core.filters.dd2.InnovationWindow`), or
+    ``changepoint``, up to ``cfg.r_window_max`` epochs per channel, restarted at detected noise
+    changes (:class:`~dpos_core.filters.dd2.ChangePointWindow`, one scale per channel)."""
+    if cfg.r_estimator == "window":
+        return InnovationWindow(cfg.window)
+    return ChangePointWindow(cfg.r_window_max, cfg.r_min_epochs, None, cfg.r_change_quantile)
 
 
 @dataclass(frozen=True)
@@ -132,7 +144,7 @@ class _Engine:
         self.x = x0
         self.S = chol(P0)  # square-root form (DD2 / ADD2)
         self.P = P0  # covariance form (AEKF)
-        self.window = InnovationWindow(cfg.window)  # adaptation (ADD2 / AEKF)
+        self.window = noise_window(cfg)  # adaptation (ADD2 / AEKF)
         self.nis_hist: list[float] = []
         self.nis_used_hist: list[float] = []  #: NIS with r_ceiling x R (divergence), last ``window`` epochs
         self.last_fix_t: float | None = None
@@ -237,10 +249,12 @@ class _Engine:
                 x, S = pr.x, pr.S
         y, h, R = m.measurement(fix)
         SR = chol(R)
-        # adaptation gate: while the predicted heading sigma is large the innovations are
-        # dominated by the nonlinear heading error, not by the GNSS noise (module docstring)
-        adapt = self.fine
-        window = self.window.copy() if adapt else InnovationWindow(cfg.window)
+        # adaptation gate of eq. 22's window: while the predicted heading sigma is large the innovations
+        # are dominated by the nonlinear heading error, which the window minus the *current* state part
+        # takes for GNSS noise; the change-point window subtracts each innovation's own state part and
+        # adapts from the first epoch (module docstring)
+        adapt = self.fine or cfg.r_estimator == "changepoint"
+        window = self.window.copy() if adapt else noise_window(cfg)
         if self.method == "aekf":
             Hs = _jac(h, x, P)
             Py_model = symmetrize(Hs @ P @ Hs.T + R)  # model innovation covariance (nominal R) for the NIS
@@ -303,7 +317,8 @@ class _Engine:
                 P_fine[np.ix_(gi, gi)] = P_cur[np.ix_(gi, gi)]
             x, P = x_fine, P_fine
             S = chol(P)
-            window = InnovationWindow(cfg.window)
+            if cfg.r_estimator == "window":
+                window = noise_window(cfg)
         m.start_interval()
         self.x, self.S, self.P, self.window = x, S, P, window
         self.last_fix_t = fix.t_s
