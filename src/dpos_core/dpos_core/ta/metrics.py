@@ -79,3 +79,57 @@ def average(stats: list[dict]) -> dict:
         "rmse": {k: float(np.mean([s["rmse"][k] for s in stats])) for k in keys},
         "std": {k: float(np.mean([s["std"][k] for s in stats])) for k in keys},
     }
+
+
+# ---------------------------------------------------------------------------- consistency
+
+#: the 9 components of an antenna's reported 1-sigma (AntennaSolution.sigma, (N, 9)): attitude
+#: error about local E, N, U [rad], velocity E, N, U [m/s], position E, N, U [m]
+CONS_KEYS = ("rot_e", "rot_n", "rot_u", "vel_e", "vel_n", "vel_u", "pos_e", "pos_n", "pos_u")
+
+
+def state_errors(est: NavSeries, truth: NavSeries) -> FloatArray:
+    """Errors (N, 9) in the components of :data:`CONS_KEYS`, est - truth at the same stamps: the
+    attitude error phi^n (``attitude_error``: ``C_est = expm(-[phi x]) C_true``), ENU velocity and
+    ENU position differences."""
+    from ..attitude import attitude_error
+
+    out = np.empty((est.t_s.shape[0], 9))
+    out[:, 0:3] = attitude_error(est.C_nb, truth.C_nb)
+    out[:, 3:6] = est.vel_n_mps - truth.vel_n_mps
+    out[:, 6:9] = earth.dllh_to_enu(est.llh - truth.llh, truth.llh)
+    return out
+
+
+def consistency(err: FloatArray, sigma: FloatArray) -> dict:
+    """Whether reported 1-sigma ``sigma`` (N, 9) fit the errors ``err`` (N, 9), per component:
+    ``within_2sigma`` the fraction of |e| <= 2 sigma (0.954 for a Gaussian error with that sigma),
+    ``nees`` the mean of e^2 / sigma^2 (1 for an honest sigma), ``n`` the samples."""
+    e, s = np.asarray(err, dtype=float), np.asarray(sigma, dtype=float)
+    ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(s) & (s > 0), axis=1)
+    z2 = (e[ok] / s[ok]) ** 2
+    n = int(z2.shape[0])
+    if n == 0:
+        return {"n": 0, "within_2sigma": {}, "nees": {}}
+    return {"n": n, "within_2sigma": {k: float(np.mean(z2[:, i] <= 4.0)) for i, k in enumerate(CONS_KEYS)},
+            "nees": {k: float(np.mean(z2[:, i])) for i, k in enumerate(CONS_KEYS)}}
+
+
+def average_consistency(items: list[dict]) -> dict:
+    """The pooled :func:`consistency` of several (over antennas or runs), weighted by their samples."""
+    items = [c for c in items if c and c.get("n")]
+    n = sum(c["n"] for c in items)
+    if n == 0:
+        return {"n": 0, "within_2sigma": {}, "nees": {}}
+    return {"n": n, **{part: {k: float(sum(c[part][k] * c["n"] for c in items) / n) for k in CONS_KEYS}
+                       for part in ("within_2sigma", "nees")}}
+
+
+def nees_bounds(runs: int, p: float = 0.95, dof: int = 1) -> tuple[float, float]:
+    """Two-sided ``p`` bounds of the average over ``runs`` independent runs of a normalized squared
+    error with ``dof`` degrees of freedom per run (chi^2(runs dof) / runs), the ANEES test of
+    Bar-Shalom et al. (2001) sec. 5.4 per epoch."""
+    from scipy.stats import chi2
+
+    m = runs * dof
+    return float(chi2.ppf((1 - p) / 2, m) / runs), float(chi2.ppf((1 + p) / 2, m) / runs)

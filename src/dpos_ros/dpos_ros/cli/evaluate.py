@@ -24,6 +24,8 @@ from pathlib import Path
 from dpos_core.config import ConfigError, config_text
 from dpos_core.ifa.evaluate import is_ifa_scenario
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
+from dpos_core.sim.mismatch import CASES as MISMATCH_CASES
+from dpos_core.sim.mismatch import case_names as mismatch_cases
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim
@@ -66,6 +68,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--duration", type=float)
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--mismatch", metavar="CASE[,CASE..]|all",
+                    help="the mismatch suite (docs/mismatch.md): simulate each case's truth while the filter keeps the "
+                         f"nominal configuration; oracle added to --methods (default ups,urtss). Cases: {', '.join(MISMATCH_CASES)}")
     ifa = ap.add_argument_group("in-flight alignment scenarios (paper_ifa)")
     ifa.add_argument("--initial-heading-error", type=float, metavar="DEG", help="default: the scenario's ifa block")
     ifa.add_argument("--heading-sweep", metavar="DEG,DEG,..", help="also run these initial heading errors, both signs")
@@ -108,6 +113,18 @@ def main(argv: list[str] | None = None) -> int:
         methods = methods_of(args.methods, ifa=is_ifa_scenario(scenario))
     except ValueError as e:
         ap.error(str(e))
+    if args.mismatch is not None:
+        if is_ifa_scenario(scenario):
+            ap.error("--mismatch is for transfer-alignment scenarios")
+        try:
+            cases = mismatch_cases(args.mismatch)
+        except ValueError as e:
+            ap.error(str(e))
+        if args.duration is not None and args.duration < 1.0 / TA_FILTER_RATE_HZ:
+            ap.error(f"--duration must be >= {1.0 / TA_FILTER_RATE_HZ:g} s for transfer alignment, got {args.duration:g}")
+        from dpos_ros.products.mismatch import main_mismatch
+
+        return main_mismatch(args, scenario, methods, cases)
     if is_ifa_scenario(scenario):
         from dpos_ros.products.ifa import main_ifa
 
@@ -144,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     for m in methods:
         names = per_method[m][0].keys()
         ant = {n: M.average([{"rmse": run[n]["rmse"], "std": run[n]["std"]} for run in per_method[m]]) for n in names}
-        combined[m] = ({n: {**ant[n]} for n in names}, timing[m])
+        cons = {n: M.average_consistency([run[n].get("consistency", {}) for run in per_method[m]]) for n in names}
+        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {})} for n in names}, timing[m])
     metrics = metrics_json(sess, combined, runs=args.runs, scenario=scenario.name)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")

@@ -292,6 +292,13 @@ def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution]) -> dic
             m_true = _interp_llh(tm.t_s, tm.llh, est.t_s)
         err = M.errors(est, tru, m_est, m_true)
         out[name] = {**M.segment_stats(err, est.t_s, segs), "errors": err, "t_s": est.t_s}
+        if a.sigma is not None:  # the reported sigma against the errors, over the same segments
+            sel = np.zeros(est.t_s.size, dtype=bool)
+            for t_a, t_b in segs.values():
+                sel |= (est.t_s >= t_a) & (est.t_s <= t_b)
+            e9, s9 = M.state_errors(est, tru)[sel], a.sigma[ok][sel]
+            out[name]["consistency"] = M.consistency(e9, s9)
+            out[name]["nsq"] = (e9 / s9) ** 2  # (n, 9) normalized squared errors, for the ANEES over runs
     return out
 
 
@@ -457,6 +464,11 @@ def metrics_json(sess: RecordedSession | None, per_method: dict[str, tuple[dict,
     for method, (ev, timing) in per_method.items():
         ants = {name: {"rmse": e["rmse"], "std": e["std"]} for name, e in ev.items()}
         methods[method] = {"mean": M.average(list(ants.values())) if ants else {}, "antennas": ants, "timing": timing}
+        cons = {name: e["consistency"] for name, e in ev.items() if e.get("consistency")}
+        if cons:  # the reported sigma against the errors (M.consistency), per antenna and pooled
+            for name, c in cons.items():
+                ants[name]["consistency"] = c
+            methods[method]["consistency"] = M.average_consistency(list(cons.values()))
     return out
 
 
@@ -494,6 +506,14 @@ def report_md(metrics: dict, title: str, paper: bool | None = None) -> str:
             row += [f"{ur:.4f}", f"{us:.4f}", f"{pr:.4f}", f"{ps:.4f}"]
         lines.append("| " + " | ".join(row) + " |")
     lines.append("")
+    cons = {m: metrics["methods"][m]["consistency"] for m in methods if metrics["methods"][m].get("consistency", {}).get("n")}
+    if cons:
+        lines += ["Reported 1-sigma against the errors, pooled over the antennas and runs: fraction of errors within "
+                  "2 sigma (0.95 when honest) / mean e^2/sigma^2 (1 when honest); attitude about local E, N, U.", "",
+                  "| method | " + " | ".join(M.CONS_KEYS) + " |", "|---|" + "---|" * len(M.CONS_KEYS)]
+        for m, c in cons.items():
+            lines.append(f"| {m} | " + " | ".join(f"{c['within_2sigma'][k]:.2f} / {c['nees'][k]:.2g}" for k in M.CONS_KEYS) + " |")
+        lines.append("")
     for m in methods:
         t = metrics["methods"][m].get("timing", {})
         if t.get("data_s"):

@@ -1,0 +1,273 @@
+"""The mismatch suite (issue #15): simulated sessions whose world differs from what the transfer
+alignment's configuration says.
+
+Every other evaluation simulates exactly the filter's model.  Here each named case of
+:data:`CASES` changes the *simulator's* scenario (the truth, the sensors and so the recorded
+streams) while the filter keeps the nominal aircraft and scenario the recording carries.  Each
+case also says what the oracle (:mod:`dpos_core.ta.oracle`, the model linearized about the truth)
+is told: the true aircraft where its model can express the difference (true flexure statistics,
+true lever arm, true sensor noise model), and what it cannot express (``oracle_limits``).
+
+How a case reaches the recording:
+
+* flexure statistics, the modal wing, the lever arm, the sub-IMU's sensor model: the truth
+  scenario's aircraft (:func:`truth_scenario`), simulated by :class:`MismatchedSession` exactly as
+  a nominal scenario is (:class:`~dpos_core.sim.session.SimulatedSession`);
+* a sub-IMU time offset: its samples are stamped ``t + offset`` in the main system's time (its
+  clock runs late), and its truth and its antennas' truth are sampled at those stamps in the main
+  system's time: the product is compared with where the antenna really was at the stamp;
+* the main-system reference: first-order Gauss-Markov errors (:class:`CorrelatedNavErrors`)
+  instead of white noise, with the process's marginal sigmas as the reported covariance.
+
+The filter's side is untouched: ``dpos-eval --mismatch`` passes the nominal aircraft to the
+transfer alignment and embeds the nominal aircraft file in the recording's metadata.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.signal import lfilter
+
+from .. import earth
+from ..attitude import dcm_to_quat, quat_to_dcm
+from ..config.aircraft import AircraftConfig, load_aircraft
+from ..config.sensors import ImuErrorModel, imu_model
+from ..frames import C_nb_from_hpr, hpr_from_C_nb, hpr_sigma_to_rotation_cov
+from ..series import ImuSeries, NavSeries
+from ..units import DEG, FloatArray
+from .scenario import Scenario
+from .session import SimulatedSession
+
+
+@dataclass(frozen=True)
+class CorrelatedNavErrors:
+    """First-order Gauss-Markov errors of a main-system navigation (an in-flight-aligned
+    GNSS/INS), stationary from the start, one independent process per component.
+
+    Attributes: 1 sigma and correlation time of heading, pitch and roll [deg, s], of each ENU
+    velocity component [m/s, s] and of each ENU position component [m, s].
+    """
+
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
+    att_tau_s: float
+    vel_mps: float
+    vel_tau_s: float
+    pos_m: float
+    pos_tau_s: float
+
+    def draw(self, t_s: FloatArray, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Errors at the (uniform) times ``t_s`` (N,): heading/pitch/roll [rad] (N, 3), velocity
+        ENU [m/s] (N, 3), position ENU [m] (N, 3)."""
+        dt = float(np.median(np.diff(t_s))) if t_s.size > 1 else 1.0
+        att = _gauss_markov(np.array([self.heading_deg, self.pitch_deg, self.roll_deg]) * DEG, self.att_tau_s, dt, t_s.size, rng)
+        vel = _gauss_markov(np.full(3, self.vel_mps), self.vel_tau_s, dt, t_s.size, rng)
+        pos = _gauss_markov(np.full(3, self.pos_m), self.pos_tau_s, dt, t_s.size, rng)
+        return att, vel, pos
+
+
+def _gauss_markov(sigma: FloatArray, tau_s: float, dt_s: float, n: int, rng: np.random.Generator) -> FloatArray:
+    """(n, 3) stationary first-order Gauss-Markov samples with steady-state 1 sigma ``sigma`` (3,)."""
+    a = float(np.exp(-dt_s / tau_s))
+    w = rng.normal(0.0, 1.0, (n, 3)) * sigma * np.sqrt(1.0 - a * a)
+    x0 = rng.normal(0.0, 1.0, 3) * sigma
+    out, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * x0)[None, :])
+    return np.asarray(out)
+
+
+@dataclass(frozen=True)
+class MismatchCase:
+    """One case of the suite.
+
+    Attributes:
+        name: the ``--mismatch`` name.
+        description: what differs from the filter's configuration (one line, for the report).
+        aircraft: the true aircraft from the nominal one (None: the nominal one).
+        time_offset_s: the sub-IMUs' stamps minus the main system's time of the same instant.
+        master_ref: the main-system reference's errors (None: the scenario's white noise).
+        oracle_limits: what the oracle's model cannot express of the case ('' = it knows all of it).
+    """
+
+    name: str
+    description: str
+    aircraft: Callable[[AircraftConfig], AircraftConfig] | None = None
+    time_offset_s: float = 0.0
+    master_ref: CorrelatedNavErrors | None = None
+    oracle_limits: str = ""
+
+
+def _flexure(scale_tau: float = 1.0, scale_var: float = 1.0) -> Callable[[AircraftConfig], AircraftConfig]:
+    def f(ac: AircraftConfig) -> AircraftConfig:
+        fl = ac.flexure
+        (t0, t1, t2), (v0, v1, v2) = fl.tau_s, fl.variance_deg2
+        return replace(ac, flexure=replace(fl, tau_s=(t0 * scale_tau, t1 * scale_tau, t2 * scale_tau),
+                                           variance_deg2=(v0 * scale_var, v1 * scale_var, v2 * scale_var)))
+    return f
+
+
+#: the modal wing of this aircraft (paper_su_pair_modal's: 12.5 m semi-span, bending 1.0 / 6.27 Hz,
+#: torsion 4 Hz, in-plane 2 Hz, 0.15/0.01/0.01 deg^2 at 5 m, 0.3 m tip deflection per g)
+MODAL_WING_AIRCRAFT = "paper_su_pair_modal"
+
+
+def _modal_wing(ac: AircraftConfig) -> AircraftConfig:
+    modal = load_aircraft(MODAL_WING_AIRCRAFT)
+    return replace(ac, wing=modal.wing, flexure=modal.flexure)
+
+
+#: direction of the lever-arm survey error (unit vector, master FLU axes): equal parts on every axis,
+#: outward along the span for a right-wing sub-IMU (FLU y < 0)
+LEVER_ARM_ERROR_DIRECTION = np.array([1.0, -1.0, 1.0]) / np.sqrt(3.0)
+
+
+def _lever_arm(error_m: float) -> Callable[[AircraftConfig], AircraftConfig]:
+    """The true sub-IMU lever arms are the surveyed (nominal) ones plus ``error_m`` along
+    :data:`LEVER_ARM_ERROR_DIRECTION` (mirrored in y on the left wing: outward on both)."""
+    def f(ac: AircraftConfig) -> AircraftConfig:
+        subs = []
+        for s in ac.sub_imus:
+            d = LEVER_ARM_ERROR_DIRECTION * np.array([1.0, -1.0 if s.lever_arm_m[1] > 0 else 1.0, 1.0]) * error_m
+            x, y, z = (float(v) for v in np.asarray(s.lever_arm_m) + d)
+            subs.append(replace(s, lever_arm_m=(x, y, z)))
+        return replace(ac, sub_imus=tuple(subs))
+    return f
+
+
+def _sub_imu(change: Callable[[ImuErrorModel], ImuErrorModel]) -> Callable[[AircraftConfig], AircraftConfig]:
+    def f(ac: AircraftConfig) -> AircraftConfig:
+        return replace(ac, sub_imus=tuple(replace(s, imu=change(s.imu)) for s in ac.sub_imus))
+    return f
+
+
+#: scale factor and axis misalignment of a tactical unit, gyro and accelerometer alike: 300 ppm
+#: and 0.05 deg (0.87 mrad) per term, between the HG1700 class (gyro scale factor 150 ppm, axis
+#: alignment 0.5 mrad) and the STIM300 class (scale-factor accuracy 500 ppm, misalignment 1 mrad)
+SCALE_PPM = 300.0
+MISALIGNMENT_MRAD = 0.05 * DEG * 1e3
+
+
+def _scale_misalignment(m: ImuErrorModel) -> ImuErrorModel:
+    return replace(m, gyro_scale_ppm=SCALE_PPM, accel_scale_ppm=SCALE_PPM,
+                   gyro_misalignment_mrad=MISALIGNMENT_MRAD, accel_misalignment_mrad=MISALIGNMENT_MRAD)
+
+
+def _tactical(m: ImuErrorModel) -> ImuErrorModel:
+    return imu_model({"preset": "tactical"}, "mismatch sub_imu_tactical")
+
+
+#: the main-system reference of an in-flight-aligned navigation-grade GNSS/INS with differential
+#: GNSS (docs/mismatch.md says where the figures come from): the attitude sigmas of the nominal
+#: white noise ([Gong2018]'s 0.005 / 0.0025 / 0.0025 deg, a navigation-grade GNSS/INS's
+#: post-processed figures), velocity 0.005 m/s, position 0.05 m (the scenario's DGNSS), with
+#: correlation times of a GNSS/INS loop: attitude 300 s, velocity 60 s, position 120 s
+MASTER_REF_CORRELATED = CorrelatedNavErrors(heading_deg=0.005, pitch_deg=0.0025, roll_deg=0.0025, att_tau_s=300.0,
+                                            vel_mps=0.005, vel_tau_s=60.0, pos_m=0.05, pos_tau_s=120.0)
+#: the same with the smoothed (forward-backward) solution's smaller errors: half the sigmas, half
+#: the correlation times of the filtered solution's
+MASTER_REF_SMOOTHED = CorrelatedNavErrors(heading_deg=0.0025, pitch_deg=0.00125, roll_deg=0.00125, att_tau_s=150.0,
+                                          vel_mps=0.0025, vel_tau_s=30.0, pos_m=0.025, pos_tau_s=60.0)
+
+_NO_OFFSET = "the model has no time-offset state: the oracle sees the sub-IMU data at its stamps, as the filter does"
+_NO_AXES = "the model has no scale-factor or misalignment states: the oracle knows the true biases and noise only"
+_NO_REF = "the model takes the main-system errors as white: the oracle is told their true marginal sigmas, not their correlation"
+
+CASES: dict[str, MismatchCase] = {c.name: c for c in (
+    MismatchCase("nominal", "no mismatch (the reference row)"),
+    MismatchCase("flexure_tau_x0.5", "true flexure correlation times half the configured ones", _flexure(scale_tau=0.5)),
+    MismatchCase("flexure_tau_x2", "true flexure correlation times twice the configured ones", _flexure(scale_tau=2.0)),
+    MismatchCase("flexure_var_x0.5", "true flexure variances half the configured ones", _flexure(scale_var=0.5)),
+    MismatchCase("flexure_var_x2", "true flexure variances twice the configured ones", _flexure(scale_var=2.0)),
+    MismatchCase("modal_wing", f"the wing bends like a wing ({MODAL_WING_AIRCRAFT}'s modes, load-dependent bending)", _modal_wing,
+                 oracle_limits="the oracle's flexure is the Gauss-Markov model with the modes' variances; it knows the "
+                               "true flexure angle at each epoch, not the modes"),
+    MismatchCase("time_offset_1ms", "sub-IMU stamps 1 ms late against the main system", time_offset_s=0.001, oracle_limits=_NO_OFFSET),
+    MismatchCase("time_offset_5ms", "sub-IMU stamps 5 ms late against the main system", time_offset_s=0.005, oracle_limits=_NO_OFFSET),
+    MismatchCase("time_offset_20ms", "sub-IMU stamps 20 ms late against the main system", time_offset_s=0.020, oracle_limits=_NO_OFFSET),
+    MismatchCase("lever_arm_1cm", "sub-IMU lever arm surveyed 1 cm wrong (0.58 cm per axis)", _lever_arm(0.01)),
+    MismatchCase("lever_arm_2cm", "sub-IMU lever arm surveyed 2 cm wrong (1.15 cm per axis)", _lever_arm(0.02)),
+    MismatchCase("sub_imu_scale_misalignment",
+                 f"sub-IMU scale factors {SCALE_PPM:g} ppm and axis misalignments {MISALIGNMENT_MRAD:.2f} mrad (1 sigma, gyro and accel)",
+                 _sub_imu(_scale_misalignment), oracle_limits=_NO_AXES),
+    MismatchCase("sub_imu_tactical", "sub-IMUs of tactical MEMS grade (imu_presets.yaml tactical) instead of the paper's",
+                 _sub_imu(_tactical), oracle_limits=_NO_AXES),
+    MismatchCase("master_ref_correlated", "main-system reference with Gauss-Markov errors of a GNSS/INS (filtered)",
+                 master_ref=MASTER_REF_CORRELATED, oracle_limits=_NO_REF),
+    MismatchCase("master_ref_smoothed", "main-system reference with Gauss-Markov errors of a smoothed GNSS/INS",
+                 master_ref=MASTER_REF_SMOOTHED, oracle_limits=_NO_REF),
+)}
+
+
+def case_names(text: str) -> list[str]:
+    """``CASE[,CASE...]`` or ``all`` -> the case names; ValueError naming the unknown ones and
+    listing the valid ones."""
+    if text.strip() == "all":
+        return list(CASES)
+    names = [c.strip() for c in text.split(",") if c.strip()]
+    bad = [c for c in names if c not in CASES]
+    if bad or not names:
+        raise ValueError(f"unknown mismatch case(s) {bad or [text]}; valid: all, {', '.join(CASES)}")
+    return names
+
+
+def truth_scenario(case: MismatchCase, nominal: Scenario) -> Scenario:
+    """The scenario the simulator flies for ``case`` (the filter keeps ``nominal``)."""
+    return nominal if case.aircraft is None else replace(nominal, aircraft=case.aircraft(nominal.aircraft))
+
+
+class MismatchedSession(SimulatedSession):
+    """A simulated session of the truth scenario with a sub-IMU time offset and correlated
+    main-system errors (module docstring).  The random streams are the nominal session's, so a
+    case differs from the nominal run of the same seed by its mismatch alone (a sensor model
+    with more terms draws more from its stream)."""
+
+    def __init__(self, scenario: Scenario, seed: int, duration_s: float | None = None, *, time_offset_s: float = 0.0,
+                 master_ref: CorrelatedNavErrors | None = None) -> None:
+        super().__init__(scenario, seed, duration_s)
+        if not 0.0 <= time_offset_s < 0.5:
+            raise ValueError(f"time_offset_s must be in [0, 0.5) s, got {time_offset_s}")
+        self.time_offset_s = float(time_offset_s)
+        self.master_ref = master_ref
+
+    def _offset(self, t: FloatArray) -> FloatArray:
+        """Stamps ``t + offset`` that stay inside the session."""
+        s = t + self.time_offset_s
+        return s[s <= self.duration_s + 1e-9]
+
+    def truth(self, body: str, t_s: FloatArray | None = None) -> NavSeries:
+        if t_s is None and self.time_offset_s and body.startswith(("sub_imu/", "antenna/")):
+            t_s = self._offset(self.sample_times(self._rate(body), include_start=True))
+        return super().truth(body, t_s)
+
+    def sub_imu(self, name: str) -> ImuSeries:
+        imu = super().sub_imu(name)
+        if not self.time_offset_s:
+            return imu
+        t = imu.t_s + self.time_offset_s
+        keep = t <= self.duration_s + 1e-9
+        return ImuSeries(t[keep], imu.omega_radps[keep], imu.f_mps2[keep])
+
+    def master_nav_reference(self) -> NavSeries:
+        if self.master_ref is None:
+            return super().master_nav_reference()
+        g = self.master_ref
+        tr = self.truth("master", self.sample_times(self.scenario.rates.master_nav_hz, include_start=True))
+        d_att, d_vel, d_pos = g.draw(tr.t_s, self.rng("nav/master/correlated"))
+        n = tr.t_s.shape[0]
+        hpr = hpr_from_C_nb(tr.C_nb) + d_att
+        q = dcm_to_quat(C_nb_from_hpr(hpr[:, 0], hpr[:, 1], hpr[:, 2]))
+        att_sig = np.array([g.heading_deg, g.pitch_deg, g.roll_deg]) * DEG
+        return NavSeries(tr.t_s, q, tr.vel_n_mps + d_vel, tr.llh + earth.enu_to_dllh(d_pos, tr.llh),
+                         omega_eb_b_radps=tr.omega_eb_b_radps,
+                         att_cov=hpr_sigma_to_rotation_cov(quat_to_dcm(q), att_sig),
+                         vel_cov=np.broadcast_to(np.eye(3) * g.vel_mps**2, (n, 3, 3)).copy(),
+                         pos_cov=np.broadcast_to(np.eye(3) * g.pos_m**2, (n, 3, 3)).copy())
+
+
+def simulate(case: MismatchCase, nominal: Scenario, seed: int, duration_s: float | None = None) -> MismatchedSession:
+    """The session of ``case`` for ``seed``: the truth scenario with the case's offset and reference."""
+    return MismatchedSession(truth_scenario(case, nominal), seed, duration_s, time_offset_s=case.time_offset_s,
+                             master_ref=case.master_ref)

@@ -1,0 +1,188 @@
+"""``dpos-eval --mismatch``: the mismatch suite (issue #15; docs/mismatch.md).
+
+For each case of :data:`dpos_core.sim.mismatch.CASES` and each run, the case's truth is simulated
+(:func:`dpos_core.sim.mismatch.simulate`) and recorded in memory with the *nominal* aircraft file
+in its metadata; the transfer alignment gets the nominal aircraft, the oracle the true one (what
+its model can express of the case).  Per case: [Gong2018] Table 1 rows (RMSE of UPS, URTSS,
+oracle), each method's ratio to the oracle, the goal (heading <= 0.01 deg, baseline <= 5 mm,
+heading and baseline within 2x of the oracle) and the reported sigmas against the errors
+(fraction within 2 sigma, ANEES per component with its chi-square bounds for the runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from dpos_core.config import config_text
+from dpos_core.config.aircraft import scenario_aircraft_ref
+from dpos_core.sim import mismatch as MM
+from dpos_core.sim.scenario import Scenario
+from dpos_core.ta import from_sim
+from dpos_core.ta import metrics as M
+from dpos_core.ta.pipeline import ORACLE
+from dpos_ros.devices.sim_streams import session_custom_data, session_streams
+from dpos_ros.io.session import session_from_streams
+from dpos_ros.products.ta import ROWS, evaluate, metrics_json, solve
+
+#: issue #15's goal for every case
+GOAL_HEADING_DEG = 0.01
+GOAL_BASELINE_M = 0.005
+GOAL_RATIO = 2.0
+
+
+def recording(case: MM.MismatchCase, scenario: Scenario, seed: int, aircraft_text: str, duration_s: float | None = None):
+    """The simulated session of ``case`` (the truth) and its in-memory recording, which carries the
+    nominal ``aircraft_text`` as ``dpos.aircraft_yaml`` and the case as ``dpos.mismatch``."""
+    ss = MM.simulate(case, scenario, seed, duration_s)
+    custom = {**session_custom_data(ss, aircraft_text), "dpos.mismatch": case.name}
+    return ss, session_from_streams(session_streams(ss), custom, f"{scenario.name}_{case.name}_seed{seed}")
+
+
+def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seeds: list[int], *, aircraft_text: str,
+             particles: int = 100, duration_s: float | None = None, initial_attitude_error_deg: float = 0.0,
+             filter_rate_hz: float = 1.0, log=print) -> dict:
+    """One case over ``seeds``: metrics.json's entry (module docstring)."""
+    per_method: dict[str, list[dict]] = {m: [] for m in methods}
+    timing = {m: {"processing_s": 0.0, "data_s": 0.0} for m in methods}
+    sess = None
+    for seed in seeds:
+        ss, sess = recording(case, scenario, seed, aircraft_text, duration_s)
+        truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in ss.scenario.aircraft.sub_imus} if ORACLE in methods else None
+        for m in methods:
+            t0 = time.perf_counter()
+            # the filters read the nominal aircraft; the oracle the true one (what its model can express)
+            ac = ss.scenario.aircraft if m == ORACLE else scenario.aircraft
+            ants, tm = solve(sess, ac, m, particles, seed, initial_attitude_error_deg, oracle_truth=truth if m == ORACLE else None,
+                             filter_rate_hz=filter_rate_hz)
+            ev = evaluate(sess, ants)
+            per_method[m].append(ev)
+            timing[m]["processing_s"] += tm["processing_s"]
+            timing[m]["data_s"] += tm["data_s"]
+            mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()])
+            log(f"{case.name} seed {seed} {m:>6}: heading {mean['rmse']['heading_deg']:.2e} deg, "
+                f"baseline {mean['rmse'].get('baseline_m', float('nan')):.2e} m ({time.perf_counter() - t0:.1f} s)", flush=True)
+    combined = {}
+    for m in methods:
+        names = per_method[m][0].keys()
+        ant = {n: M.average([{"rmse": run[n]["rmse"], "std": run[n]["std"]} for run in per_method[m]]) for n in names}
+        cons = {n: M.average_consistency([run[n].get("consistency", {}) for run in per_method[m]]) for n in names}
+        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {})} for n in names}, timing[m])
+    metrics = metrics_json(sess, combined, runs=len(seeds), scenario=scenario.name)
+    lo, hi = M.nees_bounds(len(seeds))
+    entry: dict = {"description": case.description, "oracle_limits": case.oracle_limits, "seeds": seeds,
+                   "methods": metrics["methods"], "segments": metrics["segments"], "nees_bounds": [lo, hi]}
+    # the run-averaged normalized squared error per epoch inside its chi^2 bounds (pooled over antennas)
+    for m in methods:
+        inside = {}
+        for i, k in enumerate(M.CONS_KEYS):
+            fr = []
+            for n in per_method[m][0]:
+                series = [run[n]["nsq"][:, i] for run in per_method[m] if "nsq" in run.get(n, {})]
+                if len(series) != len(seeds):
+                    continue
+                L = min(s.size for s in series)
+                avg = np.mean([s[:L] for s in series], axis=0)
+                fr.append(float(np.mean((avg >= lo) & (avg <= hi))) if L else float("nan"))
+            if fr:
+                inside[k] = float(np.mean(fr))
+        if inside:
+            entry["methods"][m].setdefault("consistency", {})["epochs_in_nees_bounds"] = inside
+    if ORACLE in methods:
+        o = metrics["methods"][ORACLE]["mean"]["rmse"]
+        entry["ratio_to_oracle"] = {m: {k: (metrics["methods"][m]["mean"]["rmse"][k] / o[k] if o.get(k) else None)
+                                        for k in metrics["methods"][m]["mean"]["rmse"]} for m in methods}
+    entry["goal"] = {m: goal(entry, m) for m in methods}
+    return entry
+
+
+def goal(entry: dict, m: str) -> dict:
+    """Issue #15's goal for method ``m`` of a case: heading and baseline RMSE and their ratios to the oracle."""
+    r = entry["methods"][m]["mean"]["rmse"]
+    ratio = entry.get("ratio_to_oracle", {}).get(m, {})
+    ok_h = r["heading_deg"] <= GOAL_HEADING_DEG
+    ok_b = r.get("baseline_m", np.inf) <= GOAL_BASELINE_M
+    ok_r = all(ratio.get(k) is not None and ratio[k] <= GOAL_RATIO for k in ("heading_deg", "baseline_m")) if ratio else None
+    return {"heading": bool(ok_h), "baseline": bool(ok_b), "ratio": ok_r, "met": bool(ok_h and ok_b and ok_r is not False)}
+
+
+def _f(v) -> str:
+    return "—" if v is None or not np.isfinite(v) else f"{v:.3g}"
+
+
+def report_md(doc: dict) -> str:
+    """The mismatch table (every case and method: heading, baseline, ratios, consistency), then
+    per case the [Gong2018] Table 1 rows of every method and the per-component consistency."""
+    lo, hi = next(iter(doc["cases"].values()))["nees_bounds"] if doc["cases"] else (float("nan"), float("nan"))
+    lines = [f"# Mismatch suite: {doc['scenario']}", "",
+             f"{doc['runs']} run(s) per case (seeds {doc['seeds']}); RMSE over the imaging segments, mean over runs and "
+             f"antennas. Goal: heading <= {GOAL_HEADING_DEG} deg, baseline <= {GOAL_BASELINE_M * 1e3:g} mm, both within "
+             f"{GOAL_RATIO:g}x of the oracle. Consistency of the reported 1-sigma: fraction of errors within 2 sigma "
+             "(0.95 when honest), worst component; ANEES = mean e^2/sigma^2 per component, worst (largest) one, "
+             f"per-epoch chi^2 bounds for {doc['runs']} run(s): [{lo:.2f}, {hi:.2f}].", "",
+             "| case | method | heading (deg) | baseline (mm) | heading / oracle | baseline / oracle | worst ratio (row) "
+             "| within 2σ (worst) | ANEES (worst) | goal |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for name, c in doc["cases"].items():
+        for m, mm in c["methods"].items():
+            r = mm["mean"]["rmse"]
+            ratio = c.get("ratio_to_oracle", {}).get(m, {})
+            worst = max(((v, k) for k, v in ratio.items() if v is not None), default=(None, ""))
+            cons = mm.get("consistency", {})
+            w2 = cons.get("within_2sigma", {})
+            ne = cons.get("nees", {})
+            w2s = f"{min(w2.values()):.2f} ({min(w2, key=w2.get)})" if w2 else "—"
+            nes = f"{max(ne.values()):.3g} ({max(ne, key=ne.get)})" if ne else "—"
+            g = c["goal"][m]
+            miss = [w for w, ok in (("heading", g["heading"]), ("baseline", g["baseline"]), ("ratio", g["ratio"])) if ok is False]
+            lines.append(f"| {name} | {m} | {_f(r['heading_deg'])} | {_f(r.get('baseline_m', np.nan) * 1e3)} | "
+                         f"{_f(ratio.get('heading_deg'))} | {_f(ratio.get('baseline_m'))} | "
+                         f"{_f(worst[0])} ({worst[1]}) | {w2s} | {nes} | {'met' if g['met'] else 'missed: ' + ', '.join(miss)} |")
+    for name, c in doc["cases"].items():
+        methods = list(c["methods"])
+        lines += ["", f"## {name}", "", f"{c['description']}." + (f" Oracle: {c['oracle_limits']}." if c["oracle_limits"] else ""), "",
+                  "| Parameter | | " + " | ".join(f"{m.upper()} RMSE" for m in methods) + " | "
+                  + " | ".join(f"{m.upper()} / oracle" for m in methods if m != ORACLE) + " |",
+                  "|---|---|" + "---|" * (2 * len(methods) - (ORACLE in methods))]
+        for group, label, key in ROWS:
+            row = [group, label] + [_f(c["methods"][m]["mean"]["rmse"].get(key)) for m in methods]
+            row += [_f(c.get("ratio_to_oracle", {}).get(m, {}).get(key)) for m in methods if m != ORACLE]
+            lines.append("| " + " | ".join(row) + " |")
+        lines += ["", "within 2 sigma / ANEES / epochs whose run-averaged NEES is inside the bounds:", "",
+                  "| method | " + " | ".join(M.CONS_KEYS) + " |", "|---|" + "---|" * len(M.CONS_KEYS)]
+        for m in methods:
+            cons = c["methods"][m].get("consistency", {})
+            if not cons.get("n"):
+                continue
+            ib = cons.get("epochs_in_nees_bounds", {})
+            lines.append(f"| {m} | " + " | ".join(f"{cons['within_2sigma'][k]:.2f} / {cons['nees'][k]:.3g} / {_f(ib.get(k))}"
+                                                 for k in M.CONS_KEYS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main_mismatch(args: argparse.Namespace, scenario: Scenario, methods: list[str], cases: list[str]) -> int:
+    """dpos-eval --mismatch: every case over ``args.runs`` seeds; metrics.json and report.md in ``args.out``."""
+    methods = list(dict.fromkeys(methods + [ORACLE]))
+    seeds = [args.seed + r for r in range(args.runs)]
+    text = config_text("aircraft", args.aircraft or scenario_aircraft_ref(args.scenario))  # the nominal file the filter reads
+    err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(
+        scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
+    doc: dict = {"scenario": scenario.name, "runs": len(seeds), "seeds": seeds, "methods": methods,
+                 "goal": {"heading_deg": GOAL_HEADING_DEG, "baseline_m": GOAL_BASELINE_M, "ratio_to_oracle": GOAL_RATIO},
+                 "cases": {}}
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name in cases:
+        doc["cases"][name] = run_case(MM.CASES[name], scenario, methods, seeds, aircraft_text=text, particles=args.particles,
+                                      duration_s=args.duration, initial_attitude_error_deg=err0)
+        _write(args.out, doc)  # after every case: a long suite keeps what it has
+    print(report_md(doc))
+    print(f"wrote {args.out / 'metrics.json'} and {args.out / 'report.md'}")
+    return 0
+
+
+def _write(out: Path, doc: dict) -> None:
+    (out / "metrics.json").write_text(json.dumps(doc, indent=2) + "\n")
+    (out / "report.md").write_text(report_md(doc))
