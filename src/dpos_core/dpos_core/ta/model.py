@@ -62,7 +62,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from dpos_core.units import DEG, FloatArray
 
@@ -351,7 +351,7 @@ class TransferAlignmentModel:
         tc = tm - tm.mean()
         gate = self._vib_gate.get(n)
         if gate is None:
-            gate = self._vib_gate[n] = float(chi2.ppf(0.99, n - 2)) / (n - 2)
+            gate = self._vib_gate[n] = float(2.0 * gammaincinv((n - 2) / 2, 0.99)) / (n - 2)  # chi^2_{n-2} 99 % point / (n - 2)
 
         def excess(r: FloatArray, cov: FloatArray, floor: float) -> FloatArray:
             # residual of the straight-line fit [1, t - mean t] (orthogonal columns: mean and slope)
