@@ -13,18 +13,19 @@ import numpy as np
 
 @nb.njit(cache=True, nogil=True)
 def normal_solve(B: np.ndarray, w: np.ndarray, yz: np.ndarray, use: np.ndarray,
-                 a: np.ndarray, P: np.ndarray, bound: np.ndarray) -> None:
+                 a: np.ndarray, P: np.ndarray, bound: np.ndarray, want_P: bool) -> None:
     """Per epoch t with ``use[t]``: the normal matrix ``N = B^T diag(w_t) B`` (B (S, p), w (T, S)),
     its Cholesky factor ``L``, ``P = (L L^T)^-1 = L^-T L^-1`` (T, p, p), the coefficients
     ``a = P B^T diag(w_t) yz_t`` (T, p) and ``bound[t] = trace(N) trace(P)``, an upper bound of
-    the condition number of N (inf where the factorization fails).  Epochs without ``use`` are
-    left untouched."""
+    the condition number of N (inf where the factorization fails); ``P`` only with ``want_P``.
+    Epochs without ``use`` are left untouched."""
     T, S = w.shape
     p = B.shape[1]
     N = np.empty((p, p))
     L = np.zeros((p, p))
     Li = np.zeros((p, p))
     rhs = np.empty(p)
+    u = np.empty(p)
     for t in range(T):
         if not use[t]:
             continue
@@ -67,18 +68,27 @@ def normal_solve(B: np.ndarray, w: np.ndarray, yz: np.ndarray, use: np.ndarray,
                     e -= L[i, k] * Li[k, j]
                 Li[i, j] = e / L[i, i]
         trN = 0.0
-        trP = 0.0
+        trP = 0.0  # trace(L^-T L^-1) = |L^-1|_F^2
         for i in range(p):
             trN += N[i, i]
-            for j in range(p):
-                acc = 0.0
-                for k in range(max(i, j), p):
-                    acc += Li[k, i] * Li[k, j]
-                P[t, i, j] = acc
-            trP += P[t, i, i]
+            for j in range(i + 1):
+                trP += Li[i, j] * Li[i, j]
+        if want_P:
+            for i in range(p):
+                for j in range(p):
+                    acc = 0.0
+                    for k in range(max(i, j), p):
+                        acc += Li[k, i] * Li[k, j]
+                    P[t, i, j] = acc
+        # a = L^-T (L^-1 rhs)
         for i in range(p):
             acc = 0.0
-            for j in range(p):
-                acc += P[t, i, j] * rhs[j]
+            for j in range(i + 1):
+                acc += Li[i, j] * rhs[j]
+            u[i] = acc
+        for i in range(p):
+            acc = 0.0
+            for k in range(i, p):
+                acc += Li[k, i] * u[k]
             a[t, i] = acc
         bound[t] = trN * trP
