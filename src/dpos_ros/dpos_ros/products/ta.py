@@ -6,6 +6,7 @@
   ``<antenna>.csv``        time, lat, lon, h, vE, vN, vU, heading, pitch, roll and their 1-sigma
   ``metrics.json``         when truth is in the recording: RMSE/STD ([Gong2018] eq. 21) per antenna
   ``report.md`` + PNGs     the papers' table layout and error plots
+  ``qc.md``, ``qc/``       quality control without truth, every session (:mod:`dpos_ros.products.qc`)
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from dpos_core.series import ImuSeries, NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
+from dpos_core.ta import qc as ta_qc
 from dpos_core.ta.antenna import antenna_motion
 from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
@@ -52,7 +54,8 @@ class AntennaSolution:
     ``not_estimated``: the spans ``(t_from_s, t_to_s, reason)`` without rows (sub-IMU gaps).
     ``carrier``: its sub-IMU's own solution at the same rows (the input of the least-squares wing
     fit, :func:`fit_antennas`); ``wing_fit``: for a ``fit`` antenna, the fit's basis choice and
-    cross-validation (:class:`dpos_core.ta.wingfit.WingFit`)."""
+    cross-validation (:class:`dpos_core.ta.wingfit.WingFit`); ``qc``: its sub-IMU's consistency
+    measures at the filter epochs (:class:`dpos_core.ta.qc.EpochQC`; None for a ``fit`` antenna)."""
 
     name: str
     sub_imu: str | None
@@ -64,6 +67,7 @@ class AntennaSolution:
     not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
     carrier: SubImuTrack | None = None
     wing_fit: dict | None = None
+    qc: ta_qc.EpochQC | None = None
 
 
 def solve(
@@ -92,6 +96,10 @@ def solve(
     the spans); a sub-IMU whose data cannot be aligned at all (empty or all-NaN topic, too short,
     rejected by the core) gives its antennas ``not estimated: <why>`` and a warning, the other
     sub-IMUs going on.
+
+    The rows get the quality control's flags (:func:`dpos_core.ta.qc.row_flags`):
+    ``INCONSISTENT_INNOVATIONS`` from the sub-IMU's filter, ``MASTER_UNALIGNED`` where the main
+    POS's attitude 1-sigma is ``master_aligned_sigma_deg`` or more (after its first alignment).
 
     ``workers``: the sub-IMUs are aligned in that many spawned worker processes (0 = one per
     core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
@@ -139,6 +147,7 @@ def solve(
             if res.not_estimated:
                 sess.warnings.append(f"sub-IMU {s.name}: no pose over {_spans(res.not_estimated)}; each part after a gap "
                                      f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
+            res.flags |= _qc_flags(res, master, master_aligned_sigma_deg)
             results[s.name] = res
     for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
@@ -160,10 +169,18 @@ def solve(
         keep = _decimate(r.t_s, output_rate_hz)
         status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
         out[a.name] = AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
-                                      r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep))
+                                      r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep),
+                                      qc=r.qc)
     if any(a.sub_imu is None for a in aircraft.antennas):
         out.update(fit_antennas(sess, aircraft, out))
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
+
+
+def _qc_flags(r: pipeline.TAResult, master: NavSeries, sigma_deg: float) -> ta_flags.FlagArray:
+    """The quality control's bits of a sub-IMU's rows (:func:`dpos_core.ta.qc.row_flags`)."""
+    (att_cov,) = master.required("att_cov")
+    sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))
+    return ta_qc.row_flags(r.t_s, r.qc, master.t_s, sig, np.deg2rad(sigma_deg))
 
 
 def _align_sub_imu(imu: ImuSeries, master: NavSeries, ins: Installation, cfg: TAConfig, method: str, particles: int,
@@ -387,6 +404,8 @@ def _write_products(
     """The products (module docstring) into the new, empty directory ``out``."""
     from dpos_ros.io.bag import write_streams
 
+    from .qc import write_qc
+
     streams = antenna_streams(sess, antennas)
     for st in streams:
         name = st.topic.split("/")[2]
@@ -403,6 +422,7 @@ def _write_products(
     fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
     if fits:
         doc["wing_fit"] = fits
+    doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)

@@ -1,0 +1,73 @@
+"""dpos-process's quality-control products (issue #15 item 4): qc.md, qc/<antenna>_qc.png and the
+status.json qc block, made without the truth (the same with the truth removed from the recording)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from dpos_core.ta import flags as F
+
+from .test_process import EXE, _sim_bag
+
+
+def _no_truth(streams):
+    return [s for s in streams if not s.topic.startswith("/truth/")]
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    d = tmp_path_factory.mktemp("qc")
+    return _sim_bag(d / "truth", 30.0), _sim_bag(d / "no_truth", 30.0, _no_truth)
+
+
+def test_dpos_process_writes_the_qc_report_without_truth(bags, tmp_path: Path) -> None:
+    _, no_truth = bags
+    r = subprocess.run([str(EXE / "dpos-process"), str(no_truth), "--method", "urtss", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "o" / "paper_su_seed2"
+    assert not (out / "metrics.json").exists() and not (out / "errors_ant_r.png").exists()
+    assert (out / "qc" / "ant_r_qc.png").stat().st_size > 10_000
+    md = (out / "qc.md").read_text()
+    assert "| ant_r | sub_r | ok |" in md and "## Innovations (NIS)" in md and "## Forward/backward separation" in md
+    q = json.loads((out / "status.json").read_text())["qc"]
+    a = q["antennas"]["ant_r"]
+    assert q["window_s"] == 60.0 and a["verdict"] == "ok" and a["nis"]["dof"] == 9 and a["nis"]["epochs"] == 31
+    assert a["nis"]["windowed_above_fraction"] == 0.0 and 0.2 < a["nis"]["mean_per_dof"] < 2.0
+    assert set(a["separation"]) == {"attitude", "velocity", "position"} and a["separation"]["attitude"]["unit"] == "deg"
+    assert a["sigma"]["heading_deg"]["p50"] > 0 and a["flags"] == {}
+
+
+def test_the_qc_products_do_not_depend_on_the_truth(bags, tmp_path: Path) -> None:
+    """solve() + write() in process (what dpos-process and transfer_align_node run) on the same
+    recording with and without its /truth topics: the same qc.md, qc block and figure."""
+    from dpos_core.config import load_aircraft
+    from dpos_ros.io.session import read_session
+    from dpos_ros.products.ta import evaluate, solve, write
+
+    dirs = []
+    for b, name in zip(bags, ("t", "n"), strict=True):
+        sess = read_session(b)
+        ants, timing = solve(sess, load_aircraft("paper_su"), "ukf")
+        dirs.append(write(tmp_path / name, sess, ants, "ukf", timing, evaluate(sess, ants) or None))
+    with_truth, without = dirs
+    assert (with_truth / "metrics.json").exists() and not (without / "metrics.json").exists()
+    assert (with_truth / "qc.md").read_text() == (without / "qc.md").read_text()
+    qa, qb = (json.loads((d / "status.json").read_text())["qc"] for d in dirs)
+    assert qa == qb and qa["antennas"]["ant_r"]["separation"] is None  # ukf: forward only
+    assert (with_truth / "qc" / "ant_r_qc.png").read_bytes() == (without / "qc" / "ant_r_qc.png").read_bytes()
+
+
+def test_qc_flags_are_documented() -> None:
+    """Every flag bit has a name and is in design.md's "Session products" and docs/qc.md."""
+    root = Path(__file__).resolve().parents[3]
+    design, qc_doc = (root / "docs" / "design.md").read_text(), (root / "docs" / "qc.md").read_text()
+    assert len(F.NAMES) == 7 and set(F.NAMES) == {1 << i for i in range(7)}
+    for bit, name in F.NAMES.items():
+        assert f"`{name}`" in qc_doc, name
+        assert f"{bit} = " in design, bit
+    assert "qc.md" in design and "`qc`" in design
