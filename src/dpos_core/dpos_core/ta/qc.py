@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from dpos_core.units import DEG, FloatArray
 
@@ -171,12 +171,18 @@ def epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArra
     return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, sep, sdof, norm, True, nz2)
 
 
+def chi2_ppf(q: float, dof) -> FloatArray:
+    """The ``q`` quantile of chi^2(dof) (``scipy.stats.chi2.ppf``'s value, from
+    ``scipy.special.gammaincinv``: no scipy.stats import in the sub-IMU workers)."""
+    return np.asarray(2.0 * gammaincinv(np.asarray(dof, dtype=float) / 2.0, q), dtype=float)
+
+
 def chi2_bounds(dof, prob: float = PROB) -> tuple[FloatArray, FloatArray]:
     """Two-sided ``prob`` bounds of chi^2(dof) (NaN for dof 0)."""
     d = np.asarray(dof, dtype=float)
     ok = d > 0
-    lo = np.where(ok, chi2.ppf((1.0 - prob) / 2, np.where(ok, d, 1.0)), np.nan)
-    hi = np.where(ok, chi2.ppf((1.0 + prob) / 2, np.where(ok, d, 1.0)), np.nan)
+    lo = np.where(ok, chi2_ppf((1.0 - prob) / 2, np.where(ok, d, 1.0)), np.nan)
+    hi = np.where(ok, chi2_ppf((1.0 + prob) / 2, np.where(ok, d, 1.0)), np.nan)
     return lo, hi
 
 
@@ -319,7 +325,7 @@ def summarize(t_rows: FloatArray, sigma: FloatArray, flags: F.FlagArray | None, 
             for j, (g, _) in enumerate(GROUPS):
                 unit, scale = SEP_UNITS[j]
                 has = qc.sep_dof[:, j] > 0
-                bound = np.where(has, chi2.ppf(prob, np.maximum(qc.sep_dof[:, j], 1)), np.nan)
+                bound = np.where(has, chi2_ppf(prob, np.maximum(qc.sep_dof[:, j], 1)), np.nan)
                 rms = np.sqrt(qc.sep[has, j] / qc.sep_dof[has, j]) if np.any(has) else np.array([])
                 beyond = float(np.mean(qc.sep[has, j] > bound[has])) if np.any(has) else 0.0
                 sep[g] = {"max_diff": float(np.nanmax(qc.sep_norm[:, j]) * scale) if qc.sep_norm.size else float("nan"),

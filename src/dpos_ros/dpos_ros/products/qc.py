@@ -190,9 +190,7 @@ def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
         for j, (g, _) in enumerate(Q.GROUPS):
             has = q.sep_dof[:, j] > 0
             ax.plot(q.epochs_s[has], np.sqrt(q.sep[has, j] / q.sep_dof[has, j]), lw=0.8, label=g)
-        from scipy.stats import chi2
-
-        bound = math.sqrt(chi2.ppf(Q.PROB, 3) / 3)
+        bound = math.sqrt(float(Q.chi2_ppf(Q.PROB, 3)) / 3)
         ax.axhline(bound, color="k", lw=0.6, ls="--", label="99 % bound (3 dof)")
         top = np.nanmax(np.sqrt(q.sep / np.maximum(q.sep_dof, 1)), initial=0.0)
         ax.set_ylim(0.0, 1.15 * max(bound, float(top)))
