@@ -125,3 +125,17 @@ def test_consistency_of_a_gaussian_error() -> None:
     lo, hi = M.nees_bounds(50)
     assert 0.6 < lo < 1.0 < hi < 1.5
     assert M.nees_bounds(2) == pytest.approx((0.0506 / 2, 7.378 / 2), rel=2e-3)  # chi2(2) 2.5 % and 97.5 % over 2
+
+
+def test_master_reference_from_the_in_flight_alignment(su) -> None:
+    ss = MM.simulate(MM.CASES["master_ref_ifa"], su, 1, 12.0)
+    ref = ss.master_nav_reference()
+    assert ref is ss.master_nav_reference()  # computed once per session
+    assert ref.t_s[0] >= 1.0 and np.all(np.diff(ref.t_s) > 0)  # from the first fix on (the recording rule)
+    tr = ss.truth("master", ref.t_s)
+    e = earth.dllh_to_enu(ref.llh - tr.llh, tr.llh)
+    assert 0.0 < np.max(np.abs(e)) < 1.0  # a GNSS/INS's position, not the truth
+    sig_att = np.sqrt(np.max(np.diagonal(ref.att_cov, axis1=1, axis2=2), axis=1))
+    assert sig_att[0] > 10 * DEG  # unaligned before the first epoch (pos_master_node's flag)
+    assert np.unique(sig_att).size > 3  # then each filter epoch's covariance
+    assert ref.omega_eb_b_radps is not None and np.allclose(ref.omega_eb_b_radps, tr.omega_eb_b_radps, atol=1e-4)
