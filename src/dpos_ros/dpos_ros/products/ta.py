@@ -80,6 +80,7 @@ def solve(
     oracle_truth: dict | None = None,
     only: list[str] | None = None,
     filter_rate_hz: float = 1.0,
+    position_matching: bool = True,
     output_rate_hz: float = 0.0,
     master_aligned_sigma_deg: float = 0.1,
     workers: int = 1,
@@ -108,7 +109,7 @@ def solve(
 
     ``known_wing`` (evaluation only, with ``method`` ``oracle_wing``): per sub-IMU the true wing
     (:func:`dpos_core.ta.from_sim.known_wing`), set as ``Installation.known_wing``."""
-    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0))
+    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching)
     results = {}
     unusable: dict[str, str] = {}  # sub-IMU -> why it is not estimated
     t0 = time.perf_counter()
