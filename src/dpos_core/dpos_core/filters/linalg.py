@@ -175,9 +175,9 @@ def _why_not_pd(P: FloatArray) -> str:
 def _lower_solve(L: FloatArray, B: FloatArray, transposed: bool = False) -> FloatArray:
     """``L^-1 B`` (or ``L^-T B``) for lower-triangular ``L`` (..., n, n) and ``B`` (..., n, k), broadcast together."""
     n, k = B.shape[-2], B.shape[-1]
-    batch = np.broadcast_shapes(L.shape[:-2], B.shape[:-2])
-    Lb = np.ascontiguousarray(np.broadcast_to(L, batch + (n, n))).reshape(-1, n, n)
-    Bb = np.ascontiguousarray(np.broadcast_to(B, batch + (n, k)), dtype=float).reshape(-1, n, k)
+    batch = L.shape[:-2] if L.shape[:-2] == B.shape[:-2] else np.broadcast_shapes(L.shape[:-2], B.shape[:-2])
+    Lb = np.ascontiguousarray(L if L.shape[:-2] == batch else np.broadcast_to(L, batch + (n, n))).reshape(-1, n, n)
+    Bb = np.ascontiguousarray(B if B.shape[:-2] == batch else np.broadcast_to(B, batch + (n, k)), dtype=float).reshape(-1, n, k)
     out = np.empty_like(Bb)
     (_k.backward_t if transposed else _k.forward)(Lb, Bb, out)
     return out.reshape(batch + (n, k))
