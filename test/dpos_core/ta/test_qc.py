@@ -130,6 +130,9 @@ def test_fit_antenna_summary_reports_the_fit(vf: float, verdict: str) -> None:
     assert "nis" not in s and s["wing_fit"]["cv_score"] == {"theta_x": 1.1}
     assert s["verdict"].startswith(verdict)
     assert s["flags"]["wing_fit"]["fraction"] == pytest.approx(1.0)
+    carried = F.none(100) | np.uint32(F.WING_FIT | F.INCONSISTENT_INNOVATIONS)  # from its sub-IMUs
+    s = qc.summarize(t, np.ones((100, 9)), carried, None, wing)
+    assert s["verdict"].startswith("check") and "sub-IMUs of the fit with inconsistent innovations 10 s (100 %)" in s["verdict"]
 
 
 @pytest.fixture(scope="module")

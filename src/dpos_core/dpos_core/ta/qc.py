@@ -286,7 +286,8 @@ def summarize(t_rows: FloatArray, sigma: FloatArray, flags: F.FlagArray | None, 
     its bounds; ``separation`` (with a smoother): per group the largest ``|x_f - x_s|`` (deg, m/s, m),
     the largest normalized separation as RMS sigmas ``sqrt(chi2 / dof)`` and the fraction of the
     epochs beyond the 99 % (one-sided) chi^2 bound; ``wing_fit`` (fit antennas): the fit's
-    variance factors and its cross-validation scores at the chosen degree; ``flags``: per bit
+    variance factors and its cross-validation scores at the chosen degree (and, without ``qc``, the
+    :data:`.flags.INCONSISTENT_INNOVATIONS` its sub-IMUs carried in as a cause); ``flags``: per bit
     set on any row the flagged time [s] and fraction; ``verdict``: ``ok`` or ``check: ...``
     (the causes over :data:`CHECK_FRACTION` of the time), ``notes`` (causes below it)."""
     t = np.asarray(t_rows, dtype=float)
@@ -355,9 +356,12 @@ def summarize(t_rows: FloatArray, sigma: FloatArray, flags: F.FlagArray | None, 
             s = float(dur[m].sum())
             per[name] = {"time_s": s, "fraction": s / total if total > 0 else 0.0}
     out["flags"] = per
-    for name, why in ((F.NAMES[F.MASTER_UNALIGNED], "main POS unaligned"), (F.NAMES[F.RESTARTED_AFTER_GAP], "restarted after a sub-IMU gap"),
-                      (F.NAMES[F.BRIDGED_GAP], "short sub-IMU gaps bridged"), (F.NAMES[F.EXTRAPOLATED], "wing fit extrapolated"),
-                      (F.NAMES[F.FEWER_SUB_IMUS], "fewer sub-IMUs in the wing fit")):
+    causes = [(F.NAMES[F.MASTER_UNALIGNED], "main POS unaligned"), (F.NAMES[F.RESTARTED_AFTER_GAP], "restarted after a sub-IMU gap"),
+              (F.NAMES[F.BRIDGED_GAP], "short sub-IMU gaps bridged"), (F.NAMES[F.EXTRAPOLATED], "wing fit extrapolated"),
+              (F.NAMES[F.FEWER_SUB_IMUS], "fewer sub-IMUs in the wing fit")]
+    if qc is None:  # a wing-fit antenna: the bit its sub-IMUs carried in (with qc, the NIS above says it)
+        causes.append((F.NAMES[F.INCONSISTENT_INNOVATIONS], "sub-IMUs of the fit with inconsistent innovations"))
+    for name, why in causes:
         if name in per:
             f = per[name]["fraction"]
             msg = f"{why} {per[name]['time_s']:.0f} s ({100 * f:.0f} %)"
