@@ -121,6 +121,29 @@ class EpochRecord:
     events: list[HypothesisEvent] = field(default_factory=list)  #: what the bank did at this epoch
 
 
+@dataclass
+class SmootherStep:
+    """What the RTS smoother (:mod:`.smoother`) needs of one filter step (a GNSS update or a time
+    update alone), recorded by an engine built with ``record_smoother``.  All in the coordinates of
+    the step's filtered state after its closed-loop feedback (``shift``): x_p (n,), P_p (n, n) the
+    prediction to this step, C (n, n) its cross-covariance with the previous step's filtered state
+    (the divided-difference ``S S_x1^T`` of :func:`~dpos_core.filters.dd2.dd2_predict`, ``P F^T`` for
+    AEKF), both re-expressed after this step's feedback by the statistical linearization of the
+    shift; x_f, P_f the filtered state; correction (n,) the feedback (zeros for a time update alone);
+    restart: the state (x, P) the fine phase restarted from at this step, else None (the chain of
+    the smoother breaks there: the next step's C is relative to it).  The first step (the prior at
+    the start) has no prediction (x_p, P_p, C None)."""
+
+    t_s: float  #: navigation time of the step [s]
+    x_f: FloatArray
+    P_f: FloatArray
+    correction: FloatArray
+    x_p: FloatArray | None = None
+    P_p: FloatArray | None = None
+    C: FloatArray | None = None
+    restart: tuple[FloatArray, FloatArray] | None = None
+
+
 class _Engine:
     """One hypothesis of the online in-flight alignment (module docstring).
 
@@ -133,7 +156,7 @@ class _Engine:
     """
 
     def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(),
-                 method: str = "add2", imu_dt_s: float = 0.01) -> None:
+                 method: str = "add2", imu_dt_s: float = 0.01, record_smoother: bool = False) -> None:
         if method not in METHODS:
             raise ValueError(f"unknown IFA method {method!r}; choose one of {METHODS}")
         self.method = method
@@ -155,6 +178,11 @@ class _Engine:
         self.fine_t_s: float | None = None
         self.records: list[EpochRecord] = []
         self._nis_limit = float(chi2.ppf(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window)
+        #: the smoother's record of every filter step (:class:`SmootherStep`), None unless ``record_smoother``
+        self.smoother_steps: list[SmootherStep] | None = None
+        self.initial = initial
+        if record_smoother:
+            self.smoother_steps = [SmootherStep(initial.t_s, x0.copy(), P0.copy(), np.zeros(self.model.n))]
 
     # ------------------------------------------------------------------ accessors
     @property
@@ -224,10 +252,15 @@ class _Engine:
             f = lambda X: m.f(lin, X)  # noqa: E731
             Q = m.Q(lin)
             if self.method == "aekf":
-                self.x, self.P, _ = aekf_predict(self.x, self.P, f, Q)
+                P_prev = self.P
+                self.x, self.P, F = aekf_predict(self.x, self.P, f, Q)
+                C = P_prev @ F.T
             else:
                 pr = dd2_predict(self.x, self.S, f, chol(Q + 1e-30 * np.eye(m.n)))
-                self.x, self.S = pr.x, pr.S
+                self.x, self.S, C = pr.x, pr.S, pr.C
+            if self.smoother_steps is not None:
+                P_now = self.cov
+                self.smoother_steps.append(SmootherStep(m.t_s, self.x.copy(), P_now, np.zeros(m.n), self.x.copy(), P_now, C))
         except (NumericalFailure, np.linalg.LinAlgError, FloatingPointError) as e:
             self.x, self.S, self.P = saved
             raise NumericalFailure(f"time update at t={m.t_s} failed numerically ({type(e).__name__}: {e})",
@@ -239,14 +272,18 @@ class _Engine:
         m, cfg = self.model, self.cfg
         lin = m.interval()
         x, S, P = self.x, self.S, self.P
+        C_pred = symmetrize(P) if self.method == "aekf" else symmetrize(S @ S.T)  # no time passed: x_{k+1} = x_k
         if lin is not None:
             f = lambda X: m.f(lin, X)  # noqa: E731
             Q = m.Q(lin)
             if self.method == "aekf":
-                x, P, _ = aekf_predict(x, P, f, Q)
+                P_prev = P
+                x, P, F = aekf_predict(x, P, f, Q)
+                C_pred = P_prev @ F.T
             else:
                 pr = dd2_predict(x, S, f, chol(Q + 1e-30 * np.eye(m.n)))
-                x, S = pr.x, pr.S
+                x, S, C_pred = pr.x, pr.S, pr.C
+        pred = (x.copy(), S.copy(), P.copy())
         y, h, R = m.measurement(fix)
         SR = chol(R)
         # adaptation gate of eq. 22's window: while the predicted heading sigma is large the innovations
@@ -305,6 +342,9 @@ class _Engine:
             fac = divided_differences(x, S, shift)
             x = fac.y
             S = householder_tria(np.concatenate([fac.S1, fac.S2], axis=-1))
+        step = None
+        if self.smoother_steps is not None:
+            step = self._smoother_step(fix.t_s, m.t_s, pred, C_pred, shift, x, P if self.method == "aekf" else symmetrize(S @ S.T), c)
         if not self.fine and sig_h < cfg.coarse_heading_sigma_deg * DEG:
             # end of the coarse phase: restart from the coarse estimate (already fed back)
             self.fine = True
@@ -317,14 +357,36 @@ class _Engine:
                 P_fine[np.ix_(gi, gi)] = P_cur[np.ix_(gi, gi)]
             x, P = x_fine, P_fine
             S = chol(P)
+            if step is not None:
+                step.restart = (x.copy(), P.copy())
             if cfg.r_estimator == "window":
                 window = noise_window(cfg)
         m.start_interval()
         self.x, self.S, self.P, self.window = x, S, P, window
         self.last_fix_t = fix.t_s
+        if step is not None and self.smoother_steps is not None:
+            self.smoother_steps.append(step)
         rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status, loglik)
         self.records.append(rec)
         return rec
+
+
+    def _smoother_step(self, t_fix_s: float, t_nav_s: float, pred: tuple[FloatArray, FloatArray, FloatArray], C: FloatArray,
+                       shift, x_f: FloatArray, P_f: FloatArray, c: FloatArray) -> SmootherStep:
+        """The :class:`SmootherStep` of an update epoch: the prediction ``pred = (x, S, P)`` and its
+        cross-covariance ``C`` re-expressed after the feedback ``shift`` by its statistical
+        linearization ``J`` (divided differences over the prediction's factor; the Jacobian for AEKF):
+        ``x_p = E[shift(x)]``, ``P_p = J P J^T`` (+ the second-order part), ``C J^T``."""
+        x, S, P = pred
+        if self.method == "aekf":
+            J = _jac(shift, x, P)
+            x_p, P_p = shift(x[None])[0], symmetrize(J @ P @ J.T)
+        else:
+            fac = divided_differences(x, S, shift)
+            x_p = fac.y
+            P_p = symmetrize(fac.S1 @ fac.S1.T + fac.S2 @ fac.S2.T)
+            J = np.asarray(np.linalg.solve(S.T, fac.S1.T), dtype=float).T  # S1 = J S
+        return SmootherStep(t_nav_s, x_f.copy(), symmetrize(P_f), np.asarray(c, dtype=float).copy(), x_p, P_p, C @ J.T)
 
 
 class InFlightAligner:
@@ -351,10 +413,11 @@ class InFlightAligner:
     """
 
     def __init__(self, initial: NavState, lever_arm_m: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(),
-                 method: str = "add2", imu_dt_s: float = 0.01) -> None:
+                 method: str = "add2", imu_dt_s: float = 0.01, record_smoother: bool = False) -> None:
         if method not in METHODS:
             raise ValueError(f"unknown IFA method {method!r}; choose one of {METHODS}")
         self.method, self.cfg = method, cfg
+        self.record_smoother = record_smoother  #: every engine keeps its SmootherStep s (:mod:`.smoother`)
         #: Cholesky jitter repairs made by this bank (dpos_core.filters.linalg)
         self.jitter = JitterRepairs()
         #: every hypothesis event so far (module docstring), oldest first
@@ -381,10 +444,10 @@ class InFlightAligner:
         M = cfg.heading_hypotheses
         with self.jitter:
             if M == 1:
-                self.hyps = [_Engine(initial, lever_arm_m, cfg, method, imu_dt_s)]
+                self.hyps = [_Engine(initial, lever_arm_m, cfg, method, imu_dt_s, self.record_smoother)]
             else:
                 sub = replace(cfg, heading_sigma_deg=min(cfg.heading_sigma_deg, 180.0 / M))
-                self.hyps = [_Engine(_rotate_heading(initial, k * 2.0 * np.pi / M), lever_arm_m, sub, method, imu_dt_s)
+                self.hyps = [_Engine(_rotate_heading(initial, k * 2.0 * np.pi / M), lever_arm_m, sub, method, imu_dt_s, self.record_smoother)
                              for k in range(M)]
         if keep_from is not None:
             for h in self.hyps:
@@ -606,6 +669,9 @@ class IfaResult:
     track: list[tuple[float, FloatArray]] = field(default_factory=list)
     #: fixes stamped before the initial state (skipped, not rejected)
     before_start: int = 0
+    #: with ``run(..., record_smoother=True)``: the final hypothesis (its model's nominal chunks and
+    #: :attr:`_Engine.smoother_steps`), what :func:`dpos_core.ifa.smoother.smooth` needs
+    engine: _Engine | None = None
 
     @property
     def heading_sigma_deg(self) -> FloatArray:
@@ -617,7 +683,7 @@ class IfaResult:
 
 
 def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterConfig = IfaFilterConfig(), method: str = "add2",
-        initial: NavState | None = None) -> IfaResult:
+        initial: NavState | None = None, record_smoother: bool = False) -> IfaResult:
     """Align the main POS over recorded series.
 
     Args:
@@ -629,6 +695,8 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
         method: ``add2`` (default), ``dd2`` or ``aekf``.
         initial: the navigation state at the start (required: position, velocity and an attitude
             whose heading may be far off).
+        record_smoother: keep what the RTS smoother needs (``IfaResult.engine``;
+            :func:`dpos_core.ifa.smoother.smooth`).
 
     Raises :class:`~dpos_core.errors.RejectedInput` for unusable IMU series (fewer than two
     samples, non-finite values, stamps not strictly increasing); bad fixes and failed epochs are
@@ -649,7 +717,7 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
     first = int(np.searchsorted(t_imu, initial.t_s + STAMP_TOL_S))  # samples after the initial state
     dt = nominal_imu_dt_s(t_imu[first:])
     t0 = time.perf_counter()
-    al = InFlightAligner(initial, lever_arm, cfg, method, dt)
+    al = InFlightAligner(initial, lever_arm, cfg, method, dt, record_smoother)
     i = first
     rejected: list[tuple[float, str]] = []
     out: list[NavSeries] = []  # navigation of the hypothesis reported at each interval (as a node follows it)
@@ -685,6 +753,8 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
         # the epoch sample of the output is the corrected state (of the hypothesis reported now)
         ch = out[-1] if out else None
         if ch is not None and abs(ch.t_s[-1] - al.model.t_s) < 1e-12:
+            # a copy: the hypothesis' own chunk stays its nominal before the feedback (the smoother's)
+            ch = out[-1] = replace(ch, q_nb=ch.q_nb.copy(), vel_n_mps=ch.vel_n_mps.copy(), llh=ch.llh.copy())
             s = al.nav
             ch.q_nb[-1], ch.vel_n_mps[-1], ch.llh[-1] = s.q_nb, s.vel_n_mps, s.llh
     if i < t_imu.size:
@@ -702,7 +772,7 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
         np.array([r.nis for r in recs]), np.array([r.nis_window for r in recs]),
         np.array([r.R_diag for r in recs]).reshape(-1, p), np.array([r.status for r in recs], dtype=int),
         al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime, list(al.events), al.hypotheses_failed,
-        al.chol_jitter_repairs, al.restarts, list(al.track), before_start,
+        al.chol_jitter_repairs, al.restarts, list(al.track), before_start, al.engine if record_smoother else None,
     )
 
 
@@ -767,4 +837,4 @@ def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray
     return hpr_error(hpr_from_C_nb(result.C_nb), hpr_from_C_nb(quat_to_dcm(truth_q_nb))) / DEG
 
 
-__all__ = ["METHODS", "InFlightAligner", "IfaResult", "HypothesisEvent", "run", "fix_at", "attitude_errors_deg", "STAMP_TOL_S", "advance", "nominal_imu_dt_s", "IMU_DT_SAMPLES"]
+__all__ = ["METHODS", "SmootherStep", "InFlightAligner", "IfaResult", "HypothesisEvent", "run", "fix_at", "attitude_errors_deg", "STAMP_TOL_S", "advance", "nominal_imu_dt_s", "IMU_DT_SAMPLES"]
