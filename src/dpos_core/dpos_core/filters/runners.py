@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from dpos_core.units import FloatArray
 
+from . import _particle_kernel as _pk
 from .gaussian import rts_smooth, ut_predict, ut_update
 from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
@@ -370,11 +371,13 @@ def ffbsm(track: ParticleTrack) -> FloatArray:
         else:
             Li = chol(track.pred_cov[k])  # (N, s, s)
             Wi = solve_lower(Li, np.eye(S.size))  # L_i^-1
-        z = np.einsum("ist,ijt->ijs", Wi, nxt[None, :, :] - track.pred_mean[k][:, None, :])
         half_logdet = np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)), axis=1)
-        L = -0.5 * np.sum(z * z, axis=2) - half_logdet[:, None]  # L[i, j] = log p(x_{k+1}^j | i) + const
-        denom = _logsumexp(lwk[:, None] + L, axis=0)  # (N,) over m, for each j
-        logws[k] = log_normalize(lwk + _logsumexp(logws[k + 1][None, :] + L - denom[None, :], axis=1))
+        # L[i, j] = log p(x_{k+1}^j | i) + const = -|W_i (x_{k+1}^j - mean_i)|^2 / 2 - log det L_i;
+        # logw_{k|K}^i = logw_k^i + lse_j(logw_{k+1|K}^j + L[i, j] - lse_m(logw_k^m + L[m, j]))  (numba kernel)
+        lw = np.empty(N)
+        _pk.backward_step(np.ascontiguousarray(lwk), np.ascontiguousarray(logws[k + 1]), np.ascontiguousarray(nxt),
+                          np.ascontiguousarray(track.pred_mean[k]), np.ascontiguousarray(Wi), half_logdet, lw)
+        logws[k] = log_normalize(lw)
     return logws
 
 
@@ -396,9 +399,3 @@ def weighted_moments(particles: FloatArray, logw: FloatArray) -> tuple[FloatArra
     m = np.einsum("kn,kni->ki", w, particles)
     d = particles - m[:, None, :]
     return m, symmetrize(np.einsum("kn,kni,knj->kij", w, d, d))
-
-
-def _logsumexp(a: FloatArray, axis: int) -> FloatArray:
-    m = np.max(a, axis=axis, keepdims=True)
-    m = np.where(np.isfinite(m), m, 0.0)
-    return np.squeeze(m, axis=axis) + np.log(np.sum(np.exp(a - m), axis=axis))
