@@ -6,6 +6,12 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
     dpos-process BAG --method ups --aircraft my_aircraft.yaml --out DIR
     dpos-process BAG --out DIR --overwrite                            # replace DIR/<session id>/
     dpos-process BAG --out DIR --workers 1                            # the sub-IMUs one after the other
+    dpos-process BAG --out DIR --master-reference smoothed            # main POS: the IFA re-run and RTS-smoothed
+
+``--master-reference``: the main-POS reference of the transfer alignment - ``recorded`` (default,
+the recording's /master/nav), ``forward`` (the in-flight alignment re-run from /master/imu,
+/gnss/fix and /gnss/vel with the aircraft file's GNSS lever arm and main IMU model) or
+``smoothed`` (that run, RTS-smoothed forward-backward); with /truth/master its accuracy is printed.
 
 Exit status: 0 when every antenna of the aircraft is estimated; 1 when some (or all) are not
 (named, with why; the products are written); 2 for unusable input or output (a bad option, an
@@ -26,6 +32,7 @@ from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
 from dpos_ros.io.session import SessionError, read_session
+from dpos_ros.products.master_reference import REFERENCES, accuracy, aligned_since, master_reference
 from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
 
 EXIT_OK = 0
@@ -51,6 +58,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
                     help="initial sub-IMU attitude error per axis (default: the recording's transfer_alignment setting, else 0)")
+    ap.add_argument("--master-reference", choices=REFERENCES, default="recorded",
+                    help="main-POS reference: recorded /master/nav (default), forward = the in-flight alignment re-run from "
+                         "/master/imu + /gnss/*, smoothed = that run RTS-smoothed")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
@@ -106,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
         else:
             raise SessionError(f"{args.bag} carries no aircraft configuration: pass --aircraft")
+        ref = master_reference(sess, aircraft, args.master_reference)
     except (SessionError, ConfigError) as e:
         print(f"dpos-process: error: {e}", file=sys.stderr)
         return EXIT_ERROR
@@ -122,6 +133,23 @@ def main(argv: list[str] | None = None) -> int:
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
+    if ref.which != "recorded":
+        i = ref.info
+        print(f"dpos-process: main POS: {i['source']}: start {i['start_s']:.1f} s, aligned "
+              f"{'never' if i['aligned_s'] is None else format(i['aligned_s'], '.1f') + ' s'}, {i['fixes']} fixes "
+              f"({i['rejected_fixes']} rejected), {i['runtime_s']:.1f} s")
+        for note in i["notes"]:
+            print(f"dpos-process: warning: main POS: {note}", file=sys.stderr)
+        sess.master = ref.nav
+    if "master" in sess.truth:
+        since = aligned_since(sess.master)
+        try:
+            acc = accuracy(sess.master, sess.truth["master"], since)
+            print(f"dpos-process: main POS ({ref.which}) against /truth/master from {since:.1f} s (attitude 1-sigma < 0.1 deg): RMSE heading/pitch/roll "
+                  f"{', '.join(f'{v:.4f}' for v in acc['hpr_deg'])} deg, velocity {', '.join(f'{v:.4f}' for v in acc['vel_mps'])} m/s, "
+                  f"position {', '.join(f'{v:.3f}' for v in acc['pos_m'])} m")
+        except ValueError:
+            pass
     print(f"dpos-process: session {sess.session_id}: {len(sess.sub_imus)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg")
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
