@@ -71,3 +71,27 @@ def test_qc_flags_are_documented() -> None:
         assert f"`{name}`" in qc_doc, name
         assert f"{bit} = " in design, bit
     assert "qc.md" in design and "`qc`" in design
+
+
+def test_a_main_pos_unaligned_mid_session_is_flagged(bags, tmp_path: Path) -> None:
+    """The main POS reports a 0.5 deg attitude sigma over 12-15 s (after its alignment): those
+    rows carry MASTER_UNALIGNED (32) in the CSV and the verdict says check."""
+    import numpy as np
+
+    from dpos_core.config import load_aircraft
+    from dpos_ros.io.session import read_session
+    from dpos_ros.products.ta import solve, write
+
+    sess = read_session(bags[1])
+    m = sess.master
+    assert m.att_cov is not None
+    bad = (m.t_s >= 12.0) & (m.t_s <= 15.0)
+    m.att_cov[bad] = np.eye(3) * np.deg2rad(0.5) ** 2
+    ants, timing = solve(sess, load_aircraft("paper_su"), "ukf")
+    out = write(tmp_path, sess, ants, "ukf", timing)
+    rows = np.loadtxt(out / "ant_r.csv", delimiter=",", skiprows=1)
+    t, fl = rows[:, 0] - sess.t0_ns * 1e-9, rows[:, -1].astype(int)
+    hit = (fl & F.MASTER_UNALIGNED) != 0
+    assert np.all(hit[(t > 12.01) & (t < 14.99)]) and not np.any(hit[(t < 11.9) | (t > 15.1)])
+    a = json.loads((out / "status.json").read_text())["qc"]["antennas"]["ant_r"]
+    assert a["verdict"].startswith("check: main POS unaligned 3 s") and a["flags"]["master_unaligned"]["time_s"] > 3.0
