@@ -125,6 +125,12 @@ def test_smoothed_main_pos_beats_the_forward_one_mid_flight(flight) -> None:
     sig_f = np.sqrt(np.diagonal(sm.forward.att_cov[w], axis1=1, axis2=2))
     assert np.all(sig_s <= sig_f + 1e-12)
     assert sm.nav.omega_eb_b_radps is not None and sm.nav.pos_cov is not None and sm.nav.vel_cov is not None
+    # the coarse phase (5-20 s, before the first turn): the chain ends at the fine phase's smoothed
+    # estimate, so the 30 deg heading error is gone there too (measured: forward 33 deg, smoothed 0.073 deg)
+    c = (sm.nav.t_s >= 5.0) & (sm.nav.t_s <= 20.0)
+    h_f = np.sqrt(np.mean(_att_err_deg(sm.forward, truth)[c, 0] ** 2))
+    h_s = np.sqrt(np.mean(_att_err_deg(sm.nav, truth)[c, 0] ** 2))
+    assert h_f > 10.0 and h_s < 0.5, (h_f, h_s)
 
 
 def test_smoothed_equals_forward_at_the_last_epoch(flight) -> None:

@@ -11,8 +11,11 @@ feedback - and its nominal (the closed-loop strapdown at the IMU rate, before ea
 :func:`smooth` runs the ONE RTS recursion of the package
 (:func:`dpos_core.filters.runners.smooth_gaussian` on a :class:`~dpos_core.filters.runners.GaussianTrack`)
 over the steps.  The fine phase of the alignment restarts its covariance from a prior
-(:mod:`.pipeline`): the chain breaks there, so the steps are smoothed in segments (the coarse
-phase, then the fine phase from its restart; a segment's last step keeps its filtered estimate).
+(:mod:`.pipeline`): the chain breaks there, so the steps are smoothed in segments, the last one
+(the fine phase from its restart) first; an earlier segment (the coarse phase) then ends at the
+later one's smoothed estimate at the restart instead of its own filtered one there (the RTS
+recursion's terminal condition: the estimate given all the data, of which the coarse filter's
+own - heading sigma about 1 deg at the restart - adds next to nothing; left out, not fused).
 
 Navigation at the IMU rate: the smoothed error states (position, velocity, attitude) are
 interpolated linearly in time between consecutive steps - from the step's error after its feedback
@@ -110,12 +113,15 @@ def smooth(result: IfaResult, imu: ImuSeries) -> SmoothedIfa:
     x_s, P_s = np.empty((K, n)), np.empty((K, n, n))
     x_end, P_end = np.empty((K, n)), np.empty((K, n, n))  # the estimate closing the interval before each step
     Pp_end = np.empty((K, n, n))  # forward: the prediction to each step
-    for first, last in segs:
-        xs, Ps = smooth_gaussian(track_of(steps, first, last))
+    for first, last in reversed(segs):  # the later chain first: its smoothed estimate at the restart closes the earlier one
+        tr = track_of(steps, first, last)
+        if last < K - 1:
+            tr.x_f[-1], tr.P_f[-1] = x_s[last], P_s[last]
+        xs, Ps = smooth_gaussian(tr)
         x_end[first + 1:last + 1], P_end[first + 1:last + 1] = xs[1:], Ps[1:]
         if first == 0:
             x_end[0], P_end[0] = xs[0], Ps[0]
-        x_s[first:last + 1], P_s[first:last + 1] = xs, Ps  # a restart step: the next chain's (after the restart)
+        x_s[first:last + 1], P_s[first:last + 1] = xs, Ps
     for j, st in enumerate(steps):
         Pp_end[j] = st.P_p if st.P_p is not None else st.P_f
     Pf_start = np.stack([s.restart[1] if s.restart is not None else s.P_f for s in steps])
