@@ -157,8 +157,8 @@ def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
     t, s = a.traj.t_s, a.sigma
     step = max(1, t.size // MAX_PLOT_POINTS)
     td, sd = t[::step], s[::step]
-    fig, axs = plt.subplots(6, 1, figsize=(10, 12), sharex=True, constrained_layout=True,
-                            gridspec_kw={"height_ratios": [1, 1, 1, 1.2, 1, 0.7]})
+    fig, axs = plt.subplots(6, 1, figsize=(10, 12), sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.2, 1, 0.7]})
+    fig.subplots_adjust(left=0.16, right=0.98, top=0.97, bottom=0.05, hspace=0.12)  # (constrained layout: 3 s a figure)
     groups = ((0, "attitude 1-sigma [deg]", ((2, "heading"), (0, "rot E"), (1, "rot N")), 1 / DEG),
               (1, "velocity 1-sigma [m/s]", ((3, "E"), (4, "N"), (5, "U")), 1.0),
               (2, "position 1-sigma [m]", ((6, "E"), (7, "N"), (8, "U")), 1.0))
@@ -173,13 +173,15 @@ def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
         ok = np.isfinite(q.nis) & (q.dof > 0)
         te, r = q.epochs_s[ok], q.nis[ok] / q.dof[ok]
         lo, hi = Q.chi2_bounds(q.dof[ok])
-        ax.semilogy(te, np.maximum(r, 1e-3), ".", ms=2, color="0.55", label="NIS / dof per epoch")
+        ax.semilogy(te, np.maximum(r, 1e-6), ".", ms=2, color="0.55", label="NIS / dof per epoch")
         ax.plot(te, hi / q.dof[ok], color="0.55", lw=0.6, ls="--", label=f"per-epoch {Q.PROB:.0%} bounds")
         ax.plot(te, lo / q.dof[ok], color="0.55", lw=0.6, ls="--")
         w, wlo, whi = Q.windowed_nis(q.epochs_s, q.nis, q.dof)
         ax.plot(q.epochs_s, w, color="C0", lw=1.2, label=f"windowed ({Q.WINDOW_S:g} s)")
         ax.fill_between(q.epochs_s, wlo, whi, color="C0", alpha=0.2, label="windowed bounds")
         ax.axhline(1.0, color="k", lw=0.5)
+        if te.size:  # (the first epoch's NIS is 0: the sub-IMU starts at the main POS; out of view)
+            ax.set_ylim(0.3 * float(np.min(lo / q.dof[ok])), 2.0 * max(float(np.max(hi / q.dof[ok])), float(np.nanmax(r))))
         ax.legend(loc="upper right", fontsize=7, ncol=2)
     else:
         ax.text(0.5, 0.5, "no innovations (least-squares wing fit)" if a.wing_fit is not None else "no innovations",
