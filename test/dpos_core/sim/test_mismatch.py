@@ -105,6 +105,9 @@ def test_master_reference_correlated_errors(su) -> None:
 
     assert lag(e_h) > 0.95 and lag(e_p) > 0.95 and abs(lag(e_w)) < 0.05
     assert np.max(np.abs(e_p)) > 0.01  # the position is no longer exact
+    e_v = ref.vel_n_mps[:, 0] - tr.vel_n_mps[:, 0]  # the velocity error is the position error's rate
+    d = np.diff(e_p) / 0.01 - 0.5 * (e_v[1:] + e_v[:-1])  # (up to the white acceleration within a step)
+    assert np.std(e_v) > 2e-3 and np.sqrt(np.mean(d**2)) < 0.05 * np.std(e_v)
     g = MM.MASTER_REF_CORRELATED
     np.testing.assert_allclose(np.sqrt(ref.pos_cov[0].diagonal()), g.pos_m)  # reported: the marginal sigma
     np.testing.assert_allclose(np.sqrt(ref.vel_cov[0].diagonal()), g.vel_mps)

@@ -44,29 +44,40 @@ from .session import SimulatedSession
 
 @dataclass(frozen=True)
 class CorrelatedNavErrors:
-    """First-order Gauss-Markov errors of a main-system navigation (an in-flight-aligned
-    GNSS/INS), stationary from the start, one independent process per component.
+    """Errors of a main-system navigation (an in-flight-aligned GNSS/INS), stationary from the start,
+    independent per component: attitude (heading, pitch, roll) first-order Gauss-Markov; position
+    (E, N, U) second-order Gauss-Markov ([Gong2018] eq. 13's process, ``beta = 2.146 / tau``) whose
+    rate is the velocity error, so that position and velocity errors are those of one trajectory
+    (velocity 1 sigma ``beta pos_m``, :attr:`vel_mps`).
 
-    Attributes: 1 sigma and correlation time of heading, pitch and roll [deg, s], of each ENU
-    velocity component [m/s, s] and of each ENU position component [m, s].
+    Attributes: 1 sigma of heading, pitch and roll [deg] and their correlation time [s]; 1 sigma of
+    each ENU position component [m] and its correlation time [s].
     """
 
     heading_deg: float
     pitch_deg: float
     roll_deg: float
     att_tau_s: float
-    vel_mps: float
-    vel_tau_s: float
     pos_m: float
     pos_tau_s: float
+
+    @property
+    def vel_mps(self) -> float:
+        """1 sigma of each velocity component: the position process's rate, ``2.146 / tau * pos_m``."""
+        return 2.146 / self.pos_tau_s * self.pos_m
 
     def draw(self, t_s: FloatArray, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Errors at the (uniform) times ``t_s`` (N,): heading/pitch/roll [rad] (N, 3), velocity
         ENU [m/s] (N, 3), position ENU [m] (N, 3)."""
+        from ..config.flexure import FlexureModel
+        from .flexure import FlexureRealization
+
         dt = float(np.median(np.diff(t_s))) if t_s.size > 1 else 1.0
         att = _gauss_markov(np.array([self.heading_deg, self.pitch_deg, self.roll_deg]) * DEG, self.att_tau_s, dt, t_s.size, rng)
-        vel = _gauss_markov(np.full(3, self.vel_mps), self.vel_tau_s, dt, t_s.size, rng)
-        pos = _gauss_markov(np.full(3, self.pos_m), self.pos_tau_s, dt, t_s.size, rng)
+        # the flexure's process in other units: its "angle" [rad] is the position error [m]
+        v = (self.pos_m / DEG) ** 2
+        model = FlexureModel(tau_s=(self.pos_tau_s,) * 3, variance_deg2=(v, v, v), reference_span_m=1.0, span_exponent=0.0)
+        pos, vel = FlexureRealization.sample(model, float(t_s[-1] - t_s[0]), dt, rng, t0_s=float(t_s[0])).at(t_s)
         return att, vel, pos
 
 
@@ -165,14 +176,13 @@ def _tactical(m: ImuErrorModel) -> ImuErrorModel:
 #: the main-system reference of an in-flight-aligned navigation-grade GNSS/INS with differential
 #: GNSS (docs/mismatch.md says where the figures come from): the attitude sigmas of the nominal
 #: white noise ([Gong2018]'s 0.005 / 0.0025 / 0.0025 deg, a navigation-grade GNSS/INS's
-#: post-processed figures), velocity 0.005 m/s, position 0.05 m (the scenario's DGNSS), with
-#: correlation times of a GNSS/INS loop: attitude 300 s, velocity 60 s, position 120 s
+#: post-processed figures) correlated over 300 s; position 0.05 m (the scenario's DGNSS) correlated
+#: over 20 s, whose rate is a 5.4 mm/s velocity error (the nominal 0.005 m/s)
 MASTER_REF_CORRELATED = CorrelatedNavErrors(heading_deg=0.005, pitch_deg=0.0025, roll_deg=0.0025, att_tau_s=300.0,
-                                            vel_mps=0.005, vel_tau_s=60.0, pos_m=0.05, pos_tau_s=120.0)
-#: the same with the smoothed (forward-backward) solution's smaller errors: half the sigmas, half
-#: the correlation times of the filtered solution's
-MASTER_REF_SMOOTHED = CorrelatedNavErrors(heading_deg=0.0025, pitch_deg=0.00125, roll_deg=0.00125, att_tau_s=150.0,
-                                          vel_mps=0.0025, vel_tau_s=30.0, pos_m=0.025, pos_tau_s=60.0)
+                                            pos_m=0.05, pos_tau_s=20.0)
+#: the smoothed (forward-backward) solution: half the sigmas, the same correlation times
+MASTER_REF_SMOOTHED = CorrelatedNavErrors(heading_deg=0.0025, pitch_deg=0.00125, roll_deg=0.00125, att_tau_s=300.0,
+                                          pos_m=0.025, pos_tau_s=20.0)
 
 _NO_OFFSET = "the model has no time-offset state: the oracle sees the sub-IMU data at its stamps, as the filter does"
 _NO_AXES = "the model has no scale-factor or misalignment states: the oracle knows the true biases and noise only"

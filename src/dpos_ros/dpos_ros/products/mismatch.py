@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core.config import config_text
+from dpos_core.config import AircraftConfig, config_text
 from dpos_core.config.aircraft import scenario_aircraft_ref
 from dpos_core.sim import mismatch as MM
 from dpos_core.sim.scenario import Scenario
@@ -45,8 +45,9 @@ def recording(case: MM.MismatchCase, scenario: Scenario, seed: int, aircraft_tex
 
 def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seeds: list[int], *, aircraft_text: str,
              particles: int = 100, duration_s: float | None = None, initial_attitude_error_deg: float = 0.0,
-             filter_rate_hz: float = 1.0, log=print) -> dict:
-    """One case over ``seeds``: metrics.json's entry (module docstring)."""
+             filter_rate_hz: float = 1.0, log=print, filter_aircraft: AircraftConfig | None = None) -> dict:
+    """One case over ``seeds``: metrics.json's entry (module docstring).  ``filter_aircraft``: what
+    the filters read instead of the nominal aircraft (a what-if: the configuration that would fix a case)."""
     per_method: dict[str, list[dict]] = {m: [] for m in methods}
     timing = {m: {"processing_s": 0.0, "data_s": 0.0} for m in methods}
     sess = None
@@ -56,7 +57,7 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
         for m in methods:
             t0 = time.perf_counter()
             # the filters read the nominal aircraft; the oracle the true one (what its model can express)
-            ac = ss.scenario.aircraft if m == ORACLE else scenario.aircraft
+            ac = ss.scenario.aircraft if m == ORACLE else (filter_aircraft or scenario.aircraft)
             ants, tm = solve(sess, ac, m, particles, seed, initial_attitude_error_deg, oracle_truth=truth if m == ORACLE else None,
                              filter_rate_hz=filter_rate_hz)
             ev = evaluate(sess, ants)
