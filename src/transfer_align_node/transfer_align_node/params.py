@@ -28,6 +28,8 @@ class TransferAlignConfig:
         filter_rate_hz: measurement update rate of the filter (> 0).
         position_matching: match the lever-arm-compensated main-POS position as well as attitude and
             velocity (default); false = [Gong2018]'s own attitude + velocity matching.
+        sigma_inflation: scale the output 1-sigma by the innovations' variance factor where they say
+            the filter is optimistic (docs/qc.md "Sigma inflation"; default on).
         output_dir: session products go to ``output_dir/<session id>/``.
         output_rate_hz: rate of /antenna/<name>/odom and the CSVs; 0 = the sub-IMU rate.
         sub_imus: names of the sub-IMUs to process; empty = all.
@@ -47,6 +49,7 @@ class TransferAlignConfig:
     particles: int = param(100, "number of particles (particle methods)", minimum=1)
     filter_rate_hz: float = param(1.0, "filter measurement update rate [Hz]", minimum=0.0, exclusive_minimum=True)
     position_matching: bool = param(True, "match the main POS position too (false: attitude + velocity matching, [Gong2018])")
+    sigma_inflation: bool = param(True, "inflate the output sigma where the innovations say the filter is optimistic")
     output_dir: str = param("out", "directory of the session products", non_empty=True)
     output_rate_hz: float = param(0.0, "output rate [Hz], 0 = the sub-IMU rate", minimum=0.0)
     sub_imus: tuple[str, ...] = param((), "sub-IMUs to process ([] = all)", check=_check_sub_imus)

@@ -256,6 +256,60 @@ def row_flags(t_rows: FloatArray, qc: EpochQC | None, master_t: FloatArray | Non
     return out
 
 
+def group_variance_factors(qc: EpochQC, window_s: float = WINDOW_S, prob: float = PROB) -> FloatArray:
+    """Per epoch and match group (attitude, velocity, position: the :data:`MATCHES` triples), the
+    factor by which the innovations say the filter's variances are too small (K, 3): the windowed
+    mean of ``nu_i^2 / S_ii`` over the group's components (centered ``window_s``, as
+    :func:`windowed_nis`) where it is above the upper two-sided ``prob`` bound of a consistent
+    filter's (``chi2(D) / D``, D the samples in the window), else 1 (a consistent or pessimistic
+    filter is left alone).  NaN where the group has no measurement in the window (the position
+    without position matching)."""
+    t = np.asarray(qc.epochs_s, dtype=float)
+    K = t.size
+    out = np.full((K, 3), np.nan)
+    if K == 0 or qc.nz2.ndim != 2:
+        return out
+    a = np.searchsorted(t, t - window_s / 2, side="left")
+    b = np.searchsorted(t, t + window_s / 2, side="right")
+    for g in range(min(3, qc.nz2.shape[1] // 3)):
+        z = qc.nz2[:, 3 * g:3 * g + 3]
+        ok = np.isfinite(z)
+        cs_z = np.concatenate([[0.0], np.cumsum(np.where(ok, z, 0.0).sum(axis=1))])
+        cs_n = np.concatenate([[0], np.cumsum(ok.sum(axis=1))])
+        D = (cs_n[b] - cs_n[a]).astype(float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.where(D > 0, (cs_z[b] - cs_z[a]) / D, np.nan)
+        _, hi = chi2_bounds(D, prob)
+        with np.errstate(invalid="ignore"):
+            out[:, g] = np.where(np.isfinite(r), np.where(r > hi / np.where(D > 0, D, 1.0), r, 1.0), np.nan)
+    return out
+
+
+def sigma_scale(qc: EpochQC | None, t_rows: FloatArray, window_s: float = WINDOW_S, prob: float = PROB) -> FloatArray:
+    """The multipliers (N, 9) of a sub-IMU's output 1-sigma (:class:`.pipeline.TAResult` ``sigma``
+    columns: attitude, velocity, position, each E, N, U) that make it honest where the innovations
+    say the filter is optimistic (issue #15 item 3; docs/qc.md "Sigma inflation").
+
+    The rule is the a posteriori variance factor of least squares, per match group: a linear
+    filter whose process and measurement noises are all too small by a factor c has innovation
+    covariances and posterior covariances too small by the same c, and the innovations measure c
+    (:func:`group_variance_factors`).  The attitude sigma takes the attitude matches' factor, the
+    velocity sigma the velocity matches', the position sigma the position matches' (the velocity
+    matches' without position matching: the position is the integral of the velocity).  A group
+    without a measurement in its window, or consistent, keeps 1.  Interpolated from the epochs to
+    the rows ``t_rows`` (N,); the square root of the variance factor."""
+    n = np.asarray(t_rows).size
+    out = np.ones((n, 9))
+    if qc is None or qc.epochs_s.size == 0:
+        return out
+    c = group_variance_factors(qc, window_s, prob)
+    c[:, 2] = np.where(np.isfinite(c[:, 2]), c[:, 2], c[:, 1])
+    c = np.where(np.isfinite(c), c, 1.0)
+    for g in range(3):
+        out[:, 3 * g:3 * g + 3] = np.sqrt(np.interp(t_rows, qc.epochs_s, c[:, g]))[:, None]
+    return out
+
+
 # ----------------------------------------------------------------------------------- summary
 
 

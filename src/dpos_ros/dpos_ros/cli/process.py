@@ -51,6 +51,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, [Gong2018])")
     ap.add_argument("--no-position-matching", dest="position_matching", action="store_false",
                     help="match attitude and velocity only ([Gong2018]); default: the lever-arm-compensated main-POS position too")
+    ap.add_argument("--no-sigma-inflation", dest="inflate_sigma", action="store_false",
+                    help="report the smoother's own 1-sigma, without the innovations' variance factor (docs/qc.md)")
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
     ap.add_argument("--workers", type=int, default=0, metavar="N",
                     help="worker processes aligning the sub-IMUs in parallel (default 0 = one per core; 1 = serial); "
@@ -154,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
           f"method {args.method}, initial attitude error {err0:g} deg")
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
                              filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate, workers=args.workers,
-                             position_matching=args.position_matching)
+                             position_matching=args.position_matching, inflate_sigma=args.inflate_sigma)
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite)

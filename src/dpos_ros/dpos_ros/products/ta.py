@@ -81,6 +81,7 @@ def solve(
     only: list[str] | None = None,
     filter_rate_hz: float = 1.0,
     position_matching: bool = True,
+    inflate_sigma: bool = True,
     output_rate_hz: float = 0.0,
     master_aligned_sigma_deg: float = 0.1,
     workers: int = 1,
@@ -106,6 +107,10 @@ def solve(
     core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
     the main POS, its installation and the configuration; every sub-IMU uses ``seed`` either way,
     so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it.
+
+    ``inflate_sigma``: each sub-IMU's output 1-sigma is scaled by the innovations' variance factor
+    per match group where they say the filter is optimistic (:func:`dpos_core.ta.qc.sigma_scale`;
+    docs/qc.md "Sigma inflation"); the fit antennas inherit it through their sub-IMUs.
 
     ``known_wing`` (evaluation only, with ``method`` ``oracle_wing``): per sub-IMU the true wing
     (:func:`dpos_core.ta.from_sim.known_wing`), set as ``Installation.known_wing``."""
@@ -149,6 +154,8 @@ def solve(
                 sess.warnings.append(f"sub-IMU {s.name}: no pose over {_spans(res.not_estimated)}; each part after a gap "
                                      f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
             res.flags |= _qc_flags(res, master, master_aligned_sigma_deg)
+            if inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
+                res.sigma = res.sigma * ta_qc.sigma_scale(res.qc, res.t_s)
             results[s.name] = res
     for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
