@@ -7,6 +7,13 @@ forward with the smoother's record, smoothed (dpos_core.ifa.smoother), and both 
 IMU rate against the truth over the window: RMSE of heading / pitch / roll [deg], velocity E, N, U
 [m/s], position E, N, U [m].  Prints a markdown table (per seed and the RMS over the seeds) and
 writes the numbers as JSON with --json.
+
+    .venv/bin/python tools/ifa_smoother_accuracy.py --bags /tmp/su_s1,/tmp/su_s2
+
+With ``--bags`` (dpos-sim recordings with /truth/master): the main-POS references of
+``dpos-process --master-reference`` (recorded, forward, smoothed; products/master_reference.py)
+against the truth over the recording's imaging segments (the transfer alignment's evaluation
+window; the whole recording without segments).
 """
 
 from __future__ import annotations
@@ -67,6 +74,25 @@ def plot(path: Path, sm, truth: NavSeries, title: str) -> None:
     plt.close(fig)
 
 
+def recordings(bags: list[Path]) -> None:
+    from dpos_core.config import load_aircraft
+    from dpos_ros.io.session import read_session
+    from dpos_ros.products.master_reference import accuracy, ifa_references
+
+    print("| recording | reference | segment | " + " | ".join(COLS) + " |")
+    print("|---" * (len(COLS) + 3) + "|")
+    for b in bags:
+        sess = read_session(b)
+        ac = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
+        refs = {"recorded": sess.master, **{k: v.nav for k, v in ifa_references(sess, ac).items()}}
+        segs = sess.imaging_segments() or {"session": (float(sess.master.t_s[0]), float(sess.master.t_s[-1]))}
+        for name, nav in refs.items():
+            for seg, (a, z) in segs.items():
+                acc = accuracy(nav, sess.truth["master"], a, z)
+                vals = acc["hpr_deg"] + acc["vel_mps"] + acc["pos_m"]
+                print(f"| {sess.session_id} | {name} | {seg} | " + " | ".join(f"{v:.3g}" for v in vals) + " |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="paper_ifa")
@@ -75,8 +101,12 @@ def main() -> None:
     ap.add_argument("--heading-error", type=float, default=30.0, metavar="DEG")
     ap.add_argument("--method", default="add2")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--bags", help="comma-separated dpos-sim recordings: the dpos-process main-POS references instead")
     ap.add_argument("--plot", type=Path, help="PNG of the first seed's attitude errors, forward and smoothed, with the smoothed 1-sigma")
     args = ap.parse_args()
+    if args.bags:
+        recordings([Path(b) for b in args.bags.split(",")])
+        return
     lo, hi = (float(v) for v in args.window.split(":"))
     sc = load_scenario(args.scenario)
     rows: dict[str, dict[int, list[float]]] = {"forward": {}, "smoothed": {}}
