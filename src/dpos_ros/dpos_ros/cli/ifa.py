@@ -22,21 +22,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ifa.pipeline import IfaResult, run
 from dpos_core.ifa.reference import Reference, compare, initial_state, track_sigmas
 from dpos_core.imports.logs import LogFormatError, read_pos
-from dpos_core.series import GnssSeries, ImuSeries
 from dpos_core.units import DEG
-
-PRODUCT_TOPICS = ("/master/imu", "/gnss/fix", "/gnss/vel")
-DRIVER_TOPICS = ("/imu/data", "/fix", "/vel")
-
-
-class InputError(ValueError):
-    """A recording or an option cannot be used (the message says which and why)."""
+from dpos_ros.io.gnss_ins import DRIVER_TOPICS, PRODUCT_TOPICS, InputError, _topics, deserialize, read_recording
 
 
 def parser() -> argparse.ArgumentParser:
@@ -62,74 +54,6 @@ def parser() -> argparse.ArgumentParser:
                          "fixed-noise filter's innovations; says when the data do not make it observable)")
     ap.add_argument("--out", type=Path, required=True)
     return ap
-
-
-def _deserialize(raws: list[bytes], msgtype: str) -> list[Any]:
-    from dpos_ros.io.bag import typestore
-
-    ts = typestore()
-    return [ts.deserialize_cdr(r, msgtype) for r in raws]
-
-
-def _stamp_ns(msg: Any) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
-def read_recording(bag: Path, topics: tuple[str, str, str], rotation: np.ndarray) -> tuple[int, ImuSeries, GnssSeries, list[str]]:
-    """``(origin_ns, imu, gnss, notes)`` of a bag: IMU in body axes (``rotation`` applied), fixes
-    paired with their velocity (same stamp within 1 ms), times in s after the first IMU sample.
-    Samples and fixes that are not finite or not after the previous one are dropped and noted."""
-    from dpos_ros.io.bag import read_raw
-
-    notes: list[str] = []
-    try:
-        raw = read_raw(bag, topics, notes)  # a bag without metadata is recovered (noted)
-    except Exception as e:  # rosbags raises its own errors for a missing or unreadable bag
-        raise InputError(f"{bag}: cannot read the bag ({type(e).__name__}: {e})") from None
-    missing = [t for t in topics if t not in raw]
-    if missing:
-        raise InputError(f"{bag}: no topic {missing} (has: {sorted(raw)}); name them with --imu-topic / --fix-topic / --vel-topic")
-    imus = _deserialize(raw[topics[0]][2], raw[topics[0]][0])
-    t = np.array([_stamp_ns(m) for m in imus], dtype=np.int64)
-    om = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in imus]) @ rotation.T
-    f = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imus]) @ rotation.T
-    keep = np.isfinite(om).all(axis=1) & np.isfinite(f).all(axis=1)
-    last = np.iinfo(np.int64).min
-    for i in range(t.size):
-        if keep[i] and t[i] > last:
-            last = t[i]
-        elif keep[i]:
-            keep[i] = False
-    if (~keep).any():
-        notes.append(f"{int((~keep).sum())} IMU samples dropped (not finite, or stamp not after the previous)")
-    t, om, f = t[keep], om[keep], f[keep]
-    if t.size < 2:
-        raise InputError(f"{bag}: fewer than 2 usable IMU samples on {topics[0]}")
-    origin = int(t[0])
-    fixes = {_stamp_ns(m): m for m in _deserialize(raw[topics[1]][2], raw[topics[1]][0])}
-    vels = {_stamp_ns(m): m for m in _deserialize(raw[topics[2]][2], raw[topics[2]][0])}
-    vt = np.array(sorted(vels), dtype=np.int64)
-    rows = []
-    for tf in sorted(fixes):
-        m = fixes[tf]
-        k = int(np.argmin(np.abs(vt - tf))) if vt.size else -1
-        if k < 0 or abs(int(vt[k]) - tf) > 1_000_000 or m.status.status < 0:
-            continue
-        v = vels[int(vt[k])]
-        pc = np.asarray(m.position_covariance, dtype=float).reshape(3, 3)
-        vc = np.asarray(v.twist.covariance, dtype=float).reshape(6, 6)[:3, :3]
-        row = [(tf - origin) * 1e-9, m.latitude * DEG, m.longitude * DEG, m.altitude, *np.sqrt(np.maximum(np.diag(pc), 0.0)),
-               v.twist.twist.linear.x, v.twist.twist.linear.y, v.twist.twist.linear.z, *np.sqrt(np.maximum(np.diag(vc), 0.0))]
-        if np.all(np.isfinite(row)):
-            rows.append(row)
-    dropped = len(fixes) - len(rows)
-    if dropped:
-        notes.append(f"{dropped} fixes not used (no velocity within 1 ms, no fix status, or not finite)")
-    if not rows:
-        raise InputError(f"{bag}: no usable fix with a velocity on {topics[1]} / {topics[2]}")
-    a = np.array(rows)
-    gnss = GnssSeries(a[:, 0], a[:, 1:4], a[:, 4:7], a[:, 7:10], a[:, 10:13])
-    return origin, ImuSeries((t - origin) * 1e-9, om, f), gnss, notes
 
 
 def _config(params_file: Path, method: str | None) -> tuple[Any, Any, str, np.ndarray]:
@@ -296,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
 def _status_values(raws: list[bytes], msgtype: str) -> list[tuple[str, dict[str, str]]]:
     """(message, key/values) of each DiagnosticArray's first status, in order."""
     out = []
-    for m in _deserialize(raws, msgtype):
+    for m in deserialize(raws, msgtype):
         if m.status:
             st = m.status[0]
             out.append((st.message, {kv.key: kv.value for kv in st.values}))
@@ -318,7 +242,7 @@ def live_report(rec: Path, origin_ns: int, offline: IfaResult, ref: Reference, o
     raw = read_raw(rec, ["/master/nav", "/dpos/datum", "/ifa/status", "/pos_master/status"])
     if "/master/nav" not in raw or "/dpos/datum" not in raw:
         raise InputError(f"{rec}: needs /master/nav and /dpos/datum (has {sorted(raw)})")
-    datum = cv.datum_from_msg(_deserialize(raw["/dpos/datum"][2][:1], raw["/dpos/datum"][0])[0])
+    datum = cv.datum_from_msg(deserialize(raw["/dpos/datum"][2][:1], raw["/dpos/datum"][0])[0])
     t_ns, vals = cv.decode_raw_batch(raw["/master/nav"][2], "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
     order = np.argsort(t_ns, kind="stable")
     t_ns, vals = t_ns[order], vals[order]
@@ -365,16 +289,6 @@ def live_report(rec: Path, origin_ns: int, offline: IfaResult, ref: Reference, o
              f"lost {counters['corrections_lost']}"]
     lines += ["live " + x for x in rep.lines() if not x.startswith("DIVERGED")]
     return counters, lines
-
-
-def _topics(bag: Path) -> set[str]:
-    """Topic names of a bag (empty when it cannot be read: read_recording then says why)."""
-    meta = bag / "metadata.yaml"
-    try:
-        d = yaml.safe_load(meta.read_text())
-        return {t["topic_metadata"]["name"] for t in d["rosbag2_bagfile_information"]["topics_with_message_count"]}
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
-        return set()
 
 
 if __name__ == "__main__":

@@ -72,7 +72,7 @@ def ifa_references(sess: RecordedSession, aircraft: AircraftConfig, which: str =
                    min_course_speed_mps: float = 5.0) -> dict[str, MasterReference]:
     """``{"forward": ..., "smoothed": ...}`` from one in-flight alignment of the recording (``which``
     names the option in the error messages; :func:`master_reference`)."""
-    from dpos_ros.cli.ifa import InputError, _topics, read_recording
+    from dpos_ros.io.gnss_ins import InputError, _topics, read_recording
 
     avail = _topics(sess.path)
     missing = [t for t in IFA_TOPICS if avail and t not in avail]
