@@ -17,10 +17,14 @@ iteration for ECEF -> geodetic (Bowring 1976), iterated to machine precision.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike
 
 from dpos_core.units import FloatArray
+
+from . import _earth_kernel
 
 # WGS-84 defining and derived constants (NIMA TR8350.2, 3rd ed.)
 A_M: float = 6378137.0  #: semi-major axis [m]
@@ -207,18 +211,31 @@ def offset_llh(llh: ArrayLike, d_n_m: ArrayLike) -> FloatArray:
     ``p_e(llh) + C_en(llh) d_n``, each point with its own local frame (for one fixed origin this is
     :func:`enu_to_geodetic`).  For lever arms; small errors use :func:`enu_to_dllh`."""
     p = np.asarray(llh, dtype=float)
-    p_e = geodetic_to_ecef(p[..., 0], p[..., 1], p[..., 2]) + np.einsum("...ij,...j->...i", C_en(p[..., 0], p[..., 1]),
-                                                                        np.asarray(d_n_m, dtype=float))
-    return np.stack(ecef_to_geodetic(p_e), axis=-1)
+    d = np.asarray(d_n_m, dtype=float)
+    shape = np.broadcast_shapes(p.shape, d.shape)
+    if shape[-1:] != (3,):
+        raise ValueError(f"offset_llh: expected (..., 3) arrays, got {p.shape} and {d.shape}")
+    rows = np.ascontiguousarray(np.broadcast_to(p, shape)).reshape(-1, 3)
+    out = np.empty_like(rows)
+    _earth_kernel.rows_offset_llh(rows, np.ascontiguousarray(np.broadcast_to(d, shape)).reshape(-1, 3), out)
+    return out.reshape(shape)
 
 
 def enu_between(llh: ArrayLike, llh_ref: ArrayLike) -> FloatArray:
     """The vector (3,) [m] from ``llh_ref`` to ``llh`` (each (3,) ``[lat_rad, lon_rad, h_m]``) in
     the local ENU frame at ``llh``, exactly: ``C_en(llh)^T (p_e(llh) - p_e(llh_ref))``, so that
     ``offset_llh(llh, -enu_between(llh, llh_ref))`` is ``llh_ref``."""
-    a = np.asarray(llh, dtype=float)
-    b = np.asarray(llh_ref, dtype=float)
-    return C_en(a[0], a[1]).T @ (geodetic_to_ecef(*a) - geodetic_to_ecef(*b))
+    lat, lon, h = (float(v) for v in np.asarray(llh, dtype=float).reshape(3))
+    lat_r, lon_r, h_r = (float(v) for v in np.asarray(llh_ref, dtype=float).reshape(3))
+    # scalar arithmetic (called once per filter epoch: array calls would cost more than the formulas)
+    sl, cl, so, co = math.sin(lat), math.cos(lat), math.sin(lon), math.cos(lon)
+    slr, clr = math.sin(lat_r), math.cos(lat_r)
+    r_n = A_M / math.sqrt(1.0 - E2 * sl * sl)
+    r_nr = A_M / math.sqrt(1.0 - E2 * slr * slr)
+    dx = (r_n + h) * cl * co - (r_nr + h_r) * clr * math.cos(lon_r)
+    dy = (r_n + h) * cl * so - (r_nr + h_r) * clr * math.sin(lon_r)
+    dz = (r_n * (1.0 - E2) + h) * sl - (r_nr * (1.0 - E2) + h_r) * slr
+    return np.array([-so * dx + co * dy, -sl * co * dx - sl * so * dy + cl * dz, cl * co * dx + cl * so * dy + sl * dz])
 
 
 def llh_rate(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -> FloatArray:

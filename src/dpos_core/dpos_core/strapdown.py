@@ -28,6 +28,7 @@ attitude error ``phi`` with ``C_nb_est = expm(-[phi x]) C_nb_true``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -91,6 +92,22 @@ class NavState:
     def copy(self) -> NavState:
         return NavState(self.t_s, self.q_nb.copy(), self.vel_n_mps.copy(), self.llh.copy())
 
+    @classmethod
+    def _from_state_vector(cls, t_s: float, x: FloatArray) -> NavState:
+        """The state of an integrator's vector ``x`` (>= 10,) ``[q_nb (4), vel_n_mps (3), llh (3)]``
+        (fresh arrays): what the constructor makes of it (the quaternion normalized with a
+        non-negative scalar part, the values checked finite), without its general conversions."""
+        v = x[:10]
+        if not np.isfinite(v).all():
+            return cls(t_s, v[0:4], v[4:7], v[7:10])  # the constructor names what is not finite
+        q = v[0:4]
+        q = q / math.sqrt(float(q @ q))
+        if q[0] < 0.0:
+            q = -q
+        st = cls.__new__(cls)
+        st.t_s, st.q_nb, st.vel_n_mps, st.llh = float(t_s), q, v[4:7].copy(), v[7:10].copy()
+        return st
+
 
 def _check_input(name: str, arr: ArrayLike, n: int | None = None) -> FloatArray:
     a = np.ascontiguousarray(arr, dtype=float)
@@ -149,7 +166,7 @@ class Strapdown:
     @property
     def state(self) -> NavState:
         """Current navigation state (a copy)."""
-        return NavState(self._t_s, self._state[0:4].copy(), self._state[4:7].copy(), self._state[7:10].copy())
+        return NavState._from_state_vector(self._t_s, self._state)
 
     def set_state(self, state: NavState) -> None:
         """Replace the navigation state at the current time, keeping the IMU-sample memory."""

@@ -74,6 +74,7 @@ from ..errors import RejectedInput
 from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise
 from ..series import GAP_FACTOR, ImuSeries, NavSeries
 from ..strapdown import NavState, Strapdown
+from . import _vibration_kernel
 
 N_STATES = 24
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
@@ -337,24 +338,14 @@ class TransferAlignmentModel:
             return zero
         j = slice(lo, hi)
         tm = m.t_s[j]
-        r0 = self.install.lever_arm_m
-        nom = np.empty((n, 6))  # the nominal's velocity and llh at the main-POS epochs
-        for i in range(3):
-            nom[:, i] = np.interp(tm, ch.t_s, ch.vel_n_mps[:, i])
-            nom[:, 3 + i] = np.interp(tm, ch.t_s, ch.llh[:, i])
-        llh_nom = nom[:, 3:]
-        C_m = m.C_nb[j]
-        r = np.empty((n, 6))  # the velocity and position residuals
-        r[:, :3] = nom[:, :3] - m.vel_n_mps[j] - np.einsum("tij,tj->ti", C_m, cross(self._w_m[j], r0))
-        per_m = earth.llh_rate(llh_nom[:, 0], llh_nom[:, 2], np.ones((n, 3)))  # rad (or m) per metre E, N, U
-        r[:, 3:] = (llh_nom - m.llh[j]) / per_m - C_m @ r0
-        tc = tm - tm.mean()
         gate = self._vib_gate.get(n)
         if gate is None:
             gate = self._vib_gate[n] = float(2.0 * gammaincinv((n - 2) / 2, 0.99)) / (n - 2)  # chi^2_{n-2} 99 % point / (n - 2)
-        # residual variance of the straight-line fit [1, t - mean t] (orthogonal columns: mean and slope)
-        res = r - r.mean(axis=0) - np.outer(tc, tc @ r / (tc @ tc))
-        s2 = np.sum(res**2, axis=0) / (n - 2)
+        # the velocity and position residuals, then their variance about the straight-line fit
+        # [1, t - mean t] (orthogonal columns: mean and slope), in a numba kernel
+        s2 = np.empty(6)
+        _vibration_kernel.residual_variance(tm, ch.t_s, ch.vel_n_mps, ch.llh, m.vel_n_mps[j], m.llh[j], m.C_nb[j], self._w_m[j],
+                                            np.asarray(self.install.lever_arm_m, dtype=float), s2)
         sig2 = np.concatenate([np.mean(np.diagonal(self._cov_vel[j], axis1=1, axis2=2), axis=0) + self.cfg.vel_noise_floor_mps**2,
                                np.mean(np.diagonal(self._cov_pos[j], axis1=1, axis2=2), axis=0) + self.cfg.pos_noise_floor_m**2])
         ex = np.where(s2 > gate * sig2, s2 - sig2, 0.0)
