@@ -142,3 +142,15 @@ def test_master_reference_from_the_in_flight_alignment(su) -> None:
     assert sig_att[0] > 10 * DEG  # unaligned before the first epoch (pos_master_node's flag)
     assert np.unique(sig_att).size > 3  # then each filter epoch's covariance
     assert ref.omega_eb_b_radps is not None and np.allclose(ref.omega_eb_b_radps, tr.omega_eb_b_radps, atol=1e-4)
+
+
+def test_master_reference_smoothed_in_flight_alignment(su) -> None:
+    ss = MM.simulate(MM.CASES["master_ref_ifa_smoothed"], su, 1, 30.0)
+    sm = ss.master_nav_reference()
+    fw = ss.ifa_reference()  # the same run, forward (cached with it)
+    assert sm is not fw and sm.t_s.size > 0.9 * fw.t_s.size
+    t = np.intersect1d(np.round(sm.t_s, 6), np.round(fw.t_s, 6))
+    i, j = np.searchsorted(np.round(sm.t_s, 6), t), np.searchsorted(np.round(fw.t_s, 6), t)
+    late = t > 20.0
+    att = lambda n, k: np.sqrt(np.max(np.diagonal(n.att_cov[k], axis1=1, axis2=2), axis=1))  # noqa: E731
+    assert np.median(att(sm, i[late])) < np.median(att(fw, j[late]))  # the smoother knows more

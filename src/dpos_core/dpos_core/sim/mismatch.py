@@ -102,6 +102,7 @@ class MismatchCase:
         master_ref: the main-system reference's errors (None: the scenario's white noise).
         master_ifa: the main-system reference is the graph's own: the main IMU mechanized with the
             in-flight alignment of this method against the simulated GNSS (:meth:`MismatchedSession.ifa_reference`).
+        master_ifa_smoothed: that alignment smoothed forward-backward (:func:`dpos_core.ifa.smoother.smooth`).
         oracle_limits: what the oracle's model cannot express of the case ('' = it knows all of it).
     """
 
@@ -111,6 +112,7 @@ class MismatchCase:
     time_offset_s: float = 0.0
     master_ref: CorrelatedNavErrors | None = None
     master_ifa: str | None = None
+    master_ifa_smoothed: bool = False
     oracle_limits: str = ""
 
 
@@ -211,6 +213,9 @@ CASES: dict[str, MismatchCase] = {c.name: c for c in (
                  master_ref=MASTER_REF_CORRELATED, oracle_limits=_NO_REF),
     MismatchCase("master_ref_ifa", "main-system reference = the graph's own in-flight-aligned GNSS/INS (ADD2, forward filter)",
                  master_ifa="add2", oracle_limits=_NO_REF.replace("true marginal sigmas", "IFA's reported covariance")),
+    MismatchCase("master_ref_ifa_smoothed", "main-system reference = the graph's own in-flight alignment (ADD2) smoothed "
+                 "forward-backward (dpos-process --master-reference smoothed)", master_ifa="add2", master_ifa_smoothed=True,
+                 oracle_limits=_NO_REF.replace("true marginal sigmas", "smoother's reported covariance")),
     MismatchCase("master_ref_smoothed", "main-system reference with Gauss-Markov errors of a smoothed GNSS/INS",
                  master_ref=MASTER_REF_SMOOTHED, oracle_limits=_NO_REF),
 )}
@@ -240,14 +245,17 @@ class MismatchedSession(SimulatedSession):
     with more terms draws more from its stream)."""
 
     def __init__(self, scenario: Scenario, seed: int, duration_s: float | None = None, *, time_offset_s: float = 0.0,
-                 master_ref: CorrelatedNavErrors | None = None, master_ifa: str | None = None) -> None:
+                 master_ref: CorrelatedNavErrors | None = None, master_ifa: str | None = None,
+                 master_ifa_smoothed: bool = False) -> None:
         super().__init__(scenario, seed, duration_s)
         if not 0.0 <= time_offset_s < 0.5:
             raise ValueError(f"time_offset_s must be in [0, 0.5) s, got {time_offset_s}")
         self.time_offset_s = float(time_offset_s)
         self.master_ref = master_ref
         self.master_ifa = master_ifa
+        self.master_ifa_smoothed = master_ifa_smoothed
         self._ifa_nav: NavSeries | None = None
+        self._ifa_smoothed: NavSeries | None = None
 
     def _offset(self, t: FloatArray) -> FloatArray:
         """Stamps ``t + offset`` that stay inside the session."""
@@ -267,25 +275,31 @@ class MismatchedSession(SimulatedSession):
         keep = t <= self.duration_s + 1e-9
         return ImuSeries(t[keep], imu.omega_radps[keep], imu.f_mps2[keep])
 
-    def ifa_reference(self) -> NavSeries:
+    def ifa_reference(self, smoothed: bool = False) -> NavSeries:
         """The main-system navigation as the graph makes it (pos_master_node with ``alignment: ifa``):
         the simulated main IMU and GNSS through :func:`dpos_core.ifa.pipeline.run` (method
         ``master_ifa``, the scenario's filter configuration :func:`dpos_core.ifa.evaluate.filter_config`),
         started by the real-recording rule (:func:`dpos_core.ifa.reference.initial_state`: course over
         ground, levelled from the specific force); at every IMU sample the closed-loop state, the body
         rate from the bias-compensated gyro, and the covariances of the latest filter epoch before it
-        (pos_master_node's rule; before the first: 100 deg, 10 m, 1 m/s, i.e. unaligned)."""
-        if self._ifa_nav is not None:
-            return self._ifa_nav
+        (pos_master_node's rule; before the first: 100 deg, 10 m, 1 m/s, i.e. unaligned).
+        ``smoothed``: the same run smoothed forward-backward (:func:`dpos_core.ifa.smoother.smooth`,
+        what ``dpos-process --master-reference smoothed`` uses), with the smoother's covariances."""
+        if self._ifa_nav is not None and (not smoothed or self._ifa_smoothed is not None):
+            return self._ifa_smoothed if smoothed and self._ifa_smoothed is not None else self._ifa_nav
         from ..ifa import pipeline as ifa_pipeline
         from ..ifa import reference as ifa_reference
         from ..ifa.evaluate import filter_config
         from ..ifa.mechanization import body_rate_eb
+        from ..ifa.smoother import smooth
 
         imu, gnss = self.master_imu(), self.gnss()
         lever = np.asarray(self.scenario.aircraft.gnss_lever_arm_m, dtype=float)
         init = ifa_reference.initial_state(imu, gnss, lever_arm_m=lever)
-        res = ifa_pipeline.run(imu, gnss, lever, filter_config(self.scenario), self.master_ifa or "add2", init)
+        res = ifa_pipeline.run(imu, gnss, lever, filter_config(self.scenario), self.master_ifa or "add2", init,
+                               record_smoother=smoothed)
+        if smoothed:
+            self._ifa_smoothed = smooth(res, imu).nav
         t = res.t_s
         idx = np.clip(np.searchsorted(imu.t_s, t - 1e-9), 0, imu.t_s.size - 1)
         w_eb = body_rate_eb(res.q_nb, res.llh, res.vel_n_mps, imu.omega_radps[idx] - res.gyro_bias_radps)
@@ -297,11 +311,11 @@ class MismatchedSession(SimulatedSession):
         Pk = blocks[k]
         self._ifa_nav = NavSeries(t, res.q_nb, res.vel_n_mps, res.llh, omega_eb_b_radps=w_eb,
                                   att_cov=Pk[:, 6:9, 6:9].copy(), vel_cov=Pk[:, 3:6, 3:6].copy(), pos_cov=Pk[:, 0:3, 0:3].copy())
-        return self._ifa_nav
+        return self._ifa_smoothed if smoothed and self._ifa_smoothed is not None else self._ifa_nav
 
     def master_nav_reference(self) -> NavSeries:
         if self.master_ifa is not None:
-            return self.ifa_reference()
+            return self.ifa_reference(self.master_ifa_smoothed)
         if self.master_ref is None:
             return super().master_nav_reference()
         g = self.master_ref
@@ -321,4 +335,4 @@ class MismatchedSession(SimulatedSession):
 def simulate(case: MismatchCase, nominal: Scenario, seed: int, duration_s: float | None = None) -> MismatchedSession:
     """The session of ``case`` for ``seed``: the truth scenario with the case's offset and reference."""
     return MismatchedSession(truth_scenario(case, nominal), seed, duration_s, time_offset_s=case.time_offset_s,
-                             master_ref=case.master_ref, master_ifa=case.master_ifa)
+                             master_ref=case.master_ref, master_ifa=case.master_ifa, master_ifa_smoothed=case.master_ifa_smoothed)
