@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, mount_dcm
-from dpos_core.config import AircraftConfig
+from dpos_core.config import AircraftConfig, AntennaConfig
 from dpos_core.errors import RejectedInput
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.series import ImuSeries, NavSeries
@@ -133,11 +133,13 @@ def solve(
              for s in aircraft.sub_imus if s.name in sess.sub_imus and master is not None}
     n_workers = worker_count(workers, len(tasks))
     futs: dict[str, cf.Future[pipeline.TAResult]] = {}
+    out: dict[str, AntennaSolution] = {}
     with contextlib.ExitStack() as stack:
         if n_workers > 1:  # submitted all at once, collected below in the aircraft's order
             pool = process_pool(n_workers)
             stack.callback(pool.shutdown, wait=True, cancel_futures=True)  # on an error: the queued ones are not run
-            futs = {name: pool.submit(_align_sub_imu, *args) for name, args in tasks.items()}
+            # the core's function itself (pickled by name): a worker imports dpos_core.ta.pipeline, not this module
+            futs = {name: pool.submit(pipeline.run_segments, *args[:-1], oracle_truth=args[-1]) for name, args in tasks.items()}
         for s in aircraft.sub_imus:
             if s.name not in sess.sub_imus:
                 sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
@@ -157,31 +159,35 @@ def solve(
             if inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
                 res.sigma = res.sigma * ta_qc.sigma_scale(res.qc, res.t_s)
             results[s.name] = res
+            # its antennas now, while the workers align the next sub-IMUs
+            out.update({a.name: _sub_imu_antenna(sess, aircraft, a, res, output_rate_hz) for a in aircraft.antennas if a.sub_imu == s.name})
     for name in sess.sub_imus if only is None else ():
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
     timing = {"processing_s": time.perf_counter() - t0,
               "data_s": float(sess.master.t_s[-1] - sess.master.t_s[0]) * max(1, len(results))}
-    out: dict[str, AntennaSolution] = {}
     for a in aircraft.antennas:
-        if a.sub_imu is None:
-            continue  # fit_antennas below
-        r = results.get(a.sub_imu)
-        if r is None:
+        if a.sub_imu is not None and a.sub_imu not in results:  # (the fit antennas: fit_antennas below)
             why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
             out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
-            continue
-        imu = sess.sub_imus[a.sub_imu]
-        nearest = np.clip(np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
-        llh, v = antenna_motion(r.C_nb, r.vel_n_mps, r.llh, imu.omega_radps[nearest], a.lever_arm_m)
-        keep = _decimate(r.t_s, output_rate_hz)
-        status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
-        out[a.name] = AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
-                                      r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep),
-                                      qc=r.qc)
+    out = {a.name: out[a.name] for a in aircraft.antennas if a.name in out}  # the aircraft's order (as the wing fit takes them)
     if any(a.sub_imu is None for a in aircraft.antennas):
         out.update(fit_antennas(sess, aircraft, out))
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
+
+
+def _sub_imu_antenna(sess: RecordedSession, aircraft: AircraftConfig, a: AntennaConfig, r: pipeline.TAResult,
+                     output_rate_hz: float) -> AntennaSolution:
+    """Antenna ``a`` (one with a sub-IMU) carried by its sub-IMU's solution ``r`` (:func:`solve`):
+    its position and velocity by the lever arm, the rows at ``output_rate_hz``."""
+    assert a.sub_imu is not None
+    imu = sess.sub_imus[a.sub_imu]
+    nearest = np.clip(np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
+    llh, v = antenna_motion(r.C_nb, r.vel_n_mps, r.llh, imu.omega_radps[nearest], a.lever_arm_m)
+    keep = _decimate(r.t_s, output_rate_hz)
+    status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
+    return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
+                           r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep), qc=r.qc)
 
 
 def _qc_flags(r: pipeline.TAResult, master: NavSeries, sigma_deg: float) -> ta_flags.FlagArray:

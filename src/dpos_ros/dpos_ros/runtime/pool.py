@@ -3,14 +3,44 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
-import multiprocessing as mp
+import multiprocessing.context as mpc
 import os
+import threading
+
+#: the BLAS / OpenMP thread counts of a worker: one (its matrices are small, one worker per core;
+#: BLAS threads would contend with the other workers: ~5 % of a paper_wing sub-IMU's CPU)
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+_env_lock = threading.Lock()
+
+
+class _OneThreadBlasProcess(mpc.SpawnProcess):
+    """A spawned process started with :data:`WORKER_ENV` in its environment (read by numpy's
+    BLAS when the child imports it); the parent's environment is restored at once."""
+
+    def start(self) -> None:
+        with _env_lock:
+            saved = {k: os.environ.get(k) for k in WORKER_ENV}
+            os.environ.update(WORKER_ENV)
+            try:
+                super().start()
+            finally:
+                for k, v in saved.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+
+
+class _SpawnContext(mpc.SpawnContext):
+    Process = _OneThreadBlasProcess
 
 
 def process_pool(n_workers: int) -> cf.ProcessPoolExecutor:
     """``n_workers`` (at least 1) spawned worker processes: "spawn", not "fork", because the
-    callers may run threads (rclpy executors, numba) that a forked child would inherit mid-state."""
-    return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn"))
+    callers may run threads (rclpy executors, numba) that a forked child would inherit mid-state;
+    each with one BLAS thread (:data:`WORKER_ENV`)."""
+    return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=_SpawnContext())
 
 
 def worker_count(workers: int, tasks: int) -> int:
