@@ -17,15 +17,18 @@ _E2 = _F * (2.0 - _F)
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def residual_variance(tm: np.ndarray, tc: np.ndarray, vc: np.ndarray, lc: np.ndarray, vm: np.ndarray, lm: np.ndarray,
-                      C_m: np.ndarray, w_m: np.ndarray, r0: np.ndarray, out: np.ndarray) -> None:
+                      C_m: np.ndarray, w_m: np.ndarray, r0: np.ndarray, cov_v: np.ndarray, cov_p: np.ndarray,
+                      out: np.ndarray, mean_var: np.ndarray) -> None:
     """The residual variance (6,) -> ``out`` of the velocity and position matches at the main-POS
-    epochs ``tm`` (n,), detrended by a straight line (n - 2 degrees of freedom).
+    epochs ``tm`` (n,), detrended by a straight line (n - 2 degrees of freedom), and the mean of
+    the main POS's velocity and position variances (6,) -> ``mean_var``.
 
     Args:
         tm: main-POS stamps (n,) [s]; tc: the nominal chunk's stamps (M,), increasing.
         vc, lc: the chunk's velocity (M, 3) [m/s] and llh (M, 3), linearly interpolated at ``tm``.
         vm, lm, C_m, w_m: the main POS's velocity (n, 3), llh (n, 3), C_nb (n, 3, 3) and body
             rate (n, 3) at ``tm``; r0: the lever arm (3,) [m].
+        cov_v, cov_p: the main POS's velocity and position covariances (n, 3, 3) at ``tm``.
     """
     n = tm.shape[0]
     r = np.empty((n, 6))
@@ -67,3 +70,11 @@ def residual_variance(tm: np.ndarray, tc: np.ndarray, vc: np.ndarray, lc: np.nda
             e = r[i, c] - mean - (tm[i] - t_mean) * slope
             acc += e * e
         out[c] = acc / (n - 2)
+    for c in range(3):
+        sv = 0.0
+        sp = 0.0
+        for i in range(n):
+            sv += cov_v[i, c, c]
+            sp += cov_p[i, c, c]
+        mean_var[c] = sv / n
+        mean_var[3 + c] = sp / n

@@ -343,11 +343,11 @@ class TransferAlignmentModel:
             gate = self._vib_gate[n] = float(2.0 * gammaincinv((n - 2) / 2, 0.99)) / (n - 2)  # chi^2_{n-2} 99 % point / (n - 2)
         # the velocity and position residuals, then their variance about the straight-line fit
         # [1, t - mean t] (orthogonal columns: mean and slope), in a numba kernel
-        s2 = np.empty(6)
+        s2, sig2 = np.empty(6), np.empty(6)  # and the main POS's mean variances
         _vibration_kernel.residual_variance(tm, ch.t_s, ch.vel_n_mps, ch.llh, m.vel_n_mps[j], m.llh[j], m.C_nb[j], self._w_m[j],
-                                            np.asarray(self.install.lever_arm_m, dtype=float), s2)
-        sig2 = np.concatenate([np.mean(np.diagonal(self._cov_vel[j], axis1=1, axis2=2), axis=0) + self.cfg.vel_noise_floor_mps**2,
-                               np.mean(np.diagonal(self._cov_pos[j], axis1=1, axis2=2), axis=0) + self.cfg.pos_noise_floor_m**2])
+                                            np.asarray(self.install.lever_arm_m, dtype=float), self._cov_vel[j], self._cov_pos[j], s2, sig2)
+        sig2[:3] += self.cfg.vel_noise_floor_mps**2
+        sig2[3:] += self.cfg.pos_noise_floor_m**2
         ex = np.where(s2 > gate * sig2, s2 - sig2, 0.0)
         return ex[:3], ex[3:]
 
