@@ -37,8 +37,9 @@ from numpy.typing import ArrayLike
 from dpos_core.errors import RejectedInput
 from dpos_core.units import FloatArray
 
+from . import _attitude_kernel as _ak
 from . import _strapdown_kernel as _k
-from .attitude import dcm_to_quat, quat_mul, quat_normalize, quat_to_dcm, rotvec_to_quat
+from .attitude import dcm_to_quat, quat_normalize, quat_to_dcm
 from .frames import C_nb_from_hpr, hpr_from_C_nb
 from .series import NavSeries
 
@@ -190,8 +191,11 @@ class Strapdown:
             dllh: position error (3,) ``[dlat_rad, dlon_rad, dh_m]``, est - true.
         """
         if phi_n_rad is not None:
-            dq = rotvec_to_quat(np.asarray(phi_n_rad, dtype=float).reshape(3))
-            self._state[0:4] = quat_normalize(quat_mul(dq, self._state[0:4]))
+            # attitude's kernels on scalars (one quaternion: array calls would cost more than the formulas)
+            x, y, z = (float(v) for v in np.asarray(phi_n_rad, dtype=float).reshape(3))
+            q = self._state
+            w, qx, qy, qz = _ak.quat_mul(*_ak.rotvec_quat(x, y, z), float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+            self._state[0:4] = quat_normalize(np.array([w, qx, qy, qz]))
         if dvel_n_mps is not None:
             dv = np.asarray(dvel_n_mps, dtype=float).reshape(3)
             self._state[4:7] -= dv
