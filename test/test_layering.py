@@ -72,6 +72,7 @@ SIM_CALLERS = {
     "dpos_ros.products.ifa",
     "dpos_ros.cli.sim",
     "dpos_ros.cli.evaluate",
+    "dpos_ros.cli.mismatch",
     "dpos_ros.cli.plot_scenario",
 }
 

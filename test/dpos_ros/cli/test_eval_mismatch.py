@@ -17,7 +17,7 @@ from dpos_core.sim import mismatch as MM
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.cli import evaluate as cli
-from dpos_ros.products import mismatch as PM
+from dpos_ros.cli import mismatch as PM
 
 
 def test_unknown_case_is_a_usage_error(tmp_path: Path, capsys) -> None:

@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(str(e))
         if args.duration is not None and args.duration < 1.0 / TA_FILTER_RATE_HZ:
             ap.error(f"--duration must be >= {1.0 / TA_FILTER_RATE_HZ:g} s for transfer alignment, got {args.duration:g}")
-        from dpos_ros.products.mismatch import main_mismatch
+        from dpos_ros.cli.mismatch import main_mismatch
 
         return main_mismatch(args, scenario, methods, cases)
     if is_ifa_scenario(scenario):
