@@ -46,10 +46,11 @@ def residual_variance(tm: np.ndarray, tc: np.ndarray, vc: np.ndarray, lc: np.nda
         r_n = _A_M / math.sqrt(w)
         r_m = r_n * (1.0 - _E2) / w
         h = nom[5]
-        per = (1.0 / (r_m + h), 1.0 / ((r_n + h) * math.cos(nom[3])), 1.0)  # llh per metre (N, E, U)
+        # the position difference in local ENU metres (llh is lat, lon, h: East from the longitude)
+        d_enu = ((nom[4] - lm[i, 1]) * (r_n + h) * math.cos(nom[3]), (nom[3] - lm[i, 0]) * (r_m + h), nom[5] - lm[i, 2])
         for c in range(3):
             r[i, c] = nom[c] - vm[i, c] - (C_m[i, c, 0] * a0 + C_m[i, c, 1] * a1 + C_m[i, c, 2] * a2)
-            r[i, 3 + c] = (nom[3 + c] - lm[i, c]) / per[c] - (C_m[i, c, 0] * r0[0] + C_m[i, c, 1] * r0[1] + C_m[i, c, 2] * r0[2])
+            r[i, 3 + c] = d_enu[c] - (C_m[i, c, 0] * r0[0] + C_m[i, c, 1] * r0[1] + C_m[i, c, 2] * r0[2])
     t_mean = 0.0
     for i in range(n):
         t_mean += tm[i]
