@@ -34,7 +34,7 @@ from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_WING
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products import lsfit_tables
-from dpos_ros.products.ta import evaluate, metrics_json, report_md, solve
+from dpos_ros.products.ta import combine_runs, evaluate, metrics_json, report_md, solve
 
 #: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
@@ -162,12 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"vel_n {mean['rmse']['vel_n_mps']:.2e} m/s, lat {mean['rmse']['lat_m']:.2e} m "
                   f"({time.perf_counter() - t0:.1f} s)", flush=True)
     # mean over runs, per antenna and overall
-    combined = {}
-    for m in methods:
-        names = per_method[m][0].keys()
-        ant = {n: M.average([{"rmse": run[n]["rmse"], "std": run[n]["std"]} for run in per_method[m]]) for n in names}
-        cons = {n: M.average_consistency([run[n].get("consistency", {}) for run in per_method[m]]) for n in names}
-        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {})} for n in names}, timing[m])
+    combined = combine_runs(per_method, timing)
     metrics = metrics_json(sess, combined, runs=args.runs, scenario=scenario.name)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")

@@ -27,7 +27,7 @@ from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import ORACLE
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
-from dpos_ros.products.ta import ROWS, evaluate, metrics_json, solve
+from dpos_ros.products.ta import ROWS, combine_runs, evaluate, metrics_json, solve
 
 #: issue #15's goal for every case
 GOAL_HEADING_DEG = 0.01
@@ -67,12 +67,7 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
             mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()])
             log(f"{case.name} seed {seed} {m:>6}: heading {mean['rmse']['heading_deg']:.2e} deg, "
                 f"baseline {mean['rmse'].get('baseline_m', float('nan')):.2e} m ({time.perf_counter() - t0:.1f} s)", flush=True)
-    combined = {}
-    for m in methods:
-        names = per_method[m][0].keys()
-        ant = {n: M.average([{"rmse": run[n]["rmse"], "std": run[n]["std"]} for run in per_method[m]]) for n in names}
-        cons = {n: M.average_consistency([run[n].get("consistency", {}) for run in per_method[m]]) for n in names}
-        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {})} for n in names}, timing[m])
+    combined = combine_runs(per_method, timing)
     metrics = metrics_json(sess, combined, runs=len(seeds), scenario=scenario.name)
     lo, hi = M.nees_bounds(len(seeds))
     entry: dict = {"description": case.description, "oracle_limits": case.oracle_limits, "seeds": seeds,

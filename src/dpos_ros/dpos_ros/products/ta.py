@@ -490,6 +490,19 @@ def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray
     np.savetxt(path, cols, delimiter=",", header=header, comments="", fmt=fmt)
 
 
+def combine_runs(per_method: dict[str, list[dict]], timing: dict[str, dict]) -> dict[str, tuple[dict, dict]]:
+    """Per method, the mean over the runs of each antenna's RMSE / STD (and its consistency, where
+    the runs have it) from the runs' :func:`evaluate` results, with the method's timing: the
+    ``per_method`` argument of :func:`metrics_json`."""
+    combined = {}
+    for m, runs in per_method.items():
+        names = runs[0].keys()
+        ant = {n: M.average([{"rmse": run[n]["rmse"], "std": run[n]["std"]} for run in runs]) for n in names}
+        cons = {n: M.average_consistency([run[n].get("consistency", {}) for run in runs]) for n in names}
+        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {})} for n in names}, timing[m])
+    return combined
+
+
 def metrics_json(sess: RecordedSession | None, per_method: dict[str, tuple[dict, dict]], runs: int, scenario: str | None = None) -> dict:
     """design.md's metrics.json: per method the mean over antennas (and runs) and per antenna."""
     segs = list((sess.imaging_segments() if sess else {}).keys()) or ["session"]
