@@ -27,8 +27,13 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 demo: $(STAMP)
 	$(VENV)/bin/dpos-demo
 
+# The tests without DDS run on both cores (pytest-xdist; each worker is its own session with its
+# own ROS_DOMAIN_ID); the ROS tests (marker `ros`: nodes, DDS, timing) run after them, one at a time.
+# Exit status 5 (nothing selected, e.g. PYTEST_ARGS names only ROS tests) is not a failure.
+PYTEST_WORKERS ?= 2
 test: lint
-	$(VPY) -m pytest -q $(PYTEST_ARGS)
+	$(VPY) -m pytest -q -n $(PYTEST_WORKERS) -m "not ros" $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(VPY) -m pytest -q -m ros $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
 MYPY_PACKAGES := $(foreach p,$(PACKAGES),-p $(p))
 

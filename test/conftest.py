@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -30,6 +31,18 @@ ROS_DOMAIN_ID = _pick_domain_id()
 os.environ["ROS_DOMAIN_ID"] = str(ROS_DOMAIN_ID)
 os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+_NODES_DIR = Path(__file__).parent / "nodes"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Every test under test/nodes/ starts nodes or uses DDS: marked ``ros`` even where its module
+    does not say so (``make test`` runs the ``ros`` tests one at a time, the others on both cores)."""
+    for item in items:
+        if _NODES_DIR in item.path.parents:
+            item.add_marker(pytest.mark.ros)
 
 
 @pytest.fixture(scope="session")

@@ -13,6 +13,8 @@ import pytest
 
 from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec
 
+pytestmark = pytest.mark.ros  # the graphs start nodes that talk over DDS
+
 EXE = Path(sys.executable).parent
 
 
