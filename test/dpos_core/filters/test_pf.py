@@ -1,0 +1,132 @@
+"""The particle filters of [Yan2016] (filters/pf.py): bootstrap PF, regularized PF, MCMC-regularized PF."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dpos_core.filters.gaussian import kf_predict, kf_update
+from dpos_core.filters.model import LinearGaussianModel
+from dpos_core.filters.particle import ess
+from dpos_core.filters.pf import PF_METHODS, bandwidth_opt, children_mask, mh_move, psd_sqrt, regularize, run_sir, weighted_cov
+
+
+def _linear(K: int = 25, seed: int = 3) -> tuple[LinearGaussianModel, np.ndarray, np.ndarray]:
+    """Constant-velocity target observed in position (process noise on both states)."""
+    rng = np.random.default_rng(seed)
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    Q = np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]) * 0.1
+    H = np.array([[1.0, 0.0]])
+    R = np.array([[0.4]])
+    x = np.array([0.0, 1.0])
+    ys = []
+    for _ in range(K):
+        x = F @ x + np.linalg.cholesky(Q) @ rng.normal(size=2)
+        ys.append(H @ x + np.sqrt(R[0, 0]) * rng.normal(size=1))
+    return LinearGaussianModel(F, Q, H, R, np.array(ys)), np.zeros(2), np.eye(2)
+
+
+def _kalman(m: LinearGaussianModel, x0: np.ndarray, P0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    xs, Ps = [], []
+    x, P = x0, P0
+    for k in range(m.n_epochs):
+        if k:
+            pr = kf_predict(x, P, m.F, m.Q(k))
+            x, P = pr.x, pr.P
+        up = kf_update(x, P, m.ys[k], m.H, m.R(k))
+        x, P = up.x, up.P
+        xs.append(x)
+        Ps.append(P)
+    return np.array(xs), np.array(Ps)
+
+
+@pytest.mark.parametrize("method", PF_METHODS)
+def test_particle_filters_converge_to_the_kalman_filter(method: str) -> None:
+    """With many particles every PF's mean is the Kalman filter's to a fraction of its sigma
+    (the regularized ones widen the posterior a little: the mean stays)."""
+    m, x0, P0 = _linear()
+    xk, Pk = _kalman(m, x0, P0)
+    tr = run_sir(m, x0, P0, n_particles=20000, rng=np.random.default_rng(1), method=method)
+    sig = np.sqrt(np.diagonal(Pk, axis1=1, axis2=2))
+    z = np.abs(tr.mean - xk) / sig
+    assert np.max(z) < 0.12, (method, float(np.max(z)))
+    ratio = np.sqrt(np.diagonal(tr.cov, axis1=1, axis2=2)) / sig
+    lo, hi = (0.9, 1.1) if method != "rpf" else (0.9, 1.25)
+    assert lo < np.median(ratio) < hi, (method, float(np.median(ratio)))
+    assert tr.resampled.any()
+    if method == "mcmc_rpf":
+        assert np.nanmean(tr.accept) > 0.2  # the move does something on this model
+
+
+def test_bootstrap_pf_with_few_particles_is_worse() -> None:
+    """The test above can fail: 30 particles are visibly off the Kalman filter."""
+    m, x0, P0 = _linear()
+    xk, Pk = _kalman(m, x0, P0)
+    tr = run_sir(m, x0, P0, n_particles=30, rng=np.random.default_rng(1), method="pf")
+    z = np.abs(tr.mean - xk) / np.sqrt(np.diagonal(Pk, axis1=1, axis2=2))
+    assert np.max(z) > 0.12
+
+
+def test_bandwidth_formula_and_kernel_covariance() -> None:
+    """h_opt = (4 / (N (n + 2)))^(1 / (n + 4)); jittered equal-weight particles have covariance
+    (1 + h^2) S (the kernel adds h^2 S)."""
+    assert bandwidth_opt(1000, 16) == pytest.approx((4.0 / (1000 * 18)) ** (1.0 / 20))
+    assert bandwidth_opt(100, 1) == pytest.approx((4.0 / 300) ** 0.2)
+    rng = np.random.default_rng(2)
+    S = np.array([[4.0, 1.2, 0.0], [1.2, 1.0, -0.3], [0.0, -0.3, 0.5]])
+    x = rng.multivariate_normal(np.zeros(3), S, size=200000)
+    logw = np.full(x.shape[0], -np.log(x.shape[0]))
+    _, C = weighted_cov(x, logw)
+    A = psd_sqrt(C)
+    np.testing.assert_allclose(A @ A.T, C, atol=1e-12)
+    h = 0.5
+    _, C2 = weighted_cov(regularize(x, A, h, rng), logw)
+    np.testing.assert_allclose(C2, (1 + h * h) * C, atol=0.03)
+
+
+def test_mh_move_leaves_the_target_invariant() -> None:
+    """Exact draws of a 1-D Gaussian moved by 20 MH steps with a wide kernel keep its mean and
+    variance; a wrong acceptance (always accept) would widen them."""
+    rng = np.random.default_rng(4)
+    mu, sd = 2.0, 0.5
+
+    def lt(z: np.ndarray) -> np.ndarray:
+        return -0.5 * ((z[:, 0] - mu) / sd) ** 2
+
+    x = rng.normal(mu, sd, (100000, 1))
+    A = np.array([[1.5 * sd]])
+    rates = []
+    for _ in range(20):
+        x, _, acc = mh_move(x, lt, A, 1.0, rng)
+        rates.append(acc.mean())
+    assert abs(x.mean() - mu) < 0.01
+    assert abs(x.std() - sd) < 0.01
+    assert 0.2 < np.mean(rates) < 0.8
+    y = x.copy()  # the same kernel without the acceptance step random-walks away
+    for _ in range(5):
+        y = regularize(y, A, 1.0, rng)
+    assert y.std() > 2 * sd
+
+
+def test_children_mask_and_ess() -> None:
+    idx = np.array([0, 0, 3, 3, 3, 5])
+    np.testing.assert_array_equal(children_mask(idx), [False, True, False, True, True, False])
+    np.testing.assert_array_equal(children_mask(np.array([4, 1, 4, 1])), [False, False, True, True])
+    assert ess(np.full(50, -np.log(50))) == pytest.approx(50.0)
+    lw = np.full(4, -np.inf)
+    lw[2] = 0.0
+    assert ess(lw) == pytest.approx(1.0)
+    w = np.array([0.5, 0.25, 0.25])
+    assert ess(np.log(w)) == pytest.approx(1.0 / np.sum(w**2))
+
+
+def test_bad_arguments_are_named() -> None:
+    m, x0, P0 = _linear(K=3)
+    with pytest.raises(ValueError, match="unknown particle filter 'bpf'"):
+        run_sir(m, x0, P0, method="bpf")
+    with pytest.raises(ValueError, match="n_particles"):
+        run_sir(m, x0, P0, n_particles=1)
+    with pytest.raises(ValueError, match="bandwidth_scale"):
+        run_sir(m, x0, P0, bandwidth_scale=0.0)
+    with pytest.raises(ValueError, match="finite"):
+        run_sir(m, np.array([np.nan, 0.0]), P0)
