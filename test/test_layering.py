@@ -67,6 +67,7 @@ def test_graph_is_read() -> None:
 SIM_CALLERS = {
     "dpos_core.ta.from_sim",
     "dpos_core.ifa.evaluate",
+    "dpos_core.sar.evaluate",
     "dpos_ros.devices.sim_device",
     "dpos_ros.devices.sim_streams",
     "dpos_ros.products.ifa",
@@ -83,7 +84,8 @@ def test_simulator_is_imported_only_by_its_callers() -> None:
 
 
 @pytest.mark.parametrize("module", ["dpos_core.ta.model", "dpos_core.ta.pipeline", "dpos_core.ifa.model", "dpos_core.ifa.pipeline",
-                                    "dpos_core.ifa.mechanization", "dpos_core.config", "dpos_core.filters.runners"])
+                                    "dpos_core.ifa.mechanization", "dpos_core.config", "dpos_core.filters.runners",
+                                    "dpos_core.sar.model", "dpos_core.sar.pipeline", "dpos_core.filters.pf"])
 def test_estimation_and_configuration_do_not_see_the_simulator(module: str) -> None:
     seen, todo = set(), [module]
     while todo:  # transitive closure over dpos_core

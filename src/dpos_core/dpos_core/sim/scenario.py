@@ -53,13 +53,28 @@ class Rates:
 
 @dataclass(frozen=True)
 class SarAidingConfig:
-    """SAR position/heading fixes and a barometric altimeter ([Yan2016])."""
+    """SAR position/heading fixes and a barometric altimeter ([Yan2016]); simulated by
+    :mod:`dpos_core.sim.sar` (docs/sar.md).
+
+    Attributes:
+        rate_hz: scene-matching fixes per second, only while the radar images (the scenario's
+            ``imaging_segments``; all the flight when it names none).
+        pos_sigma_m: 1 sigma of a fix's north and east position (white).
+        heading_sigma_deg: 1 sigma of a fix's heading (white).
+        baro_rate_hz, baro_sigma_m: barometric height samples per second and their 1 sigma (white).
+    """
 
     rate_hz: float = 1.0
     pos_sigma_m: float = 10.0
     heading_sigma_deg: float = 0.05
     baro_rate_hz: float = 10.0
     baro_sigma_m: float = 2.0
+
+    def __post_init__(self) -> None:
+        for k in ("rate_hz", "pos_sigma_m", "heading_sigma_deg", "baro_rate_hz", "baro_sigma_m"):
+            v = getattr(self, k)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"sar.{k} must be > 0, got {v}")
 
 
 @dataclass(frozen=True)
