@@ -4,6 +4,24 @@ cross-covariance) URTSS.
 * Linear Kalman filter: ``kf_predict`` / ``kf_update``.
 * Unscented Kalman filter ([Gong2018] eq. 2-5): ``ut_predict`` / ``ut_update`` propagate any point
   set (:mod:`.points`) through the model, batched over leading axes (particles).
+* Central-difference Kalman filter (CDKF; Stirling's second-order interpolation, Norgaard,
+  Poulsen, Ravn 2000; [Ye2024] sec. 2.2 eq. 14-28): ``cd_predict`` / ``cd_update``.  The points
+  ``x +- h s_j`` (``h^2 = 3``) of :class:`~.points.CentralDifferencePoints`, the mean with its mean
+  weights, and the covariance from the first- and second-order divided differences of
+  :func:`~.dd2.divided_differences` (the DD2's square-root factors, squared)::
+
+      P_pred = S_x1 S_x1^T + S_x2 S_x2^T + Q,  C = S S_x1^T,
+      P_y = S_y1 S_y1^T + S_y2 S_y2^T + R,  P_xy = S S_y1^T,  K = P_xy P_y^-1,  P+ = P - K P_y K^T
+
+  i.e. [Ye2024] eq. 15-16 and 22-28 with ``w1 = 1/(4 h^2)`` and ``w2 = (h^2 - 1)/(4 h^4)``: the
+  same filter as the square-root DD2 of :mod:`.dd2`, in covariance form (a process noise with
+  zero blocks, as the transfer alignment's constant states have, needs no factor).  The
+  unscented rule with the central-difference points and their weights (``ut_predict(...,
+  CentralDifferencePoints())``, covariance weights = mean weights) is not this filter: its
+  covariance differs by ``- sum_{j != k} m_j m_k^T``, ``m_j = (f_j^+ + f_j^- - 2 f_0) / (2 h^2)``
+  (cross products of the second-order terms of different directions): the same on a linear
+  model, not on a nonlinear one (``Cov(x_1^2, x_2^2)`` of independent ``x_1, x_2``: 0 here,
+  ``-s_1^2 s_2^2`` there; test_cdkf_cdvf.py).
 * ``rts_smooth``: the RTS recursion written with the cross-covariance ``C_k = Cov(x_k, x_{k+1} | y_1:k)``,
   which is ``P_k F^T`` for the linear filter and the sigma-point cross-covariance for the
   unscented one, so the same code is the RTS smoother and the URTSS (Sarkka 2008, eq. 12-14):
@@ -20,8 +38,9 @@ import numpy as np
 
 from dpos_core.units import FloatArray
 
-from .linalg import gain, symmetrize
-from .points import UnscentedPoints
+from .dd2 import divided_differences
+from .linalg import chol, gain, symmetrize
+from .points import CENTRAL_DIFFERENCE_POINTS, CentralDifferencePoints, UnscentedPoints
 
 Fn = Callable[[FloatArray], FloatArray]
 
@@ -105,6 +124,42 @@ def ut_update(
     xn = x + np.einsum("...ij,...j->...i", K, nu)
     Pn = P - K @ S @ np.swapaxes(K, -1, -2)
     return Update(xn, symmetrize(Pn), nu, S, K)
+
+
+def _outer(A: FloatArray) -> FloatArray:
+    """``A A^T`` over the last two axes."""
+    return A @ np.swapaxes(A, -1, -2)
+
+
+def cd_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, points: CentralDifferencePoints = CENTRAL_DIFFERENCE_POINTS) -> Prediction:
+    """CDKF time update with additive process noise ([Ye2024] eq. 14-16, Algorithm 2 steps 1-6;
+    module docstring): x (..., n), P (..., n, n), Q (n, n) -> ``x_pred``, ``P_pred`` and
+    ``C = Cov(x_k, x_{k+1}) = S S_x1^T`` (the smoother's cross-covariance)."""
+    S = chol(P)
+    m, S1, S2 = divided_differences(x, S, f, points.h)
+    return Prediction(m, symmetrize(_outer(S1) + _outer(S2) + Q), S @ np.swapaxes(S1, -1, -2))
+
+
+def cd_update(
+    x: FloatArray,
+    P: FloatArray,
+    y: FloatArray,
+    h: Fn,
+    R: FloatArray,
+    points: CentralDifferencePoints = CENTRAL_DIFFERENCE_POINTS,
+    residual: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
+) -> Update:
+    """CDKF measurement update with additive noise ([Ye2024] eq. 17-23; module docstring).
+
+    ``residual(a, b)`` (default ``a - b``) forms measurement differences."""
+    S = chol(P)
+    y_pred, S1, S2 = divided_differences(x, S, h, points.h, residual)
+    Py = symmetrize(_outer(S1) + _outer(S2) + R)
+    K = gain(S @ np.swapaxes(S1, -1, -2), Py)
+    res = residual or (lambda a, b: a - b)
+    nu = res(np.asarray(y, dtype=float), y_pred)
+    xn = x + np.einsum("...ij,...j->...i", K, nu)
+    return Update(xn, symmetrize(P - K @ Py @ np.swapaxes(K, -1, -2)), nu, Py, K)
 
 
 def rts_smooth(

@@ -6,7 +6,8 @@
   ``W0c = W0m + 1 - alpha^2 + beta``, ``Wj = 1 / (2 (n + lambda))``.
 * :class:`CentralDifferencePoints`: Stirling's interpolation (Norgaard, Poulsen, Ravn 2000;
   [Fang2012] eq. 2-14): points ``x +- h s_j`` of a square root ``S``, step ``h = sqrt(3)`` for a
-  Gaussian prior; mean weights ``(h^2 - n)/h^2`` and ``1/(2 h^2)``.  Used by CDKF and DD2.
+  Gaussian prior; mean weights ``(h^2 - n)/h^2`` and ``1/(2 h^2)``.  Used by the CDKF / CDVF
+  (:func:`~.gaussian.cd_predict`, :mod:`.variational`) and DD2.
 
 Both are :func:`symmetric_points` of a square root of the covariance, with different scales.
 """
@@ -76,7 +77,9 @@ class CentralDifferencePoints:
     h: float = CENTRAL_DIFFERENCE_STEP
 
     def weights(self, n: int) -> tuple[FloatArray, FloatArray]:
-        """Mean weights (2n + 1,) and, for the first-order covariance of CDKF, the same."""
+        """Mean weights (2n + 1,), twice (as covariance weights of the unscented rule).  The CDKF's
+        covariance is not a weighted sum over these points: :func:`~.gaussian.cd_predict` forms it
+        from the first- and second-order divided differences (Stirling; gaussian.py docstring)."""
         h2 = self.h**2
         wm = np.full(2 * n + 1, 0.5 / h2)
         wm[0] = (h2 - n) / h2
@@ -87,3 +90,7 @@ class CentralDifferencePoints:
         if S is None:
             S = chol(_required_cov(P))
         return symmetric_points(x, S, self.h)
+
+
+#: the default central-difference point set (``h = sqrt(3)``), a default argument of the CDKF / CDVF
+CENTRAL_DIFFERENCE_POINTS = CentralDifferencePoints()

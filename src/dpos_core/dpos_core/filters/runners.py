@@ -1,7 +1,11 @@
 """Forward filters and backward smoothers over a :class:`~.model.StateSpaceModel`.
 
-* :func:`run_sigma_point_filter` -> :class:`GaussianTrack`: UKF (unscented points) or CDKF
-  (central-difference points) with closed-loop feedback; :func:`smooth_gaussian` is URTSS / RTS.
+* :func:`run_sigma_point_filter` -> :class:`GaussianTrack`: a Gaussian filter with closed-loop
+  feedback, its predict / update pair a rule: :class:`UnscentedRule` (the UKF, the default),
+  :class:`CentralDifferenceRule` (the CDKF, [Ye2024] sec. 2.2), :class:`VariationalRule` (the CDVF,
+  [Ye2024] Algorithm 2: the CDKF with the conjugate-gradient state update, :mod:`.variational`);
+  :func:`smooth_gaussian` is the one RTS recursion behind URTSS, RTS and the CDKF's / CDVF's
+  RTS-type smoothers (the cross-covariance of each rule's prediction).
 * :func:`run_upf` -> :class:`ParticleTrack`: the unscented particle filter ([Gong2018] eq. 2-8;
   van der Merwe et al. 2000), Rao-Blackwellized: every particle carries a UKF over the whole
   state and its posterior is the particle's proposal; importance weights in logs; SIR
@@ -36,11 +40,12 @@ from numpy.typing import NDArray
 from dpos_core.units import FloatArray
 
 from . import _particle_kernel as _pk
-from .gaussian import rts_smooth, ut_predict, ut_update
+from .gaussian import Prediction, Update, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
 from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
-from .points import UnscentedPoints
+from .points import CentralDifferencePoints, UnscentedPoints
+from .variational import CGInfo, CGSettings, CGStats, cdvf_update
 
 # ------------------------------------------------------------------------------------ Gaussian
 
@@ -62,9 +67,56 @@ class GaussianTrack:
     corrections: FloatArray
     nu: FloatArray
     S: FloatArray
+    #: the variational rule's conjugate-gradient record per epoch (None for the other rules)
+    cg: CGStats | None = None
 
 
-def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArray, points=UnscentedPoints()) -> GaussianTrack:
+@dataclass(frozen=True)
+class UnscentedRule:
+    """The UKF's time and measurement updates ([Gong2018] eq. 2-5) with a point set."""
+
+    points: UnscentedPoints | CentralDifferencePoints = UnscentedPoints()
+
+    def predict(self, x: FloatArray, P: FloatArray, f, Q: FloatArray) -> Prediction:
+        return ut_predict(x, P, f, Q, self.points)
+
+    def update(self, x: FloatArray, P: FloatArray, y: FloatArray, h, R: FloatArray, residual) -> tuple[Update, CGInfo | None]:
+        return ut_update(x, P, y, h, R, self.points, residual), None
+
+
+@dataclass(frozen=True)
+class CentralDifferenceRule:
+    """The CDKF's time and measurement updates ([Ye2024] eq. 14-28; :func:`~.gaussian.cd_predict`)."""
+
+    points: CentralDifferencePoints = CentralDifferencePoints()
+
+    def predict(self, x: FloatArray, P: FloatArray, f, Q: FloatArray) -> Prediction:
+        return cd_predict(x, P, f, Q, self.points)
+
+    def update(self, x: FloatArray, P: FloatArray, y: FloatArray, h, R: FloatArray, residual) -> tuple[Update, CGInfo | None]:
+        return cd_update(x, P, y, h, R, self.points, residual), None
+
+
+@dataclass(frozen=True)
+class VariationalRule(CentralDifferenceRule):
+    """The CDVF ([Ye2024] Algorithm 2): the CDKF's prediction and covariance, the state update by
+    the PRP conjugate gradient on the variational cost (:func:`~.variational.cdvf_update`)."""
+
+    settings: CGSettings = CGSettings()
+
+    def update(self, x: FloatArray, P: FloatArray, y: FloatArray, h, R: FloatArray, residual) -> tuple[Update, CGInfo | None]:
+        return cdvf_update(x, P, y, h, R, self.points, residual, self.settings)
+
+
+GaussianRule = UnscentedRule | CentralDifferenceRule | VariationalRule
+
+
+def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArray, points=UnscentedPoints(),
+                           rule: GaussianRule | None = None) -> GaussianTrack:
+    """The forward pass of a Gaussian filter over ``model`` from the prior ``x0`` (n,), ``P0``
+    (n, n): ``rule``'s predict and update at every epoch (default the UKF with ``points``), then the
+    model's feedback and shift."""
+    rule = UnscentedRule(points) if rule is None else rule
     K, n = model.n_epochs, model.n
     x, P = np.asarray(x0, dtype=float).copy(), np.asarray(P0, dtype=float).copy()
     x_f, P_f = np.empty((K, n)), np.empty((K, n, n))
@@ -72,20 +124,23 @@ def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArra
     corr = np.zeros((K, n))
     nus: list[FloatArray | None] = []
     Ss: list[FloatArray | None] = []
+    infos: list[CGInfo | None] = []
     for k in range(K):
         if k > 0:
-            pr = ut_predict(x, P, lambda X: model.f(k - 1, X), model.Q(k - 1), points)
+            pr = rule.predict(x, P, lambda X: model.f(k - 1, X), model.Q(k - 1))
             x_p[k - 1], P_p[k - 1], C[k - 1] = pr.x, pr.P, pr.C
             x, P = pr.x, pr.P
         y = model.y(k)
+        info: CGInfo | None = None
         if y is not None:
-            up = ut_update(x, P, y, lambda X: model.h(k, X), model.R(k), points, model.residual)
+            up, info = rule.update(x, P, y, lambda X: model.h(k, X), model.R(k), model.residual)
             x, P = up.x, up.P
             nus.append(up.nu)
             Ss.append(up.S)
         else:
             nus.append(None)
             Ss.append(None)
+        infos.append(info)
         c = model.feedback(k, x)
         if c is not None:
             corr[k] = c
@@ -96,7 +151,8 @@ def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArra
     p = next((v.shape[0] for v in nus if v is not None), 0)
     nu = np.array([v if v is not None else np.full(p, np.nan) for v in nus])
     S = np.array([s if s is not None else np.full((p, p), np.nan) for s in Ss])
-    return GaussianTrack(x_f, P_f, x_p, P_p, C, corr, nu, S)
+    cg = CGStats.from_infos(infos) if isinstance(rule, VariationalRule) else None
+    return GaussianTrack(x_f, P_f, x_p, P_p, C, corr, nu, S, cg)
 
 
 def smooth_gaussian(track: GaussianTrack) -> tuple[FloatArray, FloatArray]:
