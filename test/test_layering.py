@@ -74,6 +74,7 @@ SIM_CALLERS = {
     "dpos_ros.cli.sim",
     "dpos_ros.cli.evaluate",
     "dpos_ros.cli.mismatch",
+    "dpos_ros.cli.sar_eval",
     "dpos_ros.cli.plot_scenario",
 }
 

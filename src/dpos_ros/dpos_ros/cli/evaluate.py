@@ -73,6 +73,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--mismatch", metavar="CASE[,CASE..]|all",
                     help="the mismatch suite (docs/mismatch.md): simulate each case's truth while the filter keeps the "
                          f"nominal configuration; oracle added to --methods (default ups,urtss). Cases: {', '.join(MISMATCH_CASES)}")
+    sar = ap.add_argument_group("SINS/SAR scenarios (paper_sar: dpos_ros.cli.sar_eval, docs/sar.md)")
+    sar.add_argument("--particle-sweep", metavar="N,N,..", help="also run the particle filters with these particle counts")
+    sar.add_argument("--bandwidth-scale", type=float, default=1.0,
+                     help="regularization bandwidth as a multiple of h_opt (default 1; 0.5 for multimodal densities)")
     ifa = ap.add_argument_group("in-flight alignment scenarios (paper_ifa)")
     ifa.add_argument("--initial-heading-error", type=float, metavar="DEG", help="default: the scenario's ifa block")
     ifa.add_argument("--heading-sweep", metavar="DEG,DEG,..", help="also run these initial heading errors, both signs")
@@ -109,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"dpos-eval: {e}", file=sys.stderr)
         return 2
+    if scenario.sar is not None:  # SINS/SAR ([Yan2016]): its own methods and report
+        from dpos_ros.cli.sar_eval import main_sar
+
+        return main_sar(ap, args, scenario)
     if args.duration is not None and args.duration > scenario.duration_s:
         ap.error(f"--duration {args.duration:g} s exceeds the scenario {scenario.name}'s {scenario.duration_s:g} s")
     try:
