@@ -4,7 +4,13 @@ and the smoothed trajectory at the IMU rate.
 Methods: ``ukf`` (forward only), ``urtss`` (UKF + unscented RTS smoother), ``upf`` (forward
 only), ``ups`` ([Gong2018]'s unscented particle smoother: the Rao-Blackwellized UPF - particles on
 the flexure rate, every particle's UKF carrying the other 21 states - and its backward pass;
-filters.runners explains the choice and what the literal variant measured).
+filters.runners explains the choice and what the literal variant measured); ``cdkf`` (forward
+only) and ``cdkf_rts`` (with its RTS-type smoother): [Ye2024]'s central-difference Kalman filter
+(Stirling's interpolation, ``h^2 = 3``; filters.gaussian); ``cdvf`` and ``cdvf_rts``: [Ye2024]'s
+central-difference variational filter (the CDKF's prediction and covariance, the state update by
+the PRP conjugate gradient, Algorithm 2; filters.variational), its iterations in ``TAResult.cg``.
+The ``*_rts`` smoothers are the one RTS recursion (filters.runners.smooth_gaussian) on the
+filter's predictions and central-difference cross-covariances (docs/cdvf.md).
 
 Output at the IMU rate: the error estimates at the filter epochs are applied to the stored
 nominal trajectory, linearly interpolated between epochs.  Within the interval after epoch k
@@ -37,7 +43,8 @@ from ..attitude import compose_rotvec, cross, dcm_to_quat, quat_to_dcm, rotvec_t
 from ..errors import RejectedInput
 from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
-from ..filters.runners import rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
+from ..filters.runners import CentralDifferenceRule, VariationalRule, rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
+from ..filters.variational import CGStats
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
@@ -45,7 +52,10 @@ from . import flags as F
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .qc import EpochQC, epoch_qc
 
-METHODS = ("ukf", "urtss", "upf", "ups")
+METHODS = ("ukf", "urtss", "upf", "ups", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
+#: the Gaussian methods: (forward rule, smoothed) per method (the particle methods are the others)
+_GAUSSIAN = {"ukf": (None, False), "urtss": (None, True), "cdkf": (CentralDifferenceRule(), False),
+             "cdkf_rts": (CentralDifferenceRule(), True), "cdvf": (VariationalRule(), False), "cdvf_rts": (VariationalRule(), True)}
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
 #: evaluation only: the URTSS of a model that knows the true wing (``Installation.known_wing``:
 #: the true deformed lever arm and flexure rotation in the matches, the flexure states held at zero)
@@ -65,7 +75,9 @@ class TAResult:
     gaps, data too short to align); the rows at ``t_from_s`` and ``t_to_s`` themselves exist when
     data do on that side.  qc: the consistency measures at the epochs (:class:`.qc.EpochQC`: NIS of
     the forward filter's innovations - the UPF's mixture's -, the filtered-minus-smoothed
-    separation of the smoothers), for the quality control without truth.
+    separation of the smoothers), for the quality control without truth.  cg: the CDVF's
+    conjugate-gradient record per epoch (iterations, costs: :class:`~dpos_core.filters.variational.CGStats`),
+    None for the other methods.
     """
 
     method: str
@@ -82,6 +94,7 @@ class TAResult:
     flags: F.FlagArray = field(default_factory=lambda: F.none(0))
     not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
     qc: EpochQC | None = None
+    cg: CGStats | None = None
 
     @property
     def C_nb(self) -> FloatArray:
@@ -183,9 +196,10 @@ def run_segments(
     cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
     ess = None if any(p.ess is None for p in parts) else cat("ess")
     qcs = [p.qc for p in parts if p.qc is not None]
+    cgs = [p.cg for p in parts if p.cg is not None]
     return TAResult(method, cat("t_s"), cat("llh"), cat("vel_n_mps"), cat("q_nb"), cat("sigma"), cat("epochs_s"), cat("x"), cat("P"),
                     ess, sum(p.chol_jitter_repairs for p in parts), cat("flags"), spans,
-                    EpochQC.concat(qcs) if len(qcs) == len(parts) else None)
+                    EpochQC.concat(qcs) if len(qcs) == len(parts) else None, CGStats.concat(cgs) if len(cgs) == len(parts) else None)
 
 
 def _segment_start(master: NavSeries, t_first: float, t_last: float) -> tuple[float, str | None]:
@@ -265,14 +279,17 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         x, P = lin.to_model(*smooth_gaussian(tr))
         qc = epoch_qc(model.epochs_s, tr.nu, tr.S, *lin.to_model(tr.x_f, tr.P_f), x, P)
         return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model), qc=qc)
-    if method in ("ukf", "urtss"):
-        tr = run_sigma_point_filter(model, x0, P0, points)
+    cg: CGStats | None = None
+    if method in _GAUSSIAN:
+        rule, smoothed = _GAUSSIAN[method]
+        tr = run_sigma_point_filter(model, x0, P0, points, rule=rule)
         corr = tr.corrections
-        if method == "urtss":
+        cg = tr.cg
+        if smoothed:
             x, P = smooth_gaussian(tr)
         else:
             x, P = tr.x_f, tr.P_f
-        qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if method == "urtss" else (None, None)))
+        qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if smoothed else (None, None)))
     else:
         ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine)
         corr = ptr.corrections
@@ -284,7 +301,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         mx = ptr.mixture
         qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if method == "ups" else (None, None)))
     out = _apply(model, x, P, corr)
-    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc)
+    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg)
 
 
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,

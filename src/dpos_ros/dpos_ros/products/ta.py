@@ -29,6 +29,7 @@ from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, mount_dcm
 from dpos_core.config import AircraftConfig, AntennaConfig
 from dpos_core.errors import RejectedInput
+from dpos_core.filters.variational import CGStats, pool_summaries
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.series import ImuSeries, NavSeries
 from dpos_core.ta import flags as ta_flags
@@ -55,7 +56,9 @@ class AntennaSolution:
     ``carrier``: its sub-IMU's own solution at the same rows (the input of the least-squares wing
     fit, :func:`fit_antennas`); ``wing_fit``: for a ``fit`` antenna, the fit's basis choice and
     cross-validation (:class:`dpos_core.ta.wingfit.WingFit`); ``qc``: its sub-IMU's consistency
-    measures at the filter epochs (:class:`dpos_core.ta.qc.EpochQC`; None for a ``fit`` antenna)."""
+    measures at the filter epochs (:class:`dpos_core.ta.qc.EpochQC`; None for a ``fit`` antenna);
+    ``cg``: the CDVF's conjugate-gradient record per epoch (:class:`dpos_core.filters.variational.CGStats`;
+    None for the other methods)."""
 
     name: str
     sub_imu: str | None
@@ -68,6 +71,7 @@ class AntennaSolution:
     carrier: SubImuTrack | None = None
     wing_fit: dict | None = None
     qc: ta_qc.EpochQC | None = None
+    cg: CGStats | None = None
 
 
 def solve(
@@ -187,7 +191,8 @@ def _sub_imu_antenna(sess: RecordedSession, aircraft: AircraftConfig, a: Antenna
     keep = _decimate(r.t_s, output_rate_hz)
     status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
     return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
-                           r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep), qc=r.qc)
+                           r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep), qc=r.qc,
+                           cg=r.cg)
 
 
 def _qc_flags(r: pipeline.TAResult, master: NavSeries, sigma_deg: float) -> ta_flags.FlagArray:
@@ -330,6 +335,8 @@ def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution]) -> dic
             e9, s9 = M.state_errors(est, tru)[sel], a.sigma[ok][sel]
             out[name]["consistency"] = M.consistency(e9, s9)
             out[name]["nsq"] = (e9 / s9) ** 2  # (n, 9) normalized squared errors, for the ANEES over runs
+        if a.cg is not None:  # the CDVF's conjugate-gradient iterations (whole session)
+            out[name]["cg"] = a.cg.summary()
     return out
 
 
@@ -499,7 +506,9 @@ def combine_runs(per_method: dict[str, list[dict]], timing: dict[str, dict]) -> 
         names = runs[0].keys()
         ant = {n: M.average([{"rmse": run[n]["rmse"], "std": run[n]["std"]} for run in runs]) for n in names}
         cons = {n: M.average_consistency([run[n].get("consistency", {}) for run in runs]) for n in names}
-        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {})} for n in names}, timing[m])
+        cg = {n: pool_summaries([run[n]["cg"] for run in runs if "cg" in run[n]]) for n in names}
+        combined[m] = ({n: {**ant[n], **({"consistency": cons[n]} if cons[n]["n"] else {}), **({"cg": cg[n]} if cg[n]["updates"] else {})}
+                        for n in names}, timing[m])
     return combined
 
 
@@ -516,6 +525,11 @@ def metrics_json(sess: RecordedSession | None, per_method: dict[str, tuple[dict,
             for name, c in cons.items():
                 ants[name]["consistency"] = c
             methods[method]["consistency"] = M.average_consistency(list(cons.values()))
+        cgs = {name: e["cg"] for name, e in ev.items() if e.get("cg")}
+        if cgs:  # the CDVF's conjugate-gradient iterations, per antenna and pooled
+            for name, c in cgs.items():
+                ants[name]["cg"] = c
+            methods[method]["cg"] = pool_summaries(list(cgs.values()))
     return out
 
 
@@ -561,12 +575,74 @@ def report_md(metrics: dict, title: str, paper: bool | None = None) -> str:
         for m, c in cons.items():
             lines.append(f"| {m} | " + " | ".join(f"{c['within_2sigma'][k]:.2f} / {c['nees'][k]:.2g}" for k in M.CONS_KEYS) + " |")
         lines.append("")
+    if metrics.get("scenario") == "paper_cdvf":
+        lines += table2_md(metrics)
+    cgs = {m: metrics["methods"][m]["cg"] for m in methods if metrics["methods"][m].get("cg", {}).get("updates")}
+    if cgs:
+        lines += cg_md(cgs)
     for m in methods:
         t = metrics["methods"][m].get("timing", {})
         if t.get("data_s"):
             lines.append(f"- {m}: processing {t['processing_s']:.1f} s for {t['data_s']:.0f} s of sub-IMU data "
                          f"(processing time / data duration = {t['processing_s'] / t['data_s']:.4f})")
     return "\n".join(lines) + "\n"
+
+
+#: [Ye2024] Table 2 (flight test, RMSE): the traditional method (CDKF), the modified method (the
+#: H-infinity CDKF of its ref. 1) and the proposed method (CDVF)
+PAPER_TABLE2 = {
+    "heading_deg": (0.066, 0.058, 0.050), "pitch_deg": (0.006, 0.005, 0.004), "roll_deg": (0.005, 0.004, 0.003),
+    "vel_e_mps": (0.026, 0.023, 0.019), "vel_n_mps": (0.023, 0.020, 0.016), "vel_u_mps": (0.031, 0.026, 0.022),
+    "lat_m": (0.748, 0.645, 0.580), "lon_m": (0.848, 0.713, 0.660), "h_m": (0.976, 0.870, 0.741),
+}
+#: the relative improvements [%] [Ye2024] sec. 4.2 states in its text (they are not those of its Table 2)
+PAPER_TABLE2_TEXT_PCT = {"heading_deg": 22.2, "pitch_deg": 10.5, "roll_deg": 12.5, "vel_e_mps": 19.2, "vel_n_mps": 18.1,
+                         "vel_u_mps": 22.5, "lat_m": 17.3, "lon_m": 19.8, "h_m": 23.9}
+#: (CDKF, CDVF) pairs whose relative improvement the Table 2 layout shows
+CDVF_PAIRS = (("cdkf", "cdvf"), ("cdkf_rts", "cdvf_rts"))
+
+
+def _improvement(base: float | None, new: float | None) -> str:
+    """``(base - new) / base`` in % (positive: ``new`` is better), or a dash."""
+    if base is None or new is None or not np.isfinite(base) or not np.isfinite(new) or base <= 0:
+        return "—"
+    return f"{100.0 * (base - new) / base:+.2f} %"
+
+
+def table2_md(metrics: dict) -> list[str]:
+    """[Ye2024] Table 2 layout (attitude, velocity, position RMSE; no baseline row): every method's
+    RMSE, the relative improvement of each CDVF over its CDKF (:data:`CDVF_PAIRS`), the paper's three
+    columns and its improvements (from its table, traditional -> proposed, and as its text states)."""
+    methods = list(metrics["methods"])
+    rmse = {m: metrics["methods"][m].get("mean", {}).get("rmse", {}) for m in methods}
+    pairs = [(a, b) for a, b in CDVF_PAIRS if a in methods and b in methods]
+    head = ["Items", ""] + methods + [f"{b} vs {a}" for a, b in pairs] + [
+        "paper CDKF", "paper modified CDKF", "paper CDVF", "paper CDVF vs CDKF (table)", "paper (text)"]
+    lines = ["", f"[Ye2024] Table 2 layout: RMSE over the imaging laps ({metrics['runs']} run(s)); improvement = "
+             "(CDKF - CDVF) / CDKF, positive when the CDVF is better.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for group, label, key in ROWS:
+        if key not in PAPER_TABLE2:
+            continue
+        row = [group, label] + [(f"{rmse[m][key]:.4g}" if rmse[m].get(key) is not None else "—") for m in methods]
+        row += [_improvement(rmse[a].get(key), rmse[b].get(key)) for a, b in pairs]
+        t, mod, prop = PAPER_TABLE2[key]
+        row += [f"{t:.3f}", f"{mod:.3f}", f"{prop:.3f}", _improvement(t, prop), f"+{PAPER_TABLE2_TEXT_PCT[key]:.1f} %"]
+        lines.append("| " + " | ".join(row) + " |")
+    return lines + [""]
+
+
+def cg_md(cgs: dict[str, dict]) -> list[str]:
+    """The CDVF's conjugate-gradient iterations per method (:meth:`dpos_core.filters.variational.CGStats.summary`, pooled)."""
+    lines = ["CDVF conjugate-gradient state updates (stopping rule |grad J| <= 1e-3 in the whitened coordinates, "
+             "dpos_core.filters.variational; J: the variational cost, J0 at the prediction, J_cdkf at the CDKF's update):", "",
+             "| method | updates | iterations mean / max | stopped by the gradient rule | mean (J0 - J) / J0 | J < J_cdkf | "
+             "mean (J_cdkf - J) / J_cdkf | max (J - J_cdkf) | max final abs(grad J) |", "|---|---|---|---|---|---|---|---|---|"]
+    for m, c in cgs.items():
+        lines.append(f"| {m} | {c['updates']} | {c['iterations_mean']:.2f} / {c['iterations_max']} | {c['stopped_by_gradient']:.3f} | "
+                     f"{c['relative_cost_decrease_mean']:.4f} | {c['below_cdkf']:.3f} | {c['relative_gain_over_cdkf_mean']:.2e} | "
+                     f"{c['cost_minus_cdkf_max']:.2e} | {c['grad_norm_max']:.2e} |")
+    return lines + [""]
 
 
 def _fmt(v) -> str:
