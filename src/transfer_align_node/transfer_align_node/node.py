@@ -38,8 +38,10 @@ Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     Waits, at most ``finalize_timeout_s``, until every stream has reached the end stamp (the
     truth streams too, unless they stopped arriving for ``STALL_S``) and reports what is
     missing; then runs
-    the smoother for each sub-IMU in worker processes (in parallel on the available cores) while
-    the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
+    the smoother for each sub-IMU in worker processes (in parallel on the available cores; the
+    workers are started when the node starts and load the filters then, so the time after the
+    session's end goes to the session: ~1.5 s of CPU per worker; a pool broken by a dead worker is
+    replaced for the next session) while the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
 
 Errors
@@ -79,6 +81,7 @@ from std_srvs.srv import Trigger
 
 from dpos_core.config import ConfigError, config_text, load_aircraft
 from dpos_core.errors import RejectedInput
+from dpos_core.ta.warmup import warm_up
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
@@ -137,6 +140,12 @@ def _pool(n_workers: int) -> cf.Executor:
     """The executor of the smoothers: spawned worker processes (one sub-IMU each).  A module
     function so that tests can run the smoothers in-process (and inject failures)."""
     return process_pool(n_workers)
+
+
+def _warm_worker(method: str) -> float:
+    """Run in each worker when the pool starts (:meth:`TransferAlignNode._new_pool`): imports this
+    module and the filters and runs ``method`` once on synthetic data (dpos_core.ta.warmup)."""
+    return warm_up(method)
 
 
 def _describe(e: BaseException) -> str:
@@ -269,6 +278,8 @@ class TransferAlignNode(Node):
         self._disk: BufferedSpill | None = None  # a closing spill waiting for the disk (finalize)
         self._stopping_at: float | None = None  # time.monotonic() of the shutdown (bounds the wait for the disk)
         self._device: SimDevice | None = None  # publishing the antenna poses of the last session
+        self._n_workers = worker_count(cfg.workers, len(self.sub_names))
+        self._executor: cf.Executor | None = self._new_pool()  # started now: warm when the session ends
         topics = {T.MASTER_NAV: (T.ODOMETRY, NAV_QOS), T.DATUM: (T.NAVSATFIX, DATUM_QOS),
                   T.TRUTH_MASTER: (T.ODOMETRY, NAV_QOS)}
         for n in self.sub_names:
@@ -505,11 +516,18 @@ class TransferAlignNode(Node):
         sp.write(T.DATUM, T.NAVSATFIX, 0, serialize_message(msg))
         self.get_logger().warning("no /dpos/datum received: using the datum parameter")
 
+    def _new_pool(self) -> cf.Executor:
+        """The smoothers' workers, started now, each loading the filters (:func:`_warm_worker`)."""
+        ex = _pool(self._n_workers)
+        for _ in range(self._n_workers):
+            ex.submit(_warm_worker, self.config.method)
+        return ex
+
     def _process(self, spill_dir: Path, counts: dict) -> None:
         cfg = self.config
         log = self.get_logger()
         t0 = time.perf_counter()
-        n_workers = worker_count(cfg.workers, len(self.sub_names))
+        n_workers = self._n_workers
         self._progress = f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {n_workers} worker(s)"
         log.info(self._progress)
         antennas: dict[str, AntennaSolution] = {}
@@ -518,33 +536,50 @@ class TransferAlignNode(Node):
         failed: dict[str, str] = {}
         repairs = 0
 
-        with _pool(n_workers) as ex:
-            futs = {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
+        ex = self._executor if self._executor is not None else self._new_pool()  # warm since the node started
+        self._executor = ex  # (it stays up for the next session)
+        broken = False
+
+        def submit_all(ex: cf.Executor) -> dict[cf.Future, str]:
+            return {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
                               cfg.initial_attitude_error_deg, cfg.filter_rate_hz, cfg.output_rate_hz, cfg.position_matching,
                               cfg.sigma_inflation): n
                     for n in self.sub_names}
-            done = 0
-            for f in cf.as_completed(futs):
-                sub = futs[f]
-                done += 1
-                try:
-                    ants, tm, warns = f.result()
-                except RejectedInput as e:  # the sub-IMU's data cannot be used: no traceback needed
-                    failed[sub] = _describe(e)
-                    log.error(f"sub-IMU {sub}: the {cfg.method} smoother rejected its input ({e.what}, {e.reason}): {e}; "
-                              "its antennas are not estimated")
-                except Exception as e:  # noqa: BLE001 - NumericalFailure, a bug or a dead worker: this sub-IMU only, with the traceback
-                    failed[sub] = _describe(e)
-                    log.error(f"sub-IMU {sub}: the {cfg.method} smoother failed: {_describe(e)}; its antennas are not estimated\n"
-                              f"{''.join(traceback.format_exception(e)).rstrip()}")
-                else:
-                    antennas.update(ants)
-                    timing["data_s"] += tm["data_s"]
-                    warnings += [w for w in warns if w not in warnings]
-                    repairs += max((a.chol_jitter_repairs for a in ants.values()), default=0)  # one smoother per sub-IMU
-                timing["processing_s"] = time.perf_counter() - t0
-                self._progress = f"processed {done}/{len(futs)} sub-IMU(s)" + (f", {len(failed)} failed" if failed else "")
-                log.info(f"{self._progress} ({sub}{': FAILED' if sub in failed else ''})")
+
+        try:
+            futs = submit_all(ex)
+        except cf.BrokenExecutor:  # a worker died while the node waited (killed, out of memory): new workers
+            log.warning("the smoothers' worker pool is broken (a worker died since the node started): starting new workers")
+            ex.shutdown(wait=False, cancel_futures=True)
+            ex = self._executor = self._new_pool()
+            futs = submit_all(ex)
+        done = 0
+        for f in cf.as_completed(futs):
+            sub = futs[f]
+            done += 1
+            try:
+                ants, tm, warns = f.result()
+            except RejectedInput as e:  # the sub-IMU's data cannot be used: no traceback needed
+                failed[sub] = _describe(e)
+                log.error(f"sub-IMU {sub}: the {cfg.method} smoother rejected its input ({e.what}, {e.reason}): {e}; "
+                          "its antennas are not estimated")
+            except Exception as e:  # noqa: BLE001 - NumericalFailure, a bug or a dead worker: this sub-IMU only, with the traceback
+                broken |= isinstance(e, cf.BrokenExecutor)
+                failed[sub] = _describe(e)
+                log.error(f"sub-IMU {sub}: the {cfg.method} smoother failed: {_describe(e)}; its antennas are not estimated\n"
+                          f"{''.join(traceback.format_exception(e)).rstrip()}")
+            else:
+                antennas.update(ants)
+                timing["data_s"] += tm["data_s"]
+                warnings += [w for w in warns if w not in warnings]
+                repairs += max((a.chol_jitter_repairs for a in ants.values()), default=0)  # one smoother per sub-IMU
+            timing["processing_s"] = time.perf_counter() - t0
+            self._progress = f"processed {done}/{len(futs)} sub-IMU(s)" + (f", {len(failed)} failed" if failed else "")
+            log.info(f"{self._progress} ({sub}{': FAILED' if sub in failed else ''})")
+        if broken:  # a dead worker breaks the pool: a new one for the next session
+            ex.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+            self._executor = self._new_pool()
         with self._lock:
             self._errors.update(failed)
         self._chol_jitter_repairs = repairs
@@ -682,6 +717,10 @@ class TransferAlignNode(Node):
             device = getattr(self, "_device", None)
             if device is not None:
                 device.stop()
+            ex = getattr(self, "_executor", None)
+            if ex is not None:
+                self._executor = None
+                ex.shutdown(wait=True, cancel_futures=True)
             closed = getattr(self, "_closed", None)
             if closed is not None:  # the late messages of the last session: final counts into its products
                 closed.close()

@@ -68,3 +68,27 @@ def test_a_rejected_sub_imu_in_a_worker_leaves_the_other_estimated(session) -> N
     assert parallel["ant_l"].status == "estimated"
     assert parallel["ant_r"].status.startswith("not estimated: sub-IMU sub_r: "), parallel["ant_r"].status
     assert w1 == w2 and any(w.startswith("sub-IMU sub_r: ") and "not estimated" in w for w in w2), w2
+
+
+def test_a_warm_pool_gives_the_serial_results_and_stays_up_for_the_next_session(session) -> None:
+    """The pool of transfer_align_node / dpos-process (runtime.pool.warm_pool): its workers ran the
+    warm-up (dpos_core.ta.warmup) before the session; solve() uses it and leaves it running."""
+    import concurrent.futures as cf
+    from functools import partial
+
+    from dpos_core.ta.warmup import warm_up
+    from dpos_ros.runtime.pool import warm_pool
+
+    sess, aircraft = session
+    serial, w1 = _solve(sess, aircraft, 1)
+    pool, warming = warm_pool(2, partial(warm_up, "urtss"))
+    try:
+        done, _ = cf.wait(warming, timeout=120)
+        assert len(done) == 2 and all(f.result() > 0.0 for f in done)  # both warm-ups ran without error
+        for _ in range(2):  # two sessions on the same pool
+            s = replace(sess, warnings=list(sess.warnings))
+            ants, _ = solve(s, aircraft, "urtss", particles=10, seed=3, initial_attitude_error_deg=1.0, workers=1, pool=pool)
+            _same(serial, ants)
+            assert s.warnings == w1
+    finally:
+        pool.shutdown()

@@ -23,17 +23,22 @@ products are kept.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import json
 import math
+import os
 import sys
+from functools import partial
 from pathlib import Path
 
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS
+from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
 from dpos_ros.io.session import SessionError, read_session
 from dpos_ros.products.master_reference import REFERENCES, accuracy, aligned_since, master_reference
 from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
+from dpos_ros.runtime.pool import warm_pool
 
 EXIT_OK = 0
 EXIT_NOT_ESTIMATED = 1
@@ -56,7 +61,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
     ap.add_argument("--workers", type=int, default=0, metavar="N",
                     help="worker processes aligning the sub-IMUs in parallel (default 0 = one per core; 1 = serial); "
-                         "the results do not depend on it")
+                         "they start, and load the filters, while the recording is read; the results do not depend on it")
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
                     help="initial sub-IMU attitude error per axis (default: the recording's transfer_alignment setting, else 0)")
@@ -110,6 +115,17 @@ def main(argv: list[str] | None = None) -> int:
     except OutputError as e:
         print(f"dpos-process: error: --out {e}", file=sys.stderr)
         return EXIT_ERROR
+    # the workers start and load the filters while the recording is read (runtime.pool.warm_pool)
+    pool = warm_pool(args.workers or os.cpu_count() or 1, partial(warm_up, args.method))[0] if args.workers != 1 else None
+    try:
+        return _process(args, target, pool)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
+    """:func:`main` once the output target is checked: read, align (on ``pool`` when given), write."""
     try:
         sess = read_session(args.bag)
         if args.aircraft:
@@ -156,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
           f"method {args.method}, initial attitude error {err0:g} deg")
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
                              filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate, workers=args.workers,
-                             position_matching=args.position_matching, inflate_sigma=args.inflate_sigma)
+                             position_matching=args.position_matching, inflate_sigma=args.inflate_sigma, pool=pool)
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite)

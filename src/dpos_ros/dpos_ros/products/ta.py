@@ -90,6 +90,7 @@ def solve(
     master_aligned_sigma_deg: float = 0.1,
     workers: int = 1,
     known_wing: dict | None = None,
+    pool: cf.Executor | None = None,
 ) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
     with their antennas) from the first epoch at which the main POS is aligned
@@ -111,6 +112,9 @@ def solve(
     core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
     the main POS, its installation and the configuration; every sub-IMU uses ``seed`` either way,
     so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it.
+    ``pool``: an executor already started (:func:`dpos_ros.runtime.pool.warm_pool`: its workers
+    have imported and run the filters while the recording was read), used instead of starting
+    one when there are at least 2 sub-IMUs (``workers`` is then ignored); it is left running.
 
     ``inflate_sigma``: each sub-IMU's output 1-sigma is scaled by the innovations' variance factor
     per match group where they say the filter is optimistic (:func:`dpos_core.ta.qc.sigma_scale`;
@@ -139,11 +143,16 @@ def solve(
     futs: dict[str, cf.Future[pipeline.TAResult]] = {}
     out: dict[str, AntennaSolution] = {}
     with contextlib.ExitStack() as stack:
-        if n_workers > 1:  # submitted all at once, collected below in the aircraft's order
-            pool = process_pool(n_workers)
-            stack.callback(pool.shutdown, wait=True, cancel_futures=True)  # on an error: the queued ones are not run
+        ex: cf.Executor | None = None
+        if pool is not None and len(tasks) > 1:
+            ex = pool
+            stack.callback(lambda: [f.cancel() for f in futs.values()])  # on an error: the queued ones are not run
+        elif n_workers > 1:
+            ex = process_pool(n_workers)
+            stack.callback(ex.shutdown, wait=True, cancel_futures=True)  # on an error: the queued ones are not run
+        if ex is not None:  # submitted all at once, collected below in the aircraft's order
             # the core's function itself (pickled by name): a worker imports dpos_core.ta.pipeline, not this module
-            futs = {name: pool.submit(pipeline.run_segments, *args[:-1], oracle_truth=args[-1]) for name, args in tasks.items()}
+            futs = {name: ex.submit(pipeline.run_segments, *args[:-1], oracle_truth=args[-1]) for name, args in tasks.items()}
         for s in aircraft.sub_imus:
             if s.name not in sess.sub_imus:
                 sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")

@@ -6,6 +6,7 @@ import concurrent.futures as cf
 import multiprocessing.context as mpc
 import os
 import threading
+from collections.abc import Callable
 
 #: the BLAS / OpenMP thread counts of a worker: one (its matrices are small, one worker per core;
 #: BLAS threads would contend with the other workers: ~5 % of a paper_wing sub-IMU's CPU)
@@ -47,3 +48,15 @@ def worker_count(workers: int, tasks: int) -> int:
     """How many workers to start for ``tasks`` tasks: ``workers`` (0 = one per core), at most one
     per task, at least 1."""
     return max(1, min(tasks, workers or (os.cpu_count() or 1)))
+
+
+def warm_pool(n_workers: int, warm: Callable[[], object]) -> tuple[cf.ProcessPoolExecutor, list[cf.Future]]:
+    """:func:`process_pool` with its ``n_workers`` workers started now, each running ``warm`` (a
+    module-level function or a partial of one, pickled by name; e.g.
+    :func:`dpos_core.ta.warmup.warm_up`) in the background: a spawned worker otherwise spends
+    ~1.5 s of CPU importing the filters and loading their numba kernels before its first sub-IMU.
+    One call per worker: each ``submit`` while no worker is idle starts one, and ``warm`` takes
+    longer than a worker's start, so each worker takes one.  Returns the pool and the warm-up
+    futures (a ``warm`` that fails needs no handling: the real tasks report their own errors)."""
+    pool = process_pool(n_workers)
+    return pool, [pool.submit(warm) for _ in range(max(1, n_workers))]
