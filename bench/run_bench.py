@@ -19,7 +19,9 @@ Keys (in order):
                                update); urtss_paper_su_ref_time_ratio: the URTSS in the same run, side by side;
                                cdvf_paper_su_cg_iterations_mean / _max: the CDVF's iterations per update
   wing_paper_wing_time_ratio   the whole paper_wing session (6 sub-IMUs at 200 Hz, 12 antennas: UPS with 100
-                               particles, the wing fit) through solve() on 2 workers / session duration (300 s);
+                               particles, the wing fit) through solve() on 2 workers / session duration (300 s),
+                               the workers started and warm (as transfer_align_node and dpos-process have them);
+                               wing_paper_wing_cold_time_ratio: the workers started by solve();
                                wing_paper_wing_serial_time_ratio: the same one sub-IMU after the other;
                                *_split_s: seconds of the transfer alignment and of the rest (the wing fit)
   ifa_add2_paper_ifa_time_ratio   in-flight alignment (ADD2, bank of 6 hypotheses) of paper_ifa / duration
@@ -53,11 +55,13 @@ Keys (in order):
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import json
 import os
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -190,6 +194,45 @@ def bench_cdvf(results: dict, repeats: int) -> None:
           f"{s['stopped_by_gradient']:.3f} stopped by the gradient rule")
 
 
+def _children_cpu_s(pool) -> float:
+    """CPU seconds (user + system) used so far by the live worker processes of ``pool`` (0 without one)."""
+    if pool is None:
+        return 0.0
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0
+    for pid in list(getattr(pool, "_processes", {})):
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        total += int(fields[11]) + int(fields[12])  # utime, stime (fields 14, 15 of proc(5))
+    return total / tick
+
+
+def bench_cdvf(results: dict, repeats: int) -> None:
+    """[Ye2024]'s CDKF and CDVF (with their RTS-type smoothers) on urtss_paper_su_time_ratio's data
+    (paper_su, sub_r, 40 deg initial errors), the URTSS timed in the same run beside them."""
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+    from dpos_core.ta import from_sim, pipeline
+    from dpos_core.ta.model import TAConfig
+
+    ss = SimulatedSession(load_scenario("paper_su"), 1)
+    imu, master, ins = from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
+    init = pipeline.initial_from_master(master, ins, (40.0, 40.0, 40.0))
+    cfg = TAConfig(attitude_sigma_deg=40.0)
+    dur = float(imu.t_s[-1] - imu.t_s[0])
+    for method, key in (("urtss", "urtss_paper_su_ref_time_ratio"), ("cdkf_rts", "cdkf_paper_su_time_ratio"),
+                        ("cdvf_rts", "cdvf_paper_su_time_ratio")):
+        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, initial=init), min(repeats, 2))
+        results[key] = el / dur
+        print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
+    cg = pipeline.run(imu, master, ins, cfg, "cdvf", initial=init).cg
+    assert cg is not None
+    s = cg.summary()
+    results["cdvf_paper_su_cg_iterations_mean"], results["cdvf_paper_su_cg_iterations_max"] = s["iterations_mean"], s["iterations_max"]
+    print(f"cdvf conjugate gradient: {s['iterations_mean']:.2f} iterations per update (max {s['iterations_max']}), "
+          f"{s['stopped_by_gradient']:.3f} stopped by the gradient rule")
+
+
 def bench_wing(results: dict, repeats: int) -> None:
     """The whole paper_wing session (300 s, 6 sub-IMUs at 200 Hz, 12 antennas) through solve() as
     dpos-process runs it (UPS, 100 particles, the recording's initial attitude error): the six
@@ -201,22 +244,36 @@ def bench_wing(results: dict, repeats: int) -> None:
     from dpos_core.config import config_text
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
+    from dpos_core.ta.warmup import warm_up
     from dpos_ros.devices.sim_streams import session_custom_data, session_streams
     from dpos_ros.io.session import session_from_streams
     from dpos_ros.products.ta import solve
+    from dpos_ros.runtime.pool import warm_pool
 
     scenario = load_scenario("paper_wing")
     ss = SimulatedSession(scenario, 1)
     sess = session_from_streams(session_streams(ss), session_custom_data(ss, config_text("aircraft", "paper_wing")), "paper_wing_seed1")
     dur = float(sess.master.t_s[-1] - sess.master.t_s[0])
     err0 = float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
-    for workers, key in ((2, "wing_paper_wing_time_ratio"), (1, "wing_paper_wing_serial_time_ratio")):
+    # warm: the 2 workers started and loaded the filters before (transfer_align_node starts them with
+    # the node, dpos-process while it reads the recording: runtime.pool.warm_pool); cold: started by solve()
+    for workers, key in ((2, "wing_paper_wing_time_ratio"), (2, "wing_paper_wing_cold_time_ratio"),
+                         (1, "wing_paper_wing_serial_time_ratio")):
+        pool = None
+        if key == "wing_paper_wing_time_ratio":
+            pool, warming = warm_pool(workers, partial(warm_up, "ups"))
+            cf.wait(warming)
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        rs0 = _children_cpu_s(pool)
         t0, c0 = time.perf_counter(), time.process_time()
-        ants, timing = solve(sess, scenario.aircraft, "ups", 100, 0, err0, workers=workers)
+        ants, timing = solve(sess, scenario.aircraft, "ups", 100, 0, err0, workers=workers, pool=pool)
         el, cpu = time.perf_counter() - t0, time.process_time() - c0
-        ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the workers, joined when solve() returns
-        cpu_workers = (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
+        if pool is not None:  # live workers: their CPU from /proc (getrusage counts joined children only)
+            cpu_workers = _children_cpu_s(pool) - rs0
+            pool.shutdown()
+        else:
+            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the workers, joined when solve() returns
+            cpu_workers = (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
         n_est = sum(a.traj is not None for a in ants.values())
         results[key] = el / dur
         results[f"{key}_split_s"] = {"transfer_alignment": timing["processing_s"], "antennas_and_wing_fit": el - timing["processing_s"]}
