@@ -207,32 +207,6 @@ def _children_cpu_s(pool) -> float:
     return total / tick
 
 
-def bench_cdvf(results: dict, repeats: int) -> None:
-    """[Ye2024]'s CDKF and CDVF (with their RTS-type smoothers) on urtss_paper_su_time_ratio's data
-    (paper_su, sub_r, 40 deg initial errors), the URTSS timed in the same run beside them."""
-    from dpos_core.sim.scenario import load_scenario
-    from dpos_core.sim.session import SimulatedSession
-    from dpos_core.ta import from_sim, pipeline
-    from dpos_core.ta.model import TAConfig
-
-    ss = SimulatedSession(load_scenario("paper_su"), 1)
-    imu, master, ins = from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
-    init = pipeline.initial_from_master(master, ins, (40.0, 40.0, 40.0))
-    cfg = TAConfig(attitude_sigma_deg=40.0)
-    dur = float(imu.t_s[-1] - imu.t_s[0])
-    for method, key in (("urtss", "urtss_paper_su_ref_time_ratio"), ("cdkf_rts", "cdkf_paper_su_time_ratio"),
-                        ("cdvf_rts", "cdvf_paper_su_time_ratio")):
-        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, initial=init), min(repeats, 2))
-        results[key] = el / dur
-        print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
-    cg = pipeline.run(imu, master, ins, cfg, "cdvf", initial=init).cg
-    assert cg is not None
-    s = cg.summary()
-    results["cdvf_paper_su_cg_iterations_mean"], results["cdvf_paper_su_cg_iterations_max"] = s["iterations_mean"], s["iterations_max"]
-    print(f"cdvf conjugate gradient: {s['iterations_mean']:.2f} iterations per update (max {s['iterations_max']}), "
-          f"{s['stopped_by_gradient']:.3f} stopped by the gradient rule")
-
-
 def bench_wing(results: dict, repeats: int) -> None:
     """The whole paper_wing session (300 s, 6 sub-IMUs at 200 Hz, 12 antennas) through solve() as
     dpos-process runs it (UPS, 100 particles, the recording's initial attitude error): the six
