@@ -73,6 +73,7 @@ SIM_CALLERS = {
     "dpos_ros.products.ifa",
     "dpos_ros.cli.sim",
     "dpos_ros.cli.evaluate",
+    "dpos_ros.cli.campaign",
     "dpos_ros.cli.mismatch",
     "dpos_ros.cli.sar_eval",
     "dpos_ros.cli.plot_scenario",

@@ -51,7 +51,7 @@ def test_node_package_depends_on_glue_and_ships_params(package):
     assert (SRC / package / package / "config" / f"{package}.yaml").is_file()
 
 
-@pytest.mark.parametrize("script", [*NODE_PACKAGES, "dpos-demo", "dpos-strapdown-demo", "dpos-sim", "dpos-process", "dpos-eval", "dpos-graph", "dpos-play", "dpos-record"])
+@pytest.mark.parametrize("script", [*NODE_PACKAGES, "dpos-demo", "dpos-strapdown-demo", "dpos-sim", "dpos-process", "dpos-eval", "dpos-graph", "dpos-play", "dpos-record", "dpos-campaign"])
 def test_console_script_in_venv_bin(script):
     path = BIN_DIR / script
     assert path.is_file(), f"{path} missing: was the package installed with pip --use-pep517? (see setup.cfg)"

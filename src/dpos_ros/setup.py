@@ -32,6 +32,7 @@ setup(
             'dpos-play = dpos_ros.cli.play:main',
             'dpos-graph = dpos_ros.cli.graph:main',
             'dpos-demo = dpos_ros.cli.demo:main',
+            'dpos-campaign = dpos_ros.cli.campaign:main',
         ],
     },
 )

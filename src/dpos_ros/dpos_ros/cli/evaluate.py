@@ -19,6 +19,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from dpos_core.config import ConfigError, config_text
@@ -26,7 +27,7 @@ from dpos_core.ifa.evaluate import is_ifa_scenario
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.sim.mismatch import CASES as MISMATCH_CASES
 from dpos_core.sim.mismatch import case_names as mismatch_cases
-from dpos_core.sim.scenario import load_scenario
+from dpos_core.sim.scenario import Scenario, load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
@@ -117,12 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         from dpos_ros.cli.sar_eval import main_sar
 
         return main_sar(ap, args, scenario)
-    if args.duration is not None and args.duration > scenario.duration_s:
-        ap.error(f"--duration {args.duration:g} s exceeds the scenario {scenario.name}'s {scenario.duration_s:g} s")
-    try:
-        methods = methods_of(args.methods, ifa=is_ifa_scenario(scenario))
-    except ValueError as e:
-        ap.error(str(e))
+    methods = scenario_methods(ap, args, scenario)
     if args.mismatch is not None:
         if is_ifa_scenario(scenario):
             ap.error("--mismatch is for transfer-alignment scenarios")
@@ -141,39 +137,111 @@ def main(argv: list[str] | None = None) -> int:
         from dpos_ros.products.ifa import main_ifa
 
         return main_ifa(ap, args, scenario, methods)
+    plan = ta_plan(ap, args, scenario, methods)
+    runs = [ta_run(plan, args.seed + r, label=f"run {r + 1}/{args.runs}") for r in range(args.runs)]
+    ta_write(args.out, plan, runs)
+    return 0
+
+
+@dataclass(frozen=True)
+class TAPlan:
+    """A transfer-alignment Monte Carlo evaluation, checked: what each run needs (picklable, so
+    that a run can go to another process: ``dpos-campaign eval``)."""
+
+    scenario: Scenario
+    methods: tuple[str, ...]
+    particles: int
+    duration_s: float | None
+    initial_attitude_error_deg: float
+    aircraft_text: str | None
+    position_matching: bool
+
+
+@dataclass
+class TARun:
+    """One run of a :class:`TAPlan`: per method the :func:`evaluate` result without its error
+    series (per antenna ``rmse``, ``std`` and ``consistency``: what :func:`combine_runs` reads),
+    the method's timing (processing and data seconds) and the session's imaging segments."""
+
+    seed: int
+    evaluations: dict[str, dict[str, dict]]
+    timing: dict[str, dict[str, float]]
+    segments: list[str]
+    lines: list[str] = field(default_factory=list)
+
+
+#: the per-epoch series of an evaluate() result, not needed to combine the runs
+_SERIES = ("errors", "t_s", "nsq")
+
+
+def scenario_methods(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Scenario) -> list[str]:
+    """``--methods`` checked against the scenario (transfer or in-flight alignment), and
+    ``--duration`` against its length: ``ap.error`` (exit 2) names what is wrong."""
+    if args.duration is not None and args.duration > scenario.duration_s:
+        ap.error(f"--duration {args.duration:g} s exceeds the scenario {scenario.name}'s {scenario.duration_s:g} s")
+    try:
+        return methods_of(args.methods, ifa=is_ifa_scenario(scenario))
+    except ValueError as e:
+        ap.error(str(e))
+
+
+def ta_plan(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Scenario, methods: list[str]) -> TAPlan:
+    """The runs' settings from dpos-eval's checked arguments for a transfer-alignment scenario
+    (``initial_attitude_error`` defaults to the scenario's ``transfer_alignment`` block); a
+    ``--duration`` shorter than one filter epoch is ``ap.error`` (exit 2)."""
     if args.duration is not None and args.duration < 1.0 / TA_FILTER_RATE_HZ:
         ap.error(f"--duration must be >= {1.0 / TA_FILTER_RATE_HZ:g} s for transfer alignment "
                  f"(one epoch of the {TA_FILTER_RATE_HZ:g} Hz filter), got {args.duration:g}")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
-    ac_text = config_text("aircraft", args.aircraft) if args.aircraft else None
-    per_method: dict[str, list[dict]] = {m: [] for m in methods}
+    return TAPlan(scenario, tuple(methods), args.particles, args.duration, err0,
+                  config_text("aircraft", args.aircraft) if args.aircraft else None, args.position_matching)
+
+
+def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True) -> TARun:
+    """Simulate the scenario with ``seed`` and run every method of ``plan`` on it; one line per
+    method (printed when ``echo``, kept in ``TARun.lines`` either way)."""
+    scenario, methods = plan.scenario, plan.methods
+    ss = SimulatedSession(scenario, seed, plan.duration_s)
+    custom = session_custom_data(ss, plan.aircraft_text or "")
+    sess = session_from_streams(session_streams(ss), custom, f"{scenario.name}_seed{seed}")
+    truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE in methods else None
+    wing = {s.name: from_sim.known_wing(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE_WING in methods else None
+    run = TARun(seed, {}, {}, list(sess.imaging_segments().keys()) or ["session"])
+    for m in methods:
+        t0 = time.perf_counter()
+        ants, tm = solve(sess, scenario.aircraft, m, plan.particles, seed, plan.initial_attitude_error_deg,
+                         oracle_truth=truth if m == ORACLE else None, filter_rate_hz=TA_FILTER_RATE_HZ,
+                         known_wing=wing if m == ORACLE_WING else None, position_matching=plan.position_matching)
+        ev = evaluate(sess, ants)
+        run.evaluations[m] = {name: {k: v for k, v in e.items() if k not in _SERIES} for name, e in ev.items()}
+        run.timing[m] = {"processing_s": tm["processing_s"], "data_s": tm["data_s"]}
+        mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()])
+        line = (f"{label} seed {seed} {m:>6}: heading {mean['rmse']['heading_deg']:.2e} deg, "
+                f"vel_n {mean['rmse']['vel_n_mps']:.2e} m/s, lat {mean['rmse']['lat_m']:.2e} m "
+                f"({time.perf_counter() - t0:.1f} s)")
+        run.lines.append(line)
+        if echo:
+            print(line, flush=True)
+    return run
+
+
+def ta_write(out: Path, plan: TAPlan, runs: list[TARun]) -> dict:
+    """Combine ``runs`` (in this order) as dpos-eval does (:func:`combine_runs`: the mean over the
+    runs per antenna and method), write ``out/metrics.json`` and ``out/report.md``, print the
+    report; returns the metrics."""
+    scenario, methods = plan.scenario, plan.methods
+    per_method: dict[str, list[dict]] = {m: [run.evaluations[m] for run in runs] for m in methods}
     timing = {m: {"processing_s": 0.0, "data_s": 0.0} for m in methods}
-    sess = None
-    for r in range(args.runs):
-        seed = args.seed + r
-        ss = SimulatedSession(scenario, seed, args.duration)
-        custom = session_custom_data(ss, ac_text or "")
-        sess = session_from_streams(session_streams(ss), custom, f"{scenario.name}_seed{seed}")
-        truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE in methods else None
-        wing = {s.name: from_sim.known_wing(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE_WING in methods else None
+    for run in runs:
         for m in methods:
-            t0 = time.perf_counter()
-            ants, tm = solve(sess, scenario.aircraft, m, args.particles, seed, err0, oracle_truth=truth if m == ORACLE else None,
-                              filter_rate_hz=TA_FILTER_RATE_HZ, known_wing=wing if m == ORACLE_WING else None,
-                              position_matching=args.position_matching)
-            ev = evaluate(sess, ants)
-            per_method[m].append(ev)
-            timing[m]["processing_s"] += tm["processing_s"]
-            timing[m]["data_s"] += tm["data_s"]
-            mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()])
-            print(f"run {r + 1}/{args.runs} seed {seed} {m:>6}: heading {mean['rmse']['heading_deg']:.2e} deg, "
-                  f"vel_n {mean['rmse']['vel_n_mps']:.2e} m/s, lat {mean['rmse']['lat_m']:.2e} m "
-                  f"({time.perf_counter() - t0:.1f} s)", flush=True)
+            timing[m]["processing_s"] += run.timing[m]["processing_s"]
+            timing[m]["data_s"] += run.timing[m]["data_s"]
     # mean over runs, per antenna and overall
     combined = combine_runs(per_method, timing)
-    metrics = metrics_json(sess, combined, runs=args.runs, scenario=scenario.name)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    metrics = metrics_json(None, combined, runs=len(runs), scenario=scenario.name)
+    metrics["segments"] = runs[-1].segments
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     report = report_md(metrics, f"Monte Carlo evaluation: {scenario.name} ({scenario.source})")
     for bound, what in ((ORACLE, "the oracle (1.0 = the practical bound)"),
                         (ORACLE_WING, "the oracle that knows the true wing (1.0 = the bound with the wing known)")):
@@ -189,11 +257,11 @@ def main(argv: list[str] | None = None) -> int:
         fitted = [a.name for a in scenario.aircraft.antennas if a.sub_imu is None]
         for m in methods:
             rmse = {n: a["rmse"] for n, a in metrics["methods"][m]["antennas"].items()}
-            report += "\n" + lsfit_tables.report_md(rmse, carried, fitted, f"{m}, {scenario.name}, {args.runs} run(s)")
-    (args.out / "report.md").write_text(report)
+            report += "\n" + lsfit_tables.report_md(rmse, carried, fitted, f"{m}, {scenario.name}, {len(runs)} run(s)")
+    (out / "report.md").write_text(report)
     print(report)
-    print(f"wrote {args.out / 'metrics.json'} and {args.out / 'report.md'}")
-    return 0
+    print(f"wrote {out / 'metrics.json'} and {out / 'report.md'}")
+    return metrics
 
 
 if __name__ == "__main__":
