@@ -9,6 +9,7 @@ from dpos_core.filters.gaussian import kf_predict, kf_update
 from dpos_core.filters.model import LinearGaussianModel
 from dpos_core.filters.particle import ess
 from dpos_core.filters.pf import PF_METHODS, bandwidth_opt, children_mask, mh_move, psd_sqrt, regularize, run_sir, weighted_cov
+from dpos_core.filters.points import UnscentedPoints
 
 
 def _linear(K: int = 25, seed: int = 3) -> tuple[LinearGaussianModel, np.ndarray, np.ndarray]:
@@ -130,3 +131,29 @@ def test_bad_arguments_are_named() -> None:
         run_sir(m, x0, P0, bandwidth_scale=0.0)
     with pytest.raises(ValueError, match="finite"):
         run_sir(m, np.array([np.nan, 0.0]), P0)
+
+
+def test_ups_resample_move_keeps_the_kalman_filter() -> None:
+    """run_upf(move=True) (resample-move inside the UPF; velocity sampled, position carried) still
+    converges to the Kalman filter; the move replaces only the children's rows, each by a fresh
+    draw (no two children of one parent equal), the parents' rows unchanged."""
+    from dpos_core.filters.runners import SharedLinearizationUKF, _resample_move, run_upf
+
+    m, x0, P0 = _linear()
+    xk, Pk = _kalman(m, x0, P0)
+    sig = np.sqrt(np.diagonal(Pk, axis1=1, axis2=2))
+    for move in (False, True):
+        tr = run_upf(m, x0, P0, n_particles=2000, rng=np.random.default_rng(5), sampled=[1], ess_threshold=0.9, move=move)
+        assert tr.resampled.sum() > 5
+        assert np.max(np.abs(tr.mean - xk) / sig) < 0.15, move
+    rng = np.random.default_rng(6)
+    N = 6
+    m_u = rng.normal(size=(N, 2))
+    P_u = np.array([[0.5, 0.1], [0.1, 0.3]])
+    idx = np.array([0, 0, 0, 2, 4, 4])
+    m_pred = m.f(0, m_u[idx])
+    out, P = _resample_move(m, 0, SharedLinearizationUKF(), UnscentedPoints(), np.array([1]), idx, m_u, P_u, m_pred.copy(), P_u,
+                            None, rng)
+    same = np.all(out == m_pred, axis=1)
+    np.testing.assert_array_equal(same, children_mask(idx) == 0)
+    assert len({round(v, 12) for v in out[[1, 2], 0]}) == 2

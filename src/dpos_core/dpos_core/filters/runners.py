@@ -44,6 +44,7 @@ from .gaussian import Prediction, Update, cd_predict, cd_update, rts_smooth, ut_
 from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
+from .pf import children_mask
 from .points import CentralDifferencePoints, UnscentedPoints
 from .variational import CGInfo, CGSettings, CGStats, cdvf_update
 
@@ -320,6 +321,7 @@ def run_upf(
     sampled=None,
     engine: PerParticleUKF | SharedLinearizationUKF | None = None,
     resample: str = RESAMPLING[0],
+    move: bool = False,
 ) -> ParticleTrack:
     """Rao-Blackwellized unscented particle filter (module docstring).
 
@@ -334,6 +336,13 @@ def run_upf(
         sampled: indices or slice of the sampled components; default ``model.sampled`` or all.
         engine: :class:`SharedLinearizationUKF` (default) or :class:`PerParticleUKF`.
         resample: the resampling scheme, one of :data:`~.particle.RESAMPLING` (default systematic).
+        move: resample-move (Gilks and Berzuini 2001; [Yan2016]'s local resampling): after each
+            resampling every child (a copy of a parent beyond its first, :func:`~.pf.children_mask`)
+            redraws its sampled components of the epoch from the parent's UKF posterior and is
+            conditioned and predicted again.  That posterior is the components' exact conditional
+            target given the particle's path, so the Metropolis-Hastings move with it as proposal
+            is accepted with probability 1 (a Gibbs move): the copies stop sharing the epoch's
+            draw.  Off by default (docs/sar.md: on paper_su it moves the errors by 3 % at most).
     """
     rng = np.random.default_rng() if rng is None else rng
     engine = SharedLinearizationUKF() if engine is None else engine
@@ -371,6 +380,7 @@ def run_upf(
         L_SS = chol(P[..., S[:, None], S[None, :]])
         z = rng.standard_normal((N, s))
         xs = m[:, S] + (z @ L_SS.T if L_SS.ndim == 2 else np.einsum("nij,nj->ni", L_SS, z))
+        m_u, P_u = m, P  # the UKF posterior before the draw (the resample-move's target)
         m, P = _condition(m, P, S, xs)
         proposed[k] = m
         w = np.exp(logw)
@@ -400,11 +410,38 @@ def run_upf(
             m, P = m[idx], engine.take(P, idx)
             logw = np.full(N, -np.log(N))
             res_k[k] = True
+            if move:
+                m, P = _resample_move(model, k, engine, points, S, idx, m_u, P_u, m, P, c, rng)
     p = next((v[0].shape[0] for v in mix_nu if v is not None), 0)
     nu_k = np.array([v[0] if v is not None else np.full(p, np.nan) for v in mix_nu]).reshape(K, p)
     S_k = np.array([v[1] if v is not None else np.full((p, p), np.nan) for v in mix_nu]).reshape(K, p, p)
     mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, nu_k, S_k)
     return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture)
+
+
+def _resample_move(model: StateSpaceModel, k: int, engine, points, S: NDArray[np.intp], idx: NDArray[np.intp], m_u: FloatArray,
+                   P_u: FloatArray, m: FloatArray, P: FloatArray, c: FloatArray | None,
+                   rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
+    """The move of ``run_upf(move=True)``: the children of the resampled indices idx (N,) redraw
+    their sampled components from their parent's UKF posterior (m_u (N, n), P_u) at epoch k,
+    are conditioned, shifted by the epoch's correction c and predicted; returns the predicted
+    means (N, n) and covariances with the children's rows replaced (a shared covariance stays:
+    it does not depend on the sampled values in the models it is exact for)."""
+    child = children_mask(idx)
+    if not child.any():
+        return m, P
+    mu, Pu = m_u[idx], engine.take(P_u, idx)
+    L = chol(Pu[..., S[:, None], S[None, :]])
+    z = rng.standard_normal((idx.size, S.size))
+    xs = mu[:, S] + (z @ L.T if L.ndim == 2 else np.einsum("nij,nj->ni", L, z))
+    mc, Pc = _condition(mu, Pu, S, xs)
+    if c is not None:
+        mc = model.shift(k, mc, c)
+    mp, Pp, _ = engine.predict(model, k, mc, Pc, np.full(idx.size, 1.0 / idx.size), S, points)
+    m = np.where(child[:, None], mp, m)
+    if P.ndim == 3:
+        P = np.where(child[:, None, None], Pp, P)
+    return m, P
 
 
 def ffbsm(track: ParticleTrack) -> FloatArray:
