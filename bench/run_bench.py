@@ -24,6 +24,9 @@ Keys (in order):
                                wing_paper_wing_cold_time_ratio: the workers started by solve();
                                wing_paper_wing_serial_time_ratio: the same one sub-IMU after the other;
                                *_split_s: seconds of the transfer alignment and of the rest (the wing fit)
+  sar_<method>_paper_sar_time_ratio  SINS/SAR filtering of paper_sar (1000 s, 16 states, 1 Hz; dpos_core.sar,
+                               docs/sar.md) / duration, for ekf, ukf and the particle filters pf, rpf, mcmc_rpf
+                               with 1000 particles (the simulation and the SINS not counted)
   ifa_add2_paper_ifa_time_ratio   in-flight alignment (ADD2, bank of 6 hypotheses) of paper_ifa / duration
   ifa_add2_mems_vehicle_time_ratio  the same on the MEMS scenario (24 states, real-device timing)
   ifa_add2_walk_0827_time_ratio   the same on the real recording walk_0827 (GNSS at 1 Hz)
@@ -256,6 +259,22 @@ def bench_wing(results: dict, repeats: int) -> None:
               f"(ratio {el / dur:.4f}: transfer alignment {timing['processing_s']:.2f} s, antennas + wing fit "
               f"{el - timing['processing_s']:.2f} s; {n_est}/{len(ants)} antennas estimated; CPU {cpu:.2f} s here + "
               f"{cpu_workers:.2f} s in workers)")
+
+
+def bench_sar(results: dict, repeats: int) -> None:
+    """[Yan2016]'s filters on one paper_sar run (dpos_core.sar): processing time / data duration."""
+    from dpos_core.sar.evaluate import problem
+    from dpos_core.sar.pipeline import METHODS, run
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+
+    prob = problem(SimulatedSession(load_scenario("paper_sar"), 1))
+    dur = float(prob.model.track.t_s[-1] - prob.model.track.t_s[0])
+    for m in METHODS:
+        el = _best_of(lambda m=m: run(m, prob.model, prob.x0, prob.P0, n_particles=1000, rng=np.random.default_rng(1)),
+                      min(repeats, 2))
+        results[f"sar_{m}_paper_sar_time_ratio"] = el / dur
+        print(f"SINS/SAR {m}: paper_sar {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
 
 def bench_ifa(results: dict, repeats: int) -> None:
@@ -623,6 +642,7 @@ BENCHES: dict[str, Callable[..., None]] = {
     "cdvf": bench_cdvf,
     "wing": bench_wing,
     "ifa": bench_ifa,
+    "sar": bench_sar,
     "graph": bench_graph,
     "replay": bench_replay,
     "soak": bench_soak,
