@@ -204,3 +204,15 @@ def test_bad_input_is_exit_2(recordings: list[Path], tmp_path: Path, capsys: pyt
         campaign.main(["eval", "--scenario", "paper_ifa", "--out", str(tmp_path / "e")])
     assert "in-flight alignment" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_dpos_process_options_are_passed_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The options that differ from dpos-process's defaults, an aircraft file made absolute."""
+    monkeypatch.chdir(tmp_path)
+    Path("my_aircraft.yaml").write_text(config_text("aircraft", "paper_su_pair"))
+    ap, subs, forwarded = campaign._parsers()
+    args = ap.parse_args(["process", "r1", "r2", "--out", "o", "--method", "ukf", "--no-sigma-inflation", "--particles", "100",
+                          "--aircraft", "my_aircraft.yaml", "--workers", "3"])
+    assert args.recordings == [Path("r1"), Path("r2")] and args.workers == 3
+    assert campaign.forwarded_argv(args, forwarded) == ["--method", "ukf", "--no-sigma-inflation", "--aircraft",
+                                                        str(tmp_path.resolve() / "my_aircraft.yaml")]
