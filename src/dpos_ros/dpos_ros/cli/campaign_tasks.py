@@ -155,9 +155,10 @@ def _attempt(task_file: Path, campaign_id: str) -> int:
 
 
 def _products_dir(out: Path) -> Path | None:
-    """dpos-process's ``out/<session id>/`` (the one directory in ``out`` with a status.json)."""
-    found = sorted(d for d in out.iterdir() if (d / "status.json").is_file())
-    return found[0] if len(found) == 1 else None
+    """dpos-process's ``out/<session id>/``: the directory in ``out`` with the newest status.json
+    (an earlier campaign may have left another session's products there)."""
+    found = [d for d in out.iterdir() if (d / "status.json").is_file()]
+    return max(found, key=lambda d: (d / "status.json").stat().st_mtime_ns) if found else None
 
 
 def figures(products: Path) -> dict:
