@@ -85,8 +85,9 @@ def test_process_campaign_on_a_local_cluster(recordings: list[Path], tmp_path: P
     assert s["engine"]["cluster"] == "local" and s["engine"]["workers"] == 2
     for info in s["engine"]["worker_info"].values():
         assert set(info["threads_env"].values()) == {"1"}
-    for st in s["engine"]["numba"].values():
-        assert st["numba"] and st["cache_writable"] and st["loaded_from_cache"] + st["compiled"] > 0
+    numba = s["engine"]["numba"].values()
+    assert all(st["numba"] and st["cache_writable"] for st in numba)
+    assert sum(st["loaded_from_cache"] + st["compiled"] for st in numba) > 0  # (a worker may have had only the broken one)
 
     for name, seed in (("rec_a", 1), ("rec_b", 2)):
         rec = recs[name]
