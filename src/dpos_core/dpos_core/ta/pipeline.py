@@ -57,6 +57,8 @@ METHODS = ("ukf", "urtss", "upf", "ups", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
 _GAUSSIAN = {"ukf": (None, False), "urtss": (None, True), "cdkf": (CentralDifferenceRule(), False),
              "cdkf_rts": (CentralDifferenceRule(), True), "cdvf": (VariationalRule(), False), "cdvf_rts": (VariationalRule(), True)}
 ORACLE = "oracle"  #: evaluation only (needs the simulation's truth), see .oracle
+#: evaluation only: the oracle's forward filter (no smoother), the bound of the forward filters (ukf, upf, cdkf, cdvf)
+ORACLE_FILTER = "oracle_filter"
 #: evaluation only: the URTSS of a model that knows the true wing (``Installation.known_wing``:
 #: the true deformed lever arm and flexure rotation in the matches, the flexure states held at zero)
 ORACLE_WING = "oracle_wing"
@@ -230,8 +232,8 @@ def run(
     oracle_truth=None,
     upf_engine=None,
 ) -> TAResult:
-    """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` with ``oracle_truth =
-    (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
+    """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` (``oracle_filter``: its forward
+    filter only) with ``oracle_truth = (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
     the particles' UKFs for upf/ups (filters.runners; default the shared linearization).
 
     Unusable data raise :class:`~dpos_core.errors.RejectedInput` (NaN samples, stamps out of
@@ -262,22 +264,26 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         if install.known_wing is None:
             raise ValueError("the oracle with the true wing needs Installation.known_wing (evaluation of simulations only)")
         method = "urtss"
-    if method not in METHODS + (ORACLE,):
+    if method not in METHODS + (ORACLE, ORACLE_FILTER):
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
         initial = initial_from_master(master, install)
     model = TransferAlignmentModel(imu, master, install, cfg, initial)
     x0, P0 = model.prior()
     ess: FloatArray | None = None
-    if method == ORACLE:
+    if method in (ORACLE, ORACLE_FILTER):
         from .oracle import LinearizedAboutTruth
 
         if oracle_truth is None:
             raise ValueError("the oracle needs the truth (evaluation of simulations only)")
         lin = LinearizedAboutTruth(model, *oracle_truth)
         tr = run_sigma_point_filter(lin, x0, P0, points)
-        x, P = lin.to_model(*smooth_gaussian(tr))
-        qc = epoch_qc(model.epochs_s, tr.nu, tr.S, *lin.to_model(tr.x_f, tr.P_f), x, P)
+        if method == ORACLE:
+            x, P = lin.to_model(*smooth_gaussian(tr))
+            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, *lin.to_model(tr.x_f, tr.P_f), x, P)
+        else:
+            x, P = lin.to_model(tr.x_f, tr.P_f)
+            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, x, P)
         return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model), qc=qc)
     cg: CGStats | None = None
     if method in _GAUSSIAN:

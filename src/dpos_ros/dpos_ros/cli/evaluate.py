@@ -7,7 +7,8 @@ solver as dpos-process (in memory, no bag).  ``oracle_wing`` is the URTSS of a m
 the true wing (the simulated deformed lever arm and flexure rotation in its matches, no flexure
 states to estimate): how far the transfer alignment is from knowing the wing it does not model.
 ``oracle`` is the model linearized about the true
-state with the true noise statistics (the practical bound; simulations only).  Writes
+state with the true noise statistics (the practical bound; simulations only), ``oracle_filter``
+its forward filter alone (the bound of the forward filters ukf, upf, cdkf, cdvf).  Writes
 ``metrics.json`` (design.md schema, means over runs and antennas) and ``report.md`` ([Gong2018]
 Table 1 layout with the paper's columns, and each method's ratio to the oracle).
 """
@@ -31,7 +32,7 @@ from dpos_core.sim.scenario import Scenario, load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
-from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_WING
+from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products import lsfit_tables
@@ -44,7 +45,7 @@ TA_FILTER_RATE_HZ = 1.0
 def methods_of(text: str | None, *, ifa: bool) -> list[str]:
     """The ``--methods`` list for a transfer-alignment (``ifa=False``) or in-flight alignment
     scenario, checked against the core's METHODS; raises ValueError naming the unknown ones."""
-    known = IFA_METHODS if ifa else METHODS + (ORACLE, ORACLE_WING)
+    known = IFA_METHODS if ifa else METHODS + (ORACLE, ORACLE_FILTER, ORACLE_WING)
     if text is None:
         text = ",".join(IFA_METHODS) if ifa else "ups,urtss"
     methods = [m.strip() for m in text.split(",") if m.strip()]
@@ -60,7 +61,8 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="dpos-eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", required=True)
     ap.add_argument("--aircraft")
-    ap.add_argument("--methods", help=f"comma list of {METHODS + (ORACLE, ORACLE_WING)} (default ups,urtss; oracle_wing: the "
+    ap.add_argument("--methods", help=f"comma list of {METHODS + (ORACLE, ORACLE_FILTER, ORACLE_WING)} (default ups,urtss; "
+                    "oracle_filter: the oracle's forward filter, the bound of the forward filters; oracle_wing: the "
                     "URTSS that knows the true wing); IFA scenarios: "
                     f"{IFA_METHODS} (default all)")
     ap.add_argument("--runs", type=int, default=5)
@@ -204,13 +206,14 @@ def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True) -> TA
     ss = SimulatedSession(scenario, seed, plan.duration_s)
     custom = session_custom_data(ss, plan.aircraft_text or "")
     sess = session_from_streams(session_streams(ss), custom, f"{scenario.name}_seed{seed}")
-    truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE in methods else None
+    truth = ({s.name: from_sim.oracle_truth(ss, s.name) for s in scenario.aircraft.sub_imus}
+             if ORACLE in methods or ORACLE_FILTER in methods else None)
     wing = {s.name: from_sim.known_wing(ss, s.name) for s in scenario.aircraft.sub_imus} if ORACLE_WING in methods else None
     run = TARun(seed, {}, {}, list(sess.imaging_segments().keys()) or ["session"])
     for m in methods:
         t0 = time.perf_counter()
         ants, tm = solve(sess, scenario.aircraft, m, plan.particles, seed, plan.initial_attitude_error_deg,
-                         oracle_truth=truth if m == ORACLE else None, filter_rate_hz=TA_FILTER_RATE_HZ,
+                         oracle_truth=truth if m in (ORACLE, ORACLE_FILTER) else None, filter_rate_hz=TA_FILTER_RATE_HZ,
                          known_wing=wing if m == ORACLE_WING else None, position_matching=plan.position_matching)
         ev = evaluate(sess, ants)
         run.evaluations[m] = {name: {k: v for k, v in e.items() if k not in _SERIES} for name, e in ev.items()}
@@ -244,6 +247,7 @@ def ta_write(out: Path, plan: TAPlan, runs: list[TARun]) -> dict:
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     report = report_md(metrics, f"Monte Carlo evaluation: {scenario.name} ({scenario.source})")
     for bound, what in ((ORACLE, "the oracle (1.0 = the practical bound)"),
+                        (ORACLE_FILTER, "the oracle's forward filter (1.0 = the forward filters' practical bound)"),
                         (ORACLE_WING, "the oracle that knows the true wing (1.0 = the bound with the wing known)")):
         if bound not in methods:
             continue
