@@ -616,7 +616,7 @@ class TransferAlignNode(Node):
         if sess.session_id != sid:
             log.warning(f"products of a session {sid!r} exist in {self.output_dir}: this session's go to {sess.session_id!r}")
         try:
-            out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None)
+            out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None, pool=self._executor)
         except OSError as e:
             why = f"the products of session {sess.session_id} could not be written ({e.strerror or e}: {e.filename or self.output_dir})"
             with self._lock:

@@ -175,7 +175,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
                              position_matching=args.position_matching, inflate_sigma=args.inflate_sigma, pool=pool)
     ev = evaluate(sess, antennas)
     try:
-        out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite)
+        out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
     except ProductsExistError:  # appeared while processing
         print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
         return EXIT_ERROR

@@ -38,16 +38,17 @@ def summaries(antennas: dict[str, AntennaSolution]) -> dict[str, dict]:
     return out
 
 
+def qc_dir(out: Path) -> Path:
+    """Where the QC figures of the products in ``out`` go."""
+    return out / "qc"
+
+
 def write_qc(out: Path, antennas: dict[str, AntennaSolution], session_id: str, method: str) -> dict:
-    """``out/qc.md`` and ``out/qc/<antenna>_qc.png`` (estimated antennas); returns the
-    ``status.json`` ``qc`` block (JSON-safe: NaN as null)."""
+    """``out/qc.md``; returns the ``status.json`` ``qc`` block (JSON-safe: NaN as null).  The
+    figures ``out/qc/<antenna>_qc.png`` (:func:`plot_qc`) are written with each antenna's files
+    (:func:`dpos_ros.products.ta.write`)."""
     summ = summaries(antennas)
     (out / "qc.md").write_text(qc_md(summ, session_id, method))
-    est = {n: a for n, a in antennas.items() if a.traj is not None and a.sigma is not None}
-    if est:
-        (out / "qc").mkdir(exist_ok=True)
-        for name, a in est.items():
-            plot_qc(out / "qc" / f"{name}_qc.png", a, method)
     return _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
 
 

@@ -362,6 +362,7 @@ def write(
     evaluation: dict[str, dict] | None = None,
     *,
     overwrite: bool = False,
+    pool: cf.Executor | None = None,
 ) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory.
 
@@ -370,12 +371,14 @@ def write(
     temporary sibling ``.<session id>.new-<pid>`` and swapped in only when complete (the old
     products are kept when writing fails). On any exception while writing, what this call created
     (the new directory or the temporary one) is removed and the exception re-raised: the
-    products are complete or absent, never mixed or partial. ``out_root`` is created if needed."""
+    products are complete or absent, never mixed or partial. ``out_root`` is created if needed.
+    ``pool``: each antenna's files (CSV, QC figure, error figure) are written by its workers (the
+    smoothers' pool, idle by then), the rest in this process meanwhile."""
 
     final = Path(out_root) / sess.session_id
     out = _new_products_dir(final, overwrite)
     try:
-        _write_products(out, sess, antennas, method, timing, evaluation)
+        _write_products(out, sess, antennas, method, timing, evaluation, pool)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
@@ -430,18 +433,25 @@ def _write_products(
     method: str,
     timing: dict[str, float],
     evaluation: dict[str, dict] | None,
+    pool: cf.Executor | None = None,
 ) -> None:
-    """The products (module docstring) into the new, empty directory ``out``."""
+    """The products (module docstring) into the new, empty directory ``out``; the antennas' own
+    files by :func:`_antenna_files`, on ``pool`` when given."""
     from dpos_ros.io.bag import write_streams
 
-    from .qc import write_qc
+    from .qc import qc_dir, write_qc
 
     streams = antenna_streams(sess, antennas)
+    if streams:
+        qc_dir(out).mkdir(exist_ok=True)
+    files = []
     for st in streams:
         name = st.topic.split("/")[2]
-        a = antennas[name]
-        assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
-        _write_csv(out / f"{name}.csv", st.t_ns, a.traj, a.sigma, a.flags)
+        args = (out, name, st.t_ns, antennas[name], method, (evaluation or {}).get(name))
+        if pool is None:
+            _antenna_files(*args)
+        else:
+            files.append(pool.submit(_antenna_files, *args))
     bag_dir = out / "antennas"
     if streams:  # (out is a new directory: write() never mixes runs)
         write_streams(bag_dir, streams, custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
@@ -452,13 +462,27 @@ def _write_products(
     fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
     if fits:
         doc["wing_fit"] = fits
-    doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth
+    doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth (its figures: _antenna_files)
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
         (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
-        plot_errors(out, evaluation, method)
+    for f in files:  # the workers' part: an exception there is this call's (write() removes the products)
+        f.result()
+
+
+def _antenna_files(out: Path, name: str, t_ns: NDArray[np.int64], a: AntennaSolution, method: str, ev: dict | None) -> None:
+    """One estimated antenna's files of the products: ``<name>.csv``, ``qc/<name>_qc.png`` and, with
+    its evaluation against the truth ``ev``, ``errors_<name>.png`` (a module function: it runs in
+    the workers of :func:`write`'s pool)."""
+    from .qc import plot_qc, qc_dir
+
+    assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
+    _write_csv(out / f"{name}.csv", t_ns, a.traj, a.sigma, a.flags)
+    plot_qc(qc_dir(out) / f"{name}_qc.png", a, method)
+    if ev is not None:
+        plot_antenna_errors(out / f"errors_{name}.png", name, ev, method)
 
 
 def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
@@ -658,33 +682,31 @@ def _fmt(v) -> str:
     return "—" if v is None or not np.isfinite(v) else f"{v:.4f}" if abs(v) >= 1e-3 else f"{v:.2e}"
 
 
-def plot_errors(out: Path, evaluation: dict[str, dict], method: str) -> list[Path]:
+def plot_antenna_errors(path: Path, name: str, ev: dict, method: str) -> Path:
+    """The antenna's errors against the truth over time (``ev``: its entry of :func:`evaluate`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    files = []
-    for name, ev in evaluation.items():
-        e, t = ev["errors"], ev["t_s"]
-        fig, axs = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, constrained_layout=True)
-        for k, lab in (("heading_deg", "heading"), ("pitch_deg", "pitch"), ("roll_deg", "roll")):
-            axs[0].plot(t, e[k], lw=0.7, label=lab)
-        axs[0].set(ylabel="attitude error [deg]")
-        for k, lab in (("vel_e_mps", "east"), ("vel_n_mps", "north"), ("vel_u_mps", "up")):
-            axs[1].plot(t, e[k], lw=0.7, label=lab)
-        axs[1].set(ylabel="velocity error [m/s]")
-        for k, lab in (("lat_m", "latitude"), ("lon_m", "longitude"), ("h_m", "height")):
-            axs[2].plot(t, e[k], lw=0.7, label=lab)
-        if "baseline_m" in e:
-            axs[2].plot(t, e["baseline_m"], lw=0.7, label="baseline")
-        axs[2].set(ylabel="position error [m]", xlabel="t [s]")
-        for a in axs:
-            a.grid(alpha=0.3)
-            a.legend(loc="upper right", fontsize=8)
-        axs[0].set_title(f"antenna {name}: {method.upper()} errors against truth")
-        p = out / f"errors_{name}.png"
-        fig.savefig(p, dpi=80)
-        plt.close(fig)
-        files.append(p)
-    return files
+    e, t = ev["errors"], ev["t_s"]
+    fig, axs = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    fig.subplots_adjust(left=0.11, right=0.98, top=0.95, bottom=0.07, hspace=0.1)  # (constrained layout: ~2x the time)
+    for k, lab in (("heading_deg", "heading"), ("pitch_deg", "pitch"), ("roll_deg", "roll")):
+        axs[0].plot(t, e[k], lw=0.7, label=lab)
+    axs[0].set(ylabel="attitude error [deg]")
+    for k, lab in (("vel_e_mps", "east"), ("vel_n_mps", "north"), ("vel_u_mps", "up")):
+        axs[1].plot(t, e[k], lw=0.7, label=lab)
+    axs[1].set(ylabel="velocity error [m/s]")
+    for k, lab in (("lat_m", "latitude"), ("lon_m", "longitude"), ("h_m", "height")):
+        axs[2].plot(t, e[k], lw=0.7, label=lab)
+    if "baseline_m" in e:
+        axs[2].plot(t, e["baseline_m"], lw=0.7, label="baseline")
+    axs[2].set(ylabel="position error [m]", xlabel="t [s]")
+    for ax in axs:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axs[0].set_title(f"antenna {name}: {method.upper()} errors against truth")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
