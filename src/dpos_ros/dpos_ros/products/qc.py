@@ -149,16 +149,14 @@ def qc_md(summ: dict[str, dict], session_id: str, method: str) -> str:
 def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
     """The antenna's QC figure: its 1-sigma over time per group, NIS per dof with its bounds (per
     epoch and windowed), the forward/backward separation in RMS sigmas, and the flags as bands."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     assert a.traj is not None and a.sigma is not None
     t, s = a.traj.t_s, a.sigma
     step = max(1, t.size // MAX_PLOT_POINTS)
     td, sd = t[::step], s[::step]
-    fig, axs = plt.subplots(6, 1, figsize=(10, 12), sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.2, 1, 0.7]})
+    fig = Figure(figsize=(10, 12))  # no pyplot: figures may be drawn in threads at once (thread-pool executors)
+    axs = fig.subplots(6, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.2, 1, 0.7]})
     fig.subplots_adjust(left=0.16, right=0.98, top=0.97, bottom=0.05, hspace=0.12)  # (constrained layout: 3 s a figure)
     groups = ((0, "attitude 1-sigma [deg]", ((2, "heading"), (0, "rot E"), (1, "rot N")), 1 / DEG),
               (1, "velocity 1-sigma [m/s]", ((3, "E"), (4, "N"), (5, "U")), 1.0),
@@ -215,5 +213,4 @@ def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
         x.grid(alpha=0.3)
     axs[0].set_title(f"antenna {a.name}: {method.upper()} quality control (no truth)")
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path

@@ -684,13 +684,11 @@ def _fmt(v) -> str:
 
 def plot_antenna_errors(path: Path, name: str, ev: dict, method: str) -> Path:
     """The antenna's errors against the truth over time (``ev``: its entry of :func:`evaluate`)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     e, t = ev["errors"], ev["t_s"]
-    fig, axs = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    fig = Figure(figsize=(9, 7.5))  # no pyplot: figures may be drawn in threads at once (thread-pool executors)
+    axs = fig.subplots(3, 1, sharex=True)
     fig.subplots_adjust(left=0.11, right=0.98, top=0.95, bottom=0.07, hspace=0.1)  # (constrained layout: ~2x the time)
     for k, lab in (("heading_deg", "heading"), ("pitch_deg", "pitch"), ("roll_deg", "roll")):
         axs[0].plot(t, e[k], lw=0.7, label=lab)
@@ -708,5 +706,4 @@ def plot_antenna_errors(path: Path, name: str, ev: dict, method: str) -> Path:
         ax.legend(loc="upper right", fontsize=8)
     axs[0].set_title(f"antenna {name}: {method.upper()} errors against truth")
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
