@@ -158,3 +158,18 @@ def test_bad_settings_are_named() -> None:
             CGSettings(**kw)
     with pytest.raises(ValueError, match="one state"):
         cdvf_update(np.zeros((2, 3)), np.eye(3), np.zeros(1), lambda X: X[..., :1], np.eye(1))
+
+
+def test_a_guard_stopping_above_the_cdkf_cost_returns_the_cdkf_update() -> None:
+    """Capped at one step the iteration stays above the CDKF update's cost: the CDKF update is returned."""
+    P = np.diag([4.0, 4.0])
+    R = np.diag([0.01**2, 0.002**2])
+    x, truth = np.array([11.5, -1.8]), np.array([10.0, 0.5])
+    y = _range_bearing(truth)
+    lmv = cd_update(x, P, y, _range_bearing, R)
+    up, info = cdvf_update(x, P, y, _range_bearing, R, settings=CGSettings(max_iter=1))
+    assert info.stop == "max_iter" and info.iterations == 1
+    np.testing.assert_array_equal(up.x, lmv.x)
+    assert info.cost == info.cost_cdkf
+    full, info_full = cdvf_update(x, P, y, _range_bearing, R)
+    assert info_full.stop == "gradient" and info_full.cost < info.cost

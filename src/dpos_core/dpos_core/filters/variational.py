@@ -35,7 +35,9 @@ whitened coordinates), and its cost within ``grad_tol^2 / 2`` of the minimum - a
 estimate's own uncertainty, whatever the scale of the states.  A relative gradient rule
 (``|g| / |g_0|``) would not mean that: ``g_0`` grows with the innovation.  Also stop after
 ``max_iter`` steps or when the line search finds no decrease (the cost is flat to rounding):
-guards, not the rule.  The cap defaults to ``max(4 n, 100)``: linear CG needs at most ``p + 1``
+guards, not the rule: if one stops the iteration at a cost above the CDKF update's, the CDKF
+update is returned (the variational update is never worse in the cost it minimizes).  The cap
+defaults to ``max(4 n, 100)``: linear CG needs at most ``p + 1``
 steps here (``Gamma - I`` has rank ``p``), but on the transfer alignment an update whose
 prediction is hundreds of sigmas off (the turn that makes the heading observable) took up to 74
 (docs/cdvf.md has the measured counts).  Every update's iterations, costs
@@ -96,8 +98,9 @@ class CGSettings:
 @dataclass(frozen=True)
 class CGInfo:
     """One update's iteration: steps taken; the cost at the prediction (``z = 0``), at the result
-    and at the CDKF's (linear minimum variance) update; the gradient norm at the start and the end;
-    why it stopped (:data:`STOP_REASONS`)."""
+    and at the CDKF's (linear minimum variance) update; the gradient norm at the start and at the
+    last iterate; why it stopped (:data:`STOP_REASONS`; the result is the CDKF update when a guard
+    stopped the iteration above its cost)."""
 
     iterations: int
     cost_prior: float
@@ -260,5 +263,8 @@ def cdvf_update(
         g = g_new
         gn = float(np.linalg.norm(g))
         it += 1
-    up = Update(x + M @ z, lmv.P, lmv.nu, lmv.S, lmv.K)
+    x_new = x + M @ z
+    if stop != "gradient" and J_lmv < J:  # a guard stopped it above the CDKF update's cost: keep that one
+        x_new, J = lmv.x, J_lmv
+    up = Update(x_new, lmv.P, lmv.nu, lmv.S, lmv.K)
     return up, CGInfo(it, J0, J, J_lmv, g0, gn, stop)
