@@ -24,8 +24,6 @@ from dpos_ros.runtime.params import ParameterError, config_from_values
 from ifa_node.params import IfaConfig
 from transfer_align_node.params import TransferAlignConfig
 
-pytestmark = pytest.mark.ros
-
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 EXE = Path(sys.executable).parent
 
