@@ -91,3 +91,18 @@ def test_unknown_method_is_named(prob) -> None:
     with pytest.raises(ValueError, match="needs the true error states"):
         run(ORACLE, prob.model, prob.x0, prob.P0)
     assert METHODS == ("ekf", "ukf", "pf", "rpf", "mcmc_rpf")
+
+
+def test_bad_sar_block_is_named(tmp_path) -> None:
+    """A non-positive rate or sigma in the sar: block is a ConfigError naming the key."""
+    import yaml
+
+    from dpos_core.config import ConfigError
+    from dpos_core.config.files import read_yaml
+
+    src = read_yaml("scenarios", "paper_sar")[0]
+    src["sar"] = {**src["sar"], "baro_rate_hz": 0.0}
+    p = tmp_path / "bad_sar.yaml"
+    p.write_text(yaml.safe_dump({**src, "aircraft": "paper_sar"}))
+    with pytest.raises(ConfigError, match="sar.baro_rate_hz must be > 0"):
+        load_scenario(p)
