@@ -33,6 +33,10 @@ Keys (in order):
   graph_loss_count             messages lost by transfer_align_node while the live graph carries master
                                IMU + nav and 6 sub-IMUs at 200 Hz in real time for 60 s (must be 0);
                                graph_cpu_percent: CPU per node over the run
+  bagio_write_s_per_million    rosbag2 MCAP writing (dpos_ros.io.bag.write_streams) of a generated bag of 1.2 M
+                               fixed-size messages (12 topics at 200 Hz), s per million messages; bagio_read_s_per_million:
+                               reading it back (read_raw); bagio_rosbags_write / _read_s_per_million: rosbags' Writer
+                               and AnyReader message by message on a tenth of it; bagio_*_speedup_vs_rosbags: the ratios
   replay_speed_factor          data duration / wall time of the fastest zero-loss replay (dpos-play
                                --rate 0) of paper_su with 2 sub-IMUs into transfer_align_node
   soak_duration_s              the soak: the graph of graph_loss_count (the rated load) for --soak-s
@@ -635,6 +639,72 @@ def bench_soak(results: dict, repeats: int, soak_s: float = 600.0) -> None:
              f"the largest VmHWM {peak['transfer_align_node/worker_each']:.1f} MB" if sample.worker_hwm else "") + ")")
 
 
+def bench_bagio(results: dict, repeats: int) -> None:
+    """rosbag2 MCAP writing and reading (dpos_ros.io.bag, the fast path) on a generated bag of 1.2 M
+    fixed-size messages (6 Imu and 6 Odometry topics at 200 Hz, 500 s), and rosbags' Writer /
+    AnyReader message by message on a tenth of it, side by side: seconds per million messages."""
+    import shutil
+    import tempfile
+
+    from dpos_ros.contract import cdr
+    from dpos_ros.io import bag
+    from dpos_ros.io.streams import TopicStream
+
+    def values(rng: np.random.Generator, n: int, n_doubles: int, varying: list[int]) -> np.ndarray:
+        """Noisy values in the ``varying`` columns, the covariances constant (as the products write them)."""
+        v = np.tile(np.linspace(1e-6, 1e-3, n_doubles), (n, 1))
+        v[:, varying] = rng.normal(size=(n, len(varying)))
+        return v
+
+    def streams(n: int) -> list[TopicStream]:
+        rng = np.random.default_rng(1)
+        t = 1_600_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 5_000_000
+        out = []
+        for k in range(6):  # Imu: orientation, rate and acceleration vary; odometry: pose and twist
+            imu = cdr.layout("imu", f"sub_imu_{k}")
+            vals = values(rng, n, cdr.IMU_DOUBLES, [*range(4), *range(13, 16), *range(25, 28)])
+            out.append(TopicStream(f"/sub_imu/s{k}/imu", "sensor_msgs/msg/Imu", t, rows=cdr.encode(imu, t, vals)))
+            odom = cdr.layout("odometry", "enu", f"antenna_{k}")
+            vals = values(rng, n, cdr.ODOM_DOUBLES, [*range(7), *range(43, 49)])
+            out.append(TopicStream(f"/antenna/a{k}/odom", "nav_msgs/msg/Odometry", t, rows=cdr.encode(odom, t, vals)))
+        return out
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_bagio_"))
+    try:
+        full, tenth = streams(100_000), streams(10_000)
+        n_full, n_tenth = sum(len(s) for s in full), sum(len(s) for s in tenth)
+        for s, name in ((full, "fast"), (tenth, "small")):  # numba kernels compiled / loaded
+            bag.write_streams(tmp / f"warm_{name}", s[:2])
+            bag.read_raw(tmp / f"warm_{name}")
+        t0 = time.perf_counter()
+        bag.write_streams(tmp / "fast", full)
+        w_fast = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        raw = bag.read_raw(tmp / "fast")
+        r_fast = time.perf_counter() - t0
+        assert sum(len(v.blobs) for v in raw.values()) == n_full
+        del raw
+        t0 = time.perf_counter()
+        bag.write_streams_rosbags(tmp / "ref", tenth)
+        w_ref = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        raw = bag.read_raw_rosbags(tmp / "ref")
+        r_ref = time.perf_counter() - t0
+        assert sum(len(v.blobs) for v in raw.values()) == n_tenth
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    per_m = {"write": w_fast / n_full * 1e6, "read": r_fast / n_full * 1e6,
+             "rosbags_write": w_ref / n_tenth * 1e6, "rosbags_read": r_ref / n_tenth * 1e6}
+    for k, v in per_m.items():
+        results[f"bagio_{k}_s_per_million"] = v
+    results["bagio_write_speedup_vs_rosbags"] = per_m["rosbags_write"] / per_m["write"]
+    results["bagio_read_speedup_vs_rosbags"] = per_m["rosbags_read"] / per_m["read"]
+    print(f"bag io: {n_full} messages written in {w_fast:.2f} s, read in {r_fast:.2f} s "
+          f"({per_m['write']:.2f} / {per_m['read']:.2f} s per million); rosbags on {n_tenth}: "
+          f"{per_m['rosbags_write']:.1f} / {per_m['rosbags_read']:.1f} s per million "
+          f"(x{results['bagio_write_speedup_vs_rosbags']:.1f} / x{results['bagio_read_speedup_vs_rosbags']:.1f})")
+
+
 BENCHES: dict[str, Callable[..., None]] = {
     "strapdown": bench_strapdown,
     "sim": bench_sim,
@@ -643,6 +713,7 @@ BENCHES: dict[str, Callable[..., None]] = {
     "wing": bench_wing,
     "ifa": bench_ifa,
     "sar": bench_sar,
+    "bagio": bench_bagio,
     "graph": bench_graph,
     "replay": bench_replay,
     "soak": bench_soak,

@@ -13,27 +13,28 @@ import os
 from pathlib import Path
 
 import pytest
-from rosbags.rosbag2 import Writer
 
 from dpos_ros.cli import sim as sim_cli
-from dpos_ros.io import outdir
+from dpos_ros.io import _mcap, outdir
 
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 
 
 def _fail_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) -> None:
-    """Writer.write raises OSError(code) at the n-th message (as a full or read-only disk would)."""
-    original = Writer.write
-    count = {"n": 0}
+    """The bag writer raises OSError(code) once more than n messages are written (as a full or
+    read-only disk would; the chunks written so far stay in the file)."""
+    original = _mcap.write
 
-    def write(self, connection, timestamp, data):
-        count["n"] += 1
-        if count["n"] > n:
-            path = next(iter(self.path.glob("*.mcap")), self.path)
-            raise OSError(code, os.strerror(code), str(path))
-        return original(self, connection, timestamp, data)
+    def write(path, topics, order, custom_data, version, library, progress=None):
+        def fail(k: int, total: int) -> None:  # called after each chunk written
+            if k > n:
+                raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
+            if progress is not None:
+                progress(k, total)
 
-    monkeypatch.setattr(Writer, "write", write)
+        return original(path, topics, order, custom_data, version, library, fail)
+
+    monkeypatch.setattr(_mcap, "write", write)
 
 
 def _refuse_probe(monkeypatch: pytest.MonkeyPatch, code: int) -> None:

@@ -15,14 +15,13 @@ import sys
 from pathlib import Path
 
 import pytest
-from rosbags.rosbag2 import Writer
 
 from dpos_core.config import config_text
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.cli import process as process_cli
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
-from dpos_ros.io import bag, outdir
+from dpos_ros.io import _mcap, bag, outdir
 
 EXE = Path(sys.executable).parent / "dpos-process"
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
@@ -99,16 +98,20 @@ def test_existing_products_need_overwrite(bags, tmp_path):
 
 
 def _fail_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) -> None:
-    original = Writer.write
-    count = {"n": 0}
+    """The bag writer meets a disk fault once more than ``n`` messages are written (the chunks
+    written so far stay in the file, as on a full disk)."""
+    original = _mcap.write
 
-    def write(self, connection, timestamp, data):
-        count["n"] += 1
-        if count["n"] > n:
-            raise OSError(code, os.strerror(code), str(next(iter(self.path.glob("*.mcap")), self.path)))
-        return original(self, connection, timestamp, data)
+    def write(path, topics, order, custom_data, version, library, progress=None):
+        def fail(k: int, total: int) -> None:  # called after each chunk written
+            if k > n:
+                raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
+            if progress is not None:
+                progress(k, total)
 
-    monkeypatch.setattr(Writer, "write", write)
+        return original(path, topics, order, custom_data, version, library, fail)
+
+    monkeypatch.setattr(_mcap, "write", write)
 
 
 def _main_error(capsys) -> str:

@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -217,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _status_values(raws: list[bytes], msgtype: str) -> list[tuple[str, dict[str, str]]]:
+def _status_values(raws: Sequence[bytes], msgtype: str) -> list[tuple[str, dict[str, str]]]:
     """(message, key/values) of each DiagnosticArray's first status, in order."""
     out = []
     for m in deserialize(raws, msgtype):

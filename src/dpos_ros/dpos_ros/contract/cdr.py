@@ -106,10 +106,13 @@ def matches(lay: Layout, rows: NDArray[np.uint8]) -> NDArray[np.bool_]:
     return np.all(r[:, 12 : 4 + lay.offset][:, keep] == np.frombuffer(lay.prefix, dtype=np.uint8)[keep], axis=1)
 
 
-def decode(lay: Layout, rows: NDArray[np.uint8]) -> tuple[NDArray[np.int64], FloatArray]:
-    """Inverse of :func:`encode` for rows of this layout: ``(t_ns (N,), values (N, n_doubles))``."""
+def decode(lay: Layout, rows: NDArray[np.uint8], checked: bool = False) -> tuple[NDArray[np.int64], FloatArray]:
+    """Inverse of :func:`encode` for rows of this layout: ``(t_ns (N,), values (N, n_doubles))``.
+    ``checked``: the caller has already found every row to :func:`matches` the layout."""
     r = np.ascontiguousarray(rows, dtype=np.uint8)
-    if not np.all(matches(lay, r)):
+    if r.ndim != 2 or r.shape[1] != lay.size:
+        raise ValueError(f"expected serialized rows of {lay.size} bytes, got shape {r.shape}")
+    if not checked and not np.all(matches(lay, r)):
         raise ValueError("serialized messages do not have the expected frame names")
     sec = r[:, 4:8].copy().view("<i4")[:, 0].astype(np.int64)
     nsec = r[:, 8:12].copy().view("<u4")[:, 0].astype(np.int64)

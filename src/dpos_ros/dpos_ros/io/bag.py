@@ -1,14 +1,19 @@
-"""rosbag2 (MCAP) writing and reading through rosbags (no ROS installation needed).
+"""rosbag2 (MCAP) writing and reading (no ROS installation needed).
 
 Bags are written with zstd chunk compression (rosbags ``CompressionMode.STORAGE``), messages in
 stamp order, log time = ``header.stamp``.  Reading returns raw CDR per topic so the vectorized
 decoder of :mod:`dpos_ros.contract.cdr` (or ``rclpy.serialization``) can be used.
+
+Both go through the chunk-at-a-time fast path of :mod:`dpos_ros.io._mcap` (no Python object per
+message; the file laid out as rosbags' writer lays it out, the messages read in the order of its
+reader); a bag that path does not read (another storage, an MCAP without summary or chunk index)
+is read by rosbags' ``AnyReader``.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +21,8 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
+from dpos_ros.io import _mcap
+from dpos_ros.io.messages import Messages, RawTopic
 from dpos_ros.io.streams import TopicStream, merged_order
 
 ROSBAG2_VERSION = 9
@@ -37,6 +44,27 @@ def write_streams(
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
+    from importlib.metadata import version
+
+    topics = [_mcap.Topic(s.topic, s.msgtype, s.t_ns, Messages.from_rows(s.rows) if s.rows is not None
+                          else Messages.from_list(s.blobs or ())) for s in streams]
+    n = _mcap.write(path, topics, merged_order(streams) if streams else (np.zeros(0, dtype=np.int64),) * 3,
+                    dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}", progress)
+    if progress is not None:
+        progress(n, n)
+    return n
+
+
+def write_streams_rosbags(
+    path: Path,
+    streams: list[TopicStream],
+    custom_data: dict[str, str] | None = None,
+) -> int:
+    """:func:`write_streams` through rosbags' ``Writer``, message by message (the reference the
+    fast path is tested against)."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
     ts = typestore()
     t, si, mi = merged_order(streams)
     n = len(t)
@@ -47,16 +75,11 @@ def write_streams(
     w.open()
     try:
         conns = [w.add_connection(s.topic, s.msgtype, typestore=ts) for s in streams]
-        step = max(1, n // 200)
         for k in range(n):
             s = streams[si[k]]
             w.write(conns[si[k]], int(t[k]), s.message(int(mi[k])))
-            if progress is not None and k % step == 0:
-                progress(k, n)
     finally:
         w.close()
-    if progress is not None:
-        progress(n, n)
     return n
 
 
@@ -140,12 +163,12 @@ def _recover_mcap(src: Path, out: Path) -> tuple[int, int, str]:
 
 
 def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = None,
-             notes: list[str] | None = None) -> dict[str, tuple[str, list[int], list[bytes]]]:
-    """Every message of a bag as ``{topic: (msgtype, log times [ns], raw CDR)}``, in log-time order.
-    A bag without metadata is recovered first (:func:`readable_bag`); what was recovered is appended
-    to ``notes`` (or warned about when it is None)."""
-    from rosbags.highlevel import AnyReader
-
+             notes: list[str] | None = None) -> dict[str, RawTopic]:
+    """Every message of a bag as ``{topic: (msgtype, log times [ns], raw CDR)}`` (:class:`RawTopic`,
+    the messages a :class:`Messages`), in log-time order (ties in file order).  A bag without
+    metadata is recovered first (:func:`readable_bag`); what was recovered is appended to
+    ``notes`` (or warned about when it is None).  Raises :class:`ValueError` naming the file and
+    chunk for a corrupt chunk (rosbags' own errors for what the fast path leaves to it)."""
     path, note = readable_bag(Path(path))
     if note is not None:
         if notes is None:
@@ -160,30 +183,56 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
         wanted = topics
     elif topics is not None:
         wanted = set(topics).__contains__
-    out: dict[str, tuple[str, list[int], list[bytes]]] = {}
+    file = _single_mcap(path)
+    if file is not None:
+        fast = _mcap.read(file, wanted)
+        if fast is not None:
+            return fast
+    return read_raw_rosbags(path, wanted)
+
+
+def _single_mcap(path: Path) -> Path | None:
+    """The one MCAP file of a rosbag2 directory (``metadata.yaml`` with storage ``mcap`` and one
+    file), else None."""
+    import yaml
+
+    meta = path / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    try:
+        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+    except yaml.YAMLError:
+        return None  # rosbags says what is wrong with it
+    files = info.get("relative_file_paths") or []
+    if info.get("storage_identifier") != "mcap" or len(files) != 1 or not str(files[0]).endswith(".mcap"):
+        return None
+    file = path / str(files[0])
+    return file if file.is_file() else None
+
+
+def read_raw_rosbags(path: Path, wanted: Callable[[str], bool] | None = None) -> dict[str, RawTopic]:
+    """:func:`read_raw` of a readable bag through rosbags' ``AnyReader``, message by message (any
+    storage rosbags reads; the reference the fast path is tested against)."""
+    from rosbags.highlevel import AnyReader
+
     times: dict[str, list[int]] = defaultdict(list)
     data: dict[str, list[bytes]] = defaultdict(list)
     types: dict[str, str] = {}
-    with AnyReader([path], default_typestore=typestore()) as r:
+    with AnyReader([Path(path)], default_typestore=typestore()) as r:
         conns = [c for c in r.connections if wanted is None or wanted(c.topic)]
         for c in conns:
             types[c.topic] = c.msgtype
         for c, t, raw in r.messages(connections=conns):
             times[c.topic].append(t)
             data[c.topic].append(bytes(raw))
-    for topic, mt in types.items():
-        out[topic] = (mt, times[topic], data[topic])
-    return out
+    return {topic: RawTopic(mt, times[topic], Messages.from_list(data[topic])) for topic, mt in types.items()}
 
 
-def rows(blobs: list[bytes]) -> np.ndarray:
+def rows(blobs: Sequence[bytes]) -> np.ndarray:
     """Fixed-size CDR messages as an (N, size) uint8 array (for :func:`dpos_ros.contract.cdr.decode`)."""
-    if not blobs:
+    if not len(blobs):
         return np.zeros((0, 0), dtype=np.uint8)
-    size = len(blobs[0])
-    if any(len(b) != size for b in blobs):
-        raise ValueError("messages of different sizes: frame names change within the topic")
-    return np.frombuffer(b"".join(blobs), dtype=np.uint8).reshape(len(blobs), size)
+    return Messages.from_list(blobs).rows()
 
 
 def custom_data(path: Path) -> dict[str, str]:

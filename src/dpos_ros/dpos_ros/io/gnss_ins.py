@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ class InputError(ValueError):
     """A recording or an option cannot be used (the message says which and why)."""
 
 
-def deserialize(raws: list[bytes], msgtype: str) -> list[Any]:
+def deserialize(raws: Sequence[bytes], msgtype: str) -> list[Any]:
     from dpos_ros.io.bag import typestore
 
     ts = typestore()

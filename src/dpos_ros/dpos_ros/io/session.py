@@ -8,7 +8,7 @@ median) counted; each as a warning naming the topic.  A missing ``/master/nav`` 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +21,7 @@ from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io import bag
+from dpos_ros.io.messages import Messages, RawTopic
 
 
 class SessionError(ValueError):
@@ -86,7 +87,7 @@ _IMU_W_COV_DIAG = [16, 20, 24]
 _IMU_F_COV_DIAG = [28, 32, 36]
 
 
-def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str, warnings: list[str]) -> tuple[NDArray[np.int64], FloatArray]:
+def _decode_rows(topic: str, msgtype: str, blobs: Sequence[bytes], kind: str, warnings: list[str]) -> tuple[NDArray[np.int64], FloatArray]:
     """Stamps (N,) and doubles (N, IMU_DOUBLES | ODOM_DOUBLES) of a topic's messages.
 
     The topic's frame names are those of most of its messages; a message with other frame names
@@ -96,20 +97,21 @@ def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str, warnin
     Each kind is counted in a warning naming the topic; the other messages are kept.  A topic
     none of whose messages can be decoded raises :class:`SessionError`."""
     n_doubles = cdr.IMU_DOUBLES if kind == "imu" else cdr.ODOM_DOUBLES
-    if not blobs:
+    if not len(blobs):
         return np.zeros(0, dtype=np.int64), np.zeros((0, n_doubles))
-    sizes = np.fromiter((len(b) for b in blobs), dtype=np.int64, count=len(blobs))
+    msgs = Messages.from_list(blobs)  # (no copy when it is one already)
+    sizes = msgs.sizes
     by_size: dict[int, tuple[NDArray[np.intp], NDArray[np.uint8]]] = {}
     best: tuple[cdr.Layout, str, NDArray[np.uint8], NDArray[np.bool_]] | None = None
     for i in sorted({0, len(blobs) // 2, len(blobs) - 1}):  # candidate frame names: a stray message is rarely all three
         try:
-            frame, child = cdr.frame_ids(blobs[i], kind)
+            frame, child = cdr.frame_ids(msgs[i], kind)
             lay = cdr.layout(kind, frame, child)
         except (UnicodeDecodeError, ValueError):
             continue
         if lay.size not in by_size:
             idx = np.nonzero(sizes == lay.size)[0]
-            by_size[lay.size] = idx, bag.rows([blobs[j] for j in idx]) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
+            by_size[lay.size] = idx, msgs.rows(idx) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
         rows = by_size[lay.size][1]
         ok = cdr.matches(lay, rows) if rows.shape[0] else np.zeros(0, dtype=bool)
         if best is None or int(ok.sum()) > int(best[3].sum()):
@@ -121,13 +123,13 @@ def _decode_rows(topic: str, msgtype: str, blobs: list[bytes], kind: str, warnin
     if n_keep < len(blobs):
         warnings.append(f"{topic}: {len(blobs) - n_keep} message(s) with other frame names than '{frames}' (or another type) "
                         "rejected; the others kept")
-    t_ns, vals = cdr.decode(lay, rows[ok])
+    t_ns, vals = cdr.decode(lay, rows if n_keep == len(blobs) else rows[ok], checked=True)
     bad = np.zeros(t_ns.size, dtype=bool)
     for why, mask in reject_reasons(kind, t_ns, vals).items():
         if mask.any():
             warnings.append(f"{topic}: {int(mask.sum())} message(s) rejected ({why}, first at stamp {int(t_ns[mask][0])} ns)")
             bad |= mask
-    return t_ns[~bad], vals[~bad]
+    return (t_ns[~bad], vals[~bad]) if bad.any() else (t_ns, vals)
 
 
 def reject_reasons(kind: str, t_ns: NDArray[np.int64], vals: FloatArray) -> dict[str, NDArray[np.bool_]]:
@@ -180,7 +182,9 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
 
 def session_from_streams(streams, custom: dict[str, str], name: str = "memory") -> RecordedSession:
     """The same reader over in-memory streams (dpos-eval simulates without writing a bag)."""
-    raw = {s.topic: (s.msgtype, [int(t) for t in s.t_ns], [s.message(i) for i in range(len(s))]) for s in streams}
+    raw = {s.topic: RawTopic(s.msgtype, np.asarray(s.t_ns, dtype=np.int64).tolist(),
+                             Messages.from_rows(s.rows) if s.rows is not None else Messages.from_list(s.blobs or ()))
+           for s in streams}
     return session_from_raw(raw, custom, Path(name))
 
 

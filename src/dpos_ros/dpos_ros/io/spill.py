@@ -12,7 +12,7 @@ dies (killed, crashed) loses nothing it received: the bytes are in the kernel's 
 crash is detected on reading, reported, and dropped; everything before it is kept.  Memory stays
 bounded: nothing is kept in the process.
 
-:func:`read_spill` returns the same ``{topic: (msgtype, times, blobs)}`` as :func:`dpos_ros.io.bag.read_raw`,
+:func:`read_spill` returns the same ``{topic: RawTopic(msgtype, times, blobs)}`` as :func:`dpos_ros.io.bag.read_raw`,
 so ``dpos-process`` on a spill runs exactly the code that processes a bag.
 
 Late messages
@@ -38,6 +38,11 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_ros.io.messages import Messages, RawTopic
 
 FORMAT = "dpos-spill"
 VERSION = 1
@@ -115,7 +120,7 @@ def is_spill(path: Path) -> bool:
 
 
 def read_spill(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None,
-               ) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
+               ) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
     """``(raw, custom_data, session_id, warnings)`` of a spill directory (see module docstring);
     the late messages of ``<path>/late/`` merged into their topics in stamp order (unless
     ``include_late`` is False: transfer_align_node's own products are made without them).
@@ -131,37 +136,66 @@ def read_spill(path: Path, include_late: bool = True, keep: Callable[[str], bool
                 continue
             warnings.append(f"{topic}: {len(times)} message(s) arrived after the session was closed (late); "
                             f"included from {LATE_DIR}/")
-            t0, b0 = (raw[topic][1], raw[topic][2]) if topic in raw else ([], [])
-            pairs = sorted(zip(t0 + times, range(len(t0) + len(times))), key=lambda p: p[0])
-            blobs_all = b0 + blobs
-            raw[topic] = (msgtype, [t for t, _ in pairs], [blobs_all[i] for _, i in pairs])
+            if topic not in raw:
+                raw[topic] = RawTopic(msgtype, times, blobs)
+                continue
+            t_all = np.array(raw[topic].times + times, dtype=np.int64)
+            order = np.argsort(t_all, kind="stable")
+            raw[topic] = RawTopic(msgtype, t_all[order].tolist(), Messages.concat([raw[topic].blobs, blobs]).take(order))
     return raw, custom, sid, warnings
 
 
+def _records(buf: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], int]:
+    """Records ``int64 t_ns | uint32 size | data`` back to back in ``buf``: ``(t_ns, data offset,
+    data size, end of the last whole record)``, each (N,).  One vectorized pass when every record
+    has the size of the first (the usual case: fixed frame names), else a loop over the records."""
+    h = _HEAD.size
+    if buf.size < h:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0
+    size0 = int(buf[8:12].view("<u4")[0])
+    step = h + size0
+    n = buf.size // step
+    if n:
+        heads = buf[: n * step].reshape(n, step)[:, :h]
+        sizes = np.ascontiguousarray(heads[:, 8:12]).view("<u4")[:, 0]
+        if np.all(sizes == size0):
+            t = np.ascontiguousarray(heads[:, :8]).view("<i8")[:, 0].astype(np.int64)
+            starts = np.arange(n, dtype=np.int64) * step + h
+            rest = buf[n * step :]
+            if rest.size < h or h + int(rest[8:12].view("<u4")[0]) > rest.size:  # nothing whole after them
+                return t, starts, np.full(n, size0, dtype=np.int64), n * step
+    times: list[int] = []
+    starts_l: list[int] = []
+    sizes_l: list[int] = []
+    raw = buf.tobytes()
+    o = 0
+    while o + h <= len(raw):
+        t_i, n_i = _HEAD.unpack_from(raw, o)
+        if o + h + n_i > len(raw):
+            break
+        times.append(t_i)
+        starts_l.append(o + h)
+        sizes_l.append(n_i)
+        o += h + n_i
+    return np.array(times, dtype=np.int64), np.array(starts_l, dtype=np.int64), np.array(sizes_l, dtype=np.int64), o
+
+
 def _read_one(path: Path, keep: Callable[[str], bool] | None = None,
-              ) -> tuple[dict[str, tuple[str, list[int], list[bytes]]], dict[str, str], str, list[str]]:
+              ) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
     meta = json.loads((path / "spill.json").read_text())
     if meta.get("format") != FORMAT or meta.get("version") != VERSION:
         raise ValueError(f"{path}: not a {FORMAT} v{VERSION} directory")
-    raw: dict[str, tuple[str, list[int], list[bytes]]] = {}
+    raw: dict[str, RawTopic] = {}
     warnings: list[str] = []
     for topic, info in meta["topics"].items():
         if keep is not None and not keep(topic):
             continue
         f = path / info["file"]
-        buf = f.read_bytes() if f.is_file() else b""
-        times, blobs = [], []
-        o = 0
-        while o + _HEAD.size <= len(buf):
-            t, n = _HEAD.unpack_from(buf, o)
-            if o + _HEAD.size + n > len(buf):
-                break
-            blobs.append(buf[o + _HEAD.size : o + _HEAD.size + n])
-            times.append(t)
-            o += _HEAD.size + n
-        if o != len(buf):
-            warnings.append(f"{topic}: the last record of {f.name} is cut short ({len(buf) - o} bytes, a crash while writing); dropped")
-        raw[topic] = (info["msgtype"], times, blobs)
+        buf = np.fromfile(f, dtype=np.uint8) if f.is_file() else np.zeros(0, dtype=np.uint8)
+        t, starts, sizes, o = _records(buf)
+        if o != buf.size:
+            warnings.append(f"{topic}: the last record of {f.name} is cut short ({buf.size - o} bytes, a crash while writing); dropped")
+        raw[topic] = RawTopic(info["msgtype"], t.tolist(), Messages.pack(buf, starts, sizes))
     return raw, dict(meta.get("custom_data") or {}), str(meta.get("session_id", path.name)), warnings
 
 

@@ -1,0 +1,457 @@
+"""Private fast path of :mod:`dpos_ros.io.bag`: reading and writing rosbag2 MCAP files chunk by
+chunk, with no Python object per message.
+
+Reading (:func:`read`) takes the chunk indexes from the file's summary, decompresses each chunk
+that holds a wanted channel, finds its Message records with a numba scan
+(:func:`dpos_ros.io._bag_kernel.scan_messages`) and gathers each topic's payloads into one
+buffer (:class:`dpos_ros.io.messages.Messages`).  Per topic, messages come out in the order of
+rosbags' ``AnyReader.messages``: by log time, ties in file order.  A file this path does not
+handle (no summary or chunk index, an unknown compression, one topic on several channels)
+gives None, and the caller falls back to rosbags.
+
+Writing (:func:`write`) lays out the file as rosbags' MCAP writer does (rosbag2 ``version`` 9,
+profile ``ros2``): the schema and channel records at the start of the first chunk, chunks closed
+after the record that takes their uncompressed size over 1 MiB, zstd chunk compression, a
+message index per channel after each chunk, the ``rosbag2`` metadata record, and a summary with
+schemas, channels, chunk indexes, the metadata index, statistics and summary offsets; then
+``metadata.yaml`` with the same fields.  Message records are filled by a numba kernel
+(:func:`dpos_ros.io._bag_kernel.fill_messages`).
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from io import StringIO
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_ros.io import _bag_kernel as K
+from dpos_ros.io.messages import Messages, RawTopic
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX = 0x07, 0x08, 0x0B, 0x0C, 0x0D
+OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
+#: a chunk is closed after the record that takes its uncompressed size over this (rosbags' MCAP writer)
+CHUNK_SIZE = 2**20
+#: zstd level of the chunks (that of rosbags' ``zstd.compress``)
+ZSTD_LEVEL = 3
+_FOOTER = 1 + 8 + 20
+
+
+class _Cursor:
+    """Little-endian fields of one record's body."""
+
+    def __init__(self, buf: bytes, o: int = 0) -> None:
+        self.buf, self.o = buf, o
+
+    def u16(self) -> int:
+        v: int = struct.unpack_from("<H", self.buf, self.o)[0]
+        self.o += 2
+        return v
+
+    def u32(self) -> int:
+        v: int = struct.unpack_from("<I", self.buf, self.o)[0]
+        self.o += 4
+        return v
+
+    def u64(self) -> int:
+        v: int = struct.unpack_from("<Q", self.buf, self.o)[0]
+        self.o += 8
+        return v
+
+    def raw(self, n: int) -> bytes:
+        if self.o + n > len(self.buf):
+            raise ValueError("field beyond its record")
+        v = bytes(self.buf[self.o : self.o + n])
+        self.o += n
+        return v
+
+    def str(self) -> str:
+        return self.raw(self.u32()).decode("utf-8")
+
+
+@dataclass(frozen=True)
+class _ChunkIndex:
+    start: int  # chunk record's offset in the file
+    length: int
+    channels: frozenset[int]  # channels with a message index (empty: not indexed, read the chunk)
+    compression: str
+    compressed_size: int
+    uncompressed_size: int
+
+
+def _records(buf: bytes) -> list[tuple[int, _Cursor, int]]:
+    """(opcode, cursor at its body, end of body) of the records back to back in ``buf``."""
+    out = []
+    o = 0
+    while o < len(buf):
+        if o + 9 > len(buf):
+            raise ValueError("summary record cut short")
+        op, n = struct.unpack_from("<BQ", buf, o)
+        if o + 9 + n > len(buf):
+            raise ValueError("summary record cut short")
+        out.append((op, _Cursor(buf, o + 9), o + 9 + n))
+        o += 9 + n
+    return out
+
+
+def _decompress(data: bytes, compression: str, size: int) -> bytes:
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == "lz4":
+        from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
+
+        out: bytes = lz4_decompress(data)
+        return out
+    raise ValueError(f"unsupported chunk compression {compression!r}")
+
+
+def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
+    """``{topic: RawTopic}`` of the channels whose topic ``wanted`` accepts (all when None), or None
+    when the file is not one this path reads (see module docstring).  Raises :class:`ValueError`
+    naming the file and the chunk for a chunk that is corrupt (cut short, not decompressible, a
+    CRC mismatch, records that do not fill it)."""
+    size = file.stat().st_size
+    with file.open("rb") as f:
+        if size < 2 * len(MAGIC) + _FOOTER or f.read(len(MAGIC)) != MAGIC:
+            return None
+        f.seek(size - len(MAGIC) - _FOOTER)
+        foot = f.read(_FOOTER + len(MAGIC))
+        op, n, summary_start, summary_offset_start, _crc = struct.unpack_from("<BQQQI", foot)
+        if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC or summary_start == 0:
+            return None
+        end = summary_offset_start or size - len(MAGIC) - _FOOTER
+        if not 0 < summary_start <= end <= size:
+            return None
+        f.seek(summary_start)
+        try:
+            summary = _records(f.read(end - summary_start))
+        except ValueError:
+            return None
+        schemas: dict[int, str] = {}
+        channels: dict[int, tuple[str, int]] = {}
+        chunks: list[_ChunkIndex] = []
+        counts: dict[int, int] = {}  # messages per channel (the statistics record), to size the buffers
+        for op, c, _ in summary:
+            if op == OP_SCHEMA:
+                sid = c.u16()
+                schemas[sid] = c.str()
+            elif op == OP_CHANNEL:
+                cid, sid = c.u16(), c.u16()
+                channels[cid] = (c.str(), sid)
+            elif op == OP_CHUNK_INDEX:
+                c.u64(), c.u64()
+                start, length = c.u64(), c.u64()
+                m, idx = c.u32(), set()
+                stop = c.o + m
+                while c.o < stop:
+                    idx.add(c.u16())
+                    c.u64()
+                c.u64()
+                chunks.append(_ChunkIndex(start, length, frozenset(idx), c.str(), c.u64(), c.u64()))
+            elif op == OP_STATISTICS:
+                c.raw(8 + 2 + 4 + 4 + 4 + 4 + 8 + 8)
+                stop = c.u32() + c.o
+                while c.o < stop:
+                    cid = c.u16()
+                    counts[cid] = c.u64()
+        if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
+            return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
+        sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
+               if sid in schemas and (wanted is None or wanted(topic))}
+        if len({t for t, _ in sel.values()}) != len(sel):
+            return None  # a topic on several channels
+        mask = np.zeros(65536, dtype=np.bool_)
+        mask[list(sel)] = True
+        bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
+        for ch in sorted(chunks, key=lambda x: x.start):
+            if ch.channels and not any(mask[c] for c in ch.channels):
+                continue
+            f.seek(ch.start)
+            _chunk_messages(file, ch, f.read(ch.length), mask, bufs)
+    out: dict[str, RawTopic] = {}
+    for cid, (topic, msgtype) in sorted(sel.items(), key=lambda kv: kv[0]):
+        t, msgs = bufs.pop(cid).result()
+        if t.size > 1 and np.any(np.diff(t) < 0):  # rosbags: by log time, ties in file order
+            order = np.argsort(t, kind="stable")
+            t, msgs = t[order], msgs.take(order)
+        out[topic] = RawTopic(msgtype, t.tolist(), msgs)
+    return out
+
+
+class _Growing:
+    """One channel's messages as they are read: a buffer grown by doubling (first sized for
+    ``expected`` messages of the size of the first), the messages' offsets and log times."""
+
+    def __init__(self, expected: int) -> None:
+        self.expected = expected
+        self.data = np.zeros(0, dtype=np.uint8)
+        self.used = 0
+        self.sizes: list[NDArray[np.int64]] = []
+        self.times: list[NDArray[np.int64]] = []
+
+    def add(self, src: NDArray[np.uint8], start: NDArray[np.int64], sizes: NDArray[np.int64], t: NDArray[np.int64]) -> None:
+        """Append the messages ``src[start[i]:start[i] + sizes[i]]`` (K,) with log times ``t`` (K,)."""
+        need = self.used + int(sizes.sum())
+        if need > self.data.size:
+            cap = max(need, 2 * self.data.size, self.expected * int(sizes[0]) if not self.sizes else 0)
+            grown = np.empty(cap, dtype=np.uint8)
+            grown[: self.used] = self.data[: self.used]
+            self.data = grown
+        off = np.empty(sizes.size + 1, dtype=np.int64)
+        off[0] = self.used
+        np.cumsum(sizes, out=off[1:])
+        off[1:] += self.used
+        K.gather(src, start, sizes, self.data, off)
+        self.used = need
+        self.sizes.append(sizes)
+        self.times.append(t)
+
+    def result(self) -> tuple[NDArray[np.int64], Messages]:
+        """``(log times (N,), messages)`` in the order they were added."""
+        sizes = np.concatenate(self.sizes) if self.sizes else np.zeros(0, dtype=np.int64)
+        off = np.zeros(sizes.size + 1, dtype=np.int64)
+        np.cumsum(sizes, out=off[1:])
+        t = np.concatenate(self.times) if self.times else np.zeros(0, dtype=np.int64)
+        return t, Messages(self.data[: self.used], off)
+
+
+def _chunk_messages(file: Path, ch: _ChunkIndex, rec: bytes, mask: NDArray[np.bool_], bufs: dict[int, _Growing]) -> None:
+    """Append the wanted messages of one chunk record to their channels' ``bufs``."""
+    where = f"{file}: the chunk at byte {ch.start}"
+    if len(rec) != ch.length or len(rec) < 9 + 28 or rec[0] != OP_CHUNK:
+        raise ValueError(f"{where} is cut short or not a chunk ({len(rec)} of {ch.length} bytes)")
+    c = _Cursor(rec, 9)
+    c.u64(), c.u64()
+    usize, crc = c.u64(), c.u32()
+    comp = c.str()
+    n = c.u64()
+    if c.o + n > len(rec):
+        raise ValueError(f"{where} is cut short ({len(rec) - c.o} of {n} bytes of records)")
+    try:
+        data = _decompress(rec[c.o : c.o + n], comp, usize)
+    except Exception as e:  # noqa: BLE001 - zstandard / lz4 raise their own errors
+        raise ValueError(f"{where} cannot be decompressed ({comp}: {type(e).__name__}: {e})") from None
+    if len(data) != usize:
+        raise ValueError(f"{where} decompresses to {len(data)} bytes, not {usize}")
+    if crc and zlib.crc32(data) != crc:
+        raise ValueError(f"{where}: CRC mismatch of its records")
+    buf = np.frombuffer(data, dtype=np.uint8)
+    stop, _, cid, t, d0, ds = K.scan_messages(buf, mask)
+    if stop != buf.size:
+        raise ValueError(f"{where}: its records end in an incomplete record at byte {stop} of {buf.size}")
+    for c_ in np.unique(cid):
+        i = np.nonzero(cid == c_)[0]
+        bufs[int(c_)].add(buf, d0[i], ds[i], t[i])
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+def _u16(v: int) -> bytes:
+    return v.to_bytes(2, "little")
+
+
+def _u32(v: int) -> bytes:
+    return v.to_bytes(4, "little")
+
+
+def _u64(v: int) -> bytes:
+    return v.to_bytes(8, "little")
+
+
+def _s(v: str) -> bytes:
+    b = v.encode()
+    return _u32(len(b)) + b
+
+
+def _rec(op: int, body: bytes) -> bytes:
+    return bytes([op]) + _u64(len(body)) + body
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One channel to write: ``msgs`` in the order of ``t_ns`` (N,) [ns] (the log times)."""
+
+    topic: str
+    msgtype: str
+    t_ns: NDArray[np.int64]
+    msgs: Messages
+
+
+def _yaml(obj: object) -> str:
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    yaml.default_flow_style = False
+    s = StringIO()
+    yaml.dump(obj, s)
+    return s.getvalue()
+
+
+def write(path: Path, topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]],
+          custom_data: dict[str, str], version: int, library: str,
+          progress: Callable[[int, int], None] | None = None) -> int:
+    """Write a new rosbag2 directory ``path`` with one MCAP file, messages in ``order`` =
+    ``(t_ns, topic index, message index)`` (each (N,), from :func:`dpos_ros.io.streams.merged_order`);
+    returns N.  The layout is that of rosbags' writer (module docstring)."""
+    import zstandard
+    from rosbags.rosbag2.metadata import dump_qos_v9
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    t_all, si, mi = (np.asarray(a, dtype=np.int64) for a in order)
+    n = int(t_all.size)
+    path.mkdir(mode=0o755, parents=True)
+    file = path / f"{path.name}.mcap"
+    qos = dump_qos_v9([])
+    qos_text = qos if isinstance(qos, str) else _yaml(qos).strip()
+    # schemas and channels (ids from 1, a schema per message type, in the order of the topics)
+    schema_ids: dict[str, int] = {}
+    schema_recs: list[bytes] = []
+    channel_recs: list[bytes] = []
+    head = bytearray()  # the first chunk's schema and channel records
+    digests: list[str] = []
+    for k, tp in enumerate(topics):
+        if tp.msgtype not in schema_ids:
+            msgdef, _ = ts.generate_msgdef(tp.msgtype, ros_version=2)
+            fmt = "ros2idl" if msgdef.startswith("=" * 80 + "\nIDL: ") else "ros2msg"
+            schema_ids[tp.msgtype] = len(schema_ids) + 1
+            schema_recs.append(_rec(OP_SCHEMA, _u16(schema_ids[tp.msgtype]) + _s(tp.msgtype) + _s(fmt) + _s(msgdef)))
+            head += schema_recs[-1]
+        digests.append(ts.hash_rihs01(tp.msgtype))
+        meta = _s("offered_qos_profiles") + _s(qos_text)
+        channel_recs.append(_rec(OP_CHANNEL, _u16(k + 1) + _u16(schema_ids[tp.msgtype]) + _s(tp.topic) + _s("cdr")
+                                 + _u32(len(meta)) + meta))
+        head += channel_recs[-1]
+    # every message's channel, size and where its bytes are
+    sizes_by_topic = [tp.msgs.sizes for tp in topics]
+    size = np.zeros(n, dtype=np.int64)
+    start = np.zeros(n, dtype=np.int64)
+    for k, tp in enumerate(topics):
+        sel = si == k
+        size[sel] = sizes_by_topic[k][mi[sel]]
+        start[sel] = tp.msgs.offsets[mi[sel]]
+    rec_len = size + K.MESSAGE_HEAD
+    cum = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(rec_len, out=cum[1:])
+    cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+    chunk_index: list[bytes] = []
+    counts = np.bincount(si, minlength=len(topics)) if n else np.zeros(len(topics), dtype=np.int64)
+    with file.open("xb") as f:
+        f.write(MAGIC)
+        f.write(_rec(OP_HEADER, _s("ros2") + _s(library)))
+        a = 0
+        first = True
+        while a < n or (first and head):
+            prefix = len(head) if first else 0
+            # the chunk ends after the first record that takes it over CHUNK_SIZE
+            if a >= n:
+                b = n
+            elif prefix > CHUNK_SIZE:  # rosbags closes a chunk only after a message
+                b = a + 1
+            else:
+                b = min(n, int(np.searchsorted(cum, cum[a] + CHUNK_SIZE - prefix, side="right")))
+            usize = prefix + int(cum[b] - cum[a])
+            buf = np.empty(usize, dtype=np.uint8)
+            if prefix:
+                buf[:prefix] = np.frombuffer(bytes(head), dtype=np.uint8)
+            rec_off = prefix + cum[a:b] - cum[a]
+            for k, tp in enumerate(topics):
+                j = np.nonzero(si[a:b] == k)[0]
+                if j.size:
+                    K.fill_messages(buf, rec_off[j], np.full(j.size, k + 1, dtype=np.int64), t_all[a:b][j],
+                                    tp.msgs.data, start[a:b][j], size[a:b][j])
+            data = buf.tobytes()
+            comp = cctx.compress(data)
+            t_c = t_all[a:b]
+            t0, t1 = (int(t_c.min()), int(t_c.max())) if b > a else (2**63 - 1, 0)
+            body = _u64(t0) + _u64(t1) + _u64(usize) + _u32(0) + _s("zstd") + _u64(len(comp))
+            chunk_start = f.tell()
+            f.write(bytes([OP_CHUNK]) + _u64(len(body) + len(comp)) + body)
+            f.write(comp)
+            chunk_end = f.tell()
+            # message indexes, channels in the order of their first message in the chunk
+            offsets = []
+            s_c = si[a:b]
+            _, first_pos = np.unique(s_c, return_index=True)
+            for k in s_c[np.sort(first_pos)]:
+                j = np.nonzero(s_c == k)[0]
+                pairs = np.empty((j.size, 2), dtype="<u8")
+                pairs[:, 0] = t_c[j]
+                pairs[:, 1] = rec_off[j]
+                offsets.append((int(k) + 1, f.tell()))
+                f.write(_rec(OP_MESSAGE_INDEX, _u16(int(k) + 1) + _u32(16 * j.size) + pairs.tobytes()))
+            idx_map = b"".join(_u16(c) + _u64(o) for c, o in offsets)
+            chunk_index.append(_rec(OP_CHUNK_INDEX, _u64(t0) + _u64(t1) + _u64(chunk_start) + _u64(chunk_end - chunk_start)
+                                    + _u32(len(idx_map)) + idx_map + _u64(f.tell() - chunk_end) + _s("zstd")
+                                    + _u64(len(comp)) + _u64(usize)))
+            first = False
+            a = b
+            if progress is not None:
+                progress(a, n)
+        t_min, t_max = (int(t_all.min()), int(t_all.max())) if n else (2**63 - 1, 0)
+        info = {
+            "version": version,
+            "storage_identifier": "mcap",
+            "relative_file_paths": [file.name],
+            "duration": {"nanoseconds": max(0, t_max - t_min)},
+            "starting_time": {"nanoseconds_since_epoch": t_min},
+            "message_count": n,
+            "topics_with_message_count": [
+                {"topic_metadata": {"name": tp.topic, "type": tp.msgtype, "serialization_format": "cdr",
+                                    "offered_qos_profiles": dump_qos_v9([]), "type_description_hash": digests[k]},
+                 "message_count": int(counts[k])}
+                for k, tp in enumerate(topics)],
+            "compression_format": "",
+            "compression_mode": "",
+            "files": [{"path": file.name, "starting_time": {"nanoseconds_since_epoch": t_min},
+                       "duration": {"nanoseconds": max(0, t_max - t_min)}, "message_count": n}],
+            "custom_data": dict(custom_data) or None,
+            "ros_distro": "rosbags",
+        }
+        serialized = _yaml(info).strip()
+        metadata_start = f.tell()
+        meta_map = _s("serialized_metadata") + _s(serialized)
+        f.write(_rec(OP_METADATA, _s("rosbag2") + _u32(len(meta_map)) + meta_map))
+        metadata_end = f.tell()
+        f.write(_rec(OP_DATA_END, _u32(0)))
+        schema_start = f.tell()
+        f.write(b"".join(schema_recs))
+        channel_start = f.tell()
+        f.write(b"".join(channel_recs))
+        chunk_idx_start = f.tell()
+        f.write(b"".join(chunk_index))
+        metadata_index_start = f.tell()
+        f.write(_rec(OP_METADATA_INDEX, _u64(metadata_start) + _u64(metadata_end - metadata_start) + _s("rosbag2")))
+        statistics_start = f.tell()
+        stats = b"".join(_u16(k + 1) + _u64(int(counts[k])) for k in range(len(topics)))
+        f.write(_rec(OP_STATISTICS, _u64(n) + _u16(len(schema_recs)) + _u32(len(topics)) + _u32(0) + _u32(1)
+                     + _u32(len(chunk_index)) + _u64(t_min) + _u64(t_max) + _u32(len(stats)) + stats))
+        summary_offset_start = f.tell()
+        for op, a0, a1 in ((OP_SCHEMA, schema_start, channel_start), (OP_CHANNEL, channel_start, chunk_idx_start),
+                           (OP_CHUNK_INDEX, chunk_idx_start, metadata_index_start)):
+            if a1 != a0:
+                f.write(_rec(OP_SUMMARY_OFFSET, bytes([op]) + _u64(a0) + _u64(a1 - a0)))
+        f.write(_rec(OP_SUMMARY_OFFSET, bytes([OP_METADATA_INDEX]) + _u64(metadata_index_start)
+                     + _u64(statistics_start - metadata_index_start)))
+        f.write(_rec(OP_SUMMARY_OFFSET, bytes([OP_STATISTICS]) + _u64(statistics_start)
+                     + _u64(summary_offset_start - statistics_start)))
+        f.write(_rec(OP_FOOTER, _u64(schema_start) + _u64(summary_offset_start) + _u32(0)))
+        f.write(MAGIC)
+    meta_path = path / "metadata.yaml"
+    tmp = meta_path.with_suffix(".yaml.tmp")
+    tmp.write_text(_yaml({"rosbag2_bagfile_information": info}), "utf8")
+    tmp.replace(meta_path)
+    return n

@@ -1,0 +1,211 @@
+"""The fast MCAP path of dpos_ros.io.bag (issues #12 / #17): the writer lays out the file as
+rosbags' writer does and the reader returns what rosbags' AnyReader returns, message by message
+and in the same order (out-of-order and duplicate log times across chunks included); a corrupt
+chunk is an error naming it; bags the fast path does not read go through rosbags; the spill reader
+gives the same messages record by record; :class:`Messages` behaves as a list of bytes."""
+
+from __future__ import annotations
+
+import shutil
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zstandard
+from mcap.records import Chunk, ChunkIndex, Footer, MessageIndex, SummaryOffset
+from mcap.stream_reader import StreamReader
+from repo_paths import REPO
+from rosbags.rosbag2 import Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+
+from dpos_ros.io import bag, spill
+from dpos_ros.io.messages import Messages, RawTopic
+from dpos_ros.io.session import SessionError, read_session
+from dpos_ros.io.streams import TopicStream
+
+SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
+
+
+@pytest.fixture(scope="module")
+def streams() -> list[TopicStream]:
+    """The sample bag's topics as the products write them: the high-rate ones as rows, the others as blobs."""
+    out = []
+    for topic, (mt, times, blobs) in bag.read_raw_rosbags(SAMPLE).items():
+        sizes = {len(b) for b in blobs}
+        t = np.array(times, dtype=np.int64)
+        if len(sizes) == 1 and len(blobs) > 1000:
+            out.append(TopicStream(topic, mt, t, rows=bag.rows(blobs)))
+        else:
+            out.append(TopicStream(topic, mt, t, blobs=tuple(blobs)))
+    assert any(s.blobs is not None for s in out) and any(s.rows is not None for s in out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def written(streams: list[TopicStream], tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The streams written by the fast writer and by rosbags' Writer (bags of the same name)."""
+    d = tmp_path_factory.mktemp("w")
+    custom = {"dpos.session_id": "s1", "dpos.note": "a: b\nc"}
+    assert bag.write_streams(d / "fast" / "b", streams, custom_data=custom) == sum(len(s) for s in streams)
+    bag.write_streams_rosbags(d / "ref" / "b", streams, custom_data=custom)
+    return d / "fast" / "b", d / "ref" / "b"
+
+
+def _layout(mcap: Path) -> list[object]:
+    """The file's records with what does not depend on the zstd build: chunks decompressed,
+    offsets that follow compressed sizes left out."""
+    out: list[object] = []
+    with mcap.open("rb") as f:
+        for r in StreamReader(f, skip_magic=False, emit_chunks=True).records:
+            if isinstance(r, Chunk):
+                out.append(("chunk", r.message_start_time, r.message_end_time, r.uncompressed_size, r.uncompressed_crc,
+                            r.compression, zstandard.ZstdDecompressor().decompress(r.data, max_output_size=r.uncompressed_size)))
+            elif isinstance(r, ChunkIndex):
+                out.append(("chunk index", r.message_start_time, r.message_end_time, list(r.message_index_offsets),
+                            r.compression, r.uncompressed_size))
+            elif isinstance(r, SummaryOffset | Footer):
+                out.append(type(r).__name__)
+            elif isinstance(r, MessageIndex):
+                out.append(("message index", r.channel_id, r.records))
+            else:
+                out.append(r)
+    return out
+
+
+def test_fast_writer_lays_out_the_bag_as_rosbags(written: tuple[Path, Path]) -> None:
+    fast, ref = written
+    assert (fast / "metadata.yaml").read_text() == (ref / "metadata.yaml").read_text()
+    got, want = _layout(fast / "b.mcap"), _layout(ref / "b.mcap")
+    assert sum(1 for r in want if isinstance(r, tuple) and r[0] == "chunk") > 2  # the test covers chunk boundaries
+    assert len(got) == len(want)
+    for i, (g, w) in enumerate(zip(got, want)):
+        assert g == w, f"record {i}: {str(g)[:200]} != {str(w)[:200]}"
+
+
+def test_fast_and_rosbags_read_the_same_messages(streams: list[TopicStream], written: tuple[Path, Path]) -> None:
+    for b in written:
+        fast, ref = bag.read_raw(b), bag.read_raw_rosbags(b)
+        assert list(fast) == list(ref) == [s.topic for s in streams]
+        for s in streams:
+            mt, times, blobs = fast[s.topic]
+            assert isinstance(blobs, Messages)
+            assert (mt, times) == (ref[s.topic].msgtype, ref[s.topic].times) == (s.msgtype, s.t_ns.tolist())
+            assert blobs == ref[s.topic].blobs == [s.message(i) for i in range(len(s))], s.topic
+    only = bag.read_raw(written[0], ["/master/nav", "/no/such"])
+    assert list(only) == ["/master/nav"] and only["/master/nav"] == bag.read_raw_rosbags(written[0], "/master/nav".__eq__)["/master/nav"]
+
+
+def _unordered_bag(path: Path) -> list[tuple[str, int, bytes]]:
+    """A bag as a recorder may write it: log times out of order and repeated, within and across
+    chunks (messages of 200 kB: about 5 per chunk); returns what was written, in file order."""
+    rng = np.random.default_rng(3)
+    ts = bag.typestore()
+    written = []
+    w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    w.open()
+    conns = {t: w.add_connection(t, "std_msgs/msg/String", typestore=ts) for t in ("/a", "/b")}
+    times = [5, 3, 3, 9, 1, 7, 3, 2, 2, 8, 5, 6, 4, 3, 1, 0, 9, 9, 5, 2, 7, 1, 3, 3]
+    for k, t in enumerate(times):
+        topic = "/a" if k % 3 else "/b"
+        data = bytes([k]) * int(rng.integers(150_000, 250_000))
+        w.write(conns[topic], t * 1_000_000, data)
+        written.append((topic, t * 1_000_000, data))
+    w.close()
+    return written
+
+
+def test_out_of_order_and_duplicate_log_times_come_in_rosbags_order(tmp_path: Path) -> None:
+    written = _unordered_bag(tmp_path / "u")
+    fast, ref = bag.read_raw(tmp_path / "u"), bag.read_raw_rosbags(tmp_path / "u")
+    assert fast == ref
+    for topic in ("/a", "/b"):
+        mine = [(t, d) for tp, t, d in written if tp == topic]
+        assert fast[topic].times == sorted(t for t, _ in mine)  # by log time ...
+        assert list(fast[topic].blobs) == [d for _, d in sorted(mine, key=lambda m: m[0])]  # ... ties in file order
+
+
+def test_a_corrupt_chunk_is_an_error_naming_it(written: tuple[Path, Path], tmp_path: Path) -> None:
+    b = tmp_path / "corrupt"
+    shutil.copytree(written[0], b)
+    mcap = b / "b.mcap"
+    with mcap.open("rb") as f:
+        chunks = [(f.tell(), r) for r in StreamReader(f, skip_magic=False).records if isinstance(r, ChunkIndex)]
+    start = chunks[0][1].chunk_start_offset
+    buf = bytearray(mcap.read_bytes())
+    data = start + 9 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8  # the chunk's compressed records
+    assert buf[data : data + 4] == b"\x28\xb5\x2f\xfd"  # a zstd frame
+    buf[data : data + 4] = b"\x00\x00\x00\x00"
+    mcap.write_bytes(bytes(buf))
+    with pytest.raises(ValueError, match=f"b.mcap: the chunk at byte {start} cannot be decompressed"):
+        bag.read_raw(b)
+    with pytest.raises(SessionError, match="chunk at byte"):
+        read_session(b)
+
+
+def test_bags_the_fast_path_does_not_read_go_through_rosbags(written: tuple[Path, Path], tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    ref = bag.read_raw_rosbags(written[1])
+    # a SQLite3 bag
+    db = tmp_path / "db"
+    w = Writer(db, version=9, storage_plugin=StoragePlugin.SQLITE3)
+    w.open()
+    ts = bag.typestore()
+    conns = {t: w.add_connection(t, mt, typestore=ts) for t, (mt, _, _) in ref.items()}
+    for t, (_, times, blobs) in ref.items():
+        for tt, d in zip(times, blobs):
+            w.write(conns[t], tt, d)
+    w.close()
+    calls: list[Path] = []
+    monkeypatch.setattr(bag, "read_raw_rosbags", lambda p, wanted=None: calls.append(p) or ref)
+    assert bag.read_raw(db) is ref and calls == [db]
+    # an MCAP without its summary (footer cut off) but with metadata.yaml
+    cut = tmp_path / "cut"
+    shutil.copytree(written[0], cut)
+    with (cut / "b.mcap").open("r+b") as f:
+        f.truncate((cut / "b.mcap").stat().st_size - 20)
+    assert bag.read_raw(cut) is ref and calls == [db, cut]
+
+
+def test_spill_records_are_read_back_as_written(tmp_path: Path) -> None:
+    w = spill.SpillWriter(tmp_path / "s", "sess", {"k": "v"})
+    fixed = [bytes([i]) * 40 for i in range(50)]
+    mixed = [bytes([i]) * (10 + i % 7) for i in range(50)]
+    for i in range(50):
+        w.write("/fixed", "sensor_msgs/msg/Imu", 1000 + i, fixed[i])
+        w.write("/mixed", "std_msgs/msg/String", 2000 - i, mixed[i])
+    w.close()
+    late = spill.SpillWriter(tmp_path / "s" / spill.LATE_DIR, "sess")
+    late.write("/fixed", "sensor_msgs/msg/Imu", 1010, b"late" * 10)  # a stamp the main log has: after it
+    late.write("/fixed", "sensor_msgs/msg/Imu", 5, b"early" * 8)
+    late.close()
+    with (tmp_path / "s" / "0.log").open("ab") as f:
+        f.write(struct.pack("<qI", 1050, 40) + b"cut")  # a record cut short by a crash
+    raw, custom, sid, warns = spill.read_spill(tmp_path / "s", include_late=False)
+    assert (custom, sid) == ({"k": "v"}, "sess")
+    assert raw["/fixed"] == RawTopic("sensor_msgs/msg/Imu", list(range(1000, 1050)), Messages.from_list(fixed))
+    assert raw["/mixed"].times == [2000 - i for i in range(50)] and raw["/mixed"].blobs == mixed
+    assert len(warns) == 1 and "/fixed: the last record of 0.log is cut short (15 bytes" in warns[0]
+    merged, _, _, warns = spill.read_spill(tmp_path / "s")
+    assert merged["/fixed"].times == [5, *range(1000, 1011), 1010, *range(1011, 1050)]
+    assert merged["/fixed"].blobs == [b"early" * 8, *fixed[:11], b"late" * 10, *fixed[11:]]
+    assert any("/fixed: 2 message(s) arrived after the session was closed" in x for x in warns)
+
+
+def test_messages_behave_as_a_list_of_bytes() -> None:
+    blobs = [b"abcd", b"efgh", b"ij", b"", b"klmnop"]
+    m = Messages.from_list(blobs)
+    assert len(m) == 5 and list(m) == blobs and m == blobs and blobs == m and m != blobs[:4]
+    assert m[1] == b"efgh" and m[-1] == b"klmnop" and m[1:3] == blobs[1:3] and m[::2] == blobs[::2]
+    assert m[::2] + m[-1:] == blobs[::2] + blobs[-1:] and m[:1] + [b"x"] == [b"abcd", b"x"]
+    assert m.take(np.array([4, 0, 3])) == [b"klmnop", b"abcd", b""]
+    with pytest.raises(IndexError):
+        m[5]
+    fixed = Messages.from_list(blobs[:2])
+    rows = fixed.rows()
+    assert rows.shape == (2, 4) and np.shares_memory(rows, fixed.data)  # back to back: a view
+    assert m.rows(np.array([1, 0])).tolist() == [list(b"efgh"), list(b"abcd")]
+    with pytest.raises(ValueError, match="different sizes"):
+        m.rows()
+    assert Messages.concat([m[:2], m[2:]]) == m and Messages.from_rows(rows) == blobs[:2]
