@@ -4,7 +4,9 @@ chunk, with no Python object per message.
 Reading (:func:`read`) takes the chunk indexes from the file's summary, decompresses each chunk
 that holds a wanted channel, finds its Message records with a numba scan
 (:func:`dpos_ros.io._bag_kernel.scan_messages`) and gathers each topic's payloads into one
-buffer (:class:`dpos_ros.io.messages.Messages`).  Per topic, messages come out in the order of
+buffer (:class:`dpos_ros.io.messages.Messages`, sized from the summary's statistics; the chunk
+and its decompressed records go through buffers reused from chunk to chunk, as fresh memory is
+paid a page fault per page).  Per topic, messages come out in the order of
 rosbags' ``AnyReader.messages``: by log time, ties in file order.  A file this path does not
 handle (no summary or chunk index, an unknown compression, one topic on several channels)
 gives None, and the caller falls back to rosbags.
@@ -15,17 +17,22 @@ after the record that takes their uncompressed size over 1 MiB, zstd chunk compr
 message index per channel after each chunk, the ``rosbag2`` metadata record, and a summary with
 schemas, channels, chunk indexes, the metadata index, statistics and summary offsets; then
 ``metadata.yaml`` with the same fields.  Message records are filled by a numba kernel
-(:func:`dpos_ros.io._bag_kernel.fill_messages`).
+(:func:`dpos_ros.io._bag_kernel.fill_messages`); chunks are compressed on COMPRESS_THREADS threads
+while the next ones are built, and written in order.
 """
 
 from __future__ import annotations
 
 import struct
+import threading
 import zlib
+from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from io import StringIO
+from io import BufferedReader, StringIO
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,13 +48,15 @@ OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
 CHUNK_SIZE = 2**20
 #: zstd level of the chunks (that of rosbags' ``zstd.compress``)
 ZSTD_LEVEL = 3
+#: threads compressing chunks while the next ones are built (at most twice as many chunks in flight)
+COMPRESS_THREADS = 2
 _FOOTER = 1 + 8 + 20
 
 
 class _Cursor:
     """Little-endian fields of one record's body."""
 
-    def __init__(self, buf: bytes, o: int = 0) -> None:
+    def __init__(self, buf: bytes | memoryview, o: int = 0) -> None:
         self.buf, self.o = buf, o
 
     def u16(self) -> int:
@@ -101,19 +110,50 @@ def _records(buf: bytes) -> list[tuple[int, _Cursor, int]]:
     return out
 
 
-def _decompress(data: bytes, compression: str, size: int) -> bytes:
-    if compression == "":
-        return data
-    if compression == "zstd":
+class _Buffers:
+    """Buffers reused from chunk to chunk (the file's chunk record, its decompressed records):
+    fresh memory costs a page fault per page, which on some machines is most of the reading."""
+
+    def __init__(self) -> None:
+        self.rec = bytearray()
+        self.out = bytearray()
+        self._dctx: object | None = None
+
+    def read(self, f: BufferedReader, start: int, length: int) -> memoryview:
+        """The ``length`` bytes of ``f`` at ``start`` (fewer at the end of the file)."""
+        if len(self.rec) < length:
+            self.rec = bytearray(length)
+        f.seek(start)
+        view = memoryview(self.rec)[:length]
+        got = f.readinto(view)
+        return view[: got or 0]
+
+    def decompress(self, data: memoryview, compression: str, size: int) -> memoryview:
+        """``data`` decompressed (at most ``size`` bytes read: a longer result shows as ``size + 1``)."""
+        if compression == "":
+            return data
+        if compression == "lz4":
+            from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
+
+            return memoryview(lz4_decompress(data))
+        if compression != "zstd":
+            raise ValueError(f"unsupported chunk compression {compression!r}")
         import zstandard
 
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
-
-        out: bytes = lz4_decompress(data)
-        return out
-    raise ValueError(f"unsupported chunk compression {compression!r}")
+        if self._dctx is None:
+            self._dctx = zstandard.ZstdDecompressor()
+        assert isinstance(self._dctx, zstandard.ZstdDecompressor)
+        if len(self.out) < size + 1:
+            self.out = bytearray(size + 1)
+        view = memoryview(self.out)[: size + 1]
+        total = 0
+        with self._dctx.stream_reader(data, read_across_frames=True) as r:
+            while total <= size:
+                k = r.readinto(view[total:])
+                if not k:
+                    break
+                total += k
+        return view[:total]
 
 
 def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
@@ -174,11 +214,11 @@ def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic
         mask = np.zeros(65536, dtype=np.bool_)
         mask[list(sel)] = True
         bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
+        reuse = _Buffers()
         for ch in sorted(chunks, key=lambda x: x.start):
             if ch.channels and not any(mask[c] for c in ch.channels):
                 continue
-            f.seek(ch.start)
-            _chunk_messages(file, ch, f.read(ch.length), mask, bufs)
+            _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
     out: dict[str, RawTopic] = {}
     for cid, (topic, msgtype) in sorted(sel.items(), key=lambda kv: kv[0]):
         t, msgs = bufs.pop(cid).result()
@@ -226,7 +266,8 @@ class _Growing:
         return t, Messages(self.data[: self.used], off)
 
 
-def _chunk_messages(file: Path, ch: _ChunkIndex, rec: bytes, mask: NDArray[np.bool_], bufs: dict[int, _Growing]) -> None:
+def _chunk_messages(file: Path, ch: _ChunkIndex, rec: memoryview, mask: NDArray[np.bool_], bufs: dict[int, _Growing],
+                    reuse: _Buffers) -> None:
     """Append the wanted messages of one chunk record to their channels' ``bufs``."""
     where = f"{file}: the chunk at byte {ch.start}"
     if len(rec) != ch.length or len(rec) < 9 + 28 or rec[0] != OP_CHUNK:
@@ -239,11 +280,11 @@ def _chunk_messages(file: Path, ch: _ChunkIndex, rec: bytes, mask: NDArray[np.bo
     if c.o + n > len(rec):
         raise ValueError(f"{where} is cut short ({len(rec) - c.o} of {n} bytes of records)")
     try:
-        data = _decompress(rec[c.o : c.o + n], comp, usize)
+        data = reuse.decompress(rec[c.o : c.o + n], comp, usize)
     except Exception as e:  # noqa: BLE001 - zstandard / lz4 raise their own errors
         raise ValueError(f"{where} cannot be decompressed ({comp}: {type(e).__name__}: {e})") from None
     if len(data) != usize:
-        raise ValueError(f"{where} decompresses to {len(data)} bytes, not {usize}")
+        raise ValueError(f"{where} decompresses to {'more than ' if len(data) > usize else ''}{len(data)} bytes, not {usize}")
     if crc and zlib.crc32(data) != crc:
         raise ValueError(f"{where}: CRC mismatch of its records")
     buf = np.frombuffer(data, dtype=np.uint8)
@@ -278,6 +319,18 @@ def _s(v: str) -> bytes:
 
 def _rec(op: int, body: bytes) -> bytes:
     return bytes([op]) + _u64(len(body)) + body
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """A chunk to write: its records ``data``, log time range [ns], the index of the message after
+    its last, and its message indexes ``[(channel id, (log time, offset) pairs as u64 bytes)]``."""
+
+    data: bytes
+    t0: int
+    t1: int
+    end: int
+    index: list[tuple[int, bytes]]
 
 
 @dataclass(frozen=True)
@@ -346,61 +399,81 @@ def write(path: Path, topics: Sequence[Topic], order: tuple[NDArray[np.int64], N
     rec_len = size + K.MESSAGE_HEAD
     cum = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(rec_len, out=cum[1:])
-    cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
     chunk_index: list[bytes] = []
     counts = np.bincount(si, minlength=len(topics)) if n else np.zeros(len(topics), dtype=np.int64)
-    with file.open("xb") as f:
+
+    def build(a: int, b: int, prefix: bytes) -> _Chunk:
+        """The uncompressed chunk of messages a..b-1 after the records ``prefix``."""
+        usize = len(prefix) + int(cum[b] - cum[a])
+        buf = np.empty(usize, dtype=np.uint8)
+        if prefix:
+            buf[: len(prefix)] = np.frombuffer(prefix, dtype=np.uint8)
+        rec_off = len(prefix) + cum[a:b] - cum[a]
+        s_c, t_c = si[a:b], t_all[a:b]
+        for k, tp in enumerate(topics):
+            j = np.nonzero(s_c == k)[0]
+            if j.size:
+                K.fill_messages(buf, rec_off[j], np.full(j.size, k + 1, dtype=np.int64), t_c[j],
+                                tp.msgs.data, start[a:b][j], size[a:b][j])
+        index = []  # message indexes, channels in the order of their first message in the chunk
+        _, first_pos = np.unique(s_c, return_index=True)
+        for k in s_c[np.sort(first_pos)]:
+            j = np.nonzero(s_c == k)[0]
+            pairs = np.empty((j.size, 2), dtype="<u8")
+            pairs[:, 0] = t_c[j]
+            pairs[:, 1] = rec_off[j]
+            index.append((int(k) + 1, pairs.tobytes()))
+        t0, t1 = (int(t_c.min()), int(t_c.max())) if b > a else (2**63 - 1, 0)
+        return _Chunk(buf.tobytes(), t0, t1, b, index)
+
+    def write_chunk(f: BinaryIO, ch: _Chunk, comp: bytes) -> None:
+        body = _u64(ch.t0) + _u64(ch.t1) + _u64(len(ch.data)) + _u32(0) + _s("zstd") + _u64(len(comp))
+        chunk_start = f.tell()
+        f.write(bytes([OP_CHUNK]) + _u64(len(body) + len(comp)) + body)
+        f.write(comp)
+        chunk_end = f.tell()
+        offsets = []
+        for cid, pairs in ch.index:
+            offsets.append((cid, f.tell()))
+            f.write(_rec(OP_MESSAGE_INDEX, _u16(cid) + _u32(len(pairs)) + pairs))
+        idx_map = b"".join(_u16(c) + _u64(o) for c, o in offsets)
+        chunk_index.append(_rec(OP_CHUNK_INDEX, _u64(ch.t0) + _u64(ch.t1) + _u64(chunk_start) + _u64(chunk_end - chunk_start)
+                                + _u32(len(idx_map)) + idx_map + _u64(f.tell() - chunk_end) + _s("zstd")
+                                + _u64(len(comp)) + _u64(len(ch.data))))
+        if progress is not None:
+            progress(ch.end, n)
+
+    local = threading.local()
+
+    def compress(data: bytes) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
+        if not hasattr(local, "cctx"):
+            local.cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+        out: bytes = local.cctx.compress(data)
+        return out
+
+    with file.open("xb") as f, ThreadPoolExecutor(COMPRESS_THREADS) as pool:
         f.write(MAGIC)
         f.write(_rec(OP_HEADER, _s("ros2") + _s(library)))
+        pending: deque[tuple[_Chunk, Future[bytes]]] = deque()
         a = 0
-        first = True
-        while a < n or (first and head):
-            prefix = len(head) if first else 0
-            # the chunk ends after the first record that takes it over CHUNK_SIZE
+        prefix = bytes(head)  # the schema and channel records open the first chunk
+        while a < n or prefix:
             if a >= n:
                 b = n
-            elif prefix > CHUNK_SIZE:  # rosbags closes a chunk only after a message
+            elif len(prefix) > CHUNK_SIZE:  # rosbags closes a chunk only after a message
                 b = a + 1
-            else:
-                b = min(n, int(np.searchsorted(cum, cum[a] + CHUNK_SIZE - prefix, side="right")))
-            usize = prefix + int(cum[b] - cum[a])
-            buf = np.empty(usize, dtype=np.uint8)
-            if prefix:
-                buf[:prefix] = np.frombuffer(bytes(head), dtype=np.uint8)
-            rec_off = prefix + cum[a:b] - cum[a]
-            for k, tp in enumerate(topics):
-                j = np.nonzero(si[a:b] == k)[0]
-                if j.size:
-                    K.fill_messages(buf, rec_off[j], np.full(j.size, k + 1, dtype=np.int64), t_all[a:b][j],
-                                    tp.msgs.data, start[a:b][j], size[a:b][j])
-            data = buf.tobytes()
-            comp = cctx.compress(data)
-            t_c = t_all[a:b]
-            t0, t1 = (int(t_c.min()), int(t_c.max())) if b > a else (2**63 - 1, 0)
-            body = _u64(t0) + _u64(t1) + _u64(usize) + _u32(0) + _s("zstd") + _u64(len(comp))
-            chunk_start = f.tell()
-            f.write(bytes([OP_CHUNK]) + _u64(len(body) + len(comp)) + body)
-            f.write(comp)
-            chunk_end = f.tell()
-            # message indexes, channels in the order of their first message in the chunk
-            offsets = []
-            s_c = si[a:b]
-            _, first_pos = np.unique(s_c, return_index=True)
-            for k in s_c[np.sort(first_pos)]:
-                j = np.nonzero(s_c == k)[0]
-                pairs = np.empty((j.size, 2), dtype="<u8")
-                pairs[:, 0] = t_c[j]
-                pairs[:, 1] = rec_off[j]
-                offsets.append((int(k) + 1, f.tell()))
-                f.write(_rec(OP_MESSAGE_INDEX, _u16(int(k) + 1) + _u32(16 * j.size) + pairs.tobytes()))
-            idx_map = b"".join(_u16(c) + _u64(o) for c, o in offsets)
-            chunk_index.append(_rec(OP_CHUNK_INDEX, _u64(t0) + _u64(t1) + _u64(chunk_start) + _u64(chunk_end - chunk_start)
-                                    + _u32(len(idx_map)) + idx_map + _u64(f.tell() - chunk_end) + _s("zstd")
-                                    + _u64(len(comp)) + _u64(usize)))
-            first = False
+            else:  # the chunk ends after the first record that takes it over CHUNK_SIZE
+                b = min(n, int(np.searchsorted(cum, cum[a] + CHUNK_SIZE - len(prefix), side="right")))
+            ch = build(a, b, prefix)
+            pending.append((ch, pool.submit(compress, ch.data)))
+            while len(pending) > 2 * COMPRESS_THREADS:
+                done, fut = pending.popleft()
+                write_chunk(f, done, fut.result())
+            prefix = b""
             a = b
-            if progress is not None:
-                progress(a, n)
+        while pending:
+            done, fut = pending.popleft()
+            write_chunk(f, done, fut.result())
         t_min, t_max = (int(t_all.min()), int(t_all.max())) if n else (2**63 - 1, 0)
         info = {
             "version": version,
