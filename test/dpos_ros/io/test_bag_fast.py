@@ -19,9 +19,10 @@ from repo_paths import REPO
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
+from dpos_ros.contract import cdr
 from dpos_ros.io import bag, spill
 from dpos_ros.io.messages import Messages, RawTopic
-from dpos_ros.io.session import SessionError, read_session
+from dpos_ros.io.session import SessionError, read_session, session_from_raw
 from dpos_ros.io.streams import TopicStream
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
@@ -191,6 +192,25 @@ def test_spill_records_are_read_back_as_written(tmp_path: Path) -> None:
     assert merged["/fixed"].times == [5, *range(1000, 1011), 1010, *range(1011, 1050)]
     assert merged["/fixed"].blobs == [b"early" * 8, *fixed[:11], b"late" * 10, *fixed[11:]]
     assert any("/fixed: 2 message(s) arrived after the session was closed" in x for x in warns)
+
+
+def test_stray_frame_names_are_rejected_by_the_session_decoder() -> None:
+    """Messages of another device on a topic (other frame names: another size, or the same size)
+    are counted and rejected; the others decode as without them (rows gathered around the strays)."""
+    raw = bag.read_raw(SAMPLE)
+    clean = session_from_raw(dict(raw), bag.custom_data(SAMPLE), SAMPLE)
+    topic = "/sub_imu/sub_r/imu"
+    mt, times, blobs = raw[topic]
+    t, v = cdr.decode(cdr.layout("imu", "sub_imu_sub_r"), blobs.rows())
+    strays = [bytes(cdr.encode(cdr.layout("imu", name), t[i : i + 1], v[i : i + 1])[0])
+              for i, name in ((100, "stray_imu"), (200, "sub_imu_sub_x"), (300, "stray_imu"))]
+    assert len(strays[0]) != len(blobs[0]) and len(strays[1]) == len(blobs[0])
+    raw[topic] = RawTopic(mt, times[:250] + [times[250]] * 3 + times[250:], Messages.from_list([*blobs[:250], *strays, *blobs[250:]]))
+    sess = session_from_raw(raw, bag.custom_data(SAMPLE), SAMPLE)
+    assert [w for w in sess.warnings if w not in clean.warnings] == [
+        f"{topic}: 3 message(s) with other frame names than 'sub_imu_sub_r' (or another type) rejected; the others kept"]
+    got, want = sess.sub_imus["sub_r"], clean.sub_imus["sub_r"]
+    assert np.array_equal(got.t_s, want.t_s) and np.array_equal(got.omega_radps, want.omega_radps) and np.array_equal(got.f_mps2, want.f_mps2)
 
 
 def test_messages_behave_as_a_list_of_bytes() -> None:

@@ -103,12 +103,16 @@ def _decode_rows(topic: str, msgtype: str, blobs: Sequence[bytes], kind: str, wa
     sizes = msgs.sizes
     by_size: dict[int, tuple[NDArray[np.intp], NDArray[np.uint8]]] = {}
     best: tuple[cdr.Layout, str, NDArray[np.uint8], NDArray[np.bool_]] | None = None
+    tried: set[tuple[str, str]] = set()
     for i in sorted({0, len(blobs) // 2, len(blobs) - 1}):  # candidate frame names: a stray message is rarely all three
         try:
             frame, child = cdr.frame_ids(msgs[i], kind)
             lay = cdr.layout(kind, frame, child)
         except (UnicodeDecodeError, ValueError):
             continue
+        if (frame, child) in tried:  # (the same candidate again: the same count)
+            continue
+        tried.add((frame, child))
         if lay.size not in by_size:
             idx = np.nonzero(sizes == lay.size)[0]
             by_size[lay.size] = idx, msgs.rows(idx) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
