@@ -73,6 +73,8 @@ the outermost IMU (its antenna No. 12).  Here instead:
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -239,6 +241,10 @@ def cross_validate(s: FloatArray, y: FloatArray, var: FloatArray, pw: list[int])
         n += int(ok.sum())
     return (num / n, float(np.sqrt(sq / n))) if n else (float("inf"), float("nan"))
 
+
+#: threads of :func:`fit_wing` over its components (independent): it runs after
+#: the last sub-IMU's transfer alignment, when the cores the workers used are free
+FIT_THREADS = min(4, os.cpu_count() or 1)
 
 #: the cross-validation scores at most this many epochs (evenly spaced; 3000 = 10 Hz over 300 s):
 #: the score is a session mean, and the 200 Hz rows of a session are far from independent
@@ -487,9 +493,11 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
     val = np.zeros((T, len(antennas), 9))
     pvar = np.zeros((T, len(antennas), 9))
     valid = np.ones(T, dtype=bool)
-    for c, comp in enumerate(COMPONENTS):
+    def fit_component(c: int) -> tuple[int, dict[int, dict[str, float]], float, NDArray[np.bool_]]:
+        """Component ``c``: its degree by cross-validation, the WLS per epoch, its variance
+        factor; its values and variances at the antennas into ``val`` / ``pvar`` (column c)."""
+        comp = COMPONENTS[c]
         k, cv = choose_degree(comp, s, y[:, :, c], var[:, :, c], max_degree, common)
-        degree[comp], cvs[comp] = k, cv
         pw = powers(comp, k, common)
         B = design(s, pw)
         a, P, ok = wls(B, y[:, :, c], var[:, :, c])
@@ -498,12 +506,18 @@ def fit_wing(master: NavSeries, subs: list[SubImuTrack], antennas: list[tuple[st
         res = y[:, :, c] - np.where(ok[:, None], _times_t(a0, B), 0.0)
         chi2 = float(np.sum(np.where(fin, res**2 / np.where(fin, var[:, :, c], 1.0), 0.0)))
         dof = float(np.sum(fin) - len(pw) * np.sum(ok))
-        s0[comp] = max(1.0, chi2 / dof) if dof > 0 else 1.0
+        f = max(1.0, chi2 / dof) if dof > 0 else 1.0
         Ba = design(sa, pw)
         val[:, :, c] = _times_t(a0, Ba)
         # b_a^T P b_a = sum_ij P_ij b_ai b_aj: one product (T, p^2) x (p^2, A)
-        pvar[:, :, c] = s0[comp] * _times_t(np.nan_to_num(P).reshape(T, -1), (Ba[:, :, None] * Ba[:, None, :]).reshape(len(antennas), -1))
-        valid &= ok
+        pvar[:, :, c] = f * _times_t(np.nan_to_num(P).reshape(T, -1), (Ba[:, :, None] * Ba[:, None, :]).reshape(len(antennas), -1))
+        return k, cv, f, ok
+
+    # the components are independent: on threads (the WLS kernel and numpy's array loops release the GIL)
+    with ThreadPoolExecutor(max_workers=FIT_THREADS) as ex:
+        for c, (k, cv, f, ok) in enumerate(ex.map(fit_component, range(len(COMPONENTS)))):
+            degree[COMPONENTS[c]], cvs[COMPONENTS[c]], s0[COMPONENTS[c]] = k, cv, f
+            valid &= ok
     out = WingFit(t[valid], degree, cvs, s0, common=common, rigid_misalignment=rho_by_sub)
     # the antennas' offset across the wing from the sub-IMUs' section points (x and z interpolated along the span)
     order = np.argsort(s)
