@@ -463,13 +463,13 @@ def _write_products(
     if fits:
         doc["wing_fit"] = fits
     doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth (its figures: _antenna_files)
-    (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
         (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
     for f in files:  # the workers' part: an exception there is this call's (write() removes the products)
         f.result()
+    (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
 
 def _antenna_files(out: Path, name: str, t_ns: NDArray[np.int64], a: AntennaSolution, method: str, ev: dict | None) -> None:

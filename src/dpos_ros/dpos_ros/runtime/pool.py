@@ -5,6 +5,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing.context as mpc
 import os
+import signal
 import threading
 from collections.abc import Callable
 
@@ -37,11 +38,19 @@ class _SpawnContext(mpc.SpawnContext):
     Process = _OneThreadBlasProcess
 
 
+def _ignore_sigint() -> None:
+    """Worker initializer: SIGINT is the parent's to handle.  A Ctrl-C in a terminal (or a
+    ``killpg(SIGINT)``) reaches the whole process group; a worker that died of it would break the
+    pool under the parent's orderly shutdown (transfer_align_node finalizes the session it holds,
+    and writes its products with the workers)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def process_pool(n_workers: int) -> cf.ProcessPoolExecutor:
     """``n_workers`` (at least 1) spawned worker processes: "spawn", not "fork", because the
     callers may run threads (rclpy executors, numba) that a forked child would inherit mid-state;
-    each with one BLAS thread (:data:`WORKER_ENV`)."""
-    return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=_SpawnContext())
+    each with one BLAS thread (:data:`WORKER_ENV`), ignoring SIGINT (:func:`_ignore_sigint`)."""
+    return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=_SpawnContext(), initializer=_ignore_sigint)
 
 
 def worker_count(workers: int, tasks: int) -> int:
