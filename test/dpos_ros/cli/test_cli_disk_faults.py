@@ -13,28 +13,12 @@ import os
 from pathlib import Path
 
 import pytest
+from bag_faults import fail_bag_writes_after
 
 from dpos_ros.cli import sim as sim_cli
-from dpos_ros.io import _mcap, outdir
+from dpos_ros.io import outdir
 
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
-
-
-def _fail_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) -> None:
-    """The bag writer raises OSError(code) once more than n messages are written (as a full or
-    read-only disk would; the chunks written so far stay in the file)."""
-    original = _mcap.write
-
-    def write(path, topics, order, custom_data, version, library, progress=None):
-        def fail(k: int, total: int) -> None:  # called after each chunk written
-            if k > n:
-                raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
-            if progress is not None:
-                progress(k, total)
-
-        return original(path, topics, order, custom_data, version, library, fail)
-
-    monkeypatch.setattr(_mcap, "write", write)
 
 
 def _refuse_probe(monkeypatch: pytest.MonkeyPatch, code: int) -> None:
@@ -65,7 +49,7 @@ def test_sim_write_fault_removes_its_partial_bag(tmp_path, monkeypatch, capsys, 
     keep.mkdir()
     (keep / "precious.txt").write_text("x")
     out = keep / "new" / "deeper" / "bag"
-    _fail_after(monkeypatch, 1000, code)
+    fail_bag_writes_after(monkeypatch, 1000, code)
     assert sim_cli.main([*SIM, "--out", str(out)]) == 2
     line = _one_line(capsys.readouterr().err, "dpos-sim")
     assert os.strerror(code) in line and errno.errorcode[code] in line and str(out) in line, line

@@ -15,13 +15,14 @@ import sys
 from pathlib import Path
 
 import pytest
+from bag_faults import fail_bag_writes_after
 
 from dpos_core.config import config_text
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.cli import process as process_cli
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
-from dpos_ros.io import _mcap, bag, outdir
+from dpos_ros.io import bag, outdir
 
 EXE = Path(sys.executable).parent / "dpos-process"
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
@@ -97,23 +98,6 @@ def test_existing_products_need_overwrite(bags, tmp_path):
     assert json.loads((sdir / "status.json").read_text())["antennas"]["ant_l"] == "estimated"
 
 
-def _fail_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) -> None:
-    """The bag writer meets a disk fault once more than ``n`` messages are written (the chunks
-    written so far stay in the file, as on a full disk)."""
-    original = _mcap.write
-
-    def write(path, topics, order, custom_data, version, library, progress=None):
-        def fail(k: int, total: int) -> None:  # called after each chunk written
-            if k > n:
-                raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
-            if progress is not None:
-                progress(k, total)
-
-        return original(path, topics, order, custom_data, version, library, fail)
-
-    monkeypatch.setattr(_mcap, "write", write)
-
-
 def _main_error(capsys) -> str:
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.startswith("dpos-process: error")]
@@ -127,7 +111,7 @@ def test_write_fault_keeps_the_earlier_products(bags, tmp_path, monkeypatch, cap
     assert process_cli.main([str(bags["no_sub_l"]), "--method", "ukf", "--out", str(out)]) == 1
     before = {p.name: p.read_bytes() for p in (out / SID).iterdir() if p.is_file()}
     capsys.readouterr()
-    _fail_after(monkeypatch, 100, code)
+    fail_bag_writes_after(monkeypatch, 100, code)
     assert process_cli.main([str(bags["full"]), "--method", "ukf", "--out", str(out), "--overwrite"]) == 2
     line = _main_error(capsys)
     assert os.strerror(code) in line and errno.errorcode[code] in line and str(out / SID) in line, line
@@ -140,7 +124,7 @@ def test_full_disk_on_a_new_out_leaves_nothing(bags, tmp_path, monkeypatch, caps
     keep = tmp_path / "existing"
     keep.mkdir()
     out = keep / "new" / "products"
-    _fail_after(monkeypatch, 100, errno.ENOSPC)
+    fail_bag_writes_after(monkeypatch, 100, errno.ENOSPC)
     assert process_cli.main([str(bags["full"]), "--method", "ukf", "--out", str(out)]) == 2
     line = _main_error(capsys)
     assert "No space left on device (ENOSPC)" in line and "partial products were removed" in line, line

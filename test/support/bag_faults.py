@@ -1,0 +1,27 @@
+"""Disk faults injected into the bag writer (dpos_ros.io._mcap.write), for the tests of what the
+commands do when the products or a recording cannot be written."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from dpos_ros.io import _mcap
+
+
+def fail_bag_writes_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) -> None:
+    """The bag writer raises ``OSError(code)`` once more than ``n`` messages are written (as a full
+    or read-only disk would; the chunks written so far stay in the file)."""
+    original = _mcap.write
+
+    def write(path, topics, order, custom_data, version, library, progress=None):
+        def fail(k: int, total: int) -> None:  # called after each chunk written
+            if k > n:
+                raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
+            if progress is not None:
+                progress(k, total)
+
+        return original(path, topics, order, custom_data, version, library, fail)
+
+    monkeypatch.setattr(_mcap, "write", write)
