@@ -4,7 +4,9 @@ and the smoothed trajectory at the IMU rate.
 Methods: ``ukf`` (forward only), ``urtss`` (UKF + unscented RTS smoother), ``upf`` (forward
 only), ``ups`` ([Gong2018]'s unscented particle smoother: the Rao-Blackwellized UPF - particles on
 the flexure rate, every particle's UKF carrying the other 21 states - and its backward pass;
-filters.runners explains the choice and what the literal variant measured); ``cdkf`` (forward
+filters.runners explains the choice and what the literal variant measured); ``ups_mcmc``: the
+UPS with [Yan2016]'s MCMC move after each resampling (resample-move, Gilks and Berzuini 2001:
+``run_upf(move=True)``; docs/sar.md measures it on paper_su); ``cdkf`` (forward
 only) and ``cdkf_rts`` (with its RTS-type smoother): [Ye2024]'s central-difference Kalman filter
 (Stirling's interpolation, ``h^2 = 3``; filters.gaussian); ``cdvf`` and ``cdvf_rts``: [Ye2024]'s
 central-difference variational filter (the CDKF's prediction and covariance, the state update by
@@ -52,7 +54,7 @@ from . import flags as F
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .qc import EpochQC, epoch_qc
 
-METHODS = ("ukf", "urtss", "upf", "ups", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
+METHODS = ("ukf", "urtss", "upf", "ups", "ups_mcmc", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
 #: the Gaussian methods: (forward rule, smoothed) per method (the particle methods are the others)
 _GAUSSIAN = {"ukf": (None, False), "urtss": (None, True), "cdkf": (CentralDifferenceRule(), False),
              "cdkf_rts": (CentralDifferenceRule(), True), "cdvf": (VariationalRule(), False), "cdvf_rts": (VariationalRule(), True)}
@@ -297,15 +299,16 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             x, P = tr.x_f, tr.P_f
         qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if smoothed else (None, None)))
     else:
-        ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine)
+        ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc")
         corr = ptr.corrections
         ess = ptr.ess
-        if method == "ups":
+        smoothed = method in ("ups", "ups_mcmc")
+        if smoothed:
             _, x, P = rb_smooth(ptr)
         else:
             x, P = ptr.mixture.x_f, ptr.mixture.P_f
         mx = ptr.mixture
-        qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if method == "ups" else (None, None)))
+        qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if smoothed else (None, None)))
     out = _apply(model, x, P, corr)
     return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg)
 
