@@ -69,8 +69,9 @@ uncertain (``Installation.lever_arm_sigma_m``, ``Installation.time_offset_sigma_
          holds the wing's vibration; v^n the sub-IMU's velocity).  The output is moved to its stamps
          by the estimate (:func:`.pipeline.shift_in_time`).
 
-    gyro_axes, accel_axes   the sub-IMU's scale factors and misalignments ``gamma`` (9 each, the
-         order of :func:`axis_matrix`), present with ``Installation.axis_error_states`` for the triads
+    gyro_axes, accel_axes   the sub-IMU's scale factors and misalignments ``gamma`` (the gyros' 9 in
+         the order of :func:`axis_matrix`; the accelerometers' 3 scale factors and 3 symmetric
+         misalignments, :data:`ACCEL_SYMMETRIC`), present with ``Installation.axis_error_states`` for the triads
          whose datasheet states them (``ImuErrorModel``
          ``*_scale_ppm``, ``*_misalignment_mrad``, which are their prior 1 sigma): over interval k
          the gyros' add ``int C_est W(omega) dt gamma_g`` to the attitude error beside the bias's
@@ -79,8 +80,12 @@ uncertain (``Installation.lever_arm_sigma_m``, ``Installation.time_offset_sigma_
          ``K(t) gamma_g`` (K(t) = int_0^t C_est W(omega)) meets the specific force: the velocity error
          gains ``-int [f^n x] K(t) dt gamma_g``.  Without that term (the errors held at their start
          value, as for the biases) a turn at 3 deg/s leaves 0.15 mm/s per second unexplained for 1 mrad
-         of misalignment, 3x the paper sub-IMU's noise, and the filter reads it as information on the
-         one direction the matches cannot see: both triads turned together against the mount rho.
+         of misalignment, 3x the paper sub-IMU's noise.  Both triads turned together against the
+         mount rho change no match: with all 18 terms estimated, the model's small discretization
+         errors read that direction as observed (on sub_imu_scale_misalignment the oracle's attitude
+         errors were 2-6 of its sigmas, 0 % within 2 sigma).  So the accelerometer triad defines the
+         body (its rotation, the antisymmetric part of its misalignments, is not a state), and the
+         output attitude's variance gains that rotation's prior (:func:`accel_axis_rotation_var`).
 
     master_error   the main POS's position and velocity errors (6: ENU position, then its rate,
          the velocity error), with ``TAConfig.master_error_tau_s`` > 0: a second-order Gauss-Markov
@@ -118,6 +123,22 @@ from . import _vibration_kernel
 N_STATES = 24
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
 NAV = slice(0, 9)
+
+
+#: (9, 6): the accelerometers' axis errors from their estimated part (s_x, s_y, s_z, a_xy, a_xz, a_yz),
+#: the symmetric misalignments ``m_ij = m_ji = a_ij``; their antisymmetric part, a rotation of the
+#: triad, is the one thing the matches cannot tell from the gyros' and the mount rho turned together
+#: (module docstring)
+ACCEL_SYMMETRIC = np.zeros((9, 6))
+for _r, _c in ((0, 0), (1, 1), (2, 2), (3, 3), (5, 3), (4, 4), (7, 4), (6, 5), (8, 5)):
+    ACCEL_SYMMETRIC[_r, _c] = 1.0
+
+
+def accel_axis_rotation_var(imu: ImuErrorModel) -> float:
+    """Variance [rad^2] per axis of the accelerometer triad's rotation against the body (the
+    antisymmetric part ``(m_ij - m_ji) / 2`` of its misalignments; module docstring), which no
+    match observes: the output attitude's floor with ``accel_axes``."""
+    return (imu.accel_misalignment_mrad * 1e-3) ** 2 / 2.0
 
 
 def axis_matrix(u: FloatArray) -> FloatArray:
@@ -320,7 +341,7 @@ class TransferAlignmentModel:
         if self.install.axis_error_states and (imu.gyro_scale_ppm > 0 or imu.gyro_misalignment_mrad > 0):
             self.extra["gyro_axes"], i = slice(i, i + 9), i + 9
         if self.install.axis_error_states and (imu.accel_scale_ppm > 0 or imu.accel_misalignment_mrad > 0):
-            self.extra["accel_axes"], i = slice(i, i + 9), i + 9
+            self.extra["accel_axes"], i = slice(i, i + 6), i + 6
         if self.cfg.master_error_tau_s > 0:
             self.extra["master_error"], i = slice(i, i + 6), i + 6
             # its 1 sigma per ENU axis: the main POS's reported position sigma (median over the session)
@@ -513,7 +534,7 @@ class TransferAlignmentModel:
             # ... which the specific force turns into velocity within the interval (the base kernel holds the
             # attitude error at its start value): dv += -int [f^n x] K(t) dt gamma_g
             L = np.einsum("kij,kjl->il", skew(np.einsum("kij,kj->ki", C_dt, f)), K_mid)
-            self._K_axes.append((dK.sum(axis=0), np.einsum("kij,kjl->il", C_dt, axis_matrix(f)), L))
+            self._K_axes.append((dK.sum(axis=0), np.einsum("kij,kjl->il", C_dt, axis_matrix(f)) @ ACCEL_SYMMETRIC, L))
         gaps = np.nonzero(dt[:, 0] > GAP_FACTOR * self._imu_dt_s)[0]
         if gaps.size:
             self._gap_q[k] = sum((self._gap_noise(i0 + j, float(dt[j, 0]), float(self.epochs_s[k + 1] - t[j])) for j in gaps),
@@ -691,9 +712,10 @@ class TransferAlignmentModel:
         for name, scale_ppm, mis_mrad in (("gyro_axes", ins.imu.gyro_scale_ppm, ins.imu.gyro_misalignment_mrad),
                                           ("accel_axes", ins.imu.accel_scale_ppm, ins.imu.accel_misalignment_mrad)):
             if name in self.extra:  # the datasheet's 1 sigma; a term it leaves at 0 gets a tiny prior (it stays at 0)
-                i0 = self.extra[name].start
-                d[i0:i0 + 3] = max(scale_ppm * 1e-6, 1e-9) ** 2
-                d[i0 + 3:i0 + 9] = max(mis_mrad * 1e-3, 1e-9) ** 2
+                sl = self.extra[name]
+                d[sl.start:sl.start + 3] = max(scale_ppm * 1e-6, 1e-9) ** 2
+                # the accelerometers' symmetric parts (m_ij + m_ji) / 2 of independent m_ij: half the variance
+                d[sl.start + 3:sl.stop] = max(mis_mrad * 1e-3, 1e-9) ** 2 * (0.5 if name == "accel_axes" else 1.0)
         P = np.diag(d)
         me = self.extra.get("master_error")
         if me is not None:

@@ -51,7 +51,7 @@ from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
 from . import flags as F
-from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
+from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .qc import EpochQC, epoch_qc
 
 METHODS = ("ukf", "urtss", "upf", "ups", "ups_mcmc", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
@@ -440,6 +440,8 @@ def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
         Pp = P[:, PHI, PHI]
         P_phi = (1.0 - av) * Pp[kv] + av * Pp[kv + 1]
         var[vib, DV] += np.einsum("tij,tjk,tik->ti", Sk, P_phi, Sk)
+    if "accel_axes" in model.extra:  # the accelerometer triad's rotation against the body: no match sees it (.model)
+        var[:, PHI] += accel_axis_rotation_var(model.install.imu)
     s = np.sqrt(np.maximum(var, 0.0))
     C = rotvec_to_dcm(err[:, PHI]) @ quat_to_dcm(q)
     llh_o, vel_o, q_o = llh - earth.enu_to_dllh(err[:, DP], llh), vel - err[:, DV], dcm_to_quat(C)
