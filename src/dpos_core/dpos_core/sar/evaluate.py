@@ -17,8 +17,10 @@ from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 from ..attitude import dcm_to_quat, quat_mul, rotvec_to_quat
 from ..sim.sar import baro_heights, sar_config, sar_fixes
 from ..sim.session import SimulatedSession
-from ..strapdown import NavState, Strapdown
-from .model import N_STATES, Q_ATT, SarMeasurements, SarModel, SarNoise, SinsTrack, error_state, heading_of, navigation_errors
+from ..strapdown import NavState
+from .model import N_STATES, Q_ATT, SarMeasurements, SarModel, SarNoise, SinsTrack, error_state, navigation_errors
+from .navigate import free_sins
+from .navigate import measurements as sar_measurements
 from .pipeline import ORACLE, run
 
 #: [Yan2016]'s evaluation window [s]
@@ -80,13 +82,7 @@ def problem(ss: SimulatedSession, filter_rate_hz: float = 1.0) -> SarProblem:
     q0 = quat_mul(rotvec_to_quat(att0), tr0.q_nb[0])
     llh0 = tr0.llh[0] + earth.enu_to_dllh(pos0, tr0.llh[0])
     init = NavState(0.0, q0, tr0.vel_n_mps[0] + vel0, llh0)
-    imu = ss.master_imu()
-    dt = np.diff(imu.t_s, prepend=0.0)[:, None]  # each sample is the mean over its interval: increments
-    nav = Strapdown(init).run_increments(imu.t_s, imu.omega_radps * dt, imu.f_mps2 * dt)
-    from ..series import NavSeries
-
-    nav = NavSeries(np.r_[0.0, nav.t_s], np.vstack([init.q_nb, nav.q_nb]), np.vstack([init.vel_n_mps, nav.vel_n_mps]),
-                    np.vstack([init.llh, nav.llh]))
+    nav = free_sins(ss.master_imu(), init)  # each sample is the mean over its interval: increments
     t = np.arange(0.0, ss.duration_s + 1e-9, 1.0 / filter_rate_hz)
     track = SinsTrack.from_nav(nav, t)
     meas = measurements(ss, nav, track, cfg.baro_rate_hz, filter_rate_hz)
@@ -107,32 +103,9 @@ def problem(ss: SimulatedSession, filter_rate_hz: float = 1.0) -> SarProblem:
 
 
 def measurements(ss: SimulatedSession, nav, track: SinsTrack, baro_rate_hz: float, filter_rate_hz: float) -> SarMeasurements:
-    """The measurement vector at each epoch ([Yan2016] eq. 4): a SAR fix stamped at the epoch,
-    and the mean of the barometer samples within half a filter step of it (the SINS's height at
-    the same instants: the two averages share their timing), sigma / sqrt(count)."""
-    from .. import earth
-
-    fx, baro = sar_fixes(ss), baro_heights(ss)
-    K = track.t_s.size
-    y = np.full((K, 4), np.nan)
-    sar = np.zeros(K, dtype=bool)
-    k_fix = np.rint(fx.t_s * filter_rate_hz).astype(int)
-    on = np.abs(k_fix / filter_rate_hz - fx.t_s) < 1e-6
-    k_fix, i_fix = k_fix[on], np.flatnonzero(on)
-    sar[k_fix] = True
-    y[k_fix, 0] = (heading_of(track.C_nb[k_fix]) - fx.heading_rad[i_fix] + np.pi) % (2 * np.pi) - np.pi
-    d = earth.dllh_to_enu(track.llh[k_fix] - fx.llh[i_fix], fx.llh[i_fix])
-    y[k_fix, 1], y[k_fix, 2] = d[:, 1], d[:, 0]
-    h_ins = np.interp(baro.t_s, nav.t_s, nav.llh[:, 2])
-    half = 0.5 / filter_rate_hz
-    k_b = np.floor((baro.t_s + half) * filter_rate_hz - 1e-9).astype(int)  # sample in (t_k - half, t_k + half]
-    ok = (k_b >= 0) & (k_b < K)
-    cnt = np.bincount(k_b[ok], minlength=K).astype(float)
-    s = np.bincount(k_b[ok], weights=(h_ins - baro.h_m)[ok], minlength=K)
-    if np.any(cnt == 0):
-        raise ValueError(f"the barometer ({baro_rate_hz:g} Hz) must sample every filter step ({filter_rate_hz:g} Hz)")
-    y[:, 3] = s / cnt
-    return SarMeasurements(y, sar, fx.heading_sigma_rad, fx.pos_sigma_m, baro.sigma_m / np.sqrt(cnt))
+    """The measurement vector at each epoch ([Yan2016] eq. 4) from the session's SAR fixes and
+    barometer (:func:`.navigate.measurements`, the product path's own)."""
+    return sar_measurements(nav, track, sar_fixes(ss), baro_heights(ss), filter_rate_hz)[0]
 
 
 def errors(prob: SarProblem, x: FloatArray) -> FloatArray:

@@ -122,12 +122,13 @@ class SarNoise:
 class SarMeasurements:
     """Per filter epoch (K,): ``y`` (K, 4) ``[psi_I - psi_S, dN, dE, h_I - h_B]`` [rad, m, m, m]
     (NaN in the first three where no SAR fix), ``sar`` (K,) bool, sigmas ``heading_sigma_rad``,
-    ``pos_sigma_m`` and ``baro_sigma_m`` (K,) (the barometer's of the epoch's averaged samples)."""
+    ``pos_sigma_m`` (one value, or (K,) per epoch: the fixes' own) and ``baro_sigma_m`` (K,) (the
+    barometer's of the epoch's averaged samples)."""
 
     y: FloatArray
     sar: np.ndarray
-    heading_sigma_rad: float
-    pos_sigma_m: float
+    heading_sigma_rad: float | FloatArray
+    pos_sigma_m: float | FloatArray
     baro_sigma_m: FloatArray
 
 
@@ -164,7 +165,9 @@ class SarModel:
         if meas.y.shape != (self.n_epochs, 4):
             raise ValueError(f"SarModel: measurements {meas.y.shape} do not match {self.n_epochs} epochs")
         self._Q = [self._make_Q(float(dt)) for dt in track.dt_s]
-        self._R4 = [np.diag([meas.heading_sigma_rad**2, meas.pos_sigma_m**2, meas.pos_sigma_m**2, float(b) ** 2]) for b in meas.baro_sigma_m]
+        hs = np.broadcast_to(np.asarray(meas.heading_sigma_rad, dtype=float), (self.n_epochs,))
+        ps = np.broadcast_to(np.asarray(meas.pos_sigma_m, dtype=float), (self.n_epochs,))
+        self._R4 = [np.diag([h**2, p**2, p**2, float(b) ** 2]) for h, p, b in zip(hs, ps, meas.baro_sigma_m, strict=True)]
         self._psi = heading_of(track.C_nb)
 
     def _make_Q(self, dt: float) -> FloatArray:

@@ -10,41 +10,23 @@ The fix model (the scenario's ``sar:`` block, :class:`~.scenario.SarAidingConfig
 * Barometer: every ``1 / baro_rate_hz`` s over the whole flight, the true height plus white noise
   of ``baro_sigma_m``.
 
-Each stream draws from its own random stream of the session (``sar``, ``baro``).
+Each stream draws from its own random stream of the session (``sar``, ``baro``).  The series types
+(:class:`~dpos_core.sar.navigate.SarFixes`, :class:`~dpos_core.sar.navigate.BaroSeries`) are the
+navigation's inputs, whatever their source.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
+from ..sar.navigate import BaroSeries, SarFixes
 from .scenario import SarAidingConfig
 from .session import SimulatedSession
 
-
-@dataclass(frozen=True)
-class SarFixes:
-    """SAR fixes: t_s (M,), llh (M, 3) (the height is the truth's; SAR gives latitude and
-    longitude only), heading_rad (M,), and their 1 sigmas pos_sigma_m (north/east), heading_sigma_rad."""
-
-    t_s: FloatArray
-    llh: FloatArray
-    heading_rad: FloatArray
-    pos_sigma_m: float
-    heading_sigma_rad: float
-
-
-@dataclass(frozen=True)
-class BaroSeries:
-    """Barometric heights h_m (M,) at t_s (M,), 1 sigma sigma_m."""
-
-    t_s: FloatArray
-    h_m: FloatArray
-    sigma_m: float
+__all__ = ["BaroSeries", "SarFixes", "baro_heights", "imaging_mask", "sar_config", "sar_fixes"]
 
 
 def sar_config(ss: SimulatedSession) -> SarAidingConfig:
