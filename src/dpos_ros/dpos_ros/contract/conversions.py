@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
@@ -351,3 +351,113 @@ def diagnostic_array(stamp_msg, name: str, hardware_id: str, level: bytes | int,
     arr.header.stamp = stamp_msg
     arr.status = [st]
     return arr
+
+
+# ------------------------------------------------------------------------------ SAR fixes and the barometer
+
+#: frame of /baro/pressure (the barometer's static port; no lever arm is modelled)
+BARO_FRAME = "baro"
+#: ICAO standard atmosphere, troposphere (ISO 2533): sea-level pressure [Pa] and temperature [K],
+#: lapse rate [K/m], and the exponent g0 M / (R L) of p = p0 (1 - L h / T0)^n
+ISA_P0_PA = 101325.0
+ISA_T0_K = 288.15
+ISA_LAPSE_K_PER_M = 0.0065
+ISA_EXPONENT = 9.80665 * 0.0289644 / (8.3144598 * 0.0065)
+#: the ISA troposphere's top [m]: pressure altitudes above it are refused
+ISA_TROPOPAUSE_M = 11000.0
+
+
+def isa_pressure_pa(h_m: ArrayLike) -> FloatArray:
+    """ISA static pressure [Pa] at pressure altitude ``h_m`` (troposphere)."""
+    return ISA_P0_PA * (1.0 - ISA_LAPSE_K_PER_M * np.asarray(h_m, dtype=float) / ISA_T0_K) ** ISA_EXPONENT
+
+
+def isa_pressure_altitude_m(p_pa: ArrayLike) -> FloatArray:
+    """Inverse of :func:`isa_pressure_pa`: the pressure altitude [m] of a static pressure [Pa]."""
+    return ISA_T0_K / ISA_LAPSE_K_PER_M * (1.0 - (np.asarray(p_pa, dtype=float) / ISA_P0_PA) ** (1.0 / ISA_EXPONENT))
+
+
+def _isa_dp_dh(h_m: ArrayLike) -> FloatArray:
+    h = np.asarray(h_m, dtype=float)
+    return -ISA_P0_PA * ISA_EXPONENT * ISA_LAPSE_K_PER_M / ISA_T0_K * (1.0 - ISA_LAPSE_K_PER_M * h / ISA_T0_K) ** (ISA_EXPONENT - 1.0)
+
+
+def baro_msg(t_ns: int, h_m: float, sigma_m: float):
+    """``/baro/pressure``: ``sensor_msgs/FluidPressure`` [Pa] of a barometric height ``h_m`` (the ISA
+    pressure altitude, taken as the ellipsoidal height: design.md "Message fields"), ``variance``
+    [Pa^2] = (dp/dh sigma_m)^2 at that height; frame ``baro``."""
+    from sensor_msgs.msg import FluidPressure
+
+    if not -1000.0 <= h_m < ISA_TROPOPAUSE_M:
+        raise ValueError(f"barometric height {h_m} m is outside the ISA troposphere [-1000, {ISA_TROPOPAUSE_M:g}) m")
+    m = FluidPressure()
+    _stamp(m.header, t_ns, BARO_FRAME)
+    m.fluid_pressure = float(isa_pressure_pa(h_m))
+    m.variance = float((_isa_dp_dh(h_m) * sigma_m) ** 2)
+    return m
+
+
+def baro_from_msg(msg) -> tuple[int, float, float]:
+    """``(t_ns, h_m, sigma_m)`` of a ``/baro/pressure`` message (inverse of :func:`baro_msg`);
+    ``sigma_m`` is NaN when the variance is 0 (unknown) or negative."""
+    h = float(isa_pressure_altitude_m(msg.fluid_pressure))
+    var = float(msg.variance)
+    sigma = float(np.sqrt(var) / abs(float(_isa_dp_dh(h)))) if var > 0 else float("nan")
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec), h, sigma
+
+
+def sar_fix_msg(t_ns: int, llh: FloatArray, heading_rad: float, pos_sigma_m: float, heading_sigma_rad: float, datum_llh: FloatArray):
+    """``/sar/fix``: ``geometry_msgs/PoseWithCovarianceStamped`` in ``enu`` of one SAR scene-matching fix.
+
+    ``pose.position``: the point at the fix's latitude and longitude and the **datum's height** in
+    ``enu`` (SAR measures no height: the point's z is a convention, its variance -1);
+    ``pose.orientation``: the heading as a level attitude (pitch = roll = 0 in the local level at the
+    fix) rotated into ``enu`` as Odometry poses are (with the meridian convergence);
+    ``pose.covariance``: x, y variance ``pos_sigma_m^2`` (north/east, isotropic: unchanged by the
+    rotation about the vertical into ``enu``), rotation about z ``heading_sigma_rad^2``; the
+    unmeasured z, rotations about x and y: -1 on the diagonal, off-diagonals 0.
+    """
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    from dpos_core.frames import C_nb_from_hpr
+
+    llh = np.asarray(llh, dtype=float)
+    datum = np.asarray(datum_llh, dtype=float)
+    p, _, C_wb = earth.nav_to_datum(np.array([llh[0], llh[1], datum[2]])[None], np.zeros((1, 3)),
+                                    C_nb_from_hpr(heading_rad, 0.0, 0.0)[None], datum)
+    m = PoseWithCovarianceStamped()
+    _stamp(m.header, t_ns, WORLD_FRAME)
+    m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z = (float(x) for x in p[0])
+    q = quat_xyzw(dcm_to_quat(C_wb[0]))
+    m.pose.pose.orientation.x, m.pose.pose.orientation.y, m.pose.pose.orientation.z, m.pose.pose.orientation.w = (float(x) for x in q)
+    cov = np.diag([pos_sigma_m**2, pos_sigma_m**2, -1.0, -1.0, -1.0, heading_sigma_rad**2])
+    m.pose.covariance = [float(x) for x in cov.reshape(36)]
+    return m
+
+
+@dataclass(frozen=True)
+class SarFix:
+    """A decoded ``/sar/fix``: t_ns, lat_rad, lon_rad, heading_rad (aviation, local level),
+    pos_sigma_m (north/east), heading_sigma_rad (NaN where the variance is not > 0)."""
+
+    t_ns: int
+    lat_rad: float
+    lon_rad: float
+    heading_rad: float
+    pos_sigma_m: float
+    heading_sigma_rad: float
+
+
+def sar_fix_from_msg(msg, datum_llh: FloatArray) -> SarFix:
+    """Inverse of :func:`sar_fix_msg` (``datum_llh``: the session's ``enu`` datum)."""
+    from dpos_core.frames import hpr_from_C_nb
+
+    p = msg.pose.pose.position
+    o = msg.pose.pose.orientation
+    C_wb = quat_to_dcm(quat_wxyz(np.array([o.x, o.y, o.z, o.w], dtype=float)))
+    llh, _, C_nb = earth.datum_to_nav(np.array([[p.x, p.y, p.z]]), np.zeros((1, 3)), C_wb[None], np.asarray(datum_llh, dtype=float))
+    cov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)
+    pv = 0.5 * (cov[0, 0] + cov[1, 1])
+    t_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return SarFix(t_ns, float(llh[0, 0]), float(llh[0, 1]), float(hpr_from_C_nb(C_nb[0])[0]),
+                  float(np.sqrt(pv)) if pv > 0 else float("nan"), float(np.sqrt(cov[5, 5])) if cov[5, 5] > 0 else float("nan"))

@@ -15,6 +15,8 @@ NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 TWIST_COV = "geometry_msgs/msg/TwistWithCovarianceStamped"
 HEADER = "std_msgs/msg/Header"
 DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
+POSE_COV = "geometry_msgs/msg/PoseWithCovarianceStamped"
+FLUID_PRESSURE = "sensor_msgs/msg/FluidPressure"
 
 # --------------------------------------------------------------------------- topics
 DATUM = "/dpos/datum"
@@ -29,6 +31,12 @@ IFA_STATUS = "/ifa/status"
 POS_MASTER_STATUS = "/pos_master/status"
 TRANSFER_ALIGN_STATUS = "/transfer_align/status"
 TRUTH_MASTER = "/truth/master"
+#: SAR scene-matching fixes (horizontal position and heading, frame enu) and the barometer (frame baro)
+SAR_FIX = "/sar/fix"
+BARO_PRESSURE = "/baro/pressure"
+#: sar_nav_node's outputs: the SAR/baro-aided navigation of the main POS and its status
+SAR_NAV = "/sar_nav/nav"
+SAR_NAV_STATUS = "/sar_nav/status"
 #: service of transfer_align_node (std_srvs/Trigger): ends the session as /session/end does
 FINALIZE_SERVICE = "/transfer_align_node/finalize"
 

@@ -5,7 +5,8 @@ payloads.  ``dpos-sim`` writes them to a bag; the ``device: sim`` nodes publish 
 live, so a live session and its bag carry identical samples.
 
 Devices:
-  ``master``          /dpos/datum, /master/imu, /gnss/fix, /gnss/vel, /master/nav (reference:
+  ``master``          /dpos/datum, /master/imu, /gnss/fix, /gnss/vel, /sar/fix and /baro/pressure
+                      (a scenario with a ``sar:`` block), /master/nav (reference:
                       truth + the scenario's main-system noise), /session/end, /truth/master, and
                       /truth/antenna/<name> of the antennas without IMU
   ``sub_imu/<name>``  /sub_imu/<name>/imu, /truth/sub_imu/<name>, /truth/antenna/<name> of its antennas
@@ -51,6 +52,24 @@ def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) ->
     return TopicStream(topic, T.IMU, t_ns, rows=rows)
 
 
+def sar_streams(session: SimulatedSession, datum_llh: NDArray[np.float64]) -> list[TopicStream]:
+    """/sar/fix and /baro/pressure of a SINS/SAR scenario (its ``sar:`` block; dpos_core.sim.sar):
+    the fixes only while the radar images, the barometer all the flight (sensor QoS)."""
+    from dpos_core.sim.sar import baro_heights, sar_fixes
+
+    t0 = session.scenario.start_time_s
+    fx, baro = sar_fixes(session), baro_heights(session)
+    f_ns = cv.stamps_ns(t0, fx.t_s)
+    b_ns = cv.stamps_ns(t0, baro.t_s)
+    ps, hs, bs = float(np.asarray(fx.pos_sigma_m)), float(np.asarray(fx.heading_sigma_rad)), float(np.asarray(baro.sigma_m))
+    return [
+        TopicStream(T.SAR_FIX, T.POSE_COV, f_ns, blobs=tuple(
+            serialize_message(cv.sar_fix_msg(int(t), fx.llh[i], float(fx.heading_rad[i]), ps, hs, datum_llh)) for i, t in enumerate(f_ns))),
+        TopicStream(T.BARO_PRESSURE, T.FLUID_PRESSURE, b_ns, blobs=tuple(
+            serialize_message(cv.baro_msg(int(t), float(baro.h_m[i]), bs)) for i, t in enumerate(b_ns))),
+    ]
+
+
 def device_streams(
     session: SimulatedSession, device: str, *, truth: bool = True, datum_llh: NDArray[np.float64] | None = None
 ) -> list[TopicStream]:
@@ -74,6 +93,8 @@ def device_streams(
             serialize_message(cv.navsatfix_msg(int(t), cv.GNSS_FRAME, g.llh[i], g.pos_sigma_m[i])) for i, t in enumerate(g_ns))))
         out.append(TopicStream(T.GNSS_VEL, T.TWIST_COV, g_ns, blobs=tuple(
             serialize_message(cv.gnss_vel_msg(int(t), g.vel_n_mps[i], g.vel_sigma_mps[i])) for i, t in enumerate(g_ns))))
+        if sc.sar is not None:
+            out += sar_streams(session, datum)
         out.append(_odometry_stream(T.MASTER_NAV, cv.MASTER_FRAME, session.master_nav_reference(), session, datum, with_cov=True))
         if truth:
             out.append(_odometry_stream(T.TRUTH_MASTER, cv.MASTER_FRAME, session.truth("master"), session, datum, with_cov=False))
