@@ -29,6 +29,7 @@ setup(
             'dpos-record = dpos_ros.cli.record:main',
             'dpos-import = dpos_ros.cli.import_:main',
             'dpos-ifa = dpos_ros.cli.ifa:main',
+            'dpos-sar = dpos_ros.cli.sar:main',
             'dpos-play = dpos_ros.cli.play:main',
             'dpos-graph = dpos_ros.cli.graph:main',
             'dpos-demo = dpos_ros.cli.demo:main',
