@@ -12,7 +12,7 @@ VENV := .venv
 VPY := $(VENV)/bin/python
 # The venv is (re)installed when this stamp is older than the lock or any package's metadata.
 STAMP := $(VENV)/.dpos-installed
-PACKAGES := dpos_core dpos_ros pos_master_node pos_sub_node ifa_node transfer_align_node
+PACKAGES := dpos_core dpos_ros pos_master_node pos_sub_node ifa_node transfer_align_node sar_nav_node
 PACKAGE_META := $(foreach p,$(PACKAGES),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml)
 PYTEST_ARGS ?=
 

@@ -18,7 +18,7 @@ CHECKED = (DESIGN, REFERENCES)
 
 #: backtick spans that are repository paths / importable names of the workspace
 PATH_RE = re.compile(r"^(?:src|test|tools|docs|bags|bench|\.ci)/[^\s<>*{}|]*$")
-MODULE_RE = re.compile(r"^(?:dpos_core|dpos_ros|pos_master_node|pos_sub_node|ifa_node|transfer_align_node)(?:\.\w+)+$")
+MODULE_RE = re.compile(r"^(?:dpos_core|dpos_ros|pos_master_node|pos_sub_node|ifa_node|transfer_align_node|sar_nav_node)(?:\.\w+)+$")
 #: citation keys: [Gong2018], [vanderMerwe2000], [LSFit]
 KEY_RE = re.compile(r"\[((?:[A-Z][A-Za-z]*|van[A-Za-z]+)\d{4}|LSFit)\]")
 LINK_RE = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")

@@ -19,7 +19,7 @@ import pytest
 from repo_paths import REPO
 
 SRC = REPO / "src"
-NODE_PACKAGES = ("pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node")
+NODE_PACKAGES = ("pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node", "sar_nav_node")
 
 
 def _module_name(path: Path) -> str:

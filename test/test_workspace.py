@@ -16,8 +16,8 @@ from repo_paths import REPO
 
 ROOT = REPO
 SRC = ROOT / "src"
-PACKAGES = ["dpos_core", "dpos_ros", "pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node"]
-NODE_PACKAGES = ["pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node"]
+PACKAGES = ["dpos_core", "dpos_ros", "pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node", "sar_nav_node"]
+NODE_PACKAGES = ["pos_master_node", "pos_sub_node", "ifa_node", "transfer_align_node", "sar_nav_node"]
 BIN_DIR = Path(sys.executable).parent
 
 
@@ -51,7 +51,7 @@ def test_node_package_depends_on_glue_and_ships_params(package):
     assert (SRC / package / package / "config" / f"{package}.yaml").is_file()
 
 
-@pytest.mark.parametrize("script", [*NODE_PACKAGES, "dpos-demo", "dpos-strapdown-demo", "dpos-sim", "dpos-process", "dpos-eval", "dpos-graph", "dpos-play", "dpos-record", "dpos-campaign"])
+@pytest.mark.parametrize("script", [*NODE_PACKAGES, "dpos-demo", "dpos-strapdown-demo", "dpos-sim", "dpos-process", "dpos-eval", "dpos-graph", "dpos-play", "dpos-record", "dpos-campaign", "dpos-sar"])
 def test_console_script_in_venv_bin(script):
     path = BIN_DIR / script
     assert path.is_file(), f"{path} missing: was the package installed with pip --use-pep517? (see setup.cfg)"

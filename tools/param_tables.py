@@ -38,6 +38,7 @@ NODES: dict[str, str] = {
     "pos_sub_node": "pos_sub_node.params:PosSubConfig",
     "ifa_node": "ifa_node.params:IfaConfig",
     "transfer_align_node": "transfer_align_node.params:TransferAlignConfig",
+    "sar_nav_node": "sar_nav_node.params:SarNavConfig",
 }
 
 #: Extra checks (``param(check=...)``) by the check function's qualified name. A check that is

@@ -1,4 +1,4 @@
-"""The four nodes: start, log their plan, stop cleanly; reject bad parameters.
+"""The five nodes: start, log their plan, stop cleanly; reject bad parameters.
 
 ifa_node logs what it subscribes and publishes (its behaviour: test_ifa_node.py); transfer_align_node logs what it
 buffers; the device nodes run their simulated device ("-> publishing ...", see test_sim_device.py for what they publish).
@@ -24,6 +24,7 @@ NODES = {
     "pos_sub_node": ["-p", "name:=sub_r"],
     "ifa_node": ["-p", "scenario:=paper_su"],
     "transfer_align_node": [],
+    "sar_nav_node": [],
 }
 
 # console script -> (bad parameter, bad value as shown in the error)
@@ -33,6 +34,7 @@ PLAN = {
     "pos_sub_node": "-> publishing ",
     "ifa_node": "-> publishing /ifa/correction",
     "transfer_align_node": "buffering /master/nav",
+    "sar_nav_node": "-> publishing /sar_nav/nav",
 }
 
 BAD_PARAMETERS = {
@@ -40,6 +42,7 @@ BAD_PARAMETERS = {
     "pos_sub_node": ("name:=''", "name", "''"),
     "ifa_node": ("method:=bogus", "method", "bogus"),
     "transfer_align_node": ("particles:=0", "particles", "0"),
+    "sar_nav_node": ("method:=bogus", "method", "bogus"),
 }
 
 
@@ -93,6 +96,9 @@ def test_bad_parameter_exits_nonzero_naming_it(script, start_node):
 
 
 def _node_classes():
+    from sar_nav_node.node import SarNavNode
+    from sar_nav_node.params import SarNavConfig
+
     from ifa_node.node import IfaNode
     from ifa_node.params import IfaConfig
     from pos_master_node.node import PosMasterNode
@@ -107,6 +113,7 @@ def _node_classes():
         "pos_sub_node": (PosSubNode, PosSubConfig(name="sub_r")),
         "ifa_node": (IfaNode, IfaConfig(scenario="paper_su")),
         "transfer_align_node": (TransferAlignNode, TransferAlignConfig()),
+        "sar_nav_node": (SarNavNode, SarNavConfig()),
     }
 
 

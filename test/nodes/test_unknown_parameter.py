@@ -19,6 +19,7 @@ BIN_DIR = Path(sys.executable).parent
     ("pos_sub_node", "rate_factr", "did you mean 'rate_factor'?"),
     ("ifa_node", "windw", "did you mean 'window'?"),
     ("transfer_align_node", "particels", "did you mean 'particles'?"),
+    ("sar_nav_node", "bandwith_scale", "did you mean 'bandwidth_scale'?"),
     # another node's parameter: nothing alike here, so the nearest name and the node's whole list
     ("transfer_align_node", "rate_factr", "the closest known is '"),
     ("ifa_node", "rate_factr", "the closest known is '"),
