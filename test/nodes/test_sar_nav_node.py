@@ -7,7 +7,8 @@ Checked against the simulation's truth (/truth/master, same stamps): the EKF to 
 reports (its error ranges over 100-1000 s within +-10 m and +-1.7'), and it equals dpos-sar /
 dpos_core.sar.navigate on the same messages; a particle filter (few particles) runs and reports its ESS
 (docs/sar.md: the PFs do not track on this model - nothing is asserted about their accuracy but that
-their output is finite). Bad parameters are refused with the parameter's name and exit status 2.
+their output is finite). Bad parameters are refused with the parameter's name and exit status 2; ~/finalize and
+a session that cannot be navigated (FAILED, naming the missing topics).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
@@ -211,3 +212,44 @@ def test_bad_parameters_exit_2(arg: str, needle: str, tmp_path: Path) -> None:
     out = r.stdout + r.stderr
     assert r.returncode == 2, out
     assert needle in out and "Traceback" not in out, out
+
+
+def test_finalize_service_and_a_session_that_cannot_be_navigated(ros_context) -> None:
+    """~/finalize with nothing buffered is refused; a session with a barometer only is FAILED naming the
+    missing topics (status ERROR), and the node stays up for the next session."""
+    from sar_nav_node.node import SarNavNode
+    from std_srvs.srv import Trigger
+
+    executor = MultiThreadedExecutor(num_threads=2, context=ros_context)
+    probe = Node("sar_probe", context=ros_context)
+    counter = Counter(probe)
+    sar = SarNavNode(context=ros_context, parameter_overrides=[Parameter("datum", value=[34.2, 108.9, 2000.0])])
+    client = probe.create_client(Trigger, "/sar_nav_node/finalize")
+    baro_pub = probe.create_publisher(FluidPressure, T.BARO_PRESSURE, SENSOR_QOS)
+    try:
+        for n in (probe, sar):
+            executor.add_node(n)
+        spin_until(executor, lambda: client.service_is_ready() and baro_pub.get_subscription_count() >= 1, 30.0, "the service and the node's subscription")
+
+        def call() -> Trigger.Response:
+            fut = client.call_async(Trigger.Request())
+            spin_until(executor, fut.done, 30.0, "the finalize response")
+            return fut.result()
+
+        r = call()
+        assert not r.success and r.message == "no data buffered: nothing to navigate"
+        for i in range(5):
+            baro_pub.publish(cv.baro_msg(1_000_000_000 * (i + 1), 2000.0, 2.0))
+        spin_until(executor, lambda: counter.last().get("buffered_baro") == "5", 30.0, lambda: f"5 buffered heights ({counter.last()})")
+        r = call()
+        assert r.success, r.message
+        spin_until(executor, lambda: counter.last().get("state") == "failed", 30.0, lambda: f"FAILED ({counter.last()})")
+        st = counter.last()
+        assert st["message"] == "FAILED: no message on /master/imu, /master/nav, /sar/fix", st
+        assert st["level"] == str(int.from_bytes(DiagnosticStatus.ERROR, "little")) and st["buffered_baro"] == "0"
+        assert sar.state == "FAILED" and sar._worker is None
+    finally:
+        for n in (sar, probe):
+            executor.remove_node(n)
+            n.destroy_node()
+        executor.shutdown(timeout_sec=10.0)
