@@ -96,15 +96,14 @@ def test_bad_parameter_exits_nonzero_naming_it(script, start_node):
 
 
 def _node_classes():
-    from sar_nav_node.node import SarNavNode
-    from sar_nav_node.params import SarNavConfig
-
     from ifa_node.node import IfaNode
     from ifa_node.params import IfaConfig
     from pos_master_node.node import PosMasterNode
     from pos_master_node.params import PosMasterConfig
     from pos_sub_node.node import PosSubNode
     from pos_sub_node.params import PosSubConfig
+    from sar_nav_node.node import SarNavNode
+    from sar_nav_node.params import SarNavConfig
     from transfer_align_node.node import TransferAlignNode
     from transfer_align_node.params import TransferAlignConfig
 

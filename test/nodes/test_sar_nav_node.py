@@ -217,8 +217,9 @@ def test_bad_parameters_exit_2(arg: str, needle: str, tmp_path: Path) -> None:
 def test_finalize_service_and_a_session_that_cannot_be_navigated(ros_context) -> None:
     """~/finalize with nothing buffered is refused; a session with a barometer only is FAILED naming the
     missing topics (status ERROR), and the node stays up for the next session."""
-    from sar_nav_node.node import SarNavNode
     from std_srvs.srv import Trigger
+
+    from sar_nav_node.node import SarNavNode
 
     executor = MultiThreadedExecutor(num_threads=2, context=ros_context)
     probe = Node("sar_probe", context=ros_context)

@@ -17,11 +17,14 @@ import pytest
 from repo_paths import REPO
 
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
+from dpos_core.sar.navigate import SarNavSettings
+from dpos_core.sar.pipeline import METHODS as SAR_METHODS
 from dpos_core.ta.pipeline import METHODS as TA_METHODS
 from dpos_core.ta.pipeline import ORACLE
-from dpos_ros.cli import demo, evaluate, process
+from dpos_ros.cli import demo, evaluate, process, sar, sar_eval
 from dpos_ros.runtime.params import ParameterError, config_from_values
 from ifa_node.params import IfaConfig
+from sar_nav_node.params import SarNavConfig
 from transfer_align_node.params import TransferAlignConfig
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
@@ -36,6 +39,16 @@ def _choices(config: type, field: str) -> tuple[str, ...]:
 def test_node_parameters_take_the_core_lists() -> None:
     assert _choices(TransferAlignConfig, "method") == TA_METHODS
     assert _choices(IfaConfig, "method") == IFA_METHODS
+    assert _choices(SarNavConfig, "method") == SAR_METHODS
+
+
+@pytest.mark.parametrize("method", SAR_METHODS)
+def test_sins_sar_method_is_accepted_everywhere(method: str) -> None:
+    """sar_nav_node's method, dpos-sar's --method and dpos-eval's SINS/SAR --methods (issue #13)."""
+    cfg = config_from_values(SarNavConfig, {"method": method, "particles": 20})
+    assert cfg.method == method and cfg.settings() == SarNavSettings(method=method, n_particles=20)
+    assert sar.parser().parse_args(["bag", "--method", method, "--out", "x"]).method == method
+    assert sar_eval.sar_methods(method) == [method]
 
 
 @pytest.mark.parametrize("method", TA_METHODS)
@@ -57,6 +70,8 @@ def test_unknown_methods_are_refused_everywhere(capsys: pytest.CaptureFixture[st
         config_from_values(TransferAlignConfig, {"method": "nope"})
     with pytest.raises(ParameterError, match="method.*must be one of"):
         config_from_values(IfaConfig, {"method": "add2x"})
+    with pytest.raises(ParameterError, match="method.*must be one of"):
+        config_from_values(SarNavConfig, {"method": "add2"})  # an IFA method is not a SINS/SAR method
     for p, argv in ((process.parser(), ["bag", "--method", "nope", "--out", "x"]), (demo.parser(), ["--method", "nope"])):
         with pytest.raises(SystemExit) as e:
             p.parse_args(argv)
