@@ -157,7 +157,10 @@ class SimSource:
     def topics(self) -> list[str]:
         """The topics published, in the order of the plan line."""
         cfg = self.config
-        topics = [T.DATUM, T.MASTER_IMU, T.GNSS_FIX, T.GNSS_VEL, T.MASTER_NAV]
+        topics = [T.DATUM, T.MASTER_IMU, T.GNSS_FIX, T.GNSS_VEL]
+        if self.session.scenario.sar is not None:  # a SINS/SAR scenario (its sar: block)
+            topics += [T.SAR_FIX, T.BARO_PRESSURE]
+        topics.append(T.MASTER_NAV)
         if cfg.publish_truth:
             topics.append(T.TRUTH_MASTER)
             topics += [T.truth_antenna(a.name) for a in self.session.scenario.aircraft.antennas if a.sub_imu is None]
