@@ -96,10 +96,14 @@ def _navigation(raws: list[bytes], datum) -> cv.OdometryBlock:
 
 
 @pytest.mark.parametrize(("method", "particles"), [("ekf", 1000), ("pf", 100)])
-def test_simulated_paper_sar_through_the_node(ros_context, start_node, method: str, particles: int) -> None:
+def test_simulated_paper_sar_through_the_node(ros_context, start_node, monkeypatch, method: str, particles: int) -> None:
     """pos_master_node as a process (its console script: the simulated device and its mechanization on
-    the other core), sar_nav_node in this process; the session's end triggers the navigation."""
+    the other core), sar_nav_node in this process; the session's end triggers the navigation.  /sar_nav/nav
+    in batches of 50 (each after the last was acknowledged): all 121 epochs arrive, in order."""
+    import sar_nav_node.node
     from sar_nav_node.node import SarNavNode
+
+    monkeypatch.setattr(sar_nav_node.node, "NAV_BATCH", 50)
 
     session = load_sim_session(SCENARIO, "", SEED, DURATION_S)
     streams = {s.topic: s for s in device_streams(session, "master", truth=False)}

@@ -37,6 +37,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure, Imu, NavSatFix
 from std_msgs.msg import Header
@@ -46,7 +47,7 @@ from dpos_core.errors import NumericalFailure
 from dpos_core.units import FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, STREAM_DEPTH, keep_all
 from dpos_ros.io.flow import subscribe_draining, use_device_fastdds_profile
 from dpos_ros.products.sar import SarInputError, odometry, run, session_inputs, summary
 from dpos_ros.runtime.node_main import run_node
@@ -59,6 +60,9 @@ STATUS_NAME = "sar_nav_node: SINS/SAR navigation"
 TIMER_S = 0.2
 STATUS_PERIOD_S = 1.0
 INPUT_QOS = keep_all(SENSOR_QOS)
+#: /sar_nav/nav is published in batches of half the stream depth, each after the previous one was acknowledged
+NAV_BATCH = STREAM_DEPTH // 2
+ACK_WAIT_S = 30.0
 _LEVELS = {"WAITING": DiagnosticStatus.STALE, "BUFFERING": DiagnosticStatus.OK, "PROCESSING": DiagnosticStatus.OK,
            "DONE": DiagnosticStatus.OK, "FAILED": DiagnosticStatus.ERROR}
 
@@ -211,8 +215,7 @@ class SarNavNode(Node):
         try:
             res, summ = self._navigate(s)
             t_ns, rows = odometry(res, self._origin_ns, self._datum_used)
-            for r in rows:
-                self.pub_nav.publish(bytes(r))
+            self._publish_flow_controlled(rows)
             with self._lock:
                 self.results = summ | {"processing_s": round(time.monotonic() - t_wall, 3), "session": session_id}
                 self.nav_published += len(rows)
@@ -233,6 +236,18 @@ class SarNavNode(Node):
         finally:
             self._worker = None
             self._publish_status()
+
+    def _publish_flow_controlled(self, rows: Any) -> None:
+        """Publish /sar_nav/nav; before a batch would exceed half the stream's KEEP_LAST depth of unacknowledged
+        messages, wait (polling: rclpy holds the GIL in the wait) until the reliable subscribers acknowledged
+        the last batch (at most ``ACK_WAIT_S`` per batch: a subscriber that went away is not waited for)."""
+        for lo in range(0, len(rows), NAV_BATCH):
+            if lo:
+                deadline = time.monotonic() + ACK_WAIT_S
+                while not self.pub_nav.wait_for_all_acked(Duration(nanoseconds=0)) and time.monotonic() < deadline:
+                    time.sleep(0.01)
+            for r in rows[lo:lo + NAV_BATCH]:
+                self.pub_nav.publish(bytes(r))
 
     def _navigate(self, s: _Session) -> tuple[Any, dict[str, Any]]:
         missing = [t for t, have in ((T.MASTER_IMU, s.imu), (T.MASTER_NAV, s.nav0), (T.SAR_FIX, s.fixes), (T.BARO_PRESSURE, s.baro)) if not have]
