@@ -41,8 +41,9 @@ FIX_TOL_S = 1e-6
 @dataclass(frozen=True)
 class SarFixes:
     """SAR fixes: t_s (M,), llh (M, 3) (latitude and longitude of the matched position; the height
-    is not measured and not used), heading_rad (M,), and their 1 sigmas: pos_sigma_m (north and
-    east, one value or (M,)), heading_sigma_rad (one value or (M,))."""
+    is not measured: it only scales their differences into metres, any height near the flight's
+    will do), heading_rad (M,), and their 1 sigmas: pos_sigma_m (north and east, one value or (M,)),
+    heading_sigma_rad (one value or (M,))."""
 
     t_s: FloatArray
     llh: FloatArray
