@@ -202,7 +202,7 @@ class SarNavNode(Node):
     def _start(self, session_id: str) -> None:
         """Take the buffered session and navigate it in a worker thread (the executor stays free)."""
         self._session_taken, self._session = self._session, _Session()
-        self._end_ns = None
+        self._end_ns, self._end_id = None, ""
         self._subscribe_nav()
         self.state = self.message = "PROCESSING"
         self._publish_status()
