@@ -16,7 +16,8 @@ from dpos_core.filters.runners import run_sigma_point_filter
 from dpos_core.sim import mismatch as MM
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.ta import from_sim, pipeline
-from dpos_core.ta.model import Installation, TAConfig, TransferAlignmentModel
+from dpos_core.ta.antenna import step_roughness
+from dpos_core.ta.model import Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var
 from dpos_core.ta.oracle import LinearizedAboutTruth
 from dpos_core.units import FloatArray
 
@@ -130,7 +131,7 @@ def test_accel_triad_rotation_is_in_the_attitude_sigma() -> None:
     sc = load_scenario("paper_su")
     name = sc.aircraft.sub_imus[0].name
     imu = MM._scale_misalignment(sc.aircraft.sub_imu(name).imu)
-    floor = np.sqrt(pipeline.accel_axis_rotation_var(imu))
+    floor = np.sqrt(accel_axis_rotation_var(imu))
     assert floor == pytest.approx(0.87e-3 / np.sqrt(2.0), rel=0.01)
     ss = MM.simulate(MM.CASES["sub_imu_scale_misalignment"], sc, 1, DURATION_S)
     ins = replace(Installation.from_aircraft(sc.aircraft, name), imu=imu, axis_error_states=True)
@@ -202,7 +203,7 @@ def test_step_roughness_is_the_brownian_bridge_of_rough_increments() -> None:
     q = 0.04
     fine = np.cumsum(rng.normal(0.0, np.sqrt(q / 10.0), (200_000, 1)), axis=0)  # 10 sub-steps per row
     rows = fine[::10]
-    est = pipeline._step_roughness(np.diff(rows, axis=0))
+    est = step_roughness(np.diff(rows, axis=0))
     assert np.median(est) == pytest.approx(q, rel=0.1)
     mid = fine[5::10][: rows.shape[0] - 1]
     err = mid - 0.5 * (rows[:-1] + rows[1:])

@@ -51,6 +51,7 @@ from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
 from . import flags as F
+from .antenna import step_roughness
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .qc import EpochQC, epoch_qc
 
@@ -340,7 +341,7 @@ def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t
     (sign reversed) plus J times the offset estimate's, J the rate of each component (ENU attitude
     rate, acceleration, velocity), so the variance gains ``J^2 var(tau) - 2 J cov(nav, tau)`` (the
     two estimates are correlated through the matches: a position match fixes ``dp - tau v``), and the
-    attitude and velocity the interpolation cannot know between rows (:func:`_step_roughness`).
+    attitude and velocity the interpolation cannot know between rows (:func:`.antenna.step_roughness`).
     Returns ``(llh, vel_n_mps, q_nb, s)``."""
     i = model.extra["time_offset"].start
     if t.size < 2:
@@ -360,30 +361,10 @@ def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t
     cross_tau = np.stack([np.interp(t, model.epochs_s, P[:, c, i]) for c in range(9)], axis=1)  # cov(nav error, tau)
     # output error = -(navigation estimate's error) + J (tau estimate's error)
     var = s**2 + var_tau[:, None] * J**2 - 2.0 * J * cross_tau
-    var[:, :6] += np.abs(a * (1.0 - a)) * _step_roughness(np.concatenate([rv, dv], axis=1))[j]
+    var[:, :6] += np.abs(a * (1.0 - a)) * step_roughness(np.concatenate([rv, dv], axis=1))[j]
     return llh2, vel2, q2, np.sqrt(np.maximum(var, 0.0))
 
 
-#: rows over which :func:`_step_roughness` averages
-ROUGHNESS_WINDOW = 101
-
-
-def _step_roughness(d: FloatArray) -> FloatArray:
-    """Per-step variance (N - 1, m) of the increments ``d`` (N - 1, m) between output rows about a
-    straight line: half the running mean (:data:`ROUGHNESS_WINDOW` rows) of their squared first
-    differences.  A quantity whose increments are independent from step to step (a wing flexing
-    under turbulence, sampled at the IMU rate) interpolated at a fraction a of a step errs by
-    ``a (1 - a)`` times that (the Brownian bridge): on paper_su's simulated wing the true velocity
-    halfway between 100 Hz rows is 0.3-0.4 mm/s from the straight line, twice the output's own
-    error.  The IMU's noise adds to the differences, so the estimate errs on the safe side."""
-    n = d.shape[0]
-    if n < 2:
-        return np.zeros_like(d)
-    dd = np.diff(d, axis=0) ** 2
-    k = min(ROUGHNESS_WINDOW, dd.shape[0])
-    c = np.cumsum(np.concatenate([np.zeros((1, d.shape[1])), dd]), axis=0)
-    lo = np.clip(np.arange(n) - k // 2, 0, dd.shape[0] - k)
-    return 0.5 * (c[lo + k] - c[lo]) / k
 
 
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,

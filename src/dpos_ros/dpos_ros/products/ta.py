@@ -36,7 +36,7 @@ from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta import qc as ta_qc
-from dpos_core.ta.antenna import antenna_motion
+from dpos_core.ta.antenna import antenna_motion, lever_velocity_var, rate_at, rate_interpolation_var
 from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
@@ -202,11 +202,17 @@ def _sub_imu_antenna(sess: RecordedSession, aircraft: AircraftConfig, a: Antenna
     its position and velocity by the lever arm, the rows at ``output_rate_hz``."""
     assert a.sub_imu is not None
     imu = sess.sub_imus[a.sub_imu]
-    nearest = np.clip(np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
-    llh, v = antenna_motion(r.C_nb, r.vel_n_mps, r.llh, imu.omega_radps[nearest], a.lever_arm_m)
+    # the rate at the rows (with a time offset, at the instant the moved rows stand for)
+    tau = r.installation.get("time_offset", {}).get("value", [0.0])[0]
+    C = r.C_nb
+    llh, v = antenna_motion(C, r.vel_n_mps, r.llh, rate_at(imu.t_s, imu.omega_radps, r.t_s + tau), a.lever_arm_m)
     keep = _decimate(r.t_s, output_rate_hz)
     status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
-    return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
+    # the velocity sigma adds what the rate between the IMU's samples leaves unknown, through the lever arm
+    sigma = r.sigma[keep].copy()
+    w_var = rate_interpolation_var(imu.t_s, imu.omega_radps, r.t_s[keep] + tau)
+    sigma[:, 3:6] = np.sqrt(sigma[:, 3:6] ** 2 + lever_velocity_var(C[keep], w_var, a.lever_arm_m))
+    return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), sigma,
                            r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep), qc=r.qc,
                            cg=r.cg, installation=r.installation)
 
