@@ -62,6 +62,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.special import gammaincinv
 
 from dpos_core.units import DEG, FloatArray
@@ -226,6 +227,9 @@ class TransferAlignmentModel:
     sampled = THD
     epochs_s: FloatArray = field(init=False)
     n_epochs: int = field(init=False)
+    #: keep the nominal at the IMU rate (:meth:`nominal_chunks`); False: only the integrator's state at
+    #: each epoch, the interval re-integrated from it by :meth:`nominal_chunk` (the same numbers; issue #17)
+    keep_nominal: bool = True
 
     def __post_init__(self) -> None:
         # the master's body rate and covariances (ValueError without them)
@@ -256,6 +260,8 @@ class TransferAlignmentModel:
         self._intervals: list[Interval] = []
         self._epochs: list[_Epoch | None] = [None] * self.n_epochs
         self._chunks: list[NavSeries] = []
+        self._last_chunk: NavSeries | None = None  # the nominal of the last interval integrated
+        self._starts: list[tuple] = []  # the integrator's state at the start of each interval (Strapdown.snapshot)
         self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
         self._flex = self.install.flexure
         self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
@@ -325,9 +331,14 @@ class TransferAlignmentModel:
         excess ``s^2 - sigma^2`` is added to the epoch's noise.  A rigid or slowly flexing wing adds
         nothing; fewer than 6 main-POS epochs in the interval add nothing."""
         zero = (np.zeros(3), np.zeros(3))
-        if k == 0 or k - 1 >= len(self._chunks):
+        if k == 0 or k - 1 >= len(self._starts):
             return zero
-        ch = self._chunks[k - 1]
+        if self.keep_nominal:
+            ch = self._chunks[k - 1]
+        elif k == len(self._starts) and self._last_chunk is not None:  # (as the filter builds epoch k)
+            ch = self._last_chunk
+        else:
+            ch = self.nominal_chunk(k - 1)
         t0, t1 = float(self.epochs_s[k - 1]), float(self.epochs_s[k])
         m = self.master
         # the main-POS epochs in (t0, t1] (with 1e-9 s slack) covered by the chunk (stamps increasing)
@@ -359,8 +370,11 @@ class TransferAlignmentModel:
         dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
         om, f = self.imu.omega_radps[i0:i1], self.imu.f_mps2[i0:i1]
         start = self.strapdown.state
+        self._starts.append(self.strapdown.snapshot())
         chunk = self.strapdown.run_increments(t, om * dt, f * dt)
-        self._chunks.append(chunk)
+        self._last_chunk = chunk
+        if self.keep_nominal:
+            self._chunks.append(chunk)
         acc = IntervalIntegrals(start)
         acc.add(start, chunk, f, dt[:, 0])
         interval = acc.close()
@@ -503,7 +517,24 @@ class TransferAlignmentModel:
         return np.zeros(N_STATES), P
 
     def nominal_chunks(self) -> list[NavSeries]:
-        return self._chunks
+        """The nominal of every interval integrated so far (re-integrated when not kept: :attr:`keep_nominal`)."""
+        return self._chunks if self.keep_nominal else [self.nominal_chunk(k) for k in range(len(self._starts))]
+
+    def nominal_chunk(self, k: int) -> NavSeries:
+        """The nominal over interval k (the rows after epoch k up to epoch k + 1): the stored one, or
+        re-integrated from the integrator's state at its start with the same samples (bit for bit)."""
+        if self.keep_nominal:
+            return self._chunks[k]
+        i0, i1 = self._epoch_idx[k] + 1, self._epoch_idx[k + 1] + 1
+        t = self.imu.t_s[i0:i1]
+        dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
+        sd = Strapdown(self.initial)
+        sd.restore(self._starts[k])
+        return sd.run_increments(t, self.imu.omega_radps[i0:i1] * dt, self.imu.f_mps2[i0:i1] * dt)
+
+    def interval_sizes(self) -> NDArray[np.intp]:
+        """The rows (sub-IMU samples) of each interval integrated so far (those of :meth:`nominal_chunk`)."""
+        return np.diff(self._epoch_idx)[: len(self._starts)]
 
     def nominal_at_epochs(self) -> list[NavState]:
         """The nominal at each epoch before its correction (index k)."""

@@ -252,7 +252,7 @@ def run(
 def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
     """:data:`.flags.BRIDGED_GAP` on the output rows (those of :func:`_apply`) of the intervals
     that contained a short gap."""
-    sizes = [ch.t_s.size for ch in model.nominal_chunks()]
+    sizes = model.interval_sizes()
     out = F.none(int(sum(sizes)))
     ends = np.cumsum(sizes)
     for k in model.bridged_intervals:
@@ -270,7 +270,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
         initial = initial_from_master(master, install)
-    model = TransferAlignmentModel(imu, master, install, cfg, initial)
+    model = TransferAlignmentModel(imu, master, install, cfg, initial, keep_nominal=KEEP_NOMINAL)
     x0, P0 = model.prior()
     ess: FloatArray | None = None
     if method in (ORACLE, ORACLE_FILTER):
@@ -313,23 +313,47 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
     return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg)
 
 
+#: keep the nominal at the IMU rate through the filter (True), or re-integrate it interval by interval
+#: in the output pass (False, the default: the same numbers without the trajectory in memory; issue #17)
+KEEP_NOMINAL = False
+#: intervals (filter epochs) whose rows the output pass builds at once (:func:`iter_rows`)
+APPLY_BLOCK = 64
+
+
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
            corr: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``.
+    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``,
+    the blocks of :func:`iter_rows` concatenated."""
+    parts = list(iter_rows(model, x, P, corr))
+    return tuple(np.concatenate(c) for c in zip(*parts, strict=True))  # type: ignore[return-value]
 
-    Every interval's rows at once: the interval k (chunk k of the nominal) of each row, the errors
-    at its two epochs (x (K, 24), P (K, 24, 24), corrections (K, 24)) interpolated to the rows."""
-    chunks = model.nominal_chunks()
-    sizes = np.array([ch.t_s.size for ch in chunks], dtype=int)
-    kk = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row
-    t = np.concatenate([ch.t_s for ch in chunks])
-    vel = np.concatenate([ch.vel_n_mps for ch in chunks])
-    llh = np.concatenate([ch.llh for ch in chunks])
-    q = np.concatenate([ch.q_nb for ch in chunks])
+
+def iter_rows(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
+              block: int = APPLY_BLOCK):
+    """:func:`_apply`'s rows, ``block`` intervals at a time (the nominal of each re-integrated when the
+    model does not keep it, :attr:`.model.TransferAlignmentModel.keep_nominal`): ``(t_s, llh,
+    vel_n_mps, q_nb, sigma)`` per block, the same numbers as at once (row by row arithmetic)."""
+    n = int(model.interval_sizes().size)
     e1 = x[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
     e1[:, PHI] = compose_rotvec(x[1:, PHI], corr[1:, PHI])
     e1[:, DV] = x[1:, DV] + corr[1:, DV]
     e1[:, DP] = x[1:, DP] + corr[1:, DP]
+    for k0 in range(0, max(n, 1), block):
+        yield _apply_block(model, x, P, e1, k0, [model.nominal_chunk(k) for k in range(k0, min(k0 + block, n))])
+
+
+def _apply_block(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, e1: FloatArray, k0: int,
+                 chunks: list[NavSeries]) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The rows of the intervals k0, k0 + 1, .. (their nominal ``chunks``) at once: the interval of each
+    row, the errors at its two epochs (x (K, 24), P (K, 24, 24); ``e1`` (K - 1, 24): the errors at
+    the interval ends before the end epoch's correction) interpolated to the rows."""
+    sizes = np.array([ch.t_s.size for ch in chunks], dtype=int)
+    kl = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row, in the block
+    kk = k0 + kl  # and in the session
+    t = np.concatenate([ch.t_s for ch in chunks])
+    vel = np.concatenate([ch.vel_n_mps for ch in chunks])
+    llh = np.concatenate([ch.llh for ch in chunks])
+    q = np.concatenate([ch.q_nb for ch in chunks])
     t0, t1 = model.epochs_s[:-1][kk], model.epochs_s[1:][kk]
     a = ((t - t0) / (t1 - t0))[:, None]
     err = (1.0 - a) * x[kk, :9] + a * e1[kk, :9]
@@ -341,10 +365,10 @@ def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
     # vibration (0.4 m/s at 9 m) into mm/s across the span, twice the error at the epochs
     ends = np.cumsum(sizes)
     first, last = ends - sizes, ends - 1
-    vib = np.flatnonzero(sizes[kk] > 2)  # rows of intervals with more than 2 rows
+    vib = np.flatnonzero(sizes[kl] > 2)  # rows of intervals with more than 2 rows
     if vib.size:
         kv = kk[vib]
-        f, la = first[kv], last[kv]
+        f, la = first[kl[vib]], last[kl[vib]]
         b = ((t[vib] - t[f]) / (t[la] - t[f]))[:, None]
         D = vel[vib] - vel[f] - b * (vel[la] - vel[f])
         err[vib, DV] += cross(D, err[vib, PHI])
