@@ -10,6 +10,8 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
+from dpos_core.filters import runners
+from dpos_core.filters.store import EpochArray
 from dpos_core.sim.flight import Segment
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
@@ -81,3 +83,47 @@ def test_strapdown_snapshot_restore_continues_bit_for_bit() -> None:
     b.restore(snap)
     again = b.run_increments(t[150:], dth[150:], dv[150:])
     assert np.array_equal(rest.q_nb, again.q_nb) and np.array_equal(rest.llh, again.llh)
+
+
+def test_particle_track_on_disk_gives_the_same_result(flight, monkeypatch) -> None:
+    imu, master, ins = flight
+    cfg = TAConfig(attitude_sigma_deg=1.0)
+    mem = pipeline.run_segments(imu, master, ins, cfg, "ups", particles=16, seed=5)
+    monkeypatch.setattr(pipeline, "TRACK_IN_MEMORY_BYTES", 0)  # every track to files
+    monkeypatch.setattr(runners, "FFBSM_BLOCK", 4)
+    disk = pipeline.run_segments(imu, master, ins, cfg, "ups", particles=16, seed=5)
+    _same(mem, disk)
+
+
+def test_ffbsm_of_a_track_on_disk_is_the_track_in_memory(tmp_path, monkeypatch) -> None:
+    from dpos_core.filters.model import LinearGaussianModel
+
+    F = np.array([[1.0, 0.1], [0.0, 0.95]])
+    rng = np.random.default_rng(2)
+    ys = rng.normal(0.0, 1.0, (40, 1))
+    m = LinearGaussianModel(F=F, Q=np.diag([1e-3, 1e-2]), H=np.array([[1.0, 0.0]]), R=np.array([[0.5]]), ys=ys)
+    a = runners.run_upf(m, np.zeros(2), np.eye(2), 30, np.random.default_rng(4), sampled=[1])
+    b = runners.run_upf(m, np.zeros(2), np.eye(2), 30, np.random.default_rng(4), sampled=[1], store=tmp_path)
+    assert isinstance(b.particles, EpochArray) and b.particles.on_disk
+    whole = runners.ffbsm(a)
+    monkeypatch.setattr(runners, "FFBSM_BLOCK", 7)  # blocks that do not divide the epochs
+    assert np.array_equal(whole, runners.ffbsm(b)) and np.array_equal(whole, runners.ffbsm(a))
+    b.close()
+    assert not list(tmp_path.iterdir())
+
+
+def test_epoch_array_round_trip(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    want = rng.normal(size=(7, 3, 2))
+    a = EpochArray(7, (3, 2), tmp_path / "a.f64")
+    for k in (3, 0, 6, 1, 2, 5, 4):  # any order
+        a[k] = want[k]
+    assert np.array_equal(a[2], want[2]) and np.array_equal(a[-1], want[-1]) and np.array_equal(a[1:5], want[1:5])
+    assert np.array_equal(np.asarray(a), want) and a.shape == (7, 3, 2) and len(a) == 7
+    with pytest.raises(IndexError):
+        a[7]
+    a.close()
+    assert not (tmp_path / "a.f64").exists()
+    m = EpochArray(2, (3,))
+    m[1] = [1.0, 2.0, 3.0]
+    assert not m.on_disk and np.array_equal(m[1], [1.0, 2.0, 3.0])

@@ -34,7 +34,9 @@ across with their process noise (:mod:`.model`, flag :data:`.flags.BRIDGED_GAP`)
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -299,14 +301,19 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             x, P = tr.x_f, tr.P_f
         qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if smoothed else (None, None)))
     else:
-        ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc")
-        corr = ptr.corrections
-        ess = ptr.ess
-        smoothed = method in ("ups", "ups_mcmc")
-        if smoothed:
-            _, x, P = rb_smooth(ptr)
-        else:
-            x, P = ptr.mixture.x_f, ptr.mixture.P_f
+        with tempfile.TemporaryDirectory(prefix="dpos_upf_") as tmp:
+            # the particle track (~50 kB an epoch at 100 particles) in files when large (filters.store)
+            big = model.n_epochs * particles * model.n * 8 * 2 > TRACK_IN_MEMORY_BYTES
+            ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc",
+                          store=Path(tmp) if big else None)
+            corr = ptr.corrections
+            ess = ptr.ess
+            smoothed = method in ("ups", "ups_mcmc")
+            if smoothed:
+                _, x, P = rb_smooth(ptr)
+            else:
+                x, P = ptr.mixture.x_f, ptr.mixture.P_f
+            ptr.close()
         mx = ptr.mixture
         qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if smoothed else (None, None)))
     out = _apply(model, x, P, corr)
@@ -316,6 +323,9 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
 #: keep the nominal at the IMU rate through the filter (True), or re-integrate it interval by interval
 #: in the output pass (False, the default: the same numbers without the trajectory in memory; issue #17)
 KEEP_NOMINAL = False
+#: a UPF particle track larger than this goes to files in a temporary directory for its backward pass
+#: (``run_upf(store=...)``, :mod:`dpos_core.filters.store`): 64 MB is ~20 min at 100 particles
+TRACK_IN_MEMORY_BYTES = 64 * 2**20
 #: intervals (filter epochs) whose rows the output pass builds at once (:func:`iter_rows`)
 APPLY_BLOCK = 64
 
