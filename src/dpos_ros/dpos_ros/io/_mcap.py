@@ -27,7 +27,7 @@ import struct
 import threading
 import zlib
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from io import BufferedReader, StringIO
@@ -156,69 +156,62 @@ class _Buffers:
         return view[:total]
 
 
-def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
-    """``{topic: RawTopic}`` of the channels whose topic ``wanted`` accepts (all when None), or None
-    when the file is not one this path reads (see module docstring).  Raises :class:`ValueError`
-    naming the file and the chunk for a chunk that is corrupt (cut short, not decompressible, a
-    CRC mismatch, records that do not fill it)."""
-    size = file.stat().st_size
-    with file.open("rb") as f:
-        if size < 2 * len(MAGIC) + _FOOTER or f.read(len(MAGIC)) != MAGIC:
-            return None
-        f.seek(size - len(MAGIC) - _FOOTER)
-        foot = f.read(_FOOTER + len(MAGIC))
-        op, n, summary_start, summary_offset_start, _crc = struct.unpack_from("<BQQQI", foot)
-        if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC or summary_start == 0:
-            return None
-        end = summary_offset_start or size - len(MAGIC) - _FOOTER
-        if not 0 < summary_start <= end <= size:
-            return None
-        f.seek(summary_start)
-        try:
-            summary = _records(f.read(end - summary_start))
-        except ValueError:
-            return None
-        schemas: dict[int, str] = {}
-        channels: dict[int, tuple[str, int]] = {}
-        chunks: list[_ChunkIndex] = []
-        counts: dict[int, int] = {}  # messages per channel (the statistics record), to size the buffers
-        for op, c, _ in summary:
-            if op == OP_SCHEMA:
-                sid = c.u16()
-                schemas[sid] = c.str()
-            elif op == OP_CHANNEL:
-                cid, sid = c.u16(), c.u16()
-                channels[cid] = (c.str(), sid)
-            elif op == OP_CHUNK_INDEX:
-                c.u64(), c.u64()
-                start, length = c.u64(), c.u64()
-                m, idx = c.u32(), set()
-                stop = c.o + m
-                while c.o < stop:
-                    idx.add(c.u16())
-                    c.u64()
+def _summary(f: BufferedReader, size: int,
+             wanted: Callable[[str], bool] | None) -> tuple[dict[int, tuple[str, str]], list[_ChunkIndex], dict[int, int]] | None:
+    """The wanted channels ``{id: (topic, type)}``, the chunk indexes and the messages per channel
+    from the file's summary, or None when this path does not read the file (module docstring)."""
+    if size < 2 * len(MAGIC) + _FOOTER or f.read(len(MAGIC)) != MAGIC:
+        return None
+    f.seek(size - len(MAGIC) - _FOOTER)
+    foot = f.read(_FOOTER + len(MAGIC))
+    op, n, summary_start, summary_offset_start, _crc = struct.unpack_from("<BQQQI", foot)
+    if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC or summary_start == 0:
+        return None
+    end = summary_offset_start or size - len(MAGIC) - _FOOTER
+    if not 0 < summary_start <= end <= size:
+        return None
+    f.seek(summary_start)
+    try:
+        summary = _records(f.read(end - summary_start))
+    except ValueError:
+        return None
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, int]] = {}
+    chunks: list[_ChunkIndex] = []
+    counts: dict[int, int] = {}  # messages per channel (the statistics record), to size the buffers
+    for op, c, _ in summary:
+        if op == OP_SCHEMA:
+            sid = c.u16()
+            schemas[sid] = c.str()
+        elif op == OP_CHANNEL:
+            cid, sid = c.u16(), c.u16()
+            channels[cid] = (c.str(), sid)
+        elif op == OP_CHUNK_INDEX:
+            c.u64(), c.u64()
+            start, length = c.u64(), c.u64()
+            m, idx = c.u32(), set()
+            stop = c.o + m
+            while c.o < stop:
+                idx.add(c.u16())
                 c.u64()
-                chunks.append(_ChunkIndex(start, length, frozenset(idx), c.str(), c.u64(), c.u64()))
-            elif op == OP_STATISTICS:
-                c.raw(8 + 2 + 4 + 4 + 4 + 4 + 8 + 8)
-                stop = c.u32() + c.o
-                while c.o < stop:
-                    cid = c.u16()
-                    counts[cid] = c.u64()
-        if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
-            return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
-        sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
-               if sid in schemas and (wanted is None or wanted(topic))}
-        if len({t for t, _ in sel.values()}) != len(sel):
-            return None  # a topic on several channels
-        mask = np.zeros(65536, dtype=np.bool_)
-        mask[list(sel)] = True
-        bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
-        reuse = _Buffers()
-        for ch in sorted(chunks, key=lambda x: x.start):
-            if ch.channels and not any(mask[c] for c in ch.channels):
-                continue
-            _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+            c.u64()
+            chunks.append(_ChunkIndex(start, length, frozenset(idx), c.str(), c.u64(), c.u64()))
+        elif op == OP_STATISTICS:
+            c.raw(8 + 2 + 4 + 4 + 4 + 4 + 8 + 8)
+            stop = c.u32() + c.o
+            while c.o < stop:
+                cid = c.u16()
+                counts[cid] = c.u64()
+    if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
+        return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
+    sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
+           if sid in schemas and (wanted is None or wanted(topic))}
+    if len({t for t, _ in sel.values()}) != len(sel):
+        return None  # a topic on several channels
+    return sel, sorted(chunks, key=lambda x: x.start), counts
+
+
+def _results(sel: dict[int, tuple[str, str]], bufs: dict[int, _Growing]) -> dict[str, RawTopic]:
     out: dict[str, RawTopic] = {}
     for cid, (topic, msgtype) in sorted(sel.items(), key=lambda kv: kv[0]):
         t, msgs = bufs.pop(cid).result()
@@ -227,6 +220,58 @@ def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic
             t, msgs = t[order], msgs.take(order)
         out[topic] = RawTopic(msgtype, t.tolist(), msgs)
     return out
+
+
+def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
+    """``{topic: RawTopic}`` of the channels whose topic ``wanted`` accepts (all when None), or None
+    when the file is not one this path reads (see module docstring).  Raises :class:`ValueError`
+    naming the file and the chunk for a chunk that is corrupt (cut short, not decompressible, a
+    CRC mismatch, records that do not fill it)."""
+    size = file.stat().st_size
+    with file.open("rb") as f:
+        found = _summary(f, size, wanted)
+        if found is None:
+            return None
+        sel, chunks, counts = found
+        mask = np.zeros(65536, dtype=np.bool_)
+        mask[list(sel)] = True
+        bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
+        reuse = _Buffers()
+        for ch in chunks:
+            if ch.channels and not any(mask[c] for c in ch.channels):
+                continue
+            _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+    return _results(sel, bufs)
+
+
+def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: int = 2**26) -> Iterator[dict[str, RawTopic]] | None:
+    """:func:`read` a part at a time: ``{topic: RawTopic}`` of the wanted messages of consecutive
+    chunks (in file order, each part sorted by log time), a part once it holds about
+    ``batch_bytes`` of messages; every wanted topic in each part.  None when :func:`read` would
+    return None.  Memory holds one part (issue #17)."""
+    size = file.stat().st_size
+    with file.open("rb") as f:
+        found = _summary(f, size, wanted)
+    if found is None:
+        return None
+    sel, chunks, _ = found
+
+    def parts() -> Iterator[dict[str, RawTopic]]:
+        mask = np.zeros(65536, dtype=np.bool_)
+        mask[list(sel)] = True
+        reuse = _Buffers()
+        with file.open("rb") as f:
+            bufs = {cid: _Growing(0) for cid in sel}
+            for ch in chunks:
+                if ch.channels and not any(mask[c] for c in ch.channels):
+                    continue
+                _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+                if sum(b.used for b in bufs.values()) >= batch_bytes:
+                    yield _results(sel, bufs)
+                    bufs = {cid: _Growing(0) for cid in sel}
+            yield _results(sel, bufs)
+
+    return parts()
 
 
 class _Growing:
