@@ -127,3 +127,16 @@ def test_epoch_array_round_trip(tmp_path) -> None:
     m = EpochArray(2, (3,))
     m[1] = [1.0, 2.0, 3.0]
     assert not m.on_disk and np.array_equal(m[1], [1.0, 2.0, 3.0])
+
+
+def test_sink_gets_the_rows_in_blocks(flight, monkeypatch) -> None:
+    imu, master, ins = flight
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 6)
+    cfg = TAConfig(attitude_sigma_deg=1.0)
+    whole = pipeline.run_segments(imu, master, ins, cfg, "urtss")
+    blocks: list[tuple] = []
+    lean = pipeline.run_segments(imu, master, ins, cfg, "urtss", sink=lambda *b: blocks.append(b))
+    assert len(blocks) > 1 and lean.llh.shape == (0, 3) and lean.sigma.shape == (0, 9)
+    assert np.array_equal(lean.t_s, whole.t_s) and np.array_equal(lean.flags, whole.flags) and np.array_equal(lean.x, whole.x)
+    for i, name in enumerate(("t_s", "llh", "vel_n_mps", "q_nb", "sigma")):
+        assert np.array_equal(np.concatenate([b[i] for b in blocks]), getattr(whole, name)), name

@@ -35,6 +35,7 @@ across with their process noise (:mod:`.model`, flag :data:`.flags.BRIDGED_GAP`)
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,6 +151,8 @@ def run_segments(
     points: UnscentedPoints = UnscentedPoints(alpha=0.1),
     oracle_truth=None,
     upf_engine=None,
+    *,
+    sink: RowSink | None = None,
 ) -> TAResult:
     """Align one sub-IMU whose stream may have gaps (module docstring): split it at steps longer
     than :func:`.model.gap_limit_s`, align every segment from the main POS at its start (the
@@ -183,7 +186,7 @@ def run_segments(
             pending.append(why)
             continue
         init = initial_from_master(master, install, attitude_error_hpr_deg, None if start == float(master.t_s[0]) else start)
-        r = run(imu.select(seg), master, install, cfg, method, particles, seed, init, points, oracle_truth, upf_engine)
+        r = run(imu.select(seg), master, install, cfg, method, particles, seed, init, points, oracle_truth, upf_engine, sink=sink)
         if i > 0:
             r.flags[r.t_s <= start + cfg.restart_flag_s] |= F.RESTARTED_AFTER_GAP
         if pending:
@@ -235,6 +238,8 @@ def run(
     points: UnscentedPoints = UnscentedPoints(alpha=0.1),
     oracle_truth=None,
     upf_engine=None,
+    *,
+    sink: RowSink | None = None,
 ) -> TAResult:
     """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` (``oracle_filter``: its forward
     filter only) with ``oracle_truth = (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
@@ -243,10 +248,15 @@ def run(
     Unusable data raise :class:`~dpos_core.errors.RejectedInput` (NaN samples, stamps out of
     order, no sub-IMU data after the master starts); a filter or smoother that fails beyond
     repair raises :class:`~dpos_core.errors.NumericalFailure`.  The Cholesky jitter repairs made
-    on the way are counted in ``TAResult.chol_jitter_repairs``."""
+    on the way are counted in ``TAResult.chol_jitter_repairs``.
+
+    ``sink`` (issue #17): the output rows are handed to it a block at a time (:data:`RowSink`, in
+    time order, across the segments of :func:`run_segments` too) instead of being kept; the
+    result then holds their stamps ``t_s`` and ``flags`` only (``llh``, ``vel_n_mps``, ``q_nb``
+    and ``sigma`` are empty)."""
     repairs = JitterRepairs()
     with repairs:
-        res = _run(imu, master, install, cfg, method, particles, seed, initial, points, oracle_truth, upf_engine)
+        res = _run(imu, master, install, cfg, method, particles, seed, initial, points, oracle_truth, upf_engine, sink)
     res.chol_jitter_repairs = repairs.count
     return res
 
@@ -263,7 +273,7 @@ def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
 
 
 def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig, method: str, particles: int, seed: int,
-         initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine) -> TAResult:
+         initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine, sink: RowSink | None = None) -> TAResult:
     if method == ORACLE_WING:
         if install.known_wing is None:
             raise ValueError("the oracle with the true wing needs Installation.known_wing (evaluation of simulations only)")
@@ -316,7 +326,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             ptr.close()
         mx = ptr.mixture
         qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if smoothed else (None, None)))
-    out = _apply(model, x, P, corr)
+    out = _apply(model, x, P, corr) if sink is None else _to_sink(model, x, P, corr, sink)
     return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg)
 
 
@@ -338,12 +348,29 @@ def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
     return tuple(np.concatenate(c) for c in zip(*parts, strict=True))  # type: ignore[return-value]
 
 
+#: ``sink(t_s, llh, vel_n_mps, q_nb, sigma)``: takes a block of output rows (``run(..., sink=...)``)
+RowSink = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray], None]
+
+
+def _to_sink(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
+             sink: RowSink) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The rows of :func:`_apply` handed to ``sink`` block by block; returns their stamps and
+    empty (0, m) arrays in place of the other columns (issue #17: the trajectory is not kept)."""
+    ts = []
+    for blk in iter_rows(model, x, P, corr):
+        sink(*blk)
+        ts.append(blk[0])
+    return np.concatenate(ts), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 9))
+
+
 def iter_rows(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
-              block: int = APPLY_BLOCK):
+              block: int | None = None):
     """:func:`_apply`'s rows, ``block`` intervals at a time (the nominal of each re-integrated when the
     model does not keep it, :attr:`.model.TransferAlignmentModel.keep_nominal`): ``(t_s, llh,
-    vel_n_mps, q_nb, sigma)`` per block, the same numbers as at once (row by row arithmetic)."""
+    vel_n_mps, q_nb, sigma)`` per block (default :data:`APPLY_BLOCK`), the same numbers as at once
+    (row by row arithmetic)."""
     n = int(model.interval_sizes().size)
+    block = APPLY_BLOCK if block is None else block
     e1 = x[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
     e1[:, PHI] = compose_rotvec(x[1:, PHI], corr[1:, PHI])
     e1[:, DV] = x[1:, DV] + corr[1:, DV]
