@@ -281,3 +281,18 @@ def custom_data(path: Path) -> dict[str, str]:
         return {}
     info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
     return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+
+
+def topics_and_duration(path: Path) -> tuple[list[str], float] | None:
+    """The topics and the duration [s] the rosbag2 metadata lists, or None without readable metadata."""
+    import yaml
+
+    meta = Path(path) / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    try:
+        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+        topics = [str(t["topic_metadata"]["name"]) for t in info.get("topics_with_message_count") or []]
+        return topics, float((info.get("duration") or {}).get("nanoseconds", 0)) * 1e-9
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None
