@@ -12,7 +12,7 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
 ``--stream``: ``on`` reads, aligns and writes the products a part of the flight at a time, the
 rows in files beside the products (dpos_ros.products.stream; docs/campaign.md "Long flights"):
 each worker reads its own sub-IMU's topic and the main POS only; the wing fit is made over
-10-minute windows and there is no evaluation against the truth.  ``auto`` (the default) is
+5-minute windows and there is no evaluation against the truth.  ``auto`` (the default) is
 ``on`` for a recording of more than an hour (the recorded main POS only), ``off`` the in-memory
 path.
 
@@ -80,7 +80,7 @@ def parser() -> argparse.ArgumentParser:
                     help="main-POS reference: recorded /master/nav (default), forward = the in-flight alignment re-run from "
                          "/master/imu + /gnss/*, smoothed = that run RTS-smoothed")
     ap.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
-                    help="long flights: on = bounded memory (the wing fit in 10 min windows, no truth evaluation); "
+                    help="long flights: on = bounded memory (the wing fit in 5 min windows, no truth evaluation); "
                          f"auto (default) = on above {STREAM_AUTO_S / 3600:g} h of recording")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
     ap.add_argument("--overwrite", action="store_true",
@@ -280,7 +280,7 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
                                                filter_rate_hz=args.filter_rate, position_matching=args.position_matching,
                                                inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
                                                sub_imus=subs)
-            out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite)
+            out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool)
     except ProductsExistError:
         print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
         return EXIT_ERROR

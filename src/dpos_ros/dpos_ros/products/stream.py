@@ -55,7 +55,7 @@ from . import ta as P
 #: rows read or written at a time
 ROW_BLOCK = 2**16
 #: seconds of the wing fit's windows (module docstring)
-FIT_WINDOW_S = 600.0
+FIT_WINDOW_S = 300.0
 #: the columns of an antenna's (or a sub-IMU's) rows
 ROW_COLUMNS: dict[str, tuple[tuple[int, ...], str]] = {
     "t_s": ((), "<f8"), "q_nb": ((4,), "<f8"), "vel_n_mps": ((3,), "<f8"), "llh": ((3,), "<f8"), "sigma": ((9,), "<f8"),
@@ -132,7 +132,10 @@ class StreamedAntenna:
         """An :class:`~dpos_ros.products.ta.AntennaSolution` of the rows ``i0:i1`` (every ``step``-th)."""
         traj = sigma = flags = None
         if self.rows is not None:
-            c = {k: v[::step] for k, v in self.rows.rows(i0, i1).items()}
+            i1 = self.rows.n if i1 is None else min(i1, self.rows.n)
+            span = ROW_BLOCK * step  # read a block at a time, every step-th row kept
+            parts = [{k: v[::step] for k, v in self.rows.rows(a, min(a + span, i1)).items()} for a in range(i0, max(i1, i0 + 1), span)]
+            c = {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
             traj, sigma, flags = _nav(c), c["sigma"], c["flags"]
         return P.AntennaSolution(self.name, self.sub_imu, self.status, traj, sigma, self.chol_jitter_repairs, flags,
                                  list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit)
@@ -307,12 +310,14 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
 
 
 def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
-                    *, overwrite: bool = False) -> Path:
-    """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent."""
+                    *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
+    """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent.
+    ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers while
+    this process writes the antenna bag."""
     final = Path(out_root) / sess.session_id
     out = P._new_products_dir(final, overwrite)
     try:
-        _write(out, sess, antennas, method, timing)
+        _write(out, sess, antennas, method, timing, pool)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
@@ -321,30 +326,23 @@ def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, S
     return final
 
 
-def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float]) -> None:
+def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
+           pool: cf.Executor | None) -> None:
     from dpos_ros.io.bag import write_stream_batches
 
-    from .qc import _json_safe, plot_qc, qc_dir, qc_md
+    from .qc import _json_safe, qc_dir, qc_md
 
     est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
-    summ: dict[str, dict] = {}
-    for name, a in antennas.items():
-        if a.rows is None:
-            summ[name] = {"verdict": a.status}
-            continue
-        _write_csv_blocks(out / f"{name}.csv", sess, a.rows)
-        t, sigma, flags = a.rows.read("t_s"), a.rows.read("sigma"), a.rows.read("flags")
-        s = Q.summarize(t, sigma, flags, a.qc, a.wing_fit)
-        del t, sigma, flags
-        s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
-        summ[name] = s
-        step = max(1, a.rows.n // (50 * 4000))  # plot_qc strides to 4000 points: every row is not needed
-        plot_qc(qc_dir(out) / f"{name}_qc.png", a.solution(step=step), method)
+    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method) if pool is not None else None) for name, a in est.items()}
     if est:
         write_stream_batches(out / "antennas", _bag_batches(sess, est),
                              custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
+    summ: dict[str, dict] = {}
+    for name, a in antennas.items():
+        f = files.get(name)
+        summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
     status = {name: a.status for name, a in antennas.items()}
     repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.rows is not None}
     doc = {"session_id": sess.session_id, "method": method, "antennas": status, "warnings": sess.warnings, "timing": timing,
@@ -357,13 +355,28 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
 
-def _write_csv_blocks(path: Path, sess: RecordedSession, rows: RowStore) -> None:
+def _antenna_files(out: Path, a: StreamedAntenna, t0_ns: int, method: str) -> dict:
+    """One estimated antenna's CSV and QC figure; returns its QC summary (a worker's task)."""
+    from .qc import plot_qc, qc_dir
+
+    assert a.rows is not None
+    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows)
+    t, sigma, flags = a.rows.read("t_s"), a.rows.read("sigma"), a.rows.read("flags")
+    s = Q.summarize(t, sigma, flags, a.qc, a.wing_fit)
+    del t, sigma, flags
+    s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
+    step = max(1, a.rows.n // (50 * 4000))  # plot_qc strides to 4000 points: every row is not needed
+    plot_qc(qc_dir(out) / f"{a.name}_qc.png", a.solution(step=step), method)
+    return s
+
+
+def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
     """The antenna CSV of :func:`dpos_ros.products.ta._write_csv`, ROW_BLOCK rows at a time."""
     part = path.with_name(path.name + ".part")
     with path.open("wb") as f:
         for i0 in range(0, max(rows.n, 1), ROW_BLOCK):
             c = rows.rows(i0, i0 + ROW_BLOCK)
-            P._write_csv(part, P.antenna_stamps_ns(sess, c["t_s"]), _nav(c), c["sigma"], c["flags"])
+            P._write_csv(part, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"])
             data = part.read_bytes()
             f.write(data if i0 == 0 else data[data.index(b"\n") + 1:])  # the header once
     part.unlink(missing_ok=True)
