@@ -97,19 +97,19 @@ def nav_errors(phi: np.ndarray, dv: np.ndarray, dp: np.ndarray, eps: np.ndarray,
 
 @nb.njit(cache=True, nogil=True)
 def ta_transition(x: np.ndarray, consts: np.ndarray, F_n: np.ndarray, C_int: np.ndarray, w_ie: np.ndarray, w_en: np.ndarray,
-                  v: np.ndarray, Phi: np.ndarray, out: np.ndarray) -> None:
+                  v: np.ndarray, Phi: np.ndarray, gyro_extra: np.ndarray, out: np.ndarray) -> None:
     """:meth:`dpos_core.ta.model.TransferAlignmentModel.f` over rows ``x`` (M, 24) into ``out`` (M, 24):
-    the navigation errors (0:9) as :func:`nav_errors`, the flexure (18:24) by its transition ``Phi``
-    (3, 2, 2), the constant states copied."""
+    the navigation errors (0:9) as :func:`nav_errors` with the rows' further integrated gyro error
+    ``gyro_extra`` (M, 3) (the gyro axis errors; zeros without them), the flexure (18:24) by its
+    transition ``Phi`` (3, 2, 2), the constant states copied."""
     E = np.empty((3, 3))
     u = np.empty(3)
-    zero = np.zeros(3)
     for m in range(x.shape[0]):
         r = x[m]
         o = out[m]
         for i in range(9, 18):
             o[i] = r[i]
-        _nav_row(r[0:3], r[3:6], r[6:9], r[9:12], r[12:15], zero, consts, F_n, C_int, w_ie, w_en, v, E, u,
+        _nav_row(r[0:3], r[3:6], r[6:9], r[9:12], r[12:15], gyro_extra[m], consts, F_n, C_int, w_ie, w_en, v, E, u,
                  o[0:3], o[3:6], o[6:9])
         for i in range(3):
             th, thd = r[18 + i], r[21 + i]

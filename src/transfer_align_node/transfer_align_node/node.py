@@ -125,14 +125,15 @@ def _check_writable(directory: Path) -> None:
 
 
 def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
-                  filter_rate_hz: float, output_rate_hz: float, position_matching: bool = True, inflate_sigma: bool = True):
+                  filter_rate_hz: float, output_rate_hz: float, position_matching: bool = True, inflate_sigma: bool = True,
+                  master_error_tau_s: float = 0.0):
     """One sub-IMU in a worker process: read its topics of the spill, align, return the antenna solutions."""
     aircraft = load_aircraft("session", text=aircraft_yaml)
     mine = {T.sub_imu(sub), T.TRUTH_MASTER, T.truth_sub_imu(sub)} | {T.truth_antenna(a.name) for a in aircraft.antennas if a.sub_imu == sub}
     sess = read_session(Path(spill_dir), include_late=False, keep=mine.__contains__)
     ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub],
                          filter_rate_hz=filter_rate_hz, output_rate_hz=output_rate_hz, position_matching=position_matching,
-                         inflate_sigma=inflate_sigma)
+                         inflate_sigma=inflate_sigma, master_error_tau_s=master_error_tau_s)
     return ants, timing, sess.warnings
 
 
@@ -543,7 +544,7 @@ class TransferAlignNode(Node):
         def submit_all(ex: cf.Executor) -> dict[cf.Future, str]:
             return {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
                               cfg.initial_attitude_error_deg, cfg.filter_rate_hz, cfg.output_rate_hz, cfg.position_matching,
-                              cfg.sigma_inflation): n
+                              cfg.sigma_inflation, cfg.master_error_tau_s): n
                     for n in self.sub_names}
 
         try:

@@ -30,6 +30,8 @@ class TransferAlignConfig:
             velocity (default); false = [Gong2018]'s own attitude + velocity matching.
         sigma_inflation: scale the output 1-sigma by the innovations' variance factor where they say
             the filter is optimistic (docs/qc.md "Sigma inflation"; default on).
+        master_error_tau_s: correlation time of the main POS's position and velocity errors; > 0
+            estimates them as states and the antennas follow the main POS; 0 = white noise.
         output_dir: session products go to ``output_dir/<session id>/``.
         output_rate_hz: rate of /antenna/<name>/odom and the CSVs; 0 = the sub-IMU rate.
         sub_imus: names of the sub-IMUs to process; empty = all.
@@ -50,6 +52,8 @@ class TransferAlignConfig:
     filter_rate_hz: float = param(1.0, "filter measurement update rate [Hz]", minimum=0.0, exclusive_minimum=True)
     position_matching: bool = param(True, "match the main POS position too (false: attitude + velocity matching, [Gong2018])")
     sigma_inflation: bool = param(True, "inflate the output sigma where the innovations say the filter is optimistic")
+    master_error_tau_s: float = param(0.0, "correlation time of the main POS's position and velocity errors [s]: > 0 estimates them "
+                                      "as states and the antennas follow the main POS (docs/mismatch.md); 0 = white noise", minimum=0.0)
     output_dir: str = param("out", "directory of the session products", non_empty=True)
     output_rate_hz: float = param(0.0, "output rate [Hz], 0 = the sub-IMU rate", minimum=0.0)
     sub_imus: tuple[str, ...] = param((), "sub-IMUs to process ([] = all)", check=_check_sub_imus)

@@ -7,6 +7,7 @@ papers' RFU numbers are converted in the shipped files (see their comments).  Re
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,14 @@ class SubImuConfig:
         mount_rpy_deg: nominal mount rotation of the sub-IMU axes w.r.t. the master's.
         rho_deg: (3,) rigid misalignment (rotation vector, sub-IMU axes) the transfer alignment estimates.
         imu: sensor error model.
+        lever_arm_sigma_m: 1 sigma per axis of the lever arm's survey; > 0: the transfer alignment
+            estimates the survey error (3 states, docs/mismatch.md), 0: the arm is taken as exact.
+        time_offset_sigma_ms: 1 sigma of the sub-IMU's time offset against the main system (its
+            stamps minus the main system's time of the same instant); > 0: the transfer alignment
+            estimates it (one state) and moves the output to its stamps, 0: taken as synchronized.
+        axis_error_states: the transfer alignment estimates the sub-IMU's scale factors and
+            misalignments (9 states per triad whose datasheet states them, ``imu`` ``*_scale_ppm`` /
+            ``*_misalignment_mrad`` as their prior 1 sigma; docs/mismatch.md).
     """
 
     name: str
@@ -34,6 +43,15 @@ class SubImuConfig:
     mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rho_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     imu: ImuErrorModel = field(default_factory=ImuErrorModel)
+    lever_arm_sigma_m: float = 0.0
+    time_offset_sigma_ms: float = 0.0
+    axis_error_states: bool = False
+
+    def __post_init__(self) -> None:
+        for k in ("lever_arm_sigma_m", "time_offset_sigma_ms"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v):
+                raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
 
 
 @dataclass(frozen=True)

@@ -104,6 +104,10 @@ class MismatchCase:
             in-flight alignment of this method against the simulated GNSS (:meth:`MismatchedSession.ifa_reference`).
         master_ifa_smoothed: that alignment smoothed forward-backward (:func:`dpos_core.ifa.smoother.smooth`).
         oracle_limits: what the oracle's model cannot express of the case ('' = it knows all of it).
+        filters: what the filters' aircraft configuration changes for this case (None: the nominal
+            one): the installation states that answer a mismatch (``<case>+<states>`` cases); the
+            oracle gets the same states, about the truth.
+        master_error_tau_s: the filters' (and the oracle's) ``TAConfig.master_error_tau_s``.
     """
 
     name: str
@@ -114,6 +118,8 @@ class MismatchCase:
     master_ifa: str | None = None
     master_ifa_smoothed: bool = False
     oracle_limits: str = ""
+    filters: Callable[[AircraftConfig], AircraftConfig] | None = None
+    master_error_tau_s: float = 0.0
 
 
 def _flexure(scale_tau: float = 1.0, scale_var: float = 1.0) -> Callable[[AircraftConfig], AircraftConfig]:
@@ -153,6 +159,15 @@ def _lever_arm(error_m: float) -> Callable[[AircraftConfig], AircraftConfig]:
     return f
 
 
+def _states(lever_arm_sigma_m: float = 0.0, time_offset_sigma_ms: float = 0.0, axes: bool = False,
+            imu: Callable[[ImuErrorModel], ImuErrorModel] | None = None) -> Callable[[AircraftConfig], AircraftConfig]:
+    """The filters' aircraft with the sub-IMUs' installation states (and datasheet ``imu``)."""
+    def f(ac: AircraftConfig) -> AircraftConfig:
+        return replace(ac, sub_imus=tuple(replace(s, lever_arm_sigma_m=lever_arm_sigma_m, time_offset_sigma_ms=time_offset_sigma_ms,
+                                                  axis_error_states=axes, imu=imu(s.imu) if imu else s.imu) for s in ac.sub_imus))
+    return f
+
+
 def _sub_imu(change: Callable[[ImuErrorModel], ImuErrorModel]) -> Callable[[AircraftConfig], AircraftConfig]:
     def f(ac: AircraftConfig) -> AircraftConfig:
         return replace(ac, sub_imus=tuple(replace(s, imu=change(s.imu)) for s in ac.sub_imus))
@@ -188,6 +203,8 @@ MASTER_REF_SMOOTHED = CorrelatedNavErrors(heading_deg=0.0025, pitch_deg=0.00125,
 
 _NO_OFFSET = "the model has no time-offset state: the oracle sees the sub-IMU data at its stamps, as the filter does"
 _NO_AXES = "the model has no scale-factor or misalignment states: the oracle knows the true biases and noise only"
+_ACCEL_ROTATION = ("the accelerometer triad's rotation against the body (the antisymmetric part of its misalignments) "
+                   "is no state of the model, for the oracle too: no match sees it; it is in the output attitude's sigma")
 _NO_REF = "the model takes the main-system errors as white: the oracle is told their true marginal sigmas, not their correlation"
 
 CASES: dict[str, MismatchCase] = {c.name: c for c in (
@@ -218,6 +235,30 @@ CASES: dict[str, MismatchCase] = {c.name: c for c in (
                  oracle_limits=_NO_REF.replace("true marginal sigmas", "smoother's reported covariance")),
     MismatchCase("master_ref_smoothed", "main-system reference with Gauss-Markov errors of a smoothed GNSS/INS",
                  master_ref=MASTER_REF_SMOOTHED, oracle_limits=_NO_REF),
+    # the installation states (dpos_core.ta.model) configured as a user who knows the uncertainty would
+    MismatchCase("nominal+states", "no mismatch; filters estimate a 10 ms time offset and a 1 cm lever-arm survey error "
+                 "(the cost of the states)", filters=_states(lever_arm_sigma_m=0.01, time_offset_sigma_ms=10.0)),
+    MismatchCase("time_offset_5ms+state", "sub-IMU stamps 5 ms late; filters estimate the offset (prior 10 ms)",
+                 time_offset_s=0.005, filters=_states(time_offset_sigma_ms=10.0)),
+    MismatchCase("time_offset_20ms+state", "sub-IMU stamps 20 ms late; filters estimate the offset (prior 10 ms)",
+                 time_offset_s=0.020, filters=_states(time_offset_sigma_ms=10.0)),
+    MismatchCase("lever_arm_1cm+state", "lever arm surveyed 1 cm wrong; filters estimate it (prior 1 cm per axis)", _lever_arm(0.01),
+                 filters=_states(lever_arm_sigma_m=0.01)),
+    MismatchCase("lever_arm_2cm+state", "lever arm surveyed 2 cm wrong; filters estimate it (prior 2 cm per axis)", _lever_arm(0.02),
+                 filters=_states(lever_arm_sigma_m=0.02)),
+    MismatchCase("sub_imu_scale_misalignment+states", "sub-IMU axis errors as above; filters given the datasheet and its "
+                 "axis-error states", _sub_imu(_scale_misalignment), filters=_states(axes=True, imu=_scale_misalignment),
+                 oracle_limits=_ACCEL_ROTATION),
+    MismatchCase("master_ref_correlated+states", "main-system reference with Gauss-Markov errors (filtered); filters "
+                 "estimate them (correlation time 20 s) and follow the main POS", master_ref=MASTER_REF_CORRELATED,
+                 master_error_tau_s=MASTER_REF_CORRELATED.pos_tau_s),
+    MismatchCase("master_ref_smoothed+states", "main-system reference with Gauss-Markov errors (smoothed); filters "
+                 "estimate them (correlation time 20 s) and follow the main POS", master_ref=MASTER_REF_SMOOTHED,
+                 master_error_tau_s=MASTER_REF_SMOOTHED.pos_tau_s),
+    MismatchCase("master_ref_ifa+states", "main-system reference = the graph's own in-flight alignment (ADD2); filters "
+                 "estimate its errors (correlation time 20 s) and follow the main POS", master_ifa="add2", master_error_tau_s=20.0),
+    MismatchCase("sub_imu_tactical+states", "tactical sub-IMUs; filters given the tactical datasheet and its axis-error states",
+                 _sub_imu(_tactical), filters=_states(axes=True, imu=_tactical), oracle_limits=_ACCEL_ROTATION),
 )}
 
 

@@ -179,6 +179,14 @@ class SimulatedSession:
         model = self.scenario.master_imu if name == "master" else self.scenario.aircraft.sub_imu(name).imu
         return draw_biases(model, self.rng(f"imu/{name}"))
 
+    def imu_axes(self, name: str) -> tuple[FloatArray, FloatArray] | None:
+        """The axis matrices ``(M_gyro, M_accel)`` (3, 3) drawn for an IMU (truth; None when its
+        model has no scale factor or misalignment): the draw after the biases on the same stream."""
+        model = self.scenario.master_imu if name == "master" else self.scenario.aircraft.sub_imu(name).imu
+        rng = self.rng(f"imu/{name}")
+        draw_biases(model, rng)
+        return draw_axes_errors(model, rng)
+
     def master_nav_reference(self) -> NavSeries:
         """Main-system navigation = truth + white noise (``alignment: reference``, [Gong2018]), with
         the body rate (truth) and the noise's covariances: heading, pitch and roll sigmas as a

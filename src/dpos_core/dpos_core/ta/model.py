@@ -54,6 +54,50 @@ with ``A = C_m C_0`` (master attitude times the nominal mount), lever arm ``r0``
 bending lever-arm factor ``k`` (the flexure turns the lever arm, design.md "Aircraft configuration").
 The closed loop: after each epoch's update the estimated navigation errors are removed from the
 strapdown and the error states shifted by the applied correction.
+
+Installation states (optional, appended after the 24; :attr:`TransferAlignmentModel.extra` names
+their slices): constants that enter the matches linearly, estimated where the installation is
+uncertain (``Installation.lever_arm_sigma_m``, ``Installation.time_offset_sigma_s``; docs/mismatch.md):
+
+    dr   lever-arm survey error, master axes [m]: the true arm minus the configured r0
+         z_vel += C_m (w_m x dr),  z_pos += C_m dr
+    tau  time offset [s]: the sub-IMU's stamps minus the main system's time of the same instant.
+         The nominal then follows the truth ``tau`` earlier than its stamp, and matching it against
+         the main system at the stamp adds the motion over ``tau``:
+         z_att += tau w_nb^n,  z_vel -= tau a^n,  z_pos -= tau v^n
+         (w_nb^n ~ C_m w_m; a^n the nominal's acceleration over the last 0.1 s before the epoch, which
+         holds the wing's vibration; v^n the sub-IMU's velocity).  The output is moved to its stamps
+         by the estimate (:func:`.pipeline.shift_in_time`).
+
+    gyro_axes, accel_axes   the sub-IMU's scale factors and misalignments ``gamma`` (the gyros' 9 in
+         the order of :func:`axis_matrix`; the accelerometers' 3 scale factors and 3 symmetric
+         misalignments, :data:`ACCEL_SYMMETRIC`), present with ``Installation.axis_error_states`` for the triads
+         whose datasheet states them (``ImuErrorModel``
+         ``*_scale_ppm``, ``*_misalignment_mrad``, which are their prior 1 sigma): over interval k
+         the gyros' add ``int C_est W(omega) dt gamma_g`` to the attitude error beside the bias's
+         ``C_int eps``, the accelerometers' ``int C_est W(f) dt gamma_a`` to the velocity error
+         (and T/2 of it to the position error).  Within the interval the gyros' attitude error
+         ``K(t) gamma_g`` (K(t) = int_0^t C_est W(omega)) meets the specific force: the velocity error
+         gains ``-int [f^n x] K(t) dt gamma_g``.  Without that term (the errors held at their start
+         value, as for the biases) a turn at 3 deg/s leaves 0.15 mm/s per second unexplained for 1 mrad
+         of misalignment, 3x the paper sub-IMU's noise.  Both triads turned together against the
+         mount rho change no match: with all 18 terms estimated, the model's small discretization
+         errors read that direction as observed (on sub_imu_scale_misalignment the oracle's attitude
+         errors were 2-6 of its sigmas, 0 % within 2 sigma).  So the accelerometer triad defines the
+         body (its rotation, the antisymmetric part of its misalignments, is not a state), and the
+         output attitude's variance gains that rotation's prior (:func:`accel_axis_rotation_var`).
+
+    master_error   the main POS's position and velocity errors (6: ENU position, then its rate,
+         the velocity error), with ``TAConfig.master_error_tau_s`` > 0: a second-order Gauss-Markov
+         process per axis ([Gong2018] eq. 13's, ``beta = 2.146 / tau``) whose 1 sigma is the main
+         POS's reported position sigma; the matches become ``z_vel -= e_dot``, ``z_pos -= e`` and lose
+         the main POS's covariance from their noise.  The output is then the sub-IMU relative to the
+         main POS (``dp - e``, ``dv - e_dot``: :func:`.pipeline._apply`), what the baselines of SAR
+         processing need; its absolute sigma adds the main POS's.
+
+The lever arm and the time offset are observable through the turns: the lever arm's ENU projection turns with the aircraft
+(the U-turn reverses it) while a position error does not, and the time offset's signature grows
+with the rates and accelerations while the rigid misalignment's does not.
 """
 
 from __future__ import annotations
@@ -68,7 +112,7 @@ from scipy.special import gammaincinv
 from dpos_core.units import DEG, FloatArray
 
 from .. import _error_kernel, earth
-from ..attitude import compose_rotvec, cross, dcm_to_rotvec, mount_dcm, rotvec_to_dcm
+from ..attitude import compose_rotvec, cross, dcm_to_rotvec, mount_dcm, rotvec_to_dcm, skew
 from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
@@ -80,6 +124,32 @@ from . import _vibration_kernel
 N_STATES = 24
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
 NAV = slice(0, 9)
+
+
+#: (9, 6): the accelerometers' axis errors from their estimated part (s_x, s_y, s_z, a_xy, a_xz, a_yz),
+#: the symmetric misalignments ``m_ij = m_ji = a_ij``; their antisymmetric part, a rotation of the
+#: triad, is the one thing the matches cannot tell from the gyros' and the mount rho turned together
+#: (module docstring)
+ACCEL_SYMMETRIC = np.zeros((9, 6))
+for _r, _c in ((0, 0), (1, 1), (2, 2), (3, 3), (5, 3), (4, 4), (7, 4), (6, 5), (8, 5)):
+    ACCEL_SYMMETRIC[_r, _c] = 1.0
+
+
+def accel_axis_rotation_var(imu: ImuErrorModel) -> float:
+    """Variance [rad^2] per axis of the accelerometer triad's rotation against the body (the
+    antisymmetric part ``(m_ij - m_ji) / 2`` of its misalignments; module docstring), which no
+    match observes: the output attitude's floor with ``accel_axes``."""
+    return (imu.accel_misalignment_mrad * 1e-3) ** 2 / 2.0
+
+
+def axis_matrix(u: FloatArray) -> FloatArray:
+    """``W(u)`` (..., 3, 9) with ``Gamma u = W(u) gamma`` for a sensor triad's axis errors
+    ``gamma = (s_x, s_y, s_z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy)``: ``Gamma = diag(s) + offdiag(m)``,
+    ``m_ij`` the input along axis j seen by sensor i, the measured ``(I + Gamma) u``
+    (dpos_core.sim.sensors; the in-flight alignment's gyro axis errors use the same order)."""
+    from ..ifa.model import gyro_axis_matrix
+
+    return gyro_axis_matrix(u)
 
 
 #: master epochs further apart than this [s] are a gap of the main-system navigation (no
@@ -130,6 +200,20 @@ class Installation:
     #: and lever-arm rate, master axes.  The matches then use the true deformed installation and the
     #: flexure states are held at zero (:class:`TransferAlignmentModel`)
     known_wing: Callable[[float], tuple[FloatArray, FloatArray, FloatArray]] | None = None
+    #: prior 1 sigma [m] per axis of the lever arm's survey error; > 0 estimates it (3 constant
+    #: states, module docstring), 0 takes the configured arm as exact
+    lever_arm_sigma_m: float = 0.0
+    #: prior 1 sigma [s] of the sub-IMU's time offset against the main system; > 0 estimates it (one
+    #: constant state, module docstring), 0 takes the stamps as synchronized
+    time_offset_sigma_s: float = 0.0
+    #: estimate the sub-IMU's scale factors and misalignments that its datasheet (``imu``) states
+    axis_error_states: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("lever_arm_sigma_m", "time_offset_sigma_s"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"Installation.{name} must be finite and >= 0, got {v}")
 
     @classmethod
     def from_aircraft(cls, aircraft, name: str) -> Installation:
@@ -143,7 +227,9 @@ class Installation:
         scale = aircraft.flexure.span_scale(s.span_m)
         flex = replace(aircraft.flexure, variance_deg2=tuple(v * scale**2 for v in aircraft.flexure.variance_deg2),
                        reference_span_m=1.0, span_exponent=0.0)
-        return cls(np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)), flex, s.imu)
+        return cls(np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)), flex, s.imu,
+                   lever_arm_sigma_m=s.lever_arm_sigma_m, time_offset_sigma_s=s.time_offset_sigma_ms * 1e-3,
+                   axis_error_states=s.axis_error_states)
 
 
 @dataclass(frozen=True)
@@ -160,6 +246,11 @@ class TAConfig:
     vel_noise_floor_mps: float = 1e-4
     use_position: bool = True  #: match the lever-arm-compensated master position too
     pos_noise_floor_m: float = 0.01  #: floor of the master position noise (lever-arm survey, antenna phase)
+    #: the floor when the lever arm's survey error is a state (``Installation.lever_arm_sigma_m``): the
+    #: survey no longer stands in it as white noise, the antenna phase centre and the wing's motion
+    #: the model lacks remain (on paper_su, seed 2, 2 cm survey error: the arm's estimate 2.9-4.3 mm
+    #: 1-sigma instead of 4.6-7.3 mm, the position error 1.3-5.4 mm instead of 4.3-9.4 mm with 1 cm)
+    pos_noise_floor_estimated_arm_m: float = 0.003
     #: a sub-IMU step longer than this [s] (and than ``MIN_GAP_STEPS`` nominal steps) splits the data:
     #: each part is aligned anew from the main POS (:func:`.pipeline.run_segments`); shorter gaps are
     #: integrated across with their process noise (module docstring).  0.05 s = 5 steps at 100 Hz:
@@ -173,6 +264,11 @@ class TAConfig:
     #: add the wing vibration the filter epochs cannot follow to the velocity and position noise
     #: (:meth:`TransferAlignmentModel.vibration_variance`)
     vibration_noise: bool = True
+    #: correlation time [s] of the main POS's position and velocity errors; > 0 models them as
+    #: states (second-order Gauss-Markov per ENU axis, module docstring) instead of white noise, and
+    #: the output follows the main POS (its position and velocity relative to the main POS's are the
+    #: estimate); 0 takes them as white
+    master_error_tau_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.filter_rate_hz > 0:
@@ -181,6 +277,8 @@ class TAConfig:
             raise ValueError(f"max_imu_gap_s must be > 0, got {self.max_imu_gap_s}")
         if not self.restart_flag_s >= 0:
             raise ValueError(f"restart_flag_s must be >= 0, got {self.restart_flag_s}")
+        if not (np.isfinite(self.master_error_tau_s) and self.master_error_tau_s >= 0):
+            raise ValueError(f"master_error_tau_s must be finite and >= 0, got {self.master_error_tau_s}")
 
 
 #: a gap is never shorter than this many nominal sub-IMU steps (a slow IMU's regular step is no gap)
@@ -205,6 +303,7 @@ class _Epoch:
     A: FloatArray  # C_m C_0
     C_m: FloatArray
     w_m: FloatArray
+    He: FloatArray | None = None  # (p, n - 24): the installation states' part of the matches
 
 
 @dataclass
@@ -222,11 +321,13 @@ class TransferAlignmentModel:
     cfg: TAConfig
     initial: NavState
     n: int = N_STATES
-    #: the components the particle filters sample (the attitude error, the nonlinear part of eq.
-    #: 11-12 and 16-20); the others are carried by each particle's UKF (filters.runners)
+    #: the components the particle filters sample (the flexure rate, the one state driven by a noise
+    #: of consequence; filters.runners); the others are carried by each particle's UKF
     sampled = THD
     epochs_s: FloatArray = field(init=False)
     n_epochs: int = field(init=False)
+    #: the installation states after the 24 (module docstring): name -> slice of the state
+    extra: dict[str, slice] = field(init=False)
     #: keep the nominal at the IMU rate (:meth:`nominal_chunks`); False: only the integrator's state at
     #: each epoch, the interval re-integrated from it by :meth:`nominal_chunk` (the same numbers; issue #17)
     keep_nominal: bool = True
@@ -234,6 +335,27 @@ class TransferAlignmentModel:
     def __post_init__(self) -> None:
         # the master's body rate and covariances (ValueError without them)
         self._w_m, self._cov_att, self._cov_vel, self._cov_pos = self.master.required("omega_eb_b_radps", "att_cov", "vel_cov", "pos_cov")
+        self.extra = {}
+        i = N_STATES
+        if self.install.lever_arm_sigma_m > 0:
+            self.extra["lever_arm"], i = slice(i, i + 3), i + 3
+        if self.install.time_offset_sigma_s > 0:
+            self.extra["time_offset"], i = slice(i, i + 1), i + 1
+        imu = self.install.imu
+        if self.install.axis_error_states and (imu.gyro_scale_ppm > 0 or imu.gyro_misalignment_mrad > 0):
+            self.extra["gyro_axes"], i = slice(i, i + 9), i + 9
+        if self.install.axis_error_states and (imu.accel_scale_ppm > 0 or imu.accel_misalignment_mrad > 0):
+            self.extra["accel_axes"], i = slice(i, i + 6), i + 6
+        if self.cfg.master_error_tau_s > 0:
+            self.extra["master_error"], i = slice(i, i + 6), i + 6
+            # its 1 sigma per ENU axis: the main POS's reported position sigma (median over the session)
+            sig = np.sqrt(np.median(np.diagonal(self._cov_pos, axis1=1, axis2=2), axis=0))
+            v0, v1, v2 = (float(v) for v in (np.maximum(sig, 1e-4) / DEG) ** 2)  # the same process as the flexure, in metres
+            self._master_gm = FlexureModel(tau_s=(self.cfg.master_error_tau_s,) * 3, variance_deg2=(v0, v1, v2),
+                                           reference_span_m=1.0, span_exponent=0.0)
+        self.n = i
+        self._pos_floor_m = self.cfg.pos_noise_floor_estimated_arm_m if "lever_arm" in self.extra else self.cfg.pos_noise_floor_m
+        self._K_axes: list[tuple[FloatArray, FloatArray, FloatArray]] = []  # per interval (3, 9) each: int C_est W(omega) dt, int C_est W(f) dt, L
         t_imu = self.imu.t_s
         check_imu_stamps(t_imu)
         if not np.all(np.isfinite(self.imu.omega_radps)) or not np.all(np.isfinite(self.imu.f_mps2)):
@@ -289,7 +411,7 @@ class TransferAlignmentModel:
         ins = self.install
         p = 9 if self.cfg.use_position else 6
         if ms is None:
-            self._epochs[k] = _Epoch(None, np.eye(p), np.eye(3), np.eye(3), np.zeros(3))
+            self._epochs[k] = _Epoch(None, np.eye(p), np.eye(3), np.eye(3), np.zeros(3), np.zeros((p, self.n - N_STATES)))
             return
         llh_m, v_m, C_m, w_m, cov_att, cov_v, cov_p = ms
         r_b, r_dot_b = ins.lever_arm_m, np.zeros(3)
@@ -302,7 +424,8 @@ class TransferAlignmentModel:
         z_vel = nom.vel_n_mps - v_m - C_m @ (cross(w_m, r_b) + r_dot_b)
         R = np.zeros((p, p))
         R[:3, :3] = cov_att + np.eye(3) * (self.cfg.att_noise_floor_deg * DEG) ** 2
-        R[3:6, 3:6] = cov_v + np.eye(3) * self.cfg.vel_noise_floor_mps**2
+        gm = "master_error" in self.extra  # its position and velocity errors are states, not noise
+        R[3:6, 3:6] = (0.0 if gm else cov_v) + np.eye(3) * self.cfg.vel_noise_floor_mps**2
         vib = self.cfg.vibration_noise and ins.known_wing is None
         vib_v, vib_p = self.vibration_variance(k) if vib else (np.zeros(3), np.zeros(3))
         R[3:6, 3:6] += np.diag(vib_v)
@@ -310,8 +433,55 @@ class TransferAlignmentModel:
         if self.cfg.use_position:
             # p_est - p_m - C_m r0 in local ENU metres at the sub-IMU
             z.append(earth.enu_between(nom.llh, llh_m) - C_m @ r_b)
-            R[6:, 6:] = cov_p + np.eye(3) * self.cfg.pos_noise_floor_m**2 + np.diag(vib_p)
-        self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m)
+            R[6:, 6:] = (0.0 if gm else cov_p) + np.eye(3) * self._pos_floor_m**2 + np.diag(vib_p)
+        self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m, self._installation_rows(k, p, C_m, w_m, nom.vel_n_mps))
+
+    def _installation_rows(self, k: int, p: int, C_m: FloatArray, w_m: FloatArray, v_n: FloatArray) -> FloatArray:
+        """The matches' linear part (p, n - 24) in the installation states at epoch k (module docstring)."""
+        He = np.zeros((p, self.n - N_STATES))
+        la = self.extra.get("lever_arm")
+        if la is not None:
+            j = slice(la.start - N_STATES, la.stop - N_STATES)
+            He[3:6, j] = C_m @ skew(w_m)
+            if p == 9:
+                He[6:9, j] = C_m
+        me = self.extra.get("master_error")
+        if me is not None:  # the main POS reports truth + error: the matches lose it
+            j0 = me.start - N_STATES
+            He[3:6, j0 + 3:j0 + 6] = -np.eye(3)
+            if p == 9:
+                He[6:9, j0:j0 + 3] = -np.eye(3)
+        to = self.extra.get("time_offset")
+        if to is not None:
+            j0 = to.start - N_STATES
+            He[0:3, j0] = C_m @ w_m
+            He[3:6, j0] = -self._nominal_accel(k)
+            if p == 9:
+                He[6:9, j0] = -v_n
+        return He
+
+    def _nominal_accel(self, k: int) -> FloatArray:
+        """The nominal's ENU acceleration (3,) over the last 0.1 s before epoch k (zeros at epoch 0)."""
+        ch = self._chunk_before(k)
+        if ch is None:
+            return np.zeros(3)
+        t, v = ch.t_s, ch.vel_n_mps
+        if t.size < 2:
+            prev = self._nominal_at[k - 1]
+            return (v[-1] - prev.vel_n_mps) / max(float(t[-1] - prev.t_s), 1e-9)
+        j = max(0, min(int(np.searchsorted(t, t[-1] - 0.1)), t.size - 2))
+        return (v[-1] - v[j]) / float(t[-1] - t[j])
+
+    def _chunk_before(self, k: int) -> NavSeries | None:
+        """The nominal over interval k - 1 (the one ending at epoch k), None at k = 0 or before it is
+        integrated: kept, the last one integrated (as the filter builds epoch k), or re-integrated."""
+        if k == 0 or k - 1 >= len(self._starts):
+            return None
+        if self.keep_nominal:
+            return self._chunks[k - 1]
+        if k == len(self._starts) and self._last_chunk is not None:
+            return self._last_chunk
+        return self.nominal_chunk(k - 1)
 
     def vibration_variance(self, k: int) -> tuple[FloatArray, FloatArray]:
         """Variance (3,) + (3,) of the velocity and position match at epoch k that the wing's
@@ -331,14 +501,9 @@ class TransferAlignmentModel:
         excess ``s^2 - sigma^2`` is added to the epoch's noise.  A rigid or slowly flexing wing adds
         nothing; fewer than 6 main-POS epochs in the interval add nothing."""
         zero = (np.zeros(3), np.zeros(3))
-        if k == 0 or k - 1 >= len(self._starts):
+        ch = self._chunk_before(k)
+        if ch is None:
             return zero
-        if self.keep_nominal:
-            ch = self._chunks[k - 1]
-        elif k == len(self._starts) and self._last_chunk is not None:  # (as the filter builds epoch k)
-            ch = self._last_chunk
-        else:
-            ch = self.nominal_chunk(k - 1)
         t0, t1 = float(self.epochs_s[k - 1]), float(self.epochs_s[k])
         m = self.master
         # the main-POS epochs in (t0, t1] (with 1e-9 s slack) covered by the chunk (stamps increasing)
@@ -358,7 +523,7 @@ class TransferAlignmentModel:
         _vibration_kernel.residual_variance(tm, ch.t_s, ch.vel_n_mps, ch.llh, m.vel_n_mps[j], m.llh[j], m.C_nb[j], self._w_m[j],
                                             np.asarray(self.install.lever_arm_m, dtype=float), self._cov_vel[j], self._cov_pos[j], s2, sig2)
         sig2[:3] += self.cfg.vel_noise_floor_mps**2
-        sig2[3:] += self.cfg.pos_noise_floor_m**2
+        sig2[3:] += self._pos_floor_m**2
         ex = np.where(s2 > gate * sig2, s2 - sig2, 0.0)
         return ex[:3], ex[3:]
 
@@ -381,6 +546,15 @@ class TransferAlignmentModel:
         if interval is None:  # the epochs are distinct sub-IMU sample times: some time always passes
             raise RuntimeError(f"no time passed between epochs {k} and {k + 1} (t = {self.epochs_s[k]:.6f} s)")
         self._intervals.append(interval)
+        if "gyro_axes" in self.extra or "accel_axes" in self.extra:
+            C = np.concatenate([start.C_nb[None], chunk.C_nb])
+            C_dt = 0.5 * (C[1:] + C[:-1]) * dt[:, :, None]  # the interval integrals' midpoint rule
+            dK = np.einsum("kij,kjl->kil", C_dt, axis_matrix(om))  # (m, 3, 9)
+            K_mid = np.cumsum(dK, axis=0) - 0.5 * dK  # the gyro axis errors' attitude error at each step's middle
+            # ... which the specific force turns into velocity within the interval (the base kernel holds the
+            # attitude error at its start value): dv += -int [f^n x] K(t) dt gamma_g
+            L = np.einsum("kij,kjl->il", skew(np.einsum("kij,kj->ki", C_dt, f)), K_mid)
+            self._K_axes.append((dK.sum(axis=0), np.einsum("kij,kjl->il", C_dt, axis_matrix(f)) @ ACCEL_SYMMETRIC, L))
         gaps = np.nonzero(dt[:, 0] > GAP_FACTOR * self._imu_dt_s)[0]
         if gaps.size:
             self._gap_q[k] = sum((self._gap_noise(i0 + j, float(dt[j, 0]), float(self.epochs_s[k + 1] - t[j])) for j in gaps),
@@ -391,12 +565,47 @@ class TransferAlignmentModel:
 
     # ------------------------------------------------------------------ StateSpaceModel
     def f(self, k: int, x: FloatArray) -> FloatArray:
-        """The transition over interval k of states x (..., 24) (numba kernel, module docstring)."""
+        """The transition over interval k of states x (..., n) (numba kernel, module docstring; the
+        installation states are constants)."""
         it = self._intervals[k]
-        rows = np.ascontiguousarray(x, dtype=float).reshape(-1, N_STATES)
+        rows = np.ascontiguousarray(x, dtype=float).reshape(-1, self.n)
         out = np.empty_like(rows)
-        _error_kernel.ta_transition(rows, it.kernel_consts, it.F_n, it.C_int, it.w_ie, it.w_en, it.v, self._flex_discrete(it.T)[0], out)
+        base = rows if self.n == N_STATES else np.ascontiguousarray(rows[:, :N_STATES])
+        core = out if self.n == N_STATES else np.empty_like(base)
+        ga, aa = self.extra.get("gyro_axes"), self.extra.get("accel_axes")
+        gx = rows[:, ga] @ self._K_axes[k][0].T if ga is not None else np.zeros((rows.shape[0], 3))
+        _error_kernel.ta_transition(base, it.kernel_consts, it.F_n, it.C_int, it.w_ie, it.w_en, it.v, self._flex_discrete(it.T)[0],
+                                    np.ascontiguousarray(gx), core)
+        if ga is not None or aa is not None:  # the axis errors' velocity, and the position it builds over the interval
+            dv = np.zeros((rows.shape[0], 3))
+            if ga is not None:
+                dv -= rows[:, ga] @ self._K_axes[k][2].T
+            if aa is not None:
+                dv += rows[:, aa] @ self._K_axes[k][1].T
+            core[:, DV] += dv
+            core[:, DP] += 0.5 * it.T * dv
+        if self.n != N_STATES:
+            out[:, :N_STATES] = core
+            out[:, N_STATES:] = rows[:, N_STATES:]
+            me = self.extra.get("master_error")
+            if me is not None:
+                Phi = self._master_gm_discrete(it.T)[0]
+                e, ed = rows[:, me.start:me.start + 3], rows[:, me.start + 3:me.stop]
+                out[:, me.start:me.start + 3] = e * Phi[:, 0, 0] + ed * Phi[:, 0, 1]
+                out[:, me.start + 3:me.stop] = e * Phi[:, 1, 0] + ed * Phi[:, 1, 1]
         return out.reshape(np.shape(x))
+
+    def master_error_stationary_var(self) -> FloatArray:
+        """The main POS's error process's stationary variance (6,): ENU position [m^2], velocity [m^2/s^2]."""
+        C = self._master_gm.stationary_cov()
+        return np.concatenate([C[:, 0, 0], C[:, 1, 1]])
+
+    def _master_gm_discrete(self, T: float) -> tuple[FloatArray, FloatArray]:
+        """The main POS's error process over T: transition and noise (3, 2, 2) per ENU axis, cached."""
+        key = -round(T, 9) - 1.0  # beside the flexure's keys
+        if key not in self._flex_cache:
+            self._flex_cache[key] = self._master_gm.discrete(T)
+        return self._flex_cache[key]
 
     def _flex_discrete(self, T: float) -> tuple[FloatArray, FloatArray]:
         """Exact flexure transition and noise (3, 2, 2) each over T, cached per interval length."""
@@ -437,9 +646,9 @@ class TransferAlignmentModel:
         return Q
 
     def _process_noise(self, T: float) -> FloatArray:
-        """Process noise (24, 24) of an interval of length T (module docstring)."""
+        """Process noise (n, n) of an interval of length T (module docstring; none on the installation states)."""
         imu = self.install.imu
-        Q = np.zeros((N_STATES, N_STATES))
+        Q = np.zeros((self.n, self.n))
         Q[NAV, NAV] = nav_process_noise(T, self._imu_dt_s, *imu.white_sigma(self._imu_dt_s))  # PHI, DV, DP
         q_g, q_a = imu.bias_walk_variance(T)  # the sub-IMU's in-run bias instability (0 for the seeds' units)
         Q[EPS, EPS] += np.eye(3) * q_g
@@ -450,6 +659,12 @@ class TransferAlignmentModel:
         for i in range(3):
             ii = [18 + i, 21 + i]
             Q[np.ix_(ii, ii)] = Qf[i]
+        me = self.extra.get("master_error")
+        if me is not None:
+            Qm = self._master_gm_discrete(T)[1]
+            for i in range(3):
+                ii = [me.start + i, me.start + 3 + i]
+                Q[np.ix_(ii, ii)] = Qm[i]
         return Q
 
     def _epoch(self, k: int) -> _Epoch:
@@ -466,20 +681,23 @@ class TransferAlignmentModel:
         return self._epoch(k).R
 
     def h(self, k: int, x: FloatArray) -> FloatArray:
-        """The matches (..., 6) or (..., 9) of epoch k for states x (..., 24) (numba kernel, module docstring)."""
+        """The matches (..., 6) or (..., 9) of epoch k for states x (..., n) (numba kernel, module docstring)."""
         ep = self._epoch(k)
         ins = self.install
-        rows = np.ascontiguousarray(x, dtype=float).reshape(-1, N_STATES)
+        rows = np.ascontiguousarray(x, dtype=float).reshape(-1, self.n)
         p = 9 if self.cfg.use_position else 6
         out = np.empty((rows.shape[0], p))
-        _error_kernel.ta_measurement(rows, ep.A, ep.C_m, ep.w_m, ins.C_b_s0, ins.lever_arm_m, float(ins.k_bend), out)
+        base = rows if self.n == N_STATES else np.ascontiguousarray(rows[:, :N_STATES])
+        _error_kernel.ta_measurement(base, ep.A, ep.C_m, ep.w_m, ins.C_b_s0, ins.lever_arm_m, float(ins.k_bend), out)
+        if self.n != N_STATES and ep.He is not None:
+            out += rows[:, N_STATES:] @ ep.He.T
         return out.reshape(np.shape(x)[:-1] + (p,))
 
     def residual(self, a: FloatArray, b: FloatArray) -> FloatArray:
         return a - b
 
     def feedback(self, k: int, mean: FloatArray) -> FloatArray:
-        c = np.zeros(N_STATES)
+        c = np.zeros(self.n)
         c[NAV] = mean[..., NAV]
         dllh = earth.enu_to_dllh(c[DP], self.strapdown.state.llh)
         self.strapdown.correct(phi_n_rad=c[PHI], dvel_n_mps=c[DV], dllh=dllh)
@@ -496,25 +714,42 @@ class TransferAlignmentModel:
 
     # ------------------------------------------------------------------ priors and output
     def prior(self) -> tuple[FloatArray, FloatArray]:
-        """Prior mean (zeros) and covariance (24, 24) from the configuration."""
+        """Prior mean (zeros) and covariance (n, n) from the configuration."""
         from dpos_core.units import DEG_PER_H, UG_MPS2
 
         cfg, ins = self.cfg, self.install
-        d = np.zeros(N_STATES)
+        d = np.zeros(self.n)
         d[PHI] = (cfg.attitude_sigma_deg * DEG) ** 2
         d[DV] = cfg.velocity_sigma_mps**2
         d[DP] = cfg.position_sigma_m**2
         d[EPS] = (max(ins.imu.gyro_bias_deg_h, 1e-6) * cfg.bias_sigma_scale * DEG_PER_H) ** 2
         d[NAB] = (max(ins.imu.accel_bias_ug, 1e-3) * cfg.bias_sigma_scale * UG_MPS2) ** 2
         d[RHO] = (cfg.rho_sigma_deg * DEG) ** 2
+        if "lever_arm" in self.extra:
+            d[self.extra["lever_arm"]] = ins.lever_arm_sigma_m**2
+        if "time_offset" in self.extra:
+            d[self.extra["time_offset"]] = ins.time_offset_sigma_s**2
+        for name, scale_ppm, mis_mrad in (("gyro_axes", ins.imu.gyro_scale_ppm, ins.imu.gyro_misalignment_mrad),
+                                          ("accel_axes", ins.imu.accel_scale_ppm, ins.imu.accel_misalignment_mrad)):
+            if name in self.extra:  # the datasheet's 1 sigma; a term it leaves at 0 gets a tiny prior (it stays at 0)
+                sl = self.extra[name]
+                d[sl.start:sl.start + 3] = max(scale_ppm * 1e-6, 1e-9) ** 2
+                # the accelerometers' symmetric parts (m_ij + m_ji) / 2 of independent m_ij: half the variance
+                d[sl.start + 3:sl.stop] = max(mis_mrad * 1e-3, 1e-9) ** 2 * (0.5 if name == "accel_axes" else 1.0)
         P = np.diag(d)
+        me = self.extra.get("master_error")
+        if me is not None:
+            Pm = self._master_gm.stationary_cov()
+            for i in range(3):
+                ii = [me.start + i, me.start + 3 + i]
+                P[np.ix_(ii, ii)] = Pm[i]
         Pf = self._flex.stationary_cov()
         if ins.known_wing is not None:
             Pf = np.zeros_like(Pf)
         for i in range(3):
             ii = [18 + i, 21 + i]
             P[np.ix_(ii, ii)] = Pf[i] + np.diag([1e-16, 1e-16])
-        return np.zeros(N_STATES), P
+        return np.zeros(self.n), P
 
     def nominal_chunks(self) -> list[NavSeries]:
         """The nominal of every interval integrated so far (re-integrated when not kept: :attr:`keep_nominal`)."""

@@ -23,6 +23,8 @@ coordinates (those of pipeline.TAResult).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from dpos_core.units import FloatArray
@@ -36,30 +38,49 @@ from .model import DP, DV, PHI, TransferAlignmentModel
 class LinearizedAboutTruth:
     """Wraps a TransferAlignmentModel; ``truth_state(t) -> (nav truth, static/flexure truth)``.
 
-    ``truth_nav(t) -> (C_nb (3,3), vel_n (3,), llh (3,))`` of the sub-IMU and
-    ``truth_other(t) -> (15,)`` = [eps, nabla, rho, theta, theta_dot] in state units.
+    ``truth_nav(t) -> (C_nb (3,3), vel_n (3,), llh (3,))`` of the sub-IMU at the main system's time
+    t and ``truth_other(t) -> (15,)`` = [eps, nabla, rho, theta, theta_dot] in state units.
+    ``installation`` (optional): the true values of the model's installation states (.model
+    docstring) by name (``lever_arm`` (3,) [m], the true arm minus the model's; ``time_offset``
+    [s]; ``gyro_axes``, ``accel_axes`` (9,); ``master_error``: ``t -> (6,)``, the main POS's ENU
+    position and velocity errors at t), absent ones 0.  With a time-offset state the navigation truth of the nominal at stamp t is the truth at
+    ``t - tau``.
     """
 
-    def __init__(self, model: TransferAlignmentModel, truth_nav, truth_other) -> None:
+    def __init__(self, model: TransferAlignmentModel, truth_nav, truth_other, installation: dict | None = None) -> None:
         self.m = model
         self.n = model.n
         self.n_epochs = model.n_epochs
         self._truth_nav = truth_nav
         self._truth_other = truth_other
+        inst = installation or {}
+        self._extra = np.zeros(model.n - 24)
+        self._extra_t: list[tuple[slice, Callable[[float], FloatArray]]] = []  # time-varying ones: (slice, t -> values)
+        for name, sl in model.extra.items():
+            v = inst.get(name, 0.0)
+            if callable(v):
+                self._extra_t.append((sl, v))
+            else:
+                self._extra[sl.start - 24:sl.stop - 24] = np.asarray(v, dtype=float)
+        self._tau = float(inst.get("time_offset", 0.0)) if "time_offset" in model.extra else 0.0
         self._lin_h: dict[int, FloatArray] = {}
         self._lin_f: dict[int, FloatArray] = {}  # the truth after epoch k's correction, in u = x - c_k
         self._c: dict[int, FloatArray] = {}  # the corrections c_k
         self._F: dict[int, FloatArray] = {}  # Jacobians, cached per epoch
         self._H: dict[int, FloatArray] = {}
-        self._step = np.array([1e-6] * 3 + [1e-4] * 3 + [1e-3] * 3 + [1e-9] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-6] * 3)
+        self._step = np.array([1e-6] * 3 + [1e-4] * 3 + [1e-3] * 3 + [1e-9] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-6] * 3 + [1e-6] * 3
+                              + [1e-4] * (model.n - 24))
 
     def _true_error(self, nominal, t: float) -> FloatArray:
-        C, v, llh = self._truth_nav(t)
+        C, v, llh = self._truth_nav(t - self._tau)
         x = np.empty(self.n)
         x[PHI] = attitude_error(nominal.C_nb, C)
         x[DV] = nominal.vel_n_mps - v
         x[DP] = earth.dllh_to_enu(nominal.llh - llh, llh)
-        x[9:] = self._truth_other(t)
+        x[9:24] = self._truth_other(t - self._tau)
+        x[24:] = self._extra
+        for sl, fn in self._extra_t:
+            x[sl] = fn(t)
         return x
 
     def lin_h(self, k: int) -> FloatArray:

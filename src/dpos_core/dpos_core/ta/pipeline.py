@@ -44,7 +44,7 @@ import numpy as np
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import compose_rotvec, cross, dcm_to_quat, quat_to_dcm, rotvec_to_dcm, skew
+from ..attitude import compose_rotvec, cross, dcm_to_quat, dcm_to_rotvec, quat_to_dcm, rotvec_to_dcm, skew
 from ..errors import RejectedInput
 from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
@@ -54,7 +54,8 @@ from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
 from . import flags as F
-from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
+from .antenna import step_roughness
+from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .qc import EpochQC, epoch_qc
 
 METHODS = ("ukf", "urtss", "upf", "ups", "ups_mcmc", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
@@ -84,7 +85,11 @@ class TAResult:
     the forward filter's innovations - the UPF's mixture's -, the filtered-minus-smoothed
     separation of the smoothers), for the quality control without truth.  cg: the CDVF's
     conjugate-gradient record per epoch (iterations, costs: :class:`~dpos_core.filters.variational.CGStats`),
-    None for the other methods.
+    None for the other methods.  installation: the installation states' estimates at the last epoch
+    (.model docstring), ``name -> {"value": [...], "sigma": [...]}`` in state units (``lever_arm`` m,
+    the true arm minus the configured one, master axes; ``time_offset`` s; ``gyro_axes`` /
+    ``accel_axes`` dimensionless scale factors and misalignments); empty without them.  After gaps
+    (several parts aligned anew) the longest part's.
     """
 
     method: str
@@ -102,6 +107,7 @@ class TAResult:
     not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
     qc: EpochQC | None = None
     cg: CGStats | None = None
+    installation: dict[str, dict[str, list[float]]] = field(default_factory=dict)
 
     @property
     def C_nb(self) -> FloatArray:
@@ -208,7 +214,8 @@ def run_segments(
     cgs = [p.cg for p in parts if p.cg is not None]
     return TAResult(method, cat("t_s"), cat("llh"), cat("vel_n_mps"), cat("q_nb"), cat("sigma"), cat("epochs_s"), cat("x"), cat("P"),
                     ess, sum(p.chol_jitter_repairs for p in parts), cat("flags"), spans,
-                    EpochQC.concat(qcs) if len(qcs) == len(parts) else None, CGStats.concat(cgs) if len(cgs) == len(parts) else None)
+                    EpochQC.concat(qcs) if len(qcs) == len(parts) else None, CGStats.concat(cgs) if len(cgs) == len(parts) else None,
+                    max(parts, key=lambda p: p.t_s.size).installation)
 
 
 def _segment_start(master: NavSeries, t_first: float, t_last: float) -> tuple[float, str | None]:
@@ -261,6 +268,12 @@ def run(
     return res
 
 
+def _installation(model: TransferAlignmentModel, x: FloatArray, P: FloatArray) -> dict[str, dict[str, list[float]]]:
+    """TAResult.installation from the epoch estimates x (K, n) and P (K, n, n)."""
+    sd = np.sqrt(np.maximum(np.diagonal(P[-1]), 0.0))
+    return {name: {"value": [float(v) for v in x[-1, sl]], "sigma": [float(v) for v in sd[sl]]} for name, sl in model.extra.items()}
+
+
 def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
     """:data:`.flags.BRIDGED_GAP` on the output rows (those of :func:`_apply`) of the intervals
     that contained a short gap."""
@@ -298,7 +311,8 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         else:
             x, P = lin.to_model(tr.x_f, tr.P_f)
             qc = epoch_qc(model.epochs_s, tr.nu, tr.S, x, P)
-        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model), qc=qc)
+        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model), qc=qc,
+                        installation=_installation(model, x, P))
     cg: CGStats | None = None
     if method in _GAUSSIAN:
         rule, smoothed = _GAUSSIAN[method]
@@ -327,7 +341,47 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         mx = ptr.mixture
         qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if smoothed else (None, None)))
     out = _apply(model, x, P, corr) if sink is None else _to_sink(model, x, P, corr, sink)
-    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg)
+    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg,
+                    installation=_installation(model, x, P))
+
+
+def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t: FloatArray, llh: FloatArray, vel: FloatArray,
+                  q: FloatArray, s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The output rows (t (N,), llh (N, 3), vel_n_mps (N, 3), q_nb (N, 4), 1-sigma s (N, 9)) moved to
+    their stamps by the estimated time offset (the model's ``time_offset`` state; x (K, n), P (K, n, n)).
+
+    With an offset tau the nominal at stamp t follows the truth at t - tau (.model docstring), so the
+    pose at t is the output at t + tau: interpolated between the rows around it (the attitude along
+    the geodesic; before the first and after the last row the first and last intervals' rates carry
+    it on).  tau at a row is interpolated between the epochs (the smoothed estimate is one constant;
+    a forward filter's grows more certain).  The output's error is then the navigation estimate's
+    (sign reversed) plus J times the offset estimate's, J the rate of each component (ENU attitude
+    rate, acceleration, velocity), so the variance gains ``J^2 var(tau) - 2 J cov(nav, tau)`` (the
+    two estimates are correlated through the matches: a position match fixes ``dp - tau v``), and the
+    attitude and velocity the interpolation cannot know between rows (:func:`.antenna.step_roughness`).
+    Returns ``(llh, vel_n_mps, q_nb, s)``."""
+    i = model.extra["time_offset"].start
+    if t.size < 2:
+        return llh, vel, q, s
+    tau = np.interp(t, model.epochs_s, x[:, i])
+    var_tau = np.interp(t, model.epochs_s, P[:, i, i])
+    j = np.clip(np.searchsorted(t, t + tau, side="right") - 1, 0, t.size - 2)
+    dt = t[j + 1] - t[j]
+    a = ((t + tau - t[j]) / dt)[:, None]
+    C0 = quat_to_dcm(q[j])
+    rv = dcm_to_rotvec(quat_to_dcm(q[j + 1]) @ np.swapaxes(C0, 1, 2))  # ENU rotation from row j to j + 1
+    dv = vel[j + 1] - vel[j]
+    q2 = dcm_to_quat(rotvec_to_dcm(a * rv) @ C0)
+    vel2 = vel[j] + a * dv
+    llh2 = llh[j] + a * (llh[j + 1] - llh[j])
+    J = np.concatenate([rv / dt[:, None], dv / dt[:, None], vel2], axis=1)  # d(output)/d(time) (N, 9)
+    cross_tau = np.stack([np.interp(t, model.epochs_s, P[:, c, i]) for c in range(9)], axis=1)  # cov(nav error, tau)
+    # output error = -(navigation estimate's error) + J (tau estimate's error)
+    var = s**2 + var_tau[:, None] * J**2 - 2.0 * J * cross_tau
+    var[:, :6] += np.abs(a * (1.0 - a)) * step_roughness(np.concatenate([rv, dv], axis=1))[j]
+    return llh2, vel2, q2, np.sqrt(np.maximum(var, 0.0))
+
+
 
 
 #: keep the nominal at the IMU rate through the filter (True), or re-integrate it interval by interval
@@ -368,9 +422,12 @@ def iter_rows(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr:
     """:func:`_apply`'s rows, ``block`` intervals at a time (the nominal of each re-integrated when the
     model does not keep it, :attr:`.model.TransferAlignmentModel.keep_nominal`): ``(t_s, llh,
     vel_n_mps, q_nb, sigma)`` per block (default :data:`APPLY_BLOCK`), the same numbers as at once
-    (row by row arithmetic)."""
+    (row by row arithmetic).  With the ``time_offset`` state the rows are shifted in time across
+    rows (:func:`shift_in_time`): one block of every row then (not streamed)."""
     n = int(model.interval_sizes().size)
     block = APPLY_BLOCK if block is None else block
+    if "time_offset" in model.extra:  # shift_in_time moves each row by the offset between its neighbours: every row at once
+        block = max(n, 1)
     e1 = x[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
     e1[:, PHI] = compose_rotvec(x[1:, PHI], corr[1:, PHI])
     e1[:, DV] = x[1:, DV] + corr[1:, DV]
@@ -395,6 +452,20 @@ def _apply_block(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, e1
     a = ((t - t0) / (t1 - t0))[:, None]
     err = (1.0 - a) * x[kk, :9] + a * e1[kk, :9]
     dP = np.diagonal(P, axis1=1, axis2=2)[:, :9]
+    me = model.extra.get("master_error")
+    if me is not None:  # the output follows the main POS: its position and velocity relative to the main POS's (.model)
+        m0 = me.start
+        e = (1.0 - a) * x[kk, m0:m0 + 6] + a * x[kk + 1, m0:m0 + 6]
+        err[:, DV] -= e[:, 3:]
+        err[:, DP] -= e[:, :3]
+        i_nav = np.r_[DP.start:DP.stop, DV.start:DV.stop]
+        i_e = np.r_[m0:m0 + 6]
+        # var(nav - e) = P_nav + P_e - 2 P_nav,e per component, and the main POS's own error (absolute sigma)
+        dP = dP.copy()
+        dP[:, i_nav] += np.diagonal(P[:, i_e][:, :, i_e], axis1=1, axis2=2) - 2.0 * np.diagonal(P[:, i_nav][:, :, i_e], axis1=1, axis2=2)
+        st = model.master_error_stationary_var()
+        dP[:, DP] += st[:3]
+        dP[:, DV] += st[3:]
     var = (1.0 - a) * dP[kk] + a * dP[kk + 1]
     # the velocity the IMU gains within the interval beyond a straight line (the wing's vibration):
     # an attitude error turns it, dv_dot = f x phi (model docstring), which no linear interpolation
@@ -414,6 +485,11 @@ def _apply_block(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, e1
         Pp = P[:, PHI, PHI]
         P_phi = (1.0 - av) * Pp[kv] + av * Pp[kv + 1]
         var[vib, DV] += np.einsum("tij,tjk,tik->ti", Sk, P_phi, Sk)
+    if "accel_axes" in model.extra:  # the accelerometer triad's rotation against the body: no match sees it (.model)
+        var[:, PHI] += accel_axis_rotation_var(model.install.imu)
     s = np.sqrt(np.maximum(var, 0.0))
     C = rotvec_to_dcm(err[:, PHI]) @ quat_to_dcm(q)
-    return t, llh - earth.enu_to_dllh(err[:, DP], llh), vel - err[:, DV], dcm_to_quat(C), s
+    llh_o, vel_o, q_o = llh - earth.enu_to_dllh(err[:, DP], llh), vel - err[:, DV], dcm_to_quat(C)
+    if "time_offset" in model.extra:
+        llh_o, vel_o, q_o, s = shift_in_time(model, x, P, t, llh_o, vel_o, q_o, s)
+    return t, llh_o, vel_o, q_o, s

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,8 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
              filter_rate_hz: float = 1.0, log=print, filter_aircraft: AircraftConfig | None = None) -> dict:
     """One case over ``seeds``: metrics.json's entry (module docstring).  ``filter_aircraft``: what
     the filters read instead of the nominal aircraft (a what-if: the configuration that would fix a case)."""
+    if filter_aircraft is None and case.filters is not None:
+        filter_aircraft = case.filters(scenario.aircraft)
     per_method: dict[str, list[dict]] = {m: [] for m in methods}
     timing = {m: {"processing_s": 0.0, "data_s": 0.0} for m in methods}
     sess = None
@@ -57,9 +60,9 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
         for m in methods:
             t0 = time.perf_counter()
             # the filters read the nominal aircraft; the oracle the true one (what its model can express)
-            ac = ss.scenario.aircraft if m == ORACLE else (filter_aircraft or scenario.aircraft)
+            ac = _with_installation_states(ss.scenario.aircraft, filter_aircraft) if m == ORACLE else (filter_aircraft or scenario.aircraft)
             ants, tm = solve(sess, ac, m, particles, seed, initial_attitude_error_deg, oracle_truth=truth if m == ORACLE else None,
-                             filter_rate_hz=filter_rate_hz)
+                             filter_rate_hz=filter_rate_hz, master_error_tau_s=case.master_error_tau_s)
             ev = evaluate(sess, ants)
             per_method[m].append(ev)
             timing[m]["processing_s"] += tm["processing_s"]
@@ -94,6 +97,20 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
                                         for k in metrics["methods"][m]["mean"]["rmse"]} for m in methods}
     entry["goal"] = {m: goal(entry, m) for m in methods}
     return entry
+
+
+def _with_installation_states(truth: AircraftConfig, filters: AircraftConfig | None) -> AircraftConfig:
+    """The true aircraft with the filters' installation states (the sub-IMUs' ``lever_arm_sigma_m``,
+    ``time_offset_sigma_ms``, ``axis_error_states``): the oracle estimates what they estimate, about
+    the truth (its datasheet is the true one)."""
+    if filters is None:
+        return truth
+    subs = []
+    for s in truth.sub_imus:
+        f = filters.sub_imu(s.name)
+        subs.append(replace(s, lever_arm_sigma_m=f.lever_arm_sigma_m, time_offset_sigma_ms=f.time_offset_sigma_ms,
+                            axis_error_states=f.axis_error_states))
+    return replace(truth, sub_imus=tuple(subs))
 
 
 def goal(entry: dict, m: str) -> dict:

@@ -67,6 +67,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, [Gong2018])")
     ap.add_argument("--no-position-matching", dest="position_matching", action="store_false",
                     help="match attitude and velocity only ([Gong2018]); default: the lever-arm-compensated main-POS position too")
+    ap.add_argument("--master-error-tau", type=float, default=0.0, metavar="S",
+                    help="correlation time of the main POS's position and velocity errors: > 0 estimates them as states and the "
+                         "antennas follow the main POS (docs/mismatch.md 'Installation states'); default 0 = white noise")
     ap.add_argument("--no-sigma-inflation", dest="inflate_sigma", action="store_false",
                     help="report the smoother's own 1-sigma, without the innovations' variance factor (docs/qc.md)")
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
@@ -204,7 +207,8 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
           f"method {args.method}, initial attitude error {err0:g} deg")
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
                              filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate, workers=args.workers,
-                             position_matching=args.position_matching, inflate_sigma=args.inflate_sigma, pool=pool)
+                             position_matching=args.position_matching, inflate_sigma=args.inflate_sigma,
+                             master_error_tau_s=args.master_error_tau, pool=pool)
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
@@ -279,7 +283,7 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
             antennas, timing = solve_streaming(args.bag, sess, aircraft, Path(tmp), args.method, args.particles, args.seed, err0,
                                                filter_rate_hz=args.filter_rate, position_matching=args.position_matching,
                                                inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
-                                               sub_imus=subs)
+                                               sub_imus=subs, master_error_tau_s=args.master_error_tau)
             out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool)
     except ProductsExistError:
         print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)

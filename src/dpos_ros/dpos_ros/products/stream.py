@@ -43,7 +43,7 @@ from dpos_core.series import NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import pipeline
 from dpos_core.ta import qc as Q
-from dpos_core.ta.antenna import antenna_motion
+from dpos_core.ta.antenna import antenna_motion, lever_velocity_var, rate_at, rate_interpolation_var
 from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack
 from dpos_core.units import FloatArray
@@ -127,6 +127,7 @@ class StreamedAntenna:
     qc: Q.EpochQC | None = None
     cg: CGStats | None = None
     wing_fit: dict | None = None
+    installation: dict = field(default_factory=dict)
 
     def solution(self, i0: int = 0, i1: int | None = None, step: int = 1) -> P.AntennaSolution:
         """An :class:`~dpos_ros.products.ta.AntennaSolution` of the rows ``i0:i1`` (every ``step``-th)."""
@@ -138,7 +139,7 @@ class StreamedAntenna:
             c = {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
             traj, sigma, flags = _nav(c), c["sigma"], c["flags"]
         return P.AntennaSolution(self.name, self.sub_imu, self.status, traj, sigma, self.chol_jitter_repairs, flags,
-                                 list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit)
+                                 list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit, installation=self.installation)
 
 
 # ------------------------------------------------------------------------------------ the workers
@@ -169,7 +170,11 @@ def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg
     flags = res.flags | P._qc_flags(res, master, aligned_sigma_deg)
     keep = np.zeros(res.t_s.size, dtype=bool)
     keep[P._decimate(res.t_s, output_rate_hz)] = True
-    nearest = np.clip(np.interp(res.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
+    n_kept = np.concatenate([[0], np.cumsum(keep)])  # kept rows before each row
+    # the rate at the rows (with a time offset, at the instant the moved rows stand for) and what the rate
+    # between the IMU's samples leaves unknown, as _sub_imu_antenna (dpos_ros.products.ta)
+    tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
+    w_var = rate_interpolation_var(imu.t_s, imu.omega_radps, res.t_s[keep] + tau) if antennas else np.zeros((0, 3))
     stores = {name: RowStore(base / f"ant_{name}") for name, _ in antennas}
     own = RowStore(base / f"sub_{sub}")
     for i0 in range(0, res.t_s.size, ROW_BLOCK):
@@ -180,13 +185,16 @@ def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg
             sigma = sigma * Q.sigma_scale(res.qc, t)
         C = quat_to_dcm(c["q_nb"])
         k = keep[i0:i1]
+        w = rate_at(imu.t_s, imu.omega_radps, t + tau) if antennas else np.zeros((0, 3))
         for name, lever in antennas:
-            llh, v = antenna_motion(C, c["vel_n_mps"], c["llh"], imu.omega_radps[nearest[i0:i1]], lever)
-            stores[name].append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=v[k], llh=llh[k], sigma=sigma[k], flags=flags[i0:i1][k])
+            llh, v = antenna_motion(C, c["vel_n_mps"], c["llh"], w, lever)
+            s_a = sigma[k].copy()
+            s_a[:, 3:6] = np.sqrt(s_a[:, 3:6] ** 2 + lever_velocity_var(C[k], w_var[n_kept[i0]:n_kept[i1]], lever))
+            stores[name].append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=v[k], llh=llh[k], sigma=s_a, flags=flags[i0:i1][k])
         own.append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=c["vel_n_mps"][k], llh=c["llh"][k], sigma=sigma[k], flags=flags[i0:i1][k])
     ta_rows.remove()
     return {"stores": stores, "own": own, "qc": res.qc, "cg": res.cg, "not_estimated": list(res.not_estimated),
-            "chol_jitter_repairs": res.chol_jitter_repairs, "warnings": sess.warnings}
+            "chol_jitter_repairs": res.chol_jitter_repairs, "installation": res.installation, "warnings": sess.warnings}
 
 
 # ------------------------------------------------------------------------------------ the session
@@ -195,12 +203,13 @@ def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg
 def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, store_dir: Path, method: str = "ups",
                     particles: int = 100, seed: int = 0, initial_attitude_error_deg: float = 0.0, filter_rate_hz: float = 1.0,
                     position_matching: bool = True, inflate_sigma: bool = True, output_rate_hz: float = 0.0,
-                    master_aligned_sigma_deg: float = 0.1, pool: cf.Executor | None = None,
+                    master_aligned_sigma_deg: float = 0.1, pool: cf.Executor | None = None, master_error_tau_s: float = 0.0,
                     sub_imus: list[str] | None = None) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
     """:func:`dpos_ros.products.ta.solve` of the recording ``bag`` (``sess``: its main POS, read
     without the sub-IMUs; ``sub_imus``: the sub-IMU topics it has), the rows in files under
     ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``)."""
-    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching)
+    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching,
+                   master_error_tau_s=master_error_tau_s)
     t0 = time.perf_counter()
     master = P.aligned_master(sess, master_aligned_sigma_deg)
     e = initial_attitude_error_deg
@@ -236,7 +245,7 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
         for a in aircraft.antennas:
             if a.sub_imu == s.name:
                 out[a.name] = StreamedAntenna(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
-                                              list(r["not_estimated"]), r["qc"], r["cg"])
+                                              list(r["not_estimated"]), r["qc"], r["cg"], installation=r["installation"])
         if r["own"].n > 1 and any(a.sub_imu == s.name for a in aircraft.antennas):  # (as solve: the antennas' carriers)
             carriers[s.name] = r["own"]
     for name in sorted(present):
@@ -350,6 +359,9 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
     fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
     if fits:
         doc["wing_fit"] = fits
+    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
+    if inst:  # as dpos_ros.products.ta.write
+        doc["installation_states"] = inst
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
     doc["qc"] = _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete

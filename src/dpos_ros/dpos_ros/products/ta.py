@@ -36,7 +36,7 @@ from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta import qc as ta_qc
-from dpos_core.ta.antenna import antenna_motion
+from dpos_core.ta.antenna import antenna_motion, lever_velocity_var, rate_at, rate_interpolation_var
 from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
@@ -58,7 +58,8 @@ class AntennaSolution:
     cross-validation (:class:`dpos_core.ta.wingfit.WingFit`); ``qc``: its sub-IMU's consistency
     measures at the filter epochs (:class:`dpos_core.ta.qc.EpochQC`; None for a ``fit`` antenna);
     ``cg``: the CDVF's conjugate-gradient record per epoch (:class:`dpos_core.filters.variational.CGStats`;
-    None for the other methods)."""
+    None for the other methods); ``installation``: its sub-IMU's installation-state estimates
+    (:attr:`dpos_core.ta.pipeline.TAResult.installation`; empty without them)."""
 
     name: str
     sub_imu: str | None
@@ -72,6 +73,7 @@ class AntennaSolution:
     wing_fit: dict | None = None
     qc: ta_qc.EpochQC | None = None
     cg: CGStats | None = None
+    installation: dict = field(default_factory=dict)
 
 
 def solve(
@@ -86,6 +88,7 @@ def solve(
     filter_rate_hz: float = 1.0,
     position_matching: bool = True,
     inflate_sigma: bool = True,
+    master_error_tau_s: float = 0.0,
     output_rate_hz: float = 0.0,
     master_aligned_sigma_deg: float = 0.1,
     workers: int = 1,
@@ -120,9 +123,13 @@ def solve(
     per match group where they say the filter is optimistic (:func:`dpos_core.ta.qc.sigma_scale`;
     docs/qc.md "Sigma inflation"); the fit antennas inherit it through their sub-IMUs.
 
+    ``master_error_tau_s``: the main POS's position and velocity errors as correlated states of that
+    correlation time (``TAConfig.master_error_tau_s``; the antennas then follow the main POS), 0 = white.
+
     ``known_wing`` (evaluation only, with ``method`` ``oracle_wing``): per sub-IMU the true wing
     (:func:`dpos_core.ta.from_sim.known_wing`), set as ``Installation.known_wing``."""
-    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching)
+    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching,
+                   master_error_tau_s=master_error_tau_s)
     results = {}
     unusable: dict[str, str] = {}  # sub-IMU -> why it is not estimated
     t0 = time.perf_counter()
@@ -195,13 +202,19 @@ def _sub_imu_antenna(sess: RecordedSession, aircraft: AircraftConfig, a: Antenna
     its position and velocity by the lever arm, the rows at ``output_rate_hz``."""
     assert a.sub_imu is not None
     imu = sess.sub_imus[a.sub_imu]
-    nearest = np.clip(np.interp(r.t_s, imu.t_s, np.arange(imu.t_s.size)).round().astype(int), 0, imu.t_s.size - 1)
-    llh, v = antenna_motion(r.C_nb, r.vel_n_mps, r.llh, imu.omega_radps[nearest], a.lever_arm_m)
+    # the rate at the rows (with a time offset, at the instant the moved rows stand for)
+    tau = r.installation.get("time_offset", {}).get("value", [0.0])[0]
+    C = r.C_nb
+    llh, v = antenna_motion(C, r.vel_n_mps, r.llh, rate_at(imu.t_s, imu.omega_radps, r.t_s + tau), a.lever_arm_m)
     keep = _decimate(r.t_s, output_rate_hz)
     status = f"estimated (not estimated over {_spans(r.not_estimated)})" if r.not_estimated else "estimated"
-    return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), r.sigma[keep],
+    # the velocity sigma adds what the rate between the IMU's samples leaves unknown, through the lever arm
+    sigma = r.sigma[keep].copy()
+    w_var = rate_interpolation_var(imu.t_s, imu.omega_radps, r.t_s[keep] + tau)
+    sigma[:, 3:6] = np.sqrt(sigma[:, 3:6] ** 2 + lever_velocity_var(C[keep], w_var, a.lever_arm_m))
+    return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), sigma,
                            r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep), qc=r.qc,
-                           cg=r.cg)
+                           cg=r.cg, installation=r.installation)
 
 
 def _qc_flags(r: pipeline.TAResult, master: NavSeries, sigma_deg: float) -> ta_flags.FlagArray:
@@ -463,6 +476,9 @@ def _write_products(
     fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
     if fits:
         doc["wing_fit"] = fits
+    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
+    if inst:  # the estimated installation of each sub-IMU (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states)
+        doc["installation_states"] = inst
     doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth (its figures: _antenna_files)
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
