@@ -54,6 +54,15 @@ Keys (in order):
                                sample; transfer_align_node/worker_each: the largest VmHWM of one worker
   soak_rss_growth_mb_per_min   {process: MB/min}: least-squares slope of its samples of the data flow
                                (not the finalize); bounded memory is ~0
+  long_flight_<d>_peak_rss_mb  issue #17: a paper_wing flight (6 sub-IMUs at 200 Hz, 12 antennas; a racetrack of 840 s
+                               lines and 60 s turns) of d = 1 h, 2 h, 4 h (--long-flight-s) simulated window by window (dpos-sim --window 60 --no-truth) into a
+                               temporary directory (deleted afterwards), then dpos-process (UPS, --workers 2) on it in a
+                               subprocess: the largest summed RSS of dpos-process and its workers (/proc, every 0.5 s);
+                               long_flight_<d>_largest_process_rss_mb: the largest RSS of
+                               one of them; long_flight_<d>_time_ratio: its wall time / flight duration; long_flight_<d>_status: "ok",
+                               or why there is no figure (the run killed above --long-flight-rss-cap-mb, 6000, to spare the
+                               shared machine; the bag not fitting the disk); long_flight_<d>_sim_*: the simulation's;
+                               long_flight_peak_rss_mb / long_flight_time_ratio: those of the longest flight
   soak_processing_time_ratio   finalize processing time (status.json timing.processing_s: the smoothers
                                of the 6 sub-IMUs) / data duration; soak_data_wall_s: wall time of the
                                data flow
@@ -705,6 +714,107 @@ def bench_bagio(results: dict, repeats: int) -> None:
           f"(x{results['bagio_write_speedup_vs_rosbags']:.1f} / x{results['bagio_read_speedup_vs_rosbags']:.1f})")
 
 
+def _run_watched(cmd: list[str], cap_mb: float, log: Path, single: dict[str, float] | None = None) -> tuple[int | None, float, float, str]:
+    """Run ``cmd`` (stdout and stderr to ``log``), sampling the summed RSS of its process tree
+    every 0.5 s; kill the tree if it exceeds ``cap_mb``.  Returns (exit status or None when
+    killed, wall s, peak summed RSS MB, status); ``single["mb"]``: the largest RSS of one process."""
+    import signal
+    import subprocess
+
+    t0 = time.perf_counter()
+    with log.open("w") as out:
+        p = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        peak = 0.0
+        status = "ok"
+        while p.poll() is None:
+            mems = [m[0] for q in [p.pid, *_descendants(p.pid)] if (m := _proc_mem_mb(q)) is not None]
+            peak = max(peak, sum(mems))
+            if single is not None and mems:
+                single["mb"] = max(single.get("mb", 0.0), max(mems))
+            if peak > cap_mb:
+                status = f"killed at {time.perf_counter() - t0:.0f} s: summed RSS {peak:.0f} MB > cap {cap_mb:.0f} MB"
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+                return None, time.perf_counter() - t0, peak, status
+            time.sleep(0.5)
+    return p.returncode, time.perf_counter() - t0, peak, status
+
+
+def _long_scenario(path: Path, duration_s: float) -> Path:
+    """A paper_wing scenario (its aircraft, rates, sensors) of ``duration_s`` seconds: a racetrack
+    of imaging lines (840 s straight, named) joined by 60 s 180-degree coordinated turns."""
+    import yaml
+
+    d = yaml.safe_load((REPO / "src/dpos_core/dpos_core/config/scenarios/paper_wing.yaml").read_text())
+    segs, names, t = [], [], 0.0
+    while t < duration_s - 1e-9:
+        line = min(840.0, duration_s - t)
+        names.append(f"line{len(names) + 1:03d}")
+        segs.append({"name": names[-1], "duration_s": line})
+        t += line
+        if t < duration_s - 1e-9:
+            turn = min(60.0, duration_s - t)
+            segs.append({"duration_s": turn, "heading_change_deg": 180.0 * turn / 60.0})
+            t += turn
+    d.update(name=f"long_wing_{duration_s:g}s", source="bench/run_bench.py long_flight",
+             description=f"paper_wing's aircraft and sensors, {duration_s:g} s of racetrack", imaging_segments=names)
+    d["flight"]["segments"] = segs
+    path.write_text(yaml.safe_dump(d, sort_keys=False))
+    return path
+
+
+def _flight_label(d_s: float) -> str:
+    return f"{d_s / 3600:g}h" if d_s % 3600 == 0 else f"{d_s:g}s"
+
+
+def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...] = (3600.0, 7200.0, 14400.0),
+                      rss_cap_mb: float = 6000.0, tmp_root: str | None = None) -> None:
+    """Issue #17 part 2 (module docstring, ``long_flight_*``): a run per duration, not repeated."""
+    import shutil
+    import tempfile
+
+    bindir = Path(sys.executable).parent
+    last = None
+    for d in sorted(durations_s):
+        key = f"long_flight_{_flight_label(d)}"
+        tmp = Path(tempfile.mkdtemp(prefix="dpos_long_", dir=tmp_root))
+        try:
+            need = 0.3e6 * d  # the bag without truth: about 0.25 MB per second of paper_wing
+            free = shutil.disk_usage(tmp).free
+            if free < 2 * need:
+                results[f"{key}_status"] = f"not run: the bag (~{need / 1e9:.1f} GB) does not fit {tmp} ({free / 1e9:.1f} GB free)"
+                print(f"{key}: {results[f'{key}_status']}")
+                continue
+            bag = tmp / "bag"
+            scen = _long_scenario(tmp / "long_wing.yaml", d)
+            rc, wall, peak, status = _run_watched([str(bindir / "dpos-sim"), "--scenario", str(scen),
+                                                   "--window", "60", "--no-truth", "--out", str(bag)], rss_cap_mb, tmp / "sim.log")
+            results[f"{key}_sim_peak_rss_mb"], results[f"{key}_sim_time_ratio"] = round(peak, 1), round(wall / d, 5)
+            if rc != 0:
+                results[f"{key}_status"] = f"simulation failed: {status if rc is None else (tmp / 'sim.log').read_text()[-500:]}"
+                print(f"{key}: {results[f'{key}_status']}")
+                continue
+            results[f"{key}_bag_mb"] = round(sum(f.stat().st_size for f in bag.iterdir()) / 1e6, 1)
+            one: dict[str, float] = {}
+            rc, wall, peak, status = _run_watched([str(bindir / "dpos-process"), str(bag), "--out", str(tmp / "products"),
+                                                   "--workers", "2", "--stream", "on"], rss_cap_mb, tmp / "process.log", one)
+            results[f"{key}_largest_process_rss_mb"] = round(one.get("mb", 0.0), 1)
+            if rc not in (0, 1):  # 1: some antenna not estimated (products written)
+                status = status if rc is None else f"dpos-process exit {rc}: {(tmp / 'process.log').read_text()[-500:]}"
+            results[f"{key}_status"] = status
+            results[f"{key}_peak_rss_mb"] = round(peak, 1) if rc in (0, 1) else None
+            results[f"{key}_time_ratio"] = round(wall / d, 5) if rc in (0, 1) else None
+            print(f"{key}: dpos-process peak {peak:.0f} MB, {wall:.0f} s (ratio {wall / d:.4f}), {status}; simulation peak "
+                  f"{results[f'{key}_sim_peak_rss_mb']:.0f} MB, ratio {results[f'{key}_sim_time_ratio']:.4f}; bag {results[f'{key}_bag_mb']} MB")
+            last = key
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if last is not None:
+        results["long_flight_peak_rss_mb"] = results.get(f"{last}_peak_rss_mb")
+        results["long_flight_time_ratio"] = results.get(f"{last}_time_ratio")
+        results["long_flight_duration_s"] = max(durations_s)
+
+
 BENCHES: dict[str, Callable[..., None]] = {
     "strapdown": bench_strapdown,
     "sim": bench_sim,
@@ -717,6 +827,7 @@ BENCHES: dict[str, Callable[..., None]] = {
     "graph": bench_graph,
     "replay": bench_replay,
     "soak": bench_soak,
+    "long_flight": bench_long_flight,
 }
 
 
@@ -727,8 +838,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--soak-s", type=float, default=600.0, metavar="S",
                     help="seconds of data of the soak benchmark (600; 0 skips it)")
+    ap.add_argument("--long-flight-s", default="3600,7200,14400", metavar="S,S,...",
+                    help="flight durations [s] of the long_flight benchmark (default 1 h, 2 h, 4 h)")
+    ap.add_argument("--long-flight-rss-cap-mb", type=float, default=6000.0, metavar="MB",
+                    help="kill a long_flight run whose summed RSS exceeds this (the machine is shared)")
     args = ap.parse_args(argv)
-    options = {"soak": {"soak_s": args.soak_s}}
+    options: dict[str, dict[str, Any]] = {
+        "soak": {"soak_s": args.soak_s},
+        "long_flight": {"durations_s": tuple(float(x) for x in args.long_flight_s.split(",")), "rss_cap_mb": args.long_flight_rss_cap_mb}}
     results: dict = {}
     for name, fn in BENCHES.items():
         if args.only and name not in args.only:

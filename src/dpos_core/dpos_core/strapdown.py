@@ -164,6 +164,16 @@ class Strapdown:
         self._prev[6] = 1.0
         self._state[10:13] = np.asarray(dvel_n_mps, dtype=float).reshape(3)
 
+    def snapshot(self) -> tuple[FloatArray, FloatArray, float, int | None]:
+        """The integrator's whole state (navigation state, the previous increments of the coning and
+        sculling corrections, time, mode): :meth:`restore` continues from it bit for bit."""
+        return self._state.copy(), self._prev.copy(), self._t_s, self._mode
+
+    def restore(self, snap: tuple[FloatArray, FloatArray, float, int | None]) -> None:
+        """Continue from a :meth:`snapshot` (of this or another integrator with the same options)."""
+        state, prev, t_s, mode = snap
+        self._state, self._prev, self._t_s, self._mode = state.copy(), prev.copy(), t_s, mode
+
     @property
     def state(self) -> NavState:
         """Current navigation state (a copy)."""

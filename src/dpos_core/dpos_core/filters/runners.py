@@ -33,6 +33,7 @@ the variants tried and the measurements.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +47,7 @@ from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .pf import children_mask
 from .points import CentralDifferencePoints, UnscentedPoints
+from .store import EpochArray
 from .variational import CGInfo, CGSettings, CGStats, cdvf_update
 
 # ------------------------------------------------------------------------------------ Gaussian
@@ -184,11 +186,11 @@ class ParticleTrack:
     (moment matched; NaN where no measurement).
     """
 
-    particles: FloatArray
-    proposed: FloatArray
+    particles: FloatArray | EpochArray
+    proposed: FloatArray | EpochArray
     logw: FloatArray
-    pred_mean: FloatArray
-    pred_cov: FloatArray
+    pred_mean: FloatArray | EpochArray
+    pred_cov: FloatArray | EpochArray
     sampled: NDArray[np.intp]
     corrections: FloatArray
     ess: FloatArray
@@ -199,6 +201,12 @@ class ParticleTrack:
     def mean(self) -> FloatArray:
         """Weighted filtered means (K, n) (the mixture's)."""
         return self.mixture.x_f
+
+    def close(self) -> None:
+        """Remove the files of the per-particle arrays kept on disk (``run_upf(store=...)``)."""
+        for a in (self.particles, self.proposed, self.pred_mean, self.pred_cov):
+            if isinstance(a, EpochArray):
+                a.close()
 
 
 def sampled_indices(model: StateSpaceModel, n: int, sampled=None) -> NDArray[np.intp]:
@@ -322,6 +330,7 @@ def run_upf(
     engine: PerParticleUKF | SharedLinearizationUKF | None = None,
     resample: str = RESAMPLING[0],
     move: bool = False,
+    store: Path | None = None,
 ) -> ParticleTrack:
     """Rao-Blackwellized unscented particle filter (module docstring).
 
@@ -343,6 +352,9 @@ def run_upf(
             target given the particle's path, so the Metropolis-Hastings move with it as proposal
             is accepted with probability 1 (a Gibbs move): the copies stop sharing the epoch's
             draw.  Off by default (docs/sar.md: on paper_su it moves the errors by 3 % at most).
+        store: a directory for the per-particle arrays of the track (particles, proposed,
+            predicted densities: :class:`~.store.EpochArray` files, removed by
+            :meth:`ParticleTrack.close`); default in memory.  The same numbers either way.
     """
     rng = np.random.default_rng() if rng is None else rng
     engine = SharedLinearizationUKF() if engine is None else engine
@@ -353,11 +365,14 @@ def run_upf(
         raise ValueError(f"unknown resampling scheme {resample!r}; choose one of {RESAMPLING}")
     S = sampled_indices(model, n, sampled)
     s = S.size
-    parts = np.empty((K, N, n))
-    proposed = np.empty((K, N, n))
+    def per_epoch(name: str, k: int, shape: tuple[int, ...]) -> FloatArray | EpochArray:
+        return np.empty((k, *shape)) if store is None else EpochArray(k, shape, Path(store) / f"{name}.f64")
+
+    parts = per_epoch("particles", K, (N, n))
+    proposed = per_epoch("proposed", K, (N, n))
     logws = np.empty((K, N))
-    pred_mean = np.empty((max(K - 1, 0), N, s))
-    pred_cov = np.empty((max(K - 1, 0), N, s, s))
+    pred_mean = per_epoch("pred_mean", max(K - 1, 0), (N, s))
+    pred_cov = per_epoch("pred_cov", max(K - 1, 0), (N, s, s))
     mix_x_f, mix_P_f = np.empty((K, n)), np.empty((K, n, n))
     mix_x_p, mix_P_p, mix_C = np.empty((max(K - 1, 0), n)), np.empty((max(K - 1, 0), n, n)), np.empty((max(K - 1, 0), n, n))
     corr = np.zeros((K, n))
@@ -444,6 +459,10 @@ def _resample_move(model: StateSpaceModel, k: int, engine, points, S: NDArray[np
     return m, P
 
 
+#: epochs of the particle track read and factorized at once by :func:`ffbsm`
+FFBSM_BLOCK = 256
+
+
 def ffbsm(track: ParticleTrack) -> FloatArray:
     """Backward reweighting ([Gong2018] eq. 9) of the sampled components: smoothed normalized log
     weights (K, N) of ``track.particles``.  ``w_{K-1|K} = w_{K-1}``; the transition density
@@ -453,24 +472,28 @@ def ffbsm(track: ParticleTrack) -> FloatArray:
     S = track.sampled
     logws = np.empty((K, N))
     logws[-1] = track.logw[-1]
-    # every epoch's factors at once when none needs a repair (else epoch by epoch, repaired as chol does)
-    L_all = chol_unrepaired(track.pred_cov) if K > 1 else None
-    W_all = solve_lower(L_all, np.eye(S.size)) if L_all is not None else None
-    for k in range(K - 2, -1, -1):
-        lwk = track.logw[k]
-        nxt = track.proposed[k + 1][:, S]  # x_{k+1}^j (N, s) in the transition's coordinates
-        if L_all is not None and W_all is not None:
-            Li, Wi = L_all[k], W_all[k]
-        else:
-            Li = chol(track.pred_cov[k])  # (N, s, s)
-            Wi = solve_lower(Li, np.eye(S.size))  # L_i^-1
-        half_logdet = np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)), axis=1)
-        # L[i, j] = log p(x_{k+1}^j | i) + const = -|W_i (x_{k+1}^j - mean_i)|^2 / 2 - log det L_i;
-        # logw_{k|K}^i = logw_k^i + lse_j(logw_{k+1|K}^j + L[i, j] - lse_m(logw_k^m + L[m, j]))  (numba kernel)
-        lw = np.empty(N)
-        _pk.backward_step(np.ascontiguousarray(lwk), np.ascontiguousarray(logws[k + 1]), np.ascontiguousarray(nxt),
-                          np.ascontiguousarray(track.pred_mean[k]), np.ascontiguousarray(Wi), half_logdet, lw)
-        logws[k] = log_normalize(lw)
+    # a block of epochs' factors at once when none needs a repair (else epoch by epoch, repaired as chol does);
+    # blocks of FFBSM_BLOCK epochs, read from disk when the track is there (run_upf(store=...))
+    for b1 in range(K - 1, 0, -FFBSM_BLOCK):
+        b0 = max(0, b1 - FFBSM_BLOCK)
+        pred_cov, pred_mean = track.pred_cov[b0:b1], track.pred_mean[b0:b1]
+        L_blk = chol_unrepaired(pred_cov)
+        W_blk = solve_lower(L_blk, np.eye(S.size)) if L_blk is not None else None
+        for k in range(b1 - 1, b0 - 1, -1):
+            lwk = track.logw[k]
+            nxt = track.proposed[k + 1][:, S]  # x_{k+1}^j (N, s) in the transition's coordinates
+            if L_blk is not None and W_blk is not None:
+                Li, Wi = L_blk[k - b0], W_blk[k - b0]
+            else:
+                Li = chol(pred_cov[k - b0])  # (N, s, s)
+                Wi = solve_lower(Li, np.eye(S.size))  # L_i^-1
+            half_logdet = np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)), axis=1)
+            # L[i, j] = log p(x_{k+1}^j | i) + const = -|W_i (x_{k+1}^j - mean_i)|^2 / 2 - log det L_i;
+            # logw_{k|K}^i = logw_k^i + lse_j(logw_{k+1|K}^j + L[i, j] - lse_m(logw_k^m + L[m, j]))  (numba kernel)
+            lw = np.empty(N)
+            _pk.backward_step(np.ascontiguousarray(lwk), np.ascontiguousarray(logws[k + 1]), np.ascontiguousarray(nxt),
+                              np.ascontiguousarray(pred_mean[k - b0]), np.ascontiguousarray(Wi), half_logdet, lw)
+            logws[k] = log_normalize(lw)
     return logws
 
 
@@ -480,7 +503,7 @@ def rb_smooth(track: ParticleTrack) -> tuple[FloatArray, FloatArray, FloatArray]
     component is sampled, else the RTS recursion on the moments of the particles' mixture."""
     lw = ffbsm(track)
     if track.sampled.size == track.particles.shape[2]:
-        x, P = weighted_moments(track.particles, lw)
+        x, P = weighted_moments(np.asarray(track.particles), lw)
     else:
         x, P = smooth_gaussian(track.mixture)
     return lw, x, P

@@ -106,6 +106,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.special import gammaincinv
 
 from dpos_core.units import DEG, FloatArray
@@ -327,6 +328,9 @@ class TransferAlignmentModel:
     n_epochs: int = field(init=False)
     #: the installation states after the 24 (module docstring): name -> slice of the state
     extra: dict[str, slice] = field(init=False)
+    #: keep the nominal at the IMU rate (:meth:`nominal_chunks`); False: only the integrator's state at
+    #: each epoch, the interval re-integrated from it by :meth:`nominal_chunk` (the same numbers; issue #17)
+    keep_nominal: bool = True
 
     def __post_init__(self) -> None:
         # the master's body rate and covariances (ValueError without them)
@@ -378,6 +382,8 @@ class TransferAlignmentModel:
         self._intervals: list[Interval] = []
         self._epochs: list[_Epoch | None] = [None] * self.n_epochs
         self._chunks: list[NavSeries] = []
+        self._last_chunk: NavSeries | None = None  # the nominal of the last interval integrated
+        self._starts: list[tuple] = []  # the integrator's state at the start of each interval (Strapdown.snapshot)
         self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
         self._flex = self.install.flexure
         self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
@@ -456,15 +462,26 @@ class TransferAlignmentModel:
 
     def _nominal_accel(self, k: int) -> FloatArray:
         """The nominal's ENU acceleration (3,) over the last 0.1 s before epoch k (zeros at epoch 0)."""
-        if k == 0 or k - 1 >= len(self._chunks):
+        ch = self._chunk_before(k)
+        if ch is None:
             return np.zeros(3)
-        ch = self._chunks[k - 1]
         t, v = ch.t_s, ch.vel_n_mps
         if t.size < 2:
             prev = self._nominal_at[k - 1]
             return (v[-1] - prev.vel_n_mps) / max(float(t[-1] - prev.t_s), 1e-9)
         j = max(0, min(int(np.searchsorted(t, t[-1] - 0.1)), t.size - 2))
         return (v[-1] - v[j]) / float(t[-1] - t[j])
+
+    def _chunk_before(self, k: int) -> NavSeries | None:
+        """The nominal over interval k - 1 (the one ending at epoch k), None at k = 0 or before it is
+        integrated: kept, the last one integrated (as the filter builds epoch k), or re-integrated."""
+        if k == 0 or k - 1 >= len(self._starts):
+            return None
+        if self.keep_nominal:
+            return self._chunks[k - 1]
+        if k == len(self._starts) and self._last_chunk is not None:
+            return self._last_chunk
+        return self.nominal_chunk(k - 1)
 
     def vibration_variance(self, k: int) -> tuple[FloatArray, FloatArray]:
         """Variance (3,) + (3,) of the velocity and position match at epoch k that the wing's
@@ -484,9 +501,9 @@ class TransferAlignmentModel:
         excess ``s^2 - sigma^2`` is added to the epoch's noise.  A rigid or slowly flexing wing adds
         nothing; fewer than 6 main-POS epochs in the interval add nothing."""
         zero = (np.zeros(3), np.zeros(3))
-        if k == 0 or k - 1 >= len(self._chunks):
+        ch = self._chunk_before(k)
+        if ch is None:
             return zero
-        ch = self._chunks[k - 1]
         t0, t1 = float(self.epochs_s[k - 1]), float(self.epochs_s[k])
         m = self.master
         # the main-POS epochs in (t0, t1] (with 1e-9 s slack) covered by the chunk (stamps increasing)
@@ -518,8 +535,11 @@ class TransferAlignmentModel:
         dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
         om, f = self.imu.omega_radps[i0:i1], self.imu.f_mps2[i0:i1]
         start = self.strapdown.state
+        self._starts.append(self.strapdown.snapshot())
         chunk = self.strapdown.run_increments(t, om * dt, f * dt)
-        self._chunks.append(chunk)
+        self._last_chunk = chunk
+        if self.keep_nominal:
+            self._chunks.append(chunk)
         acc = IntervalIntegrals(start)
         acc.add(start, chunk, f, dt[:, 0])
         interval = acc.close()
@@ -732,7 +752,24 @@ class TransferAlignmentModel:
         return np.zeros(self.n), P
 
     def nominal_chunks(self) -> list[NavSeries]:
-        return self._chunks
+        """The nominal of every interval integrated so far (re-integrated when not kept: :attr:`keep_nominal`)."""
+        return self._chunks if self.keep_nominal else [self.nominal_chunk(k) for k in range(len(self._starts))]
+
+    def nominal_chunk(self, k: int) -> NavSeries:
+        """The nominal over interval k (the rows after epoch k up to epoch k + 1): the stored one, or
+        re-integrated from the integrator's state at its start with the same samples (bit for bit)."""
+        if self.keep_nominal:
+            return self._chunks[k]
+        i0, i1 = self._epoch_idx[k] + 1, self._epoch_idx[k + 1] + 1
+        t = self.imu.t_s[i0:i1]
+        dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
+        sd = Strapdown(self.initial)
+        sd.restore(self._starts[k])
+        return sd.run_increments(t, self.imu.omega_radps[i0:i1] * dt, self.imu.f_mps2[i0:i1] * dt)
+
+    def interval_sizes(self) -> NDArray[np.intp]:
+        """The rows (sub-IMU samples) of each interval integrated so far (those of :meth:`nominal_chunk`)."""
+        return np.diff(self._epoch_idx)[: len(self._starts)]
 
     def nominal_at_epochs(self) -> list[NavState]:
         """The nominal at each epoch before its correction (index k)."""

@@ -34,7 +34,10 @@ across with their process noise (:mod:`.model`, flag :data:`.flags.BRIDGED_GAP`)
 
 from __future__ import annotations
 
+import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -154,6 +157,8 @@ def run_segments(
     points: UnscentedPoints = UnscentedPoints(alpha=0.1),
     oracle_truth=None,
     upf_engine=None,
+    *,
+    sink: RowSink | None = None,
 ) -> TAResult:
     """Align one sub-IMU whose stream may have gaps (module docstring): split it at steps longer
     than :func:`.model.gap_limit_s`, align every segment from the main POS at its start (the
@@ -187,7 +192,7 @@ def run_segments(
             pending.append(why)
             continue
         init = initial_from_master(master, install, attitude_error_hpr_deg, None if start == float(master.t_s[0]) else start)
-        r = run(imu.select(seg), master, install, cfg, method, particles, seed, init, points, oracle_truth, upf_engine)
+        r = run(imu.select(seg), master, install, cfg, method, particles, seed, init, points, oracle_truth, upf_engine, sink=sink)
         if i > 0:
             r.flags[r.t_s <= start + cfg.restart_flag_s] |= F.RESTARTED_AFTER_GAP
         if pending:
@@ -240,6 +245,8 @@ def run(
     points: UnscentedPoints = UnscentedPoints(alpha=0.1),
     oracle_truth=None,
     upf_engine=None,
+    *,
+    sink: RowSink | None = None,
 ) -> TAResult:
     """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` (``oracle_filter``: its forward
     filter only) with ``oracle_truth = (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
@@ -248,10 +255,15 @@ def run(
     Unusable data raise :class:`~dpos_core.errors.RejectedInput` (NaN samples, stamps out of
     order, no sub-IMU data after the master starts); a filter or smoother that fails beyond
     repair raises :class:`~dpos_core.errors.NumericalFailure`.  The Cholesky jitter repairs made
-    on the way are counted in ``TAResult.chol_jitter_repairs``."""
+    on the way are counted in ``TAResult.chol_jitter_repairs``.
+
+    ``sink`` (issue #17): the output rows are handed to it a block at a time (:data:`RowSink`, in
+    time order, across the segments of :func:`run_segments` too) instead of being kept; the
+    result then holds their stamps ``t_s`` and ``flags`` only (``llh``, ``vel_n_mps``, ``q_nb``
+    and ``sigma`` are empty)."""
     repairs = JitterRepairs()
     with repairs:
-        res = _run(imu, master, install, cfg, method, particles, seed, initial, points, oracle_truth, upf_engine)
+        res = _run(imu, master, install, cfg, method, particles, seed, initial, points, oracle_truth, upf_engine, sink)
     res.chol_jitter_repairs = repairs.count
     return res
 
@@ -265,7 +277,7 @@ def _installation(model: TransferAlignmentModel, x: FloatArray, P: FloatArray) -
 def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
     """:data:`.flags.BRIDGED_GAP` on the output rows (those of :func:`_apply`) of the intervals
     that contained a short gap."""
-    sizes = [ch.t_s.size for ch in model.nominal_chunks()]
+    sizes = model.interval_sizes()
     out = F.none(int(sum(sizes)))
     ends = np.cumsum(sizes)
     for k in model.bridged_intervals:
@@ -274,7 +286,7 @@ def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
 
 
 def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig, method: str, particles: int, seed: int,
-         initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine) -> TAResult:
+         initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine, sink: RowSink | None = None) -> TAResult:
     if method == ORACLE_WING:
         if install.known_wing is None:
             raise ValueError("the oracle with the true wing needs Installation.known_wing (evaluation of simulations only)")
@@ -283,7 +295,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
         initial = initial_from_master(master, install)
-    model = TransferAlignmentModel(imu, master, install, cfg, initial)
+    model = TransferAlignmentModel(imu, master, install, cfg, initial, keep_nominal=KEEP_NOMINAL)
     x0, P0 = model.prior()
     ess: FloatArray | None = None
     if method in (ORACLE, ORACLE_FILTER):
@@ -313,17 +325,22 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             x, P = tr.x_f, tr.P_f
         qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if smoothed else (None, None)))
     else:
-        ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc")
-        corr = ptr.corrections
-        ess = ptr.ess
-        smoothed = method in ("ups", "ups_mcmc")
-        if smoothed:
-            _, x, P = rb_smooth(ptr)
-        else:
-            x, P = ptr.mixture.x_f, ptr.mixture.P_f
+        with tempfile.TemporaryDirectory(prefix="dpos_upf_") as tmp:
+            # the particle track (~50 kB an epoch at 100 particles) in files when large (filters.store)
+            big = model.n_epochs * particles * model.n * 8 * 2 > TRACK_IN_MEMORY_BYTES
+            ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc",
+                          store=Path(tmp) if big else None)
+            corr = ptr.corrections
+            ess = ptr.ess
+            smoothed = method in ("ups", "ups_mcmc")
+            if smoothed:
+                _, x, P = rb_smooth(ptr)
+            else:
+                x, P = ptr.mixture.x_f, ptr.mixture.P_f
+            ptr.close()
         mx = ptr.mixture
         qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if smoothed else (None, None)))
-    out = _apply(model, x, P, corr)
+    out = _apply(model, x, P, corr) if sink is None else _to_sink(model, x, P, corr, sink)
     return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg,
                     installation=_installation(model, x, P))
 
@@ -367,23 +384,70 @@ def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t
 
 
 
+#: keep the nominal at the IMU rate through the filter (True), or re-integrate it interval by interval
+#: in the output pass (False, the default: the same numbers without the trajectory in memory; issue #17)
+KEEP_NOMINAL = False
+#: a UPF particle track larger than this goes to files in a temporary directory for its backward pass
+#: (``run_upf(store=...)``, :mod:`dpos_core.filters.store`): 64 MB is ~20 min at 100 particles
+TRACK_IN_MEMORY_BYTES = 64 * 2**20
+#: intervals (filter epochs) whose rows the output pass builds at once (:func:`iter_rows`)
+APPLY_BLOCK = 64
+
+
 def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
            corr: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``.
+    """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``,
+    the blocks of :func:`iter_rows` concatenated."""
+    parts = list(iter_rows(model, x, P, corr))
+    return tuple(np.concatenate(c) for c in zip(*parts, strict=True))  # type: ignore[return-value]
 
-    Every interval's rows at once: the interval k (chunk k of the nominal) of each row, the errors
-    at its two epochs (x (K, 24), P (K, 24, 24), corrections (K, 24)) interpolated to the rows."""
-    chunks = model.nominal_chunks()
-    sizes = np.array([ch.t_s.size for ch in chunks], dtype=int)
-    kk = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row
-    t = np.concatenate([ch.t_s for ch in chunks])
-    vel = np.concatenate([ch.vel_n_mps for ch in chunks])
-    llh = np.concatenate([ch.llh for ch in chunks])
-    q = np.concatenate([ch.q_nb for ch in chunks])
+
+#: ``sink(t_s, llh, vel_n_mps, q_nb, sigma)``: takes a block of output rows (``run(..., sink=...)``)
+RowSink = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray], None]
+
+
+def _to_sink(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
+             sink: RowSink) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The rows of :func:`_apply` handed to ``sink`` block by block; returns their stamps and
+    empty (0, m) arrays in place of the other columns (issue #17: the trajectory is not kept)."""
+    ts = []
+    for blk in iter_rows(model, x, P, corr):
+        sink(*blk)
+        ts.append(blk[0])
+    return np.concatenate(ts), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 9))
+
+
+def iter_rows(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
+              block: int | None = None):
+    """:func:`_apply`'s rows, ``block`` intervals at a time (the nominal of each re-integrated when the
+    model does not keep it, :attr:`.model.TransferAlignmentModel.keep_nominal`): ``(t_s, llh,
+    vel_n_mps, q_nb, sigma)`` per block (default :data:`APPLY_BLOCK`), the same numbers as at once
+    (row by row arithmetic).  With the ``time_offset`` state the rows are shifted in time across
+    rows (:func:`shift_in_time`): one block of every row then (not streamed)."""
+    n = int(model.interval_sizes().size)
+    block = APPLY_BLOCK if block is None else block
+    if "time_offset" in model.extra:  # shift_in_time moves each row by the offset between its neighbours: every row at once
+        block = max(n, 1)
     e1 = x[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
     e1[:, PHI] = compose_rotvec(x[1:, PHI], corr[1:, PHI])
     e1[:, DV] = x[1:, DV] + corr[1:, DV]
     e1[:, DP] = x[1:, DP] + corr[1:, DP]
+    for k0 in range(0, max(n, 1), block):
+        yield _apply_block(model, x, P, e1, k0, [model.nominal_chunk(k) for k in range(k0, min(k0 + block, n))])
+
+
+def _apply_block(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, e1: FloatArray, k0: int,
+                 chunks: list[NavSeries]) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The rows of the intervals k0, k0 + 1, .. (their nominal ``chunks``) at once: the interval of each
+    row, the errors at its two epochs (x (K, 24), P (K, 24, 24); ``e1`` (K - 1, 24): the errors at
+    the interval ends before the end epoch's correction) interpolated to the rows."""
+    sizes = np.array([ch.t_s.size for ch in chunks], dtype=int)
+    kl = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row, in the block
+    kk = k0 + kl  # and in the session
+    t = np.concatenate([ch.t_s for ch in chunks])
+    vel = np.concatenate([ch.vel_n_mps for ch in chunks])
+    llh = np.concatenate([ch.llh for ch in chunks])
+    q = np.concatenate([ch.q_nb for ch in chunks])
     t0, t1 = model.epochs_s[:-1][kk], model.epochs_s[1:][kk]
     a = ((t - t0) / (t1 - t0))[:, None]
     err = (1.0 - a) * x[kk, :9] + a * e1[kk, :9]
@@ -409,10 +473,10 @@ def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
     # vibration (0.4 m/s at 9 m) into mm/s across the span, twice the error at the epochs
     ends = np.cumsum(sizes)
     first, last = ends - sizes, ends - 1
-    vib = np.flatnonzero(sizes[kk] > 2)  # rows of intervals with more than 2 rows
+    vib = np.flatnonzero(sizes[kl] > 2)  # rows of intervals with more than 2 rows
     if vib.size:
         kv = kk[vib]
-        f, la = first[kv], last[kv]
+        f, la = first[kl[vib]], last[kl[vib]]
         b = ((t[vib] - t[f]) / (t[la] - t[f]))[:, None]
         D = vel[vib] - vel[f] - b * (vel[la] - vel[f])
         err[vib, DV] += cross(D, err[vib, PHI])

@@ -7,6 +7,14 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
     dpos-process BAG --out DIR --overwrite                            # replace DIR/<session id>/
     dpos-process BAG --out DIR --workers 1                            # the sub-IMUs one after the other
     dpos-process BAG --out DIR --master-reference smoothed            # main POS: the IFA re-run and RTS-smoothed
+    dpos-process BAG --out DIR --stream on                            # a long flight: memory that does not grow with it
+
+``--stream``: ``on`` reads, aligns and writes the products a part of the flight at a time, the
+rows in files beside the products (dpos_ros.products.stream; docs/campaign.md "Long flights"):
+each worker reads its own sub-IMU's topic and the main POS only; the wing fit is made over
+5-minute windows and there is no evaluation against the truth.  ``auto`` (the default) is
+``on`` for a recording of more than an hour (the recorded main POS only), ``off`` the in-memory
+path.
 
 ``--master-reference``: the main-POS reference of the transfer alignment - ``recorded`` (default,
 the recording's /master/nav), ``forward`` (the in-flight alignment re-run from /master/imu,
@@ -40,6 +48,9 @@ from dpos_ros.products.master_reference import REFERENCES, accuracy, aligned_sin
 from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
 from dpos_ros.runtime.pool import warm_pool
 
+#: --stream auto: the streaming path for recordings longer than this [s]
+STREAM_AUTO_S = 3600.0
+
 EXIT_OK = 0
 EXIT_NOT_ESTIMATED = 1
 EXIT_ERROR = 2
@@ -71,6 +82,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--master-reference", choices=REFERENCES, default="recorded",
                     help="main-POS reference: recorded /master/nav (default), forward = the in-flight alignment re-run from "
                          "/master/imu + /gnss/*, smoothed = that run RTS-smoothed")
+    ap.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
+                    help="long flights: on = bounded memory (the wing fit in 5 min windows, no truth evaluation); "
+                         f"auto (default) = on above {STREAM_AUTO_S / 3600:g} h of recording")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
@@ -97,12 +111,16 @@ def not_estimated(antennas: dict[str, AntennaSolution], aircraft_name: str, sub_
     """Why the run's exit status is 1 (one line), or None when every configured antenna is estimated."""
     if not antennas:
         return f"no antenna was estimated: the aircraft {aircraft_name!r} configures no antenna"
-    missing = {name: a.status for name, a in antennas.items() if a.traj is None}
+    return _not_estimated_text({name: a.status for name, a in antennas.items() if a.traj is None}, len(antennas), sub_imus)
+
+
+def _not_estimated_text(missing: dict[str, str], n_antennas: int, sub_imus: list[str]) -> str | None:
+    """:func:`not_estimated` of the statuses of the antennas not estimated (``missing``) of ``n_antennas``."""
     if not missing:
         return None
     why = "; ".join(f"{name}: {status}" for name, status in missing.items())
-    if len(missing) < len(antennas):
-        return f"{len(missing)} of {len(antennas)} antennas not estimated ({why})"
+    if len(missing) < n_antennas:
+        return f"{len(missing)} of {n_antennas} antennas not estimated ({why})"
     text = f"no antenna was estimated ({why})"
     if not sub_imus:
         text += "; the recording has no /sub_imu/<name>/imu topic"
@@ -127,8 +145,22 @@ def main(argv: list[str] | None = None) -> int:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _streaming(args: argparse.Namespace) -> bool:
+    """Whether ``--stream`` (module docstring) takes the streaming path for this recording."""
+    if args.stream == "off":
+        return False
+    from dpos_ros.io.bag import topics_and_duration
+
+    meta = topics_and_duration(args.bag)
+    if args.stream == "on":
+        return True
+    return meta is not None and meta[1] > STREAM_AUTO_S and args.master_reference == "recorded"
+
+
 def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
     """:func:`main` once the output target is checked: read, align (on ``pool`` when given), write."""
+    if _streaming(args):
+        return _process_streaming(args, target, pool)
     try:
         sess = read_session(args.bag)
         if args.aircraft:
@@ -197,6 +229,78 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
     if ev:
         print((out / "report.md").read_text())
     problem = not_estimated(antennas, aircraft.name, list(sess.sub_imus))
+    if problem is not None:
+        print(f"dpos-process: {problem}", file=sys.stderr)
+        return EXIT_NOT_ESTIMATED
+    return EXIT_OK
+
+
+def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
+    """:func:`_process` by :mod:`dpos_ros.products.stream` (``--stream``)."""
+    from dpos_ros.io.bag import topics_and_duration
+    from dpos_ros.io.session import read_session_streaming
+    from dpos_ros.products.stream import scratch_dir, solve_streaming, write_streaming
+
+    if args.master_reference != "recorded":
+        print("dpos-process: error: --stream on takes the recorded main POS only (--master-reference recorded)", file=sys.stderr)
+        return EXIT_ERROR
+    try:
+        meta = topics_and_duration(args.bag)
+        if meta is None:
+            raise SessionError(f"{args.bag}: --stream reads rosbag2 recordings with their metadata.yaml")
+        sess = read_session_streaming(args.bag, keep=lambda t: False)  # the main POS only
+        if args.aircraft:
+            aircraft = load_aircraft(args.aircraft)
+        elif "dpos.aircraft_yaml" in sess.custom:
+            aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
+        else:
+            raise SessionError(f"{args.bag} carries no aircraft configuration: pass --aircraft")
+    except (SessionError, ConfigError) as e:
+        print(f"dpos-process: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as e:
+        print(f"dpos-process: error: cannot read the recording: {os_error_text(e, args.bag)}", file=sys.stderr)
+        return EXIT_ERROR
+    final = args.out / sess.session_id
+    had_products = final.exists()
+    if had_products and not args.overwrite:
+        print(f"dpos-process: error: {final} exists (products of an earlier run): pass --overwrite to replace them, "
+              "or choose another --out", file=sys.stderr)
+        return EXIT_ERROR
+    topics = meta[0]
+    subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
+    if any(t.startswith("/truth/") for t in topics):
+        sess.warnings.append("--stream: the recording has truth topics; the products are not evaluated against them "
+                             "(no metrics.json, report.md, error figures)")
+    ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
+    err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
+    for w in sess.warnings:
+        print(f"dpos-process: warning: {w}", file=sys.stderr)
+    print(f"dpos-process: session {sess.session_id}: {len(subs)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
+          f"method {args.method}, initial attitude error {err0:g} deg (streaming)")
+    try:
+        with scratch_dir(args.out) as tmp:
+            antennas, timing = solve_streaming(args.bag, sess, aircraft, Path(tmp), args.method, args.particles, args.seed, err0,
+                                               filter_rate_hz=args.filter_rate, position_matching=args.position_matching,
+                                               inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
+                                               sub_imus=subs, master_error_tau_s=args.master_error_tau)
+            out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool)
+    except ProductsExistError:
+        print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as e:
+        target.cleanup()
+        kept = f"; the earlier products in {final} are kept" if had_products else ""
+        print(f"dpos-process: error: writing the products to {final} failed: {os_error_text(e, final)}; "
+              f"the partial products were removed{kept}", file=sys.stderr)
+        return EXIT_ERROR
+    for name, a in antennas.items():
+        print(f"  {name}: {a.status}")
+    print(f"processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data "
+          f"(ratio {timing['processing_s'] / max(timing['data_s'], 1e-9):.4f})")
+    print(f"products in {out}")
+    problem = (f"no antenna was estimated: the aircraft {aircraft.name!r} configures no antenna" if not antennas else
+               _not_estimated_text({name: a.status for name, a in antennas.items() if a.rows is None}, len(antennas), subs))
     if problem is not None:
         print(f"dpos-process: {problem}", file=sys.stderr)
         return EXIT_NOT_ESTIMATED

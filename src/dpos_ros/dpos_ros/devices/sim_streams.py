@@ -14,11 +14,14 @@ Devices:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 from numpy.typing import NDArray
 from rclpy.serialization import serialize_message
 
-from dpos_core.series import NavSeries
+from dpos_core.series import ImuSeries, NavSeries
+from dpos_core.sim.chunked import ChunkedSession, Window
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
@@ -40,11 +43,12 @@ def _odometry_stream(topic: str, child: str, series: NavSeries, session: Simulat
     return TopicStream(topic, T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, child, t_ns, vals), qos="nav")
 
 
-def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str) -> TopicStream:
-
+def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str, imu: ImuSeries | None = None) -> TopicStream:
+    """The IMU ``name``'s topic: its samples ``imu`` (default the whole session's)."""
     ac = session.scenario.aircraft
     model = session.scenario.master_imu if name == "master" else ac.sub_imu(name).imu
-    imu = session.master_imu() if name == "master" else session.sub_imu(name)
+    if imu is None:
+        imu = session.master_imu() if name == "master" else session.sub_imu(name)
     t_ns = cv.stamps_ns(session.scenario.start_time_s, imu.t_s)
     # the Imu covariance carries the white-noise variance of one sample
     rate = session.scenario.rates.master_imu_hz if name == "master" else session.scenario.rates.sub_imu_hz
@@ -126,6 +130,58 @@ def session_streams(session: SimulatedSession, *, truth: bool = True, datum_llh:
 
 
 
+def _window_streams(session: SimulatedSession, w: Window, *, truth: bool, datum: NDArray[np.float64], last: bool) -> list[TopicStream]:
+    """The topics of :func:`session_streams`, in its order, over one window of a :class:`ChunkedSession`."""
+    sc = session.scenario
+    ac = sc.aircraft
+    t0 = sc.start_time_s
+    first = w.t_a == 0.0
+    out: list[TopicStream] = []
+    t_start = cv.stamps_ns(t0, np.array([0.0]))
+    out.append(TopicStream(T.DATUM, T.NAVSATFIX, t_start if first else t_start[:0],
+                           blobs=(serialize_message(cv.datum_msg(int(t_start[0]), datum)),) if first else (), qos="datum"))
+    out.append(_imu_stream(T.MASTER_IMU, cv.MASTER_FRAME, session, "master", w.master_imu))
+    g = w.gnss
+    g_ns = cv.stamps_ns(t0, g.t_s)
+    out.append(TopicStream(T.GNSS_FIX, T.NAVSATFIX, g_ns, blobs=tuple(
+        serialize_message(cv.navsatfix_msg(int(t), cv.GNSS_FRAME, g.llh[i], g.pos_sigma_m[i])) for i, t in enumerate(g_ns))))
+    out.append(TopicStream(T.GNSS_VEL, T.TWIST_COV, g_ns, blobs=tuple(
+        serialize_message(cv.gnss_vel_msg(int(t), g.vel_n_mps[i], g.vel_sigma_mps[i])) for i, t in enumerate(g_ns))))
+    out.append(_odometry_stream(T.MASTER_NAV, cv.MASTER_FRAME, w.master_nav, session, datum, with_cov=True))
+    if truth:
+        out.append(_odometry_stream(T.TRUTH_MASTER, cv.MASTER_FRAME, w.truth["master"], session, datum, with_cov=False))
+        for a in ac.antennas:
+            if a.sub_imu is None:
+                out.append(_odometry_stream(T.truth_antenna(a.name), cv.antenna_frame(a.name), w.truth[f"antenna/{a.name}"], session,
+                                            datum, with_cov=False))
+    t_end = cv.stamps_ns(t0, np.array([session.duration_s]))
+    out.append(TopicStream(T.SESSION_END, T.HEADER, t_end if last else t_end[:0],
+                           blobs=(serialize_message(cv.session_end_msg(int(t_end[0]), session_id(session))),) if last else (), qos="nav"))
+    for s in ac.sub_imus:
+        out.append(_imu_stream(T.sub_imu(s.name), cv.sub_imu_frame(s.name), session, s.name, w.sub_imus[s.name]))
+        if truth:
+            out.append(_odometry_stream(T.truth_sub_imu(s.name), cv.sub_imu_frame(s.name), w.truth[f"sub_imu/{s.name}"], session,
+                                        datum, with_cov=False))
+            for a in ac.antennas:
+                if a.sub_imu == s.name:
+                    out.append(_odometry_stream(T.truth_antenna(a.name), cv.antenna_frame(a.name), w.truth[f"antenna/{a.name}"],
+                                                session, datum, with_cov=False))
+    return out
+
+
+def chunked_session_streams(session: SimulatedSession, window_s: float, *, truth: bool = True,
+                            datum_llh: NDArray[np.float64] | None = None) -> Iterator[list[TopicStream]]:
+    """The topics of :func:`session_streams` window by window (:class:`dpos_core.sim.chunked.ChunkedSession`:
+    the same seed gives the same messages whatever ``window_s``, not those of :func:`session_streams`):
+    one list per window, every topic in each (empty where it has no message in the window)."""
+    datum = session.datum_llh if datum_llh is None else np.asarray(datum_llh, dtype=float)
+    cs = ChunkedSession(session, truth=truth)
+    ws = cs.windows(window_s)
+    w = next(ws, None)
+    while w is not None:
+        nxt = next(ws, None)
+        yield _window_streams(session, w, truth=truth, datum=datum, last=nxt is None)
+        w = nxt
 
 
 def session_custom_data(session: SimulatedSession, aircraft_text: str) -> dict[str, str]:

@@ -27,7 +27,7 @@ import struct
 import threading
 import zlib
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from io import BufferedReader, StringIO
@@ -156,69 +156,62 @@ class _Buffers:
         return view[:total]
 
 
-def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
-    """``{topic: RawTopic}`` of the channels whose topic ``wanted`` accepts (all when None), or None
-    when the file is not one this path reads (see module docstring).  Raises :class:`ValueError`
-    naming the file and the chunk for a chunk that is corrupt (cut short, not decompressible, a
-    CRC mismatch, records that do not fill it)."""
-    size = file.stat().st_size
-    with file.open("rb") as f:
-        if size < 2 * len(MAGIC) + _FOOTER or f.read(len(MAGIC)) != MAGIC:
-            return None
-        f.seek(size - len(MAGIC) - _FOOTER)
-        foot = f.read(_FOOTER + len(MAGIC))
-        op, n, summary_start, summary_offset_start, _crc = struct.unpack_from("<BQQQI", foot)
-        if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC or summary_start == 0:
-            return None
-        end = summary_offset_start or size - len(MAGIC) - _FOOTER
-        if not 0 < summary_start <= end <= size:
-            return None
-        f.seek(summary_start)
-        try:
-            summary = _records(f.read(end - summary_start))
-        except ValueError:
-            return None
-        schemas: dict[int, str] = {}
-        channels: dict[int, tuple[str, int]] = {}
-        chunks: list[_ChunkIndex] = []
-        counts: dict[int, int] = {}  # messages per channel (the statistics record), to size the buffers
-        for op, c, _ in summary:
-            if op == OP_SCHEMA:
-                sid = c.u16()
-                schemas[sid] = c.str()
-            elif op == OP_CHANNEL:
-                cid, sid = c.u16(), c.u16()
-                channels[cid] = (c.str(), sid)
-            elif op == OP_CHUNK_INDEX:
-                c.u64(), c.u64()
-                start, length = c.u64(), c.u64()
-                m, idx = c.u32(), set()
-                stop = c.o + m
-                while c.o < stop:
-                    idx.add(c.u16())
-                    c.u64()
+def _summary(f: BufferedReader, size: int,
+             wanted: Callable[[str], bool] | None) -> tuple[dict[int, tuple[str, str]], list[_ChunkIndex], dict[int, int]] | None:
+    """The wanted channels ``{id: (topic, type)}``, the chunk indexes and the messages per channel
+    from the file's summary, or None when this path does not read the file (module docstring)."""
+    if size < 2 * len(MAGIC) + _FOOTER or f.read(len(MAGIC)) != MAGIC:
+        return None
+    f.seek(size - len(MAGIC) - _FOOTER)
+    foot = f.read(_FOOTER + len(MAGIC))
+    op, n, summary_start, summary_offset_start, _crc = struct.unpack_from("<BQQQI", foot)
+    if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC or summary_start == 0:
+        return None
+    end = summary_offset_start or size - len(MAGIC) - _FOOTER
+    if not 0 < summary_start <= end <= size:
+        return None
+    f.seek(summary_start)
+    try:
+        summary = _records(f.read(end - summary_start))
+    except ValueError:
+        return None
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, int]] = {}
+    chunks: list[_ChunkIndex] = []
+    counts: dict[int, int] = {}  # messages per channel (the statistics record), to size the buffers
+    for op, c, _ in summary:
+        if op == OP_SCHEMA:
+            sid = c.u16()
+            schemas[sid] = c.str()
+        elif op == OP_CHANNEL:
+            cid, sid = c.u16(), c.u16()
+            channels[cid] = (c.str(), sid)
+        elif op == OP_CHUNK_INDEX:
+            c.u64(), c.u64()
+            start, length = c.u64(), c.u64()
+            m, idx = c.u32(), set()
+            stop = c.o + m
+            while c.o < stop:
+                idx.add(c.u16())
                 c.u64()
-                chunks.append(_ChunkIndex(start, length, frozenset(idx), c.str(), c.u64(), c.u64()))
-            elif op == OP_STATISTICS:
-                c.raw(8 + 2 + 4 + 4 + 4 + 4 + 8 + 8)
-                stop = c.u32() + c.o
-                while c.o < stop:
-                    cid = c.u16()
-                    counts[cid] = c.u64()
-        if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
-            return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
-        sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
-               if sid in schemas and (wanted is None or wanted(topic))}
-        if len({t for t, _ in sel.values()}) != len(sel):
-            return None  # a topic on several channels
-        mask = np.zeros(65536, dtype=np.bool_)
-        mask[list(sel)] = True
-        bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
-        reuse = _Buffers()
-        for ch in sorted(chunks, key=lambda x: x.start):
-            if ch.channels and not any(mask[c] for c in ch.channels):
-                continue
-            _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+            c.u64()
+            chunks.append(_ChunkIndex(start, length, frozenset(idx), c.str(), c.u64(), c.u64()))
+        elif op == OP_STATISTICS:
+            c.raw(8 + 2 + 4 + 4 + 4 + 4 + 8 + 8)
+            stop = c.u32() + c.o
+            while c.o < stop:
+                cid = c.u16()
+                counts[cid] = c.u64()
+    if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
+        return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
+    sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
+           if sid in schemas and (wanted is None or wanted(topic))}
+    if len({t for t, _ in sel.values()}) != len(sel):
+        return None  # a topic on several channels
+    return sel, sorted(chunks, key=lambda x: x.start), counts
+
+
+def _results(sel: dict[int, tuple[str, str]], bufs: dict[int, _Growing]) -> dict[str, RawTopic]:
     out: dict[str, RawTopic] = {}
     for cid, (topic, msgtype) in sorted(sel.items(), key=lambda kv: kv[0]):
         t, msgs = bufs.pop(cid).result()
@@ -227,6 +220,58 @@ def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic
             t, msgs = t[order], msgs.take(order)
         out[topic] = RawTopic(msgtype, t.tolist(), msgs)
     return out
+
+
+def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
+    """``{topic: RawTopic}`` of the channels whose topic ``wanted`` accepts (all when None), or None
+    when the file is not one this path reads (see module docstring).  Raises :class:`ValueError`
+    naming the file and the chunk for a chunk that is corrupt (cut short, not decompressible, a
+    CRC mismatch, records that do not fill it)."""
+    size = file.stat().st_size
+    with file.open("rb") as f:
+        found = _summary(f, size, wanted)
+        if found is None:
+            return None
+        sel, chunks, counts = found
+        mask = np.zeros(65536, dtype=np.bool_)
+        mask[list(sel)] = True
+        bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
+        reuse = _Buffers()
+        for ch in chunks:
+            if ch.channels and not any(mask[c] for c in ch.channels):
+                continue
+            _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+    return _results(sel, bufs)
+
+
+def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: int = 2**26) -> Iterator[dict[str, RawTopic]] | None:
+    """:func:`read` a part at a time: ``{topic: RawTopic}`` of the wanted messages of consecutive
+    chunks (in file order, each part sorted by log time), a part once it holds about
+    ``batch_bytes`` of messages; every wanted topic in each part.  None when :func:`read` would
+    return None.  Memory holds one part (issue #17)."""
+    size = file.stat().st_size
+    with file.open("rb") as f:
+        found = _summary(f, size, wanted)
+    if found is None:
+        return None
+    sel, chunks, _ = found
+
+    def parts() -> Iterator[dict[str, RawTopic]]:
+        mask = np.zeros(65536, dtype=np.bool_)
+        mask[list(sel)] = True
+        reuse = _Buffers()
+        with file.open("rb") as f:
+            bufs = {cid: _Growing(0) for cid in sel}
+            for ch in chunks:
+                if ch.channels and not any(mask[c] for c in ch.channels):
+                    continue
+                _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+                if sum(b.used for b in bufs.values()) >= batch_bytes:
+                    yield _results(sel, bufs)
+                    bufs = {cid: _Growing(0) for cid in sel}
+            yield _results(sel, bufs)
+
+    return parts()
 
 
 class _Growing:
@@ -359,74 +404,80 @@ def write(path: Path, topics: Sequence[Topic], order: tuple[NDArray[np.int64], N
     """Write a new rosbag2 directory ``path`` with one MCAP file, messages in ``order`` =
     ``(t_ns, topic index, message index)`` (each (N,), from :func:`dpos_ros.io.streams.merged_order`);
     returns N.  The layout is that of rosbags' writer (module docstring)."""
-    import zstandard
-    from rosbags.rosbag2.metadata import dump_qos_v9
-    from rosbags.typesys import Stores, get_typestore
+    n = int(np.asarray(order[0]).size)
+    with Writer(path, [(tp.topic, tp.msgtype) for tp in topics], custom_data, version, library,
+                None if progress is None else (lambda done: progress(done, n))) as w:
+        w.add(topics, order)
+    return n
 
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    t_all, si, mi = (np.asarray(a, dtype=np.int64) for a in order)
-    n = int(t_all.size)
-    path.mkdir(mode=0o755, parents=True)
-    file = path / f"{path.name}.mcap"
-    qos = dump_qos_v9([])
-    qos_text = qos if isinstance(qos, str) else _yaml(qos).strip()
-    # schemas and channels (ids from 1, a schema per message type, in the order of the topics)
-    schema_ids: dict[str, int] = {}
-    schema_recs: list[bytes] = []
-    channel_recs: list[bytes] = []
-    head = bytearray()  # the first chunk's schema and channel records
-    digests: list[str] = []
-    for k, tp in enumerate(topics):
-        if tp.msgtype not in schema_ids:
-            msgdef, _ = ts.generate_msgdef(tp.msgtype, ros_version=2)
-            fmt = "ros2idl" if msgdef.startswith("=" * 80 + "\nIDL: ") else "ros2msg"
-            schema_ids[tp.msgtype] = len(schema_ids) + 1
-            schema_recs.append(_rec(OP_SCHEMA, _u16(schema_ids[tp.msgtype]) + _s(tp.msgtype) + _s(fmt) + _s(msgdef)))
-            head += schema_recs[-1]
-        digests.append(ts.hash_rihs01(tp.msgtype))
-        meta = _s("offered_qos_profiles") + _s(qos_text)
-        channel_recs.append(_rec(OP_CHANNEL, _u16(k + 1) + _u16(schema_ids[tp.msgtype]) + _s(tp.topic) + _s("cdr")
-                                 + _u32(len(meta)) + meta))
-        head += channel_recs[-1]
-    # every message's channel, size and where its bytes are
-    sizes_by_topic = [tp.msgs.sizes for tp in topics]
-    size = np.zeros(n, dtype=np.int64)
-    start = np.zeros(n, dtype=np.int64)
-    for k, tp in enumerate(topics):
-        sel = si == k
-        size[sel] = sizes_by_topic[k][mi[sel]]
-        start[sel] = tp.msgs.offsets[mi[sel]]
-    rec_len = size + K.MESSAGE_HEAD
-    cum = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(rec_len, out=cum[1:])
-    chunk_index: list[bytes] = []
-    counts = np.bincount(si, minlength=len(topics)) if n else np.zeros(len(topics), dtype=np.int64)
 
-    def build(a: int, b: int, prefix: bytes) -> _Chunk:
-        """The uncompressed chunk of messages a..b-1 after the records ``prefix``."""
-        usize = len(prefix) + int(cum[b] - cum[a])
-        buf = np.empty(usize, dtype=np.uint8)
-        if prefix:
-            buf[: len(prefix)] = np.frombuffer(prefix, dtype=np.uint8)
-        rec_off = len(prefix) + cum[a:b] - cum[a]
-        s_c, t_c = si[a:b], t_all[a:b]
-        for k, tp in enumerate(topics):
-            j = np.nonzero(s_c == k)[0]
-            if j.size:
-                K.fill_messages(buf, rec_off[j], np.full(j.size, k + 1, dtype=np.int64), t_c[j],
-                                tp.msgs.data, start[a:b][j], size[a:b][j])
-        index = []  # message indexes, channels in the order of their first message in the chunk
-        _, first_pos = np.unique(s_c, return_index=True)
-        for k in s_c[np.sort(first_pos)]:
-            j = np.nonzero(s_c == k)[0]
-            pairs = np.empty((j.size, 2), dtype="<u8")
-            pairs[:, 0] = t_c[j]
-            pairs[:, 1] = rec_off[j]
-            index.append((int(k) + 1, pairs.tobytes()))
-        t0, t1 = (int(t_c.min()), int(t_c.max())) if b > a else (2**63 - 1, 0)
-        return _Chunk(buf.tobytes(), t0, t1, b, index)
+class Writer:
+    """A rosbag2 MCAP file written batch by batch (:meth:`add`; the whole file in one batch is
+    :func:`write`): the channels are fixed at the start, each batch's messages go into chunks as
+    :func:`write` lays them out (the last chunk of a batch is closed with it), the summary and
+    ``metadata.yaml`` are written by :meth:`close`.  Memory holds one batch."""
 
-    def write_chunk(f: BinaryIO, ch: _Chunk, comp: bytes) -> None:
+    def __init__(self, path: Path, channels: Sequence[tuple[str, str]], custom_data: dict[str, str], version: int,
+                 library: str, progress: Callable[[int], None] | None = None) -> None:
+        import zstandard
+        from rosbags.rosbag2.metadata import dump_qos_v9
+        from rosbags.typesys import Stores, get_typestore
+
+        ts = get_typestore(Stores.ROS2_JAZZY)
+        self.path, self.channels, self.custom_data = path, list(channels), dict(custom_data)
+        self.version, self.progress = version, progress
+        path.mkdir(mode=0o755, parents=True)
+        self.file = path / f"{path.name}.mcap"
+        qos = dump_qos_v9([])
+        qos_text = qos if isinstance(qos, str) else _yaml(qos).strip()
+        # schemas and channels (ids from 1, a schema per message type, in the order of the topics)
+        schema_ids: dict[str, int] = {}
+        self.schema_recs: list[bytes] = []
+        self.channel_recs: list[bytes] = []
+        head = bytearray()  # the first chunk's schema and channel records
+        self.digests: list[str] = []
+        for k, (topic, msgtype) in enumerate(self.channels):
+            if msgtype not in schema_ids:
+                msgdef, _ = ts.generate_msgdef(msgtype, ros_version=2)
+                fmt = "ros2idl" if msgdef.startswith("=" * 80 + "\nIDL: ") else "ros2msg"
+                schema_ids[msgtype] = len(schema_ids) + 1
+                self.schema_recs.append(_rec(OP_SCHEMA, _u16(schema_ids[msgtype]) + _s(msgtype) + _s(fmt) + _s(msgdef)))
+                head += self.schema_recs[-1]
+            self.digests.append(ts.hash_rihs01(msgtype))
+            meta = _s("offered_qos_profiles") + _s(qos_text)
+            self.channel_recs.append(_rec(OP_CHANNEL, _u16(k + 1) + _u16(schema_ids[msgtype]) + _s(topic) + _s("cdr")
+                                          + _u32(len(meta)) + meta))
+            head += self.channel_recs[-1]
+        self.prefix = bytes(head)  # the schema and channel records open the first chunk
+        self.chunk_index: list[bytes] = []
+        self.counts = np.zeros(len(self.channels), dtype=np.int64)
+        self.n = 0
+        self.t_min, self.t_max = 2**63 - 1, 0
+        self._local = threading.local()
+        self._zstd = zstandard
+        self.f: BinaryIO = self.file.open("xb")
+        self.pool = ThreadPoolExecutor(COMPRESS_THREADS)
+        self.f.write(MAGIC)
+        self.f.write(_rec(OP_HEADER, _s("ros2") + _s(library)))
+
+    def __enter__(self) -> Writer:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.f.close()
+
+    def _compress(self, data: bytes) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
+        if not hasattr(self._local, "cctx"):
+            self._local.cctx = self._zstd.ZstdCompressor(level=ZSTD_LEVEL)
+        out: bytes = self._local.cctx.compress(data)
+        return out
+
+    def _write_chunk(self, ch: _Chunk, comp: bytes) -> None:
+        f = self.f
         body = _u64(ch.t0) + _u64(ch.t1) + _u64(len(ch.data)) + _u32(0) + _s("zstd") + _u64(len(comp))
         chunk_start = f.tell()
         f.write(bytes([OP_CHUNK]) + _u64(len(body) + len(comp)) + body)
@@ -437,26 +488,57 @@ def write(path: Path, topics: Sequence[Topic], order: tuple[NDArray[np.int64], N
             offsets.append((cid, f.tell()))
             f.write(_rec(OP_MESSAGE_INDEX, _u16(cid) + _u32(len(pairs)) + pairs))
         idx_map = b"".join(_u16(c) + _u64(o) for c, o in offsets)
-        chunk_index.append(_rec(OP_CHUNK_INDEX, _u64(ch.t0) + _u64(ch.t1) + _u64(chunk_start) + _u64(chunk_end - chunk_start)
-                                + _u32(len(idx_map)) + idx_map + _u64(f.tell() - chunk_end) + _s("zstd")
-                                + _u64(len(comp)) + _u64(len(ch.data))))
-        if progress is not None:
-            progress(ch.end, n)
+        self.chunk_index.append(_rec(OP_CHUNK_INDEX, _u64(ch.t0) + _u64(ch.t1) + _u64(chunk_start) + _u64(chunk_end - chunk_start)
+                                     + _u32(len(idx_map)) + idx_map + _u64(f.tell() - chunk_end) + _s("zstd")
+                                     + _u64(len(comp)) + _u64(len(ch.data))))
+        if self.progress is not None:
+            self.progress(self.n_before + ch.end)
 
-    local = threading.local()
+    def add(self, topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]) -> None:
+        """Write one batch: ``topics`` one per channel of the writer (in its order), ``order`` as :func:`write`'s."""
+        if [(tp.topic, tp.msgtype) for tp in topics] != self.channels:
+            raise ValueError("a batch must hold the writer's channels, in order")
+        t_all, si, mi = (np.asarray(a, dtype=np.int64) for a in order)
+        n = int(t_all.size)
+        # every message's channel, size and where its bytes are
+        size = np.zeros(n, dtype=np.int64)
+        start = np.zeros(n, dtype=np.int64)
+        for k, tp in enumerate(topics):
+            sel = si == k
+            size[sel] = tp.msgs.sizes[mi[sel]]
+            start[sel] = tp.msgs.offsets[mi[sel]]
+        rec_len = size + K.MESSAGE_HEAD
+        cum = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(rec_len, out=cum[1:])
 
-    def compress(data: bytes) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
-        if not hasattr(local, "cctx"):
-            local.cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
-        out: bytes = local.cctx.compress(data)
-        return out
+        def build(a: int, b: int, prefix: bytes) -> _Chunk:
+            """The uncompressed chunk of messages a..b-1 after the records ``prefix``."""
+            usize = len(prefix) + int(cum[b] - cum[a])
+            buf = np.empty(usize, dtype=np.uint8)
+            if prefix:
+                buf[: len(prefix)] = np.frombuffer(prefix, dtype=np.uint8)
+            rec_off = len(prefix) + cum[a:b] - cum[a]
+            s_c, t_c = si[a:b], t_all[a:b]
+            for k, tp in enumerate(topics):
+                j = np.nonzero(s_c == k)[0]
+                if j.size:
+                    K.fill_messages(buf, rec_off[j], np.full(j.size, k + 1, dtype=np.int64), t_c[j],
+                                    tp.msgs.data, start[a:b][j], size[a:b][j])
+            index = []  # message indexes, channels in the order of their first message in the chunk
+            _, first_pos = np.unique(s_c, return_index=True)
+            for k in s_c[np.sort(first_pos)]:
+                j = np.nonzero(s_c == k)[0]
+                pairs = np.empty((j.size, 2), dtype="<u8")
+                pairs[:, 0] = t_c[j]
+                pairs[:, 1] = rec_off[j]
+                index.append((int(k) + 1, pairs.tobytes()))
+            t0, t1 = (int(t_c.min()), int(t_c.max())) if b > a else (2**63 - 1, 0)
+            return _Chunk(buf.tobytes(), t0, t1, b, index)
 
-    with file.open("xb") as f, ThreadPoolExecutor(COMPRESS_THREADS) as pool:
-        f.write(MAGIC)
-        f.write(_rec(OP_HEADER, _s("ros2") + _s(library)))
+        self.n_before = self.n
         pending: deque[tuple[_Chunk, Future[bytes]]] = deque()
         a = 0
-        prefix = bytes(head)  # the schema and channel records open the first chunk
+        prefix = self.prefix
         while a < n or prefix:
             if a >= n:
                 b = n
@@ -465,66 +547,82 @@ def write(path: Path, topics: Sequence[Topic], order: tuple[NDArray[np.int64], N
             else:  # the chunk ends after the first record that takes it over CHUNK_SIZE
                 b = min(n, int(np.searchsorted(cum, cum[a] + CHUNK_SIZE - len(prefix), side="right")))
             ch = build(a, b, prefix)
-            pending.append((ch, pool.submit(compress, ch.data)))
+            pending.append((ch, self.pool.submit(self._compress, ch.data)))
             while len(pending) > 2 * COMPRESS_THREADS:
                 done, fut = pending.popleft()
-                write_chunk(f, done, fut.result())
+                self._write_chunk(done, fut.result())
             prefix = b""
             a = b
         while pending:
             done, fut = pending.popleft()
-            write_chunk(f, done, fut.result())
-        t_min, t_max = (int(t_all.min()), int(t_all.max())) if n else (2**63 - 1, 0)
+            self._write_chunk(done, fut.result())
+        self.prefix = b""
+        self.n += n
+        if n:
+            self.counts += np.bincount(si, minlength=len(topics))
+            self.t_min, self.t_max = min(self.t_min, int(t_all.min())), max(self.t_max, int(t_all.max()))
+
+    def close(self) -> None:
+        """The summary, the footer and ``metadata.yaml``."""
+        from rosbags.rosbag2.metadata import dump_qos_v9
+
+        if self.prefix:  # no batch: the schemas and channels still open a chunk
+            self.add([Topic(t, m, np.zeros(0, dtype=np.int64), Messages.from_list(())) for t, m in self.channels],
+                     (np.zeros(0, dtype=np.int64),) * 3)
+        self.pool.shutdown(wait=True)
+        f, n, counts = self.f, self.n, self.counts
+        t_min, t_max = self.t_min, self.t_max
+        file = self.file
         info = {
-            "version": version,
+            "version": self.version,
             "storage_identifier": "mcap",
             "relative_file_paths": [file.name],
             "duration": {"nanoseconds": max(0, t_max - t_min)},
             "starting_time": {"nanoseconds_since_epoch": t_min},
             "message_count": n,
             "topics_with_message_count": [
-                {"topic_metadata": {"name": tp.topic, "type": tp.msgtype, "serialization_format": "cdr",
-                                    "offered_qos_profiles": dump_qos_v9([]), "type_description_hash": digests[k]},
+                {"topic_metadata": {"name": topic, "type": msgtype, "serialization_format": "cdr",
+                                    "offered_qos_profiles": dump_qos_v9([]), "type_description_hash": self.digests[k]},
                  "message_count": int(counts[k])}
-                for k, tp in enumerate(topics)],
+                for k, (topic, msgtype) in enumerate(self.channels)],
             "compression_format": "",
             "compression_mode": "",
             "files": [{"path": file.name, "starting_time": {"nanoseconds_since_epoch": t_min},
                        "duration": {"nanoseconds": max(0, t_max - t_min)}, "message_count": n}],
-            "custom_data": dict(custom_data) or None,
+            "custom_data": dict(self.custom_data) or None,
             "ros_distro": "rosbags",
         }
-        serialized = _yaml(info).strip()
-        metadata_start = f.tell()
-        meta_map = _s("serialized_metadata") + _s(serialized)
-        f.write(_rec(OP_METADATA, _s("rosbag2") + _u32(len(meta_map)) + meta_map))
-        metadata_end = f.tell()
-        f.write(_rec(OP_DATA_END, _u32(0)))
-        schema_start = f.tell()
-        f.write(b"".join(schema_recs))
-        channel_start = f.tell()
-        f.write(b"".join(channel_recs))
-        chunk_idx_start = f.tell()
-        f.write(b"".join(chunk_index))
-        metadata_index_start = f.tell()
-        f.write(_rec(OP_METADATA_INDEX, _u64(metadata_start) + _u64(metadata_end - metadata_start) + _s("rosbag2")))
-        statistics_start = f.tell()
-        stats = b"".join(_u16(k + 1) + _u64(int(counts[k])) for k in range(len(topics)))
-        f.write(_rec(OP_STATISTICS, _u64(n) + _u16(len(schema_recs)) + _u32(len(topics)) + _u32(0) + _u32(1)
-                     + _u32(len(chunk_index)) + _u64(t_min) + _u64(t_max) + _u32(len(stats)) + stats))
-        summary_offset_start = f.tell()
-        for op, a0, a1 in ((OP_SCHEMA, schema_start, channel_start), (OP_CHANNEL, channel_start, chunk_idx_start),
-                           (OP_CHUNK_INDEX, chunk_idx_start, metadata_index_start)):
-            if a1 != a0:
-                f.write(_rec(OP_SUMMARY_OFFSET, bytes([op]) + _u64(a0) + _u64(a1 - a0)))
-        f.write(_rec(OP_SUMMARY_OFFSET, bytes([OP_METADATA_INDEX]) + _u64(metadata_index_start)
-                     + _u64(statistics_start - metadata_index_start)))
-        f.write(_rec(OP_SUMMARY_OFFSET, bytes([OP_STATISTICS]) + _u64(statistics_start)
-                     + _u64(summary_offset_start - statistics_start)))
-        f.write(_rec(OP_FOOTER, _u64(schema_start) + _u64(summary_offset_start) + _u32(0)))
-        f.write(MAGIC)
-    meta_path = path / "metadata.yaml"
-    tmp = meta_path.with_suffix(".yaml.tmp")
-    tmp.write_text(_yaml({"rosbag2_bagfile_information": info}), "utf8")
-    tmp.replace(meta_path)
-    return n
+        with f:
+            serialized = _yaml(info).strip()
+            metadata_start = f.tell()
+            meta_map = _s("serialized_metadata") + _s(serialized)
+            f.write(_rec(OP_METADATA, _s("rosbag2") + _u32(len(meta_map)) + meta_map))
+            metadata_end = f.tell()
+            f.write(_rec(OP_DATA_END, _u32(0)))
+            schema_start = f.tell()
+            f.write(b"".join(self.schema_recs))
+            channel_start = f.tell()
+            f.write(b"".join(self.channel_recs))
+            chunk_idx_start = f.tell()
+            f.write(b"".join(self.chunk_index))
+            metadata_index_start = f.tell()
+            f.write(_rec(OP_METADATA_INDEX, _u64(metadata_start) + _u64(metadata_end - metadata_start) + _s("rosbag2")))
+            statistics_start = f.tell()
+            stats = b"".join(_u16(k + 1) + _u64(int(counts[k])) for k in range(len(self.channels)))
+            f.write(_rec(OP_STATISTICS, _u64(n) + _u16(len(self.schema_recs)) + _u32(len(self.channels)) + _u32(0) + _u32(1)
+                         + _u32(len(self.chunk_index)) + _u64(t_min) + _u64(t_max) + _u32(len(stats)) + stats))
+            summary_offset_start = f.tell()
+            for op, a0, a1 in ((OP_SCHEMA, schema_start, channel_start), (OP_CHANNEL, channel_start, chunk_idx_start),
+                               (OP_CHUNK_INDEX, chunk_idx_start, metadata_index_start)):
+                if a1 != a0:
+                    f.write(_rec(OP_SUMMARY_OFFSET, bytes([op]) + _u64(a0) + _u64(a1 - a0)))
+            f.write(_rec(OP_SUMMARY_OFFSET, bytes([OP_METADATA_INDEX]) + _u64(metadata_index_start)
+                         + _u64(statistics_start - metadata_index_start)))
+            f.write(_rec(OP_SUMMARY_OFFSET, bytes([OP_STATISTICS]) + _u64(statistics_start)
+                         + _u64(summary_offset_start - statistics_start)))
+            f.write(_rec(OP_FOOTER, _u64(schema_start) + _u64(summary_offset_start) + _u32(0)))
+            f.write(MAGIC)
+        meta_path = self.path / "metadata.yaml"
+        tmp = meta_path.with_suffix(".yaml.tmp")
+        tmp.write_text(_yaml({"rosbag2_bagfile_information": info}), "utf8")
+        tmp.replace(meta_path)

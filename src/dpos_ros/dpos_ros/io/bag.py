@@ -55,6 +55,43 @@ def write_streams(
     return n
 
 
+def write_stream_batches(
+    path: Path,
+    batches: Iterable[list[TopicStream]],
+    progress: Callable[[int], None] | None = None,
+    custom_data: dict[str, str] | None = None,
+) -> tuple[int, list[tuple[str, str, int]]]:
+    """Write batches of streams (each the same topics in the same order, e.g.
+    :func:`dpos_ros.devices.sim_streams.chunked_session_streams`) to a new rosbag2 directory, one
+    batch in memory at a time; returns the message count and ``(topic, type, count)`` per topic.
+    ``progress(t_ns)`` after each batch with its last stamp."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
+    from importlib.metadata import version
+
+    w: _mcap.Writer | None = None
+    try:
+        for streams in batches:
+            if w is None:
+                w = _mcap.Writer(path, [(s.topic, s.msgtype) for s in streams], dict(custom_data or {}), ROSBAG2_VERSION,
+                                 f"rosbags-{version('rosbags')}")
+            topics = [_mcap.Topic(s.topic, s.msgtype, s.t_ns, Messages.from_rows(s.rows) if s.rows is not None
+                                  else Messages.from_list(s.blobs or ())) for s in streams]
+            w.add(topics, merged_order(streams))
+            if progress is not None:
+                progress(max((int(s.t_ns[-1]) for s in streams if len(s)), default=0))
+        if w is None:
+            raise ValueError("no batch of streams to write")
+        w.close()
+    except BaseException:
+        if w is not None:
+            w.pool.shutdown(wait=True, cancel_futures=True)
+            w.f.close()
+        raise
+    return w.n, [(t, m, int(c)) for (t, m), c in zip(w.channels, w.counts, strict=True)]
+
+
 def write_streams_rosbags(
     path: Path,
     streams: list[TopicStream],
@@ -244,3 +281,18 @@ def custom_data(path: Path) -> dict[str, str]:
         return {}
     info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
     return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+
+
+def topics_and_duration(path: Path) -> tuple[list[str], float] | None:
+    """The topics and the duration [s] the rosbag2 metadata lists, or None without readable metadata."""
+    import yaml
+
+    meta = Path(path) / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    try:
+        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+        topics = [str(t["topic_metadata"]["name"]) for t in info.get("topics_with_message_count") or []]
+        return topics, float((info.get("duration") or {}).get("nanoseconds", 0)) * 1e-9
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None

@@ -239,3 +239,119 @@ def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedS
         end_s = ts(max(raw[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
     return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings)
+
+
+#: bytes of raw messages decoded at a time by :func:`read_session_streaming`
+STREAM_BATCH_BYTES = 2**24
+
+
+def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None,
+                           batch_bytes: int = STREAM_BATCH_BYTES) -> RecordedSession:
+    """:func:`read_session` of a rosbag2 MCAP recording with memory for one part of it (issue #17):
+    the file is read ``batch_bytes`` of messages at a time (:func:`dpos_ros.io._mcap.read_batches`),
+    each part's messages decoded and converted at once, and only the series kept (the sub-IMU's
+    7 numbers a sample instead of its ~330 bytes of CDR and 43 decoded doubles).  The same series
+    as :func:`read_session`; the data checks are the same, but a problem found in several parts is
+    warned about once per part, and duplicates are told identical by the kept numbers.  Recordings
+    the fast reader does not read (a spill, sqlite3, several files) go through :func:`read_session`."""
+    from dpos_ros.io import _mcap
+
+    path = Path(path)
+    from dpos_ros.io.spill import is_spill
+
+    if is_spill(path) or not (path / "metadata.yaml").is_file():
+        return read_session(path, keep=keep)
+    file = bag._single_mcap(path)
+    wanted = (lambda t: t != T.DATUM and t != T.SESSION_END) if keep is None else \
+        (lambda t: t == T.MASTER_NAV or (t not in (T.DATUM, T.SESSION_END) and keep(t)))  # noqa: E731
+    parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes)
+    if parts is None:
+        return read_session(path, keep=keep)
+    custom = bag.custom_data(path)
+    small = bag.read_raw(path, [T.DATUM, T.SESSION_END])  # (only the chunks that hold them are read)
+    if T.DATUM not in small or not small[T.DATUM][2]:
+        raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import NavSatFix
+
+    datum = cv.datum_from_msg(deserialize_message(small[T.DATUM][2][0], NavSatFix))
+    warnings: list[str] = []
+    acc: dict[str, tuple[str, list[NDArray[np.int64]], list[FloatArray]]] = {}  # topic -> (kind, stamps, rows)
+    failed: set[str] = set()
+    for part in parts:
+        for topic, (msgtype, _, blobs) in part.items():
+            kind = _kind(topic, msgtype)
+            if kind is None or topic in failed or not len(blobs):
+                continue
+            try:
+                t, v = _decode_rows(topic, msgtype, blobs, "odometry" if kind != "imu" else "imu", warnings)
+            except SessionError as e:
+                if topic == T.MASTER_NAV:
+                    raise
+                warnings.append(f"{e}; the topic is ignored")
+                failed.add(topic)
+                continue
+            acc.setdefault(topic, (kind, [], []))
+            acc[topic][1].append(t)
+            acc[topic][2].append(_compact(kind, t, v, datum))
+    for topic in failed:
+        acc.pop(topic, None)
+    if T.MASTER_NAV not in acc:
+        raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
+    cols: dict[str, tuple[NDArray[np.int64], FloatArray]] = {}
+    for topic in sorted(acc):
+        kind, ts, rows = acc.pop(topic)
+        cols[topic] = _clean(topic, np.concatenate(ts), np.concatenate(rows), warnings)
+    t_nav, m = cols.pop(T.MASTER_NAV)
+    if t_nav.size == 0:
+        raise SessionError(f"{path}: no usable /master/nav message: the transfer alignment needs the main-system navigation")
+    t0_ns = int(round(float(custom["dpos.start_time_s"]) * 1e9)) if "dpos.start_time_s" in custom else int(t_nav[0])
+    ts_ = lambda t: (t - t0_ns) * 1e-9  # noqa: E731
+    n = t_nav.size
+    master = NavSeries(ts_(t_nav), m[:, 6:10].copy(), m[:, 3:6].copy(), m[:, 0:3].copy(), omega_eb_b_radps=m[:, 10:13].copy(),
+                       att_cov=m[:, 13:22].reshape(n, 3, 3).copy(), vel_cov=m[:, 22:31].reshape(n, 3, 3).copy(),
+                       pos_cov=m[:, 31:40].reshape(n, 3, 3).copy())
+    subs: dict[str, ImuSeries] = {}
+    truth: dict[str, NavSeries] = {}
+    for topic, (t, v) in cols.items():
+        parts_ = topic.strip("/").split("/")
+        if _kind(topic, T.IMU) == "imu":
+            subs[parts_[1]] = ImuSeries(ts_(t), v[:, 0:3].copy(), v[:, 3:6].copy())
+        else:
+            truth["/".join(parts_[1:])] = NavSeries(ts_(t), v[:, 6:10].copy(), v[:, 3:6].copy(), v[:, 0:3].copy())
+    end_s = None
+    if T.SESSION_END in small and small[T.SESSION_END][1]:
+        end_s = ts_(max(small[T.SESSION_END][1]))
+    sid = custom.get("dpos.session_id") or path.name
+    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings)
+
+
+def _kind(topic: str, msgtype: str) -> str | None:
+    """``imu`` for /sub_imu/<name>/imu, ``master`` for /master/nav, ``truth`` for /truth/* odometry, else None."""
+    if topic == T.MASTER_NAV:
+        return "master"
+    parts = topic.strip("/").split("/")
+    if len(parts) == 3 and parts[0] == "sub_imu" and parts[2] == "imu":
+        return "imu"
+    if parts[0] == "truth" and msgtype == T.ODOMETRY:
+        return "truth"
+    return None
+
+
+def _compact(kind: str, t: NDArray[np.int64], v: FloatArray, datum: FloatArray) -> FloatArray:
+    """The numbers kept of decoded messages (N, IMU_DOUBLES | ODOM_DOUBLES), with a last column NaN
+    where a message has a NaN or infinite number (so the cleaning drops it as :func:`read_session` does):
+    ``imu`` omega (3), f (3); ``truth`` llh, vel, q; ``master`` those, the body rate and the
+    attitude, velocity and position covariances (local ENU, as :func:`session_from_raw`)."""
+    bad = np.where(np.all(np.isfinite(v), axis=1), 0.0, np.nan)[:, None]
+    if kind == "imu":
+        blk = cv.imu_from_values(t, v)
+        return np.hstack([blk.omega_radps, blk.f_mps2, bad])
+    with np.errstate(invalid="ignore"):
+        od = cv.odometry_from_values(t, v, datum)
+        if kind == "truth":
+            return np.hstack([od.llh, od.vel_n_mps, od.q_nb, bad])
+        pos_cov, att_cov, vel_cov = cv.odometry_cov_n(od, datum)
+    n = t.size
+    return np.hstack([od.llh, od.vel_n_mps, od.q_nb, od.omega_b_radps, att_cov.reshape(n, 9), vel_cov.reshape(n, 9),
+                      pos_cov.reshape(n, 9), bad])

@@ -450,24 +450,25 @@ def _write_products(
 ) -> None:
     """The products (module docstring) into the new, empty directory ``out``; the antennas' own
     files by :func:`_antenna_files`, on ``pool`` when given."""
-    from dpos_ros.io.bag import write_streams
+    from dpos_ros.io.bag import write_stream_batches
 
     from .qc import qc_dir, write_qc
 
-    streams = antenna_streams(sess, antennas)
-    if streams:
+    est = {name: a for name, a in antennas.items() if a.traj is not None and a.sigma is not None}
+    if est:
         qc_dir(out).mkdir(exist_ok=True)
     files = []
-    for st in streams:
-        name = st.topic.split("/")[2]
-        args = (out, name, st.t_ns, antennas[name], method, (evaluation or {}).get(name))
+    for name, a in est.items():
+        assert a.traj is not None
+        args = (out, name, antenna_stamps_ns(sess, a.traj.t_s), a, method, (evaluation or {}).get(name))
         if pool is None:
             _antenna_files(*args)
         else:
             files.append(pool.submit(_antenna_files, *args))
     bag_dir = out / "antennas"
-    if streams:  # (out is a new directory: write() never mixes runs)
-        write_streams(bag_dir, streams, custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
+    if est:  # (out is a new directory: write() never mixes runs); a batch of poses in memory at a time
+        write_stream_batches(bag_dir, antenna_stream_batches(sess, est),
+                             custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
     status = {name: a.status for name, a in antennas.items()}
     repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.traj is not None}
     doc = {"session_id": sess.session_id, "method": method, "antennas": status, "warnings": sess.warnings, "timing": timing,
@@ -503,30 +504,63 @@ def _antenna_files(out: Path, name: str, t_ns: NDArray[np.int64], a: AntennaSolu
 
 def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
     """``/antenna/<name>/odom`` TopicStreams (pose in ``enu`` with the smoother's covariance; twist
-    in the antenna frame with the velocity covariance; angular rate not estimated)."""
+    in the antenna frame with the velocity covariance; angular rate not estimated) of the
+    estimated antennas."""
+    return [_antenna_stream(sess, name, a, slice(None)) for name, a in antennas.items() if a.traj is not None and a.sigma is not None]
+
+
+#: seconds of antenna poses per batch of the products' antenna bag (:func:`antenna_stream_batches`)
+BAG_BATCH_S = 60.0
+
+
+def antenna_stream_batches(sess: RecordedSession, antennas: dict[str, AntennaSolution], batch_s: float = BAG_BATCH_S):
+    """:func:`antenna_streams` in consecutive time windows of ``batch_s`` seconds (each window a list
+    with every estimated antenna's stream, empty where it has no row): the same messages, a window's
+    in memory at a time (for :func:`dpos_ros.io.bag.write_stream_batches`)."""
+    est = {name: a for name, a in antennas.items() if a.traj is not None and a.sigma is not None}
+    if not est:
+        return
+    t_lo = min((float(a.traj.t_s[0]) for a in est.values() if a.traj is not None and a.traj.t_s.size), default=0.0)
+    t_hi = max((float(a.traj.t_s[-1]) for a in est.values() if a.traj is not None and a.traj.t_s.size), default=t_lo)
+    n = max(1, int(np.floor((t_hi - t_lo) / batch_s)) + 1)
+    edges = t_lo + batch_s * np.arange(n + 1)
+    edges[-1] = np.inf
+    for k in range(n):
+        out = []
+        for name, a in est.items():
+            assert a.traj is not None
+            i0 = 0 if k == 0 else int(np.searchsorted(a.traj.t_s, edges[k]))
+            i1 = int(np.searchsorted(a.traj.t_s, edges[k + 1]))
+            out.append(_antenna_stream(sess, name, a, slice(i0, i1)))
+        yield out
+
+
+def antenna_stamps_ns(sess: RecordedSession, t_s: FloatArray) -> NDArray[np.int64]:
+    """The ROS stamps [ns] of the products' rows at session times ``t_s`` [s]."""
+    return sess.t0_ns + np.round(t_s * 1e9).astype(np.int64)
+
+
+def _antenna_stream(sess: RecordedSession, name: str, a: AntennaSolution, rows: slice):
+    """The ``/antenna/<name>/odom`` stream of the rows ``rows`` of an estimated antenna (:func:`antenna_streams`)."""
     from dpos_ros.io.streams import TopicStream
 
-    streams = []
-    for name, a in antennas.items():
-        if a.traj is None or a.sigma is None:
-            continue
-        tr, s = a.traj, a.sigma
-        t_ns = sess.t0_ns + np.round(tr.t_s * 1e9).astype(np.int64)
-        q = dcm_to_quat(tr.C_nb)
-        n = tr.t_s.size
-        vals = cv.odometry_values(tr.llh, tr.vel_n_mps, q, sess.datum_llh, None)
-        Rw = earth.C_datum_n(tr.llh[:, 0], tr.llh[:, 1], sess.datum_llh)
-        pose = np.zeros((n, 6, 6))
-        pose[:, :3, :3] = Rw @ (s[:, 6:9, None] ** 2 * np.swapaxes(Rw, 1, 2))
-        pose[:, 3:, 3:] = Rw @ (s[:, 0:3, None] ** 2 * np.swapaxes(Rw, 1, 2))
-        twist = np.zeros((n, 6, 6))
-        C_bn = np.swapaxes(tr.C_nb, 1, 2)
-        twist[:, :3, :3] = C_bn @ (s[:, 3:6, None] ** 2 * tr.C_nb)
-        twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
-        vals[:, 7:43] = pose.reshape(n, 36)
-        vals[:, 49:85] = twist.reshape(n, 36)
-        streams.append(TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav"))
-    return streams
+    assert a.traj is not None and a.sigma is not None
+    tr, s = a.traj.select(rows), a.sigma[rows]
+    t_ns = antenna_stamps_ns(sess, tr.t_s)
+    q = dcm_to_quat(tr.C_nb)
+    n = tr.t_s.size
+    vals = cv.odometry_values(tr.llh, tr.vel_n_mps, q, sess.datum_llh, None)
+    Rw = earth.C_datum_n(tr.llh[:, 0], tr.llh[:, 1], sess.datum_llh)
+    pose = np.zeros((n, 6, 6))
+    pose[:, :3, :3] = Rw @ (s[:, 6:9, None] ** 2 * np.swapaxes(Rw, 1, 2))
+    pose[:, 3:, 3:] = Rw @ (s[:, 0:3, None] ** 2 * np.swapaxes(Rw, 1, 2))
+    twist = np.zeros((n, 6, 6))
+    C_bn = np.swapaxes(tr.C_nb, 1, 2)
+    twist[:, :3, :3] = C_bn @ (s[:, 3:6, None] ** 2 * tr.C_nb)
+    twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
+    vals[:, 7:43] = pose.reshape(n, 36)
+    vals[:, 49:85] = twist.reshape(n, 36)
+    return TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav")
 
 
 def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> None:

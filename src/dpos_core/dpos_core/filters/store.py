@@ -1,0 +1,92 @@
+"""Per-epoch arrays of a filter's forward pass kept for its backward pass: in memory, or in a file
+when they are large (issue #17: the UPF's particle track is ~50 kB an epoch; four hours at 1 Hz
+are 0.7 GB per sub-IMU).
+
+A file-backed :class:`EpochArray` is written and read with ``pwrite`` / ``pread`` (no memory
+map: pages of a mapped file would count in the process's resident memory), so memory holds the
+records being read or written, and the page cache the rest.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dpos_core.units import FloatArray
+
+
+class EpochArray:
+    """A float64 array (K, ...) indexed by epoch: ``a[k] = v`` and ``a[k]``, ``a[k0:k1]`` (step 1) and
+    ``a[-1]``; ``shape``.  In memory (``path`` None) or in the file ``path`` (created, removed by
+    :meth:`close`)."""
+
+    def __init__(self, n_epochs: int, shape: tuple[int, ...], path: Path | None = None) -> None:
+        self.shape = (int(n_epochs), *(int(s) for s in shape))
+        self._rec = tuple(self.shape[1:])
+        self._rec_bytes = int(np.prod(self._rec, dtype=np.int64)) * 8
+        self.path = path
+        self._mem: FloatArray | None = None
+        self._fd: int | None = None
+        if path is None:
+            self._mem = np.empty(self.shape)
+        else:
+            self._fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    @property
+    def on_disk(self) -> bool:
+        return self._fd is not None
+
+    def _index(self, k: int) -> int:
+        k = int(k)
+        if k < 0:
+            k += self.shape[0]
+        if not 0 <= k < self.shape[0]:
+            raise IndexError(f"epoch {k} of {self.shape[0]}")
+        return k
+
+    def __setitem__(self, k: int, value) -> None:
+        if self._mem is not None:
+            self._mem[k] = value
+            return
+        assert self._fd is not None
+        k = self._index(k)
+        rec = np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), self._rec))
+        if os.pwrite(self._fd, rec.tobytes(), k * self._rec_bytes) != self._rec_bytes:
+            raise OSError(f"short write to {self.path}")
+
+    def __getitem__(self, k: int | slice) -> FloatArray:
+        if self._mem is not None:
+            return self._mem[k]
+        assert self._fd is not None
+        if isinstance(k, slice):
+            a, b, step = k.indices(self.shape[0])
+            if step != 1:
+                raise IndexError("only slices of step 1")
+            n = max(b - a, 0)
+            data = os.pread(self._fd, n * self._rec_bytes, a * self._rec_bytes)
+            return np.frombuffer(data, dtype=float).reshape((n, *self._rec)).copy()
+        i = self._index(k)
+        data = os.pread(self._fd, self._rec_bytes, i * self._rec_bytes)
+        if len(data) != self._rec_bytes:
+            raise OSError(f"short read from {self.path} (epoch {i} not written?)")
+        return np.frombuffer(data, dtype=float).reshape(self._rec).copy()
+
+    def __array__(self, dtype=None, copy=None) -> FloatArray:
+        """The whole array (read into memory when in a file)."""
+        out = self[0:self.shape[0]] if self._mem is None else self._mem
+        return out if dtype is None else out.astype(dtype)
+
+    def close(self) -> None:
+        """Remove the file (an in-memory array is kept)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+            if self.path is not None:
+                self.path.unlink(missing_ok=True)
+            self._mem = np.empty((0, *self._rec))
+            self.shape = (0, *self._rec)

@@ -1,0 +1,419 @@
+"""The session products of a long flight with memory that does not grow with it (issue #17;
+docs/campaign.md "Long flights"): ``dpos-process --stream``.
+
+Each sub-IMU's worker reads only its own topic and the main POS from the recording
+(:func:`dpos_ros.io.session.read_session_streaming`), aligns it with the output rows handed over a
+block at a time (``pipeline.run_segments(sink=...)``: the nominal re-integrated, the UPS's
+particle track in files) and writes its antennas' rows and its own (the wing fit's input) to
+files (:class:`RowStore`) as they come; it returns the per-epoch results only.  The main
+process then writes the products from those files a block of rows at a time: the CSV files, the
+antenna bag (a minute of poses per batch), the quality control (each antenna's stamps, sigmas and
+flags loaded one antenna at a time; its figure from every n-th row), ``status.json``.
+
+The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.products.ta.solve`
+(tested on a short session), except:
+
+* the least-squares wing fit of the ``fit`` antennas is made over consecutive windows of
+  :data:`FIT_WINDOW_S` (the rigid misalignment, the degree choice and the variance factor per
+  window; the same as the whole-session fit for a session shorter than one window);
+  ``status.json`` ``wing_fit`` gives the first window's choice and the number of windows;
+* no evaluation against the truth (``metrics.json``, ``report.md``, the error figures): the
+  truth topics are not read (a warning says so when the recording has them).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_core.attitude import mount_dcm, quat_to_dcm
+from dpos_core.config import AircraftConfig
+from dpos_core.errors import RejectedInput
+from dpos_core.filters.variational import CGStats
+from dpos_core.series import NavSeries
+from dpos_core.ta import flags as ta_flags
+from dpos_core.ta import pipeline
+from dpos_core.ta import qc as Q
+from dpos_core.ta.antenna import antenna_motion, lever_velocity_var, rate_at, rate_interpolation_var
+from dpos_core.ta.model import Installation, TAConfig
+from dpos_core.ta.wingfit import SubImuTrack
+from dpos_core.units import FloatArray
+from dpos_ros.contract import topics as T
+from dpos_ros.io.session import RecordedSession, read_session_streaming
+
+from . import ta as P
+
+#: rows read or written at a time
+ROW_BLOCK = 2**16
+#: seconds of the wing fit's windows (module docstring)
+FIT_WINDOW_S = 300.0
+#: the columns of an antenna's (or a sub-IMU's) rows
+ROW_COLUMNS: dict[str, tuple[tuple[int, ...], str]] = {
+    "t_s": ((), "<f8"), "q_nb": ((4,), "<f8"), "vel_n_mps": ((3,), "<f8"), "llh": ((3,), "<f8"), "sigma": ((9,), "<f8"),
+    "flags": ((), "<u4")}
+
+
+@dataclass
+class RowStore:
+    """Rows appended to one file per column under ``path`` (created), read back by row ranges;
+    picklable (the files are opened per call)."""
+
+    path: Path
+    columns: dict[str, tuple[tuple[int, ...], str]] = field(default_factory=lambda: dict(ROW_COLUMNS))
+    n: int = 0
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        self.path.mkdir(parents=True, exist_ok=True)
+
+    def _file(self, name: str) -> Path:
+        return self.path / f"{name}.bin"
+
+    def append(self, **cols: NDArray) -> None:
+        """Append rows: every column, the same number of rows."""
+        n = {np.asarray(v).shape[0] for v in cols.values()}
+        if set(cols) != set(self.columns) or len(n) != 1:
+            raise ValueError(f"append needs the columns {sorted(self.columns)} with as many rows each")
+        for name, (shape, dtype) in self.columns.items():
+            a = np.ascontiguousarray(cols[name], dtype=dtype)
+            if a.shape[1:] != shape:
+                raise ValueError(f"column {name}: rows of shape {a.shape[1:]}, not {shape}")
+            with self._file(name).open("ab") as f:
+                f.write(a.tobytes())
+        self.n += n.pop()
+
+    def read(self, name: str, i0: int = 0, i1: int | None = None) -> NDArray:
+        """Rows ``i0:i1`` of column ``name``."""
+        shape, dtype = self.columns[name]
+        i1 = self.n if i1 is None else min(i1, self.n)
+        size = int(np.prod(shape, dtype=np.int64))
+        dt = np.dtype(dtype)
+        if i1 <= i0:
+            return np.zeros((0, *shape), dtype=dt)
+        a = np.fromfile(self._file(name), dtype=dt, count=(i1 - i0) * size, offset=i0 * size * dt.itemsize)
+        return a.reshape((i1 - i0, *shape))
+
+    def rows(self, i0: int = 0, i1: int | None = None) -> dict[str, NDArray]:
+        return {name: self.read(name, i0, i1) for name in self.columns}
+
+    def remove(self) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
+
+
+def _nav(cols: dict[str, NDArray]) -> NavSeries:
+    return NavSeries(cols["t_s"], cols["q_nb"], cols["vel_n_mps"], cols["llh"])
+
+
+@dataclass
+class StreamedAntenna:
+    """An antenna of the streamed products: :class:`~dpos_ros.products.ta.AntennaSolution`'s fields
+    with its rows in ``rows`` (None when not estimated)."""
+
+    name: str
+    sub_imu: str | None
+    status: str
+    rows: RowStore | None = None
+    chol_jitter_repairs: int = 0
+    not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
+    qc: Q.EpochQC | None = None
+    cg: CGStats | None = None
+    wing_fit: dict | None = None
+    installation: dict = field(default_factory=dict)
+
+    def solution(self, i0: int = 0, i1: int | None = None, step: int = 1) -> P.AntennaSolution:
+        """An :class:`~dpos_ros.products.ta.AntennaSolution` of the rows ``i0:i1`` (every ``step``-th)."""
+        traj = sigma = flags = None
+        if self.rows is not None:
+            i1 = self.rows.n if i1 is None else min(i1, self.rows.n)
+            span = ROW_BLOCK * step  # read a block at a time, every step-th row kept
+            parts = [{k: v[::step] for k, v in self.rows.rows(a, min(a + span, i1)).items()} for a in range(i0, max(i1, i0 + 1), span)]
+            c = {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
+            traj, sigma, flags = _nav(c), c["sigma"], c["flags"]
+        return P.AntennaSolution(self.name, self.sub_imu, self.status, traj, sigma, self.chol_jitter_repairs, flags,
+                                 list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit, installation=self.installation)
+
+
+# ------------------------------------------------------------------------------------ the workers
+
+
+def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg: TAConfig, method: str, particles: int,
+                   seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
+                   inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
+    """One sub-IMU (a worker's task; module docstring): its topic read alone, aligned, its antennas'
+    rows (``antennas``: name, lever arm) and its own at ``output_rate_hz`` written to RowStores under
+    ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.ta.solve` computes
+    them.  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
+    sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub))
+    if sub not in sess.sub_imus:
+        return {"missing": True, "warnings": sess.warnings}
+    imu = sess.sub_imus[sub]
+    base = Path(store_dir)
+    ta_rows = RowStore(base / f"ta_{sub}", {k: v for k, v in ROW_COLUMNS.items() if k != "flags"})
+
+    def sink(t: FloatArray, llh: FloatArray, vel: FloatArray, q: FloatArray, sigma: FloatArray) -> None:
+        ta_rows.append(t_s=t, llh=llh, vel_n_mps=vel, q_nb=q, sigma=sigma)
+
+    try:
+        res = pipeline.run_segments(imu, master, ins, cfg, method, particles, seed, err0_deg, sink=sink)
+    except RejectedInput as ex:
+        ta_rows.remove()
+        return {"rejected": str(ex), "warnings": sess.warnings}
+    flags = res.flags | P._qc_flags(res, master, aligned_sigma_deg)
+    keep = np.zeros(res.t_s.size, dtype=bool)
+    keep[P._decimate(res.t_s, output_rate_hz)] = True
+    n_kept = np.concatenate([[0], np.cumsum(keep)])  # kept rows before each row
+    # the rate at the rows (with a time offset, at the instant the moved rows stand for) and what the rate
+    # between the IMU's samples leaves unknown, as _sub_imu_antenna (dpos_ros.products.ta)
+    tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
+    w_var = rate_interpolation_var(imu.t_s, imu.omega_radps, res.t_s[keep] + tau) if antennas else np.zeros((0, 3))
+    stores = {name: RowStore(base / f"ant_{name}") for name, _ in antennas}
+    own = RowStore(base / f"sub_{sub}")
+    for i0 in range(0, res.t_s.size, ROW_BLOCK):
+        i1 = min(i0 + ROW_BLOCK, res.t_s.size)
+        c = ta_rows.rows(i0, i1)
+        t, sigma = c["t_s"], c["sigma"]
+        if inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
+            sigma = sigma * Q.sigma_scale(res.qc, t)
+        C = quat_to_dcm(c["q_nb"])
+        k = keep[i0:i1]
+        w = rate_at(imu.t_s, imu.omega_radps, t + tau) if antennas else np.zeros((0, 3))
+        for name, lever in antennas:
+            llh, v = antenna_motion(C, c["vel_n_mps"], c["llh"], w, lever)
+            s_a = sigma[k].copy()
+            s_a[:, 3:6] = np.sqrt(s_a[:, 3:6] ** 2 + lever_velocity_var(C[k], w_var[n_kept[i0]:n_kept[i1]], lever))
+            stores[name].append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=v[k], llh=llh[k], sigma=s_a, flags=flags[i0:i1][k])
+        own.append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=c["vel_n_mps"][k], llh=c["llh"][k], sigma=sigma[k], flags=flags[i0:i1][k])
+    ta_rows.remove()
+    return {"stores": stores, "own": own, "qc": res.qc, "cg": res.cg, "not_estimated": list(res.not_estimated),
+            "chol_jitter_repairs": res.chol_jitter_repairs, "installation": res.installation, "warnings": sess.warnings}
+
+
+# ------------------------------------------------------------------------------------ the session
+
+
+def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, store_dir: Path, method: str = "ups",
+                    particles: int = 100, seed: int = 0, initial_attitude_error_deg: float = 0.0, filter_rate_hz: float = 1.0,
+                    position_matching: bool = True, inflate_sigma: bool = True, output_rate_hz: float = 0.0,
+                    master_aligned_sigma_deg: float = 0.1, pool: cf.Executor | None = None, master_error_tau_s: float = 0.0,
+                    sub_imus: list[str] | None = None) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
+    """:func:`dpos_ros.products.ta.solve` of the recording ``bag`` (``sess``: its main POS, read
+    without the sub-IMUs; ``sub_imus``: the sub-IMU topics it has), the rows in files under
+    ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``)."""
+    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching,
+                   master_error_tau_s=master_error_tau_s)
+    t0 = time.perf_counter()
+    master = P.aligned_master(sess, master_aligned_sigma_deg)
+    e = initial_attitude_error_deg
+    present = set(sess.sub_imus if sub_imus is None else sub_imus)
+    tasks = {s.name: (str(bag), s.name, master, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed, (e, e, e),
+                      [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
+                      output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir))
+             for s in aircraft.sub_imus if s.name in present and master is not None}
+    futs = {name: pool.submit(align_to_store, *args) for name, args in tasks.items()} if pool is not None else {}
+    out: dict[str, StreamedAntenna] = {}
+    unusable: dict[str, str] = {}
+    carriers: dict[str, RowStore] = {}
+    n_done = 0
+    for s in aircraft.sub_imus:
+        if s.name not in present:
+            sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
+            continue
+        if master is None:
+            continue
+        r = futs[s.name].result() if futs else align_to_store(*tasks[s.name])
+        sess.warnings.extend(w for w in r.get("warnings", []) if w not in sess.warnings)
+        if "rejected" in r:
+            unusable[s.name] = f"sub-IMU {s.name}: {r['rejected']}"
+            sess.warnings.append(f"sub-IMU {s.name}: {r['rejected']}; its antennas are not estimated")
+            continue
+        if "missing" in r:
+            continue
+        n_done += 1
+        if r["not_estimated"]:
+            sess.warnings.append(f"sub-IMU {s.name}: no pose over {P._spans(r['not_estimated'])}; each part after a gap "
+                                 f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
+        status = f"estimated (not estimated over {P._spans(r['not_estimated'])})" if r["not_estimated"] else "estimated"
+        for a in aircraft.antennas:
+            if a.sub_imu == s.name:
+                out[a.name] = StreamedAntenna(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
+                                              list(r["not_estimated"]), r["qc"], r["cg"], installation=r["installation"])
+        if r["own"].n > 1 and any(a.sub_imu == s.name for a in aircraft.antennas):  # (as solve: the antennas' carriers)
+            carriers[s.name] = r["own"]
+    for name in sorted(present):
+        if name not in {s.name for s in aircraft.sub_imus}:
+            sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
+    timing = {"processing_s": time.perf_counter() - t0, "data_s": float(sess.master.t_s[-1] - sess.master.t_s[0]) * max(1, n_done)}
+    for a in aircraft.antennas:
+        if a.sub_imu is not None and a.name not in out:
+            why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
+            out[a.name] = StreamedAntenna(a.name, a.sub_imu, f"not estimated: {why}")
+    if any(a.sub_imu is None for a in aircraft.antennas):
+        out.update(_fit_windows(sess, aircraft, carriers, store_dir))
+    return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
+
+
+def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
+                 store_dir: Path) -> dict[str, StreamedAntenna]:
+    """The ``fit`` antennas by :func:`dpos_ros.products.ta.fit_antennas` over consecutive windows of
+    :data:`FIT_WINDOW_S` (module docstring), their rows appended window by window."""
+    fits = [a for a in aircraft.antennas if a.sub_imu is None]
+    times = {name: st.read("t_s") for name, st in carriers.items()}
+    if not times:
+        sol = P.fit_antennas(sess, aircraft, {})
+        return {a.name: StreamedAntenna(a.name, None, sol[a.name].status) for a in fits if a.name in sol}
+    t_lo = min(float(t[0]) for t in times.values())
+    t_hi = max(float(t[-1]) for t in times.values())
+    n_win = max(1, int(np.ceil((t_hi - t_lo) / FIT_WINDOW_S - 1e-9)))
+    edges = t_lo + FIT_WINDOW_S * np.arange(n_win + 1)
+    edges[-1] = np.inf
+    stores = {a.name: RowStore(store_dir / f"ant_{a.name}") for a in fits}
+    first: dict[str, P.AntennaSolution] = {}
+    statuses: dict[str, set[str]] = {a.name: set() for a in fits}
+    for w in range(n_win):
+        ants: dict[str, P.AntennaSolution] = {}
+        for name, st in carriers.items():
+            t = times[name]
+            i0, i1 = int(np.searchsorted(t, edges[w])), int(np.searchsorted(t, edges[w + 1]))
+            c = st.rows(i0, i1)
+            s = aircraft.sub_imu(name)
+            tr = SubImuTrack(name, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
+                             c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
+            ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
+        lo, hi = (edges[w] - 1.0, edges[w + 1] + 1.0)
+        m = sess.master.select((sess.master.t_s >= lo) & (sess.master.t_s <= hi))
+        sol = P.fit_antennas(dc_replace(sess, master=m, warnings=sess.warnings), aircraft, ants)
+        for a in fits:
+            fa = sol.get(a.name)
+            if fa is None:
+                continue
+            statuses[a.name].add(fa.status)
+            first.setdefault(a.name, fa)
+            if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
+                stores[a.name].append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh,
+                                      sigma=fa.sigma, flags=fa.flags)
+    out: dict[str, StreamedAntenna] = {}
+    for a in fits:
+        f0 = first.get(a.name)
+        if f0 is None:
+            continue
+        est = sorted(s for s in statuses[a.name] if s.startswith("estimated"))
+        status = est[0] if est else f0.status
+        if len(statuses[a.name]) > 1:
+            status += f" ({len(statuses[a.name])} different outcomes over the {n_win} windows of the fit)"
+        info = None if f0.wing_fit is None else {**f0.wing_fit, "windows": n_win, "window_s": FIT_WINDOW_S}
+        rows = stores[a.name] if stores[a.name].n else None
+        out[a.name] = StreamedAntenna(a.name, None, status if rows is not None else f0.status, rows, wing_fit=info)
+    return out
+
+
+# ------------------------------------------------------------------------------------ the products
+
+
+def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
+                    *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
+    """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent.
+    ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers while
+    this process writes the antenna bag."""
+    final = Path(out_root) / sess.session_id
+    out = P._new_products_dir(final, overwrite)
+    try:
+        _write(out, sess, antennas, method, timing, pool)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    if out != final:
+        P._swap_in(out, final)
+    return final
+
+
+def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
+           pool: cf.Executor | None) -> None:
+    from dpos_ros.io.bag import write_stream_batches
+
+    from .qc import _json_safe, qc_dir, qc_md
+
+    est = {name: a for name, a in antennas.items() if a.rows is not None}
+    if est:
+        qc_dir(out).mkdir(exist_ok=True)
+    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method) if pool is not None else None) for name, a in est.items()}
+    if est:
+        write_stream_batches(out / "antennas", _bag_batches(sess, est),
+                             custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
+    summ: dict[str, dict] = {}
+    for name, a in antennas.items():
+        f = files.get(name)
+        summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
+    status = {name: a.status for name, a in antennas.items()}
+    repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.rows is not None}
+    doc = {"session_id": sess.session_id, "method": method, "antennas": status, "warnings": sess.warnings, "timing": timing,
+           "chol_jitter_repairs": repairs}
+    fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
+    if fits:
+        doc["wing_fit"] = fits
+    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
+    if inst:  # as dpos_ros.products.ta.write
+        doc["installation_states"] = inst
+    (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
+    doc["qc"] = _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
+    (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
+
+
+def _antenna_files(out: Path, a: StreamedAntenna, t0_ns: int, method: str) -> dict:
+    """One estimated antenna's CSV and QC figure; returns its QC summary (a worker's task)."""
+    from .qc import plot_qc, qc_dir
+
+    assert a.rows is not None
+    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows)
+    t, sigma, flags = a.rows.read("t_s"), a.rows.read("sigma"), a.rows.read("flags")
+    s = Q.summarize(t, sigma, flags, a.qc, a.wing_fit)
+    del t, sigma, flags
+    s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
+    step = max(1, a.rows.n // (50 * 4000))  # plot_qc strides to 4000 points: every row is not needed
+    plot_qc(qc_dir(out) / f"{a.name}_qc.png", a.solution(step=step), method)
+    return s
+
+
+def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
+    """The antenna CSV of :func:`dpos_ros.products.ta._write_csv`, ROW_BLOCK rows at a time."""
+    part = path.with_name(path.name + ".part")
+    with path.open("wb") as f:
+        for i0 in range(0, max(rows.n, 1), ROW_BLOCK):
+            c = rows.rows(i0, i0 + ROW_BLOCK)
+            P._write_csv(part, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"])
+            data = part.read_bytes()
+            f.write(data if i0 == 0 else data[data.index(b"\n") + 1:])  # the header once
+    part.unlink(missing_ok=True)
+
+
+def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float = P.BAG_BATCH_S):
+    """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows."""
+    times = {name: a.rows.read("t_s") for name, a in est.items() if a.rows is not None}
+    nonempty = [t for t in times.values() if t.size]
+    t_lo = min((float(t[0]) for t in nonempty), default=0.0)
+    t_hi = max((float(t[-1]) for t in nonempty), default=t_lo)
+    n = max(1, int(np.floor((t_hi - t_lo) / batch_s)) + 1)
+    edges = t_lo + batch_s * np.arange(n + 1)
+    edges[-1] = np.inf
+    for k in range(n):
+        out = []
+        for name, a in est.items():
+            t = times[name]
+            i0 = 0 if k == 0 else int(np.searchsorted(t, edges[k]))
+            i1 = int(np.searchsorted(t, edges[k + 1]))
+            out.append(P._antenna_stream(sess, name, a.solution(i0, i1), slice(None)))
+        yield out
+
+
+def scratch_dir(out_root: Path) -> tempfile.TemporaryDirectory:
+    """A temporary directory for the rows, beside the products (same file system, likely room)."""
+    Path(out_root).mkdir(parents=True, exist_ok=True)
+    return tempfile.TemporaryDirectory(prefix=".dpos_rows_", dir=out_root)

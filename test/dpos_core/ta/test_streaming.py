@@ -1,0 +1,157 @@
+"""The transfer alignment without its nominal trajectory in memory (issue #17): the output pass
+re-integrates each interval from the integrator's state stored at its start
+(``TransferAlignmentModel.keep_nominal=False``, ``pipeline.KEEP_NOMINAL``) and builds the rows a
+block of intervals at a time; the result is the one of the stored nominal, bit for bit."""
+
+from __future__ import annotations
+
+from dataclasses import fields, replace
+
+import numpy as np
+import pytest
+
+from dpos_core.filters import runners
+from dpos_core.filters.store import EpochArray
+from dpos_core.sim.flight import Segment
+from dpos_core.sim.scenario import load_scenario
+from dpos_core.sim.session import SimulatedSession
+from dpos_core.strapdown import NavState, Strapdown
+from dpos_core.ta import from_sim, pipeline
+from dpos_core.ta.model import TAConfig, TransferAlignmentModel
+
+
+@pytest.fixture(scope="module")
+def flight():
+    sc = load_scenario("paper_su", aircraft="paper_su_pair")
+    sc = replace(sc, segments=(Segment(8.0, name="lead_in"), Segment(12.0, heading_change_deg=30.0, name="turn")))
+    ss = SimulatedSession(sc, 2, None)
+    return from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
+
+
+def _same(a: pipeline.TAResult, b: pipeline.TAResult) -> None:
+    for f in fields(pipeline.TAResult):
+        va, vb = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(va, np.ndarray):
+            assert np.array_equal(va, vb, equal_nan=True), f.name
+        elif f.name not in ("qc", "cg"):
+            assert va == vb, f.name
+
+
+@pytest.mark.parametrize("method", ["urtss", "ups"])
+def test_re_integrated_nominal_gives_the_stored_nominals_result(flight, monkeypatch, method) -> None:
+    imu, master, ins = flight
+    cfg = TAConfig(attitude_sigma_deg=1.0)
+    monkeypatch.setattr(pipeline, "KEEP_NOMINAL", True)
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 10**6)  # every row at once, as before issue #17
+    stored = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=3)
+    monkeypatch.setattr(pipeline, "KEEP_NOMINAL", False)
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 3)
+    replayed = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=3)
+    assert stored.t_s.size == imu.t_s.size
+    _same(stored, replayed)
+
+
+def test_model_replays_each_interval_bit_for_bit(flight) -> None:
+    imu, master, ins = flight
+    init = pipeline.initial_from_master(master, ins)
+    kept = TransferAlignmentModel(imu, master, ins, TAConfig(), init)
+    lean = TransferAlignmentModel(imu, master, ins, TAConfig(), init, keep_nominal=False)
+    rng = np.random.default_rng(0)
+    for k in range(kept.n_epochs - 1):
+        c = rng.normal(0.0, 1e-4, kept.n)  # any correction: the same on both
+        kept.feedback(k, c)
+        lean.feedback(k, c)
+    assert np.array_equal(kept.interval_sizes(), lean.interval_sizes())
+    for k in (0, 5, kept.n_epochs - 2):
+        a, b = kept.nominal_chunk(k), lean.nominal_chunk(k)
+        for name in ("t_s", "q_nb", "vel_n_mps", "llh"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), (k, name)
+        assert np.array_equal(kept.vibration_variance(k + 1)[0], lean.vibration_variance(k + 1)[0])
+    assert not lean._chunks and len(kept._chunks) == kept.n_epochs - 1
+
+
+def test_strapdown_snapshot_restore_continues_bit_for_bit() -> None:
+    rng = np.random.default_rng(1)
+    s0 = NavState(0.0, np.array([1.0, 0.0, 0.0, 0.0]), np.array([100.0, 0.0, 0.0]), np.array([0.6, 1.9, 1000.0]))
+    t = np.arange(1, 401) * 0.01
+    dth, dv = rng.normal(0, 1e-4, (400, 3)), rng.normal(0, 1e-3, (400, 3)) + [0.0, 0.0, 0.098]
+    a = Strapdown(s0)
+    a.run_increments(t[:150], dth[:150], dv[:150])
+    snap = a.snapshot()
+    rest = a.run_increments(t[150:], dth[150:], dv[150:])
+    b = Strapdown(s0)
+    b.restore(snap)
+    again = b.run_increments(t[150:], dth[150:], dv[150:])
+    assert np.array_equal(rest.q_nb, again.q_nb) and np.array_equal(rest.llh, again.llh)
+
+
+def test_particle_track_on_disk_gives_the_same_result(flight, monkeypatch) -> None:
+    imu, master, ins = flight
+    cfg = TAConfig(attitude_sigma_deg=1.0)
+    mem = pipeline.run_segments(imu, master, ins, cfg, "ups", particles=16, seed=5)
+    monkeypatch.setattr(pipeline, "TRACK_IN_MEMORY_BYTES", 0)  # every track to files
+    monkeypatch.setattr(runners, "FFBSM_BLOCK", 4)
+    disk = pipeline.run_segments(imu, master, ins, cfg, "ups", particles=16, seed=5)
+    _same(mem, disk)
+
+
+def test_ffbsm_of_a_track_on_disk_is_the_track_in_memory(tmp_path, monkeypatch) -> None:
+    from dpos_core.filters.model import LinearGaussianModel
+
+    F = np.array([[1.0, 0.1], [0.0, 0.95]])
+    rng = np.random.default_rng(2)
+    ys = rng.normal(0.0, 1.0, (40, 1))
+    m = LinearGaussianModel(F=F, Q=np.diag([1e-3, 1e-2]), H=np.array([[1.0, 0.0]]), R=np.array([[0.5]]), ys=ys)
+    a = runners.run_upf(m, np.zeros(2), np.eye(2), 30, np.random.default_rng(4), sampled=[1])
+    b = runners.run_upf(m, np.zeros(2), np.eye(2), 30, np.random.default_rng(4), sampled=[1], store=tmp_path)
+    assert isinstance(b.particles, EpochArray) and b.particles.on_disk
+    whole = runners.ffbsm(a)
+    monkeypatch.setattr(runners, "FFBSM_BLOCK", 7)  # blocks that do not divide the epochs
+    assert np.array_equal(whole, runners.ffbsm(b)) and np.array_equal(whole, runners.ffbsm(a))
+    b.close()
+    assert not list(tmp_path.iterdir())
+
+
+def test_epoch_array_round_trip(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    want = rng.normal(size=(7, 3, 2))
+    a = EpochArray(7, (3, 2), tmp_path / "a.f64")
+    for k in (3, 0, 6, 1, 2, 5, 4):  # any order
+        a[k] = want[k]
+    assert np.array_equal(a[2], want[2]) and np.array_equal(a[-1], want[-1]) and np.array_equal(a[1:5], want[1:5])
+    assert np.array_equal(np.asarray(a), want) and a.shape == (7, 3, 2) and len(a) == 7
+    with pytest.raises(IndexError):
+        a[7]
+    a.close()
+    assert not (tmp_path / "a.f64").exists()
+    m = EpochArray(2, (3,))
+    m[1] = [1.0, 2.0, 3.0]
+    assert not m.on_disk and np.array_equal(m[1], [1.0, 2.0, 3.0])
+
+
+def test_sink_gets_the_rows_in_blocks(flight, monkeypatch) -> None:
+    imu, master, ins = flight
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 6)
+    cfg = TAConfig(attitude_sigma_deg=1.0)
+    whole = pipeline.run_segments(imu, master, ins, cfg, "urtss")
+    blocks: list[tuple] = []
+    lean = pipeline.run_segments(imu, master, ins, cfg, "urtss", sink=lambda *b: blocks.append(b))
+    assert len(blocks) > 1 and lean.llh.shape == (0, 3) and lean.sigma.shape == (0, 9)
+    assert np.array_equal(lean.t_s, whole.t_s) and np.array_equal(lean.flags, whole.flags) and np.array_equal(lean.x, whole.x)
+    for i, name in enumerate(("t_s", "llh", "vel_n_mps", "q_nb", "sigma")):
+        assert np.array_equal(np.concatenate([b[i] for b in blocks]), getattr(whole, name)), name
+
+
+def test_installation_states_with_the_re_integrated_nominal(flight, monkeypatch) -> None:
+    """The time-offset state's matches use the nominal's acceleration before the epoch and its
+    output shift moves rows across blocks: the same result with the nominal kept or re-integrated."""
+    imu, master, ins = flight
+    ins = replace(ins, time_offset_sigma_s=0.002, lever_arm_sigma_m=0.05)
+    cfg = TAConfig(attitude_sigma_deg=1.0, master_error_tau_s=30.0)
+    monkeypatch.setattr(pipeline, "KEEP_NOMINAL", True)
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 10**6)
+    stored = pipeline.run_segments(imu, master, ins, cfg, "urtss")
+    assert stored.installation["time_offset"]["sigma"][0] > 0
+    monkeypatch.setattr(pipeline, "KEEP_NOMINAL", False)
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 3)
+    _same(stored, pipeline.run_segments(imu, master, ins, cfg, "urtss"))

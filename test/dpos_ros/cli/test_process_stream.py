@@ -1,0 +1,65 @@
+"""dpos-process --stream (issue #17, dpos_ros.products.stream): the products of the streaming path
+are those of the in-memory path - the CSV files byte for byte, the antenna bag message for
+message, qc.md and status.json but for the documented differences (no evaluation against the
+truth, the wing fit's window count) - on a session shorter than one wing-fit window."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from repo_paths import REPO
+
+from dpos_ros.cli import process as process_cli
+from dpos_ros.cli import sim as sim_cli
+from dpos_ros.io import bag
+from dpos_ros.products import stream
+
+SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
+
+
+def _compare(on: Path, off: Path) -> None:
+    (sid,) = [p.name for p in on.iterdir()]
+    a, b = on / sid, off / sid
+    csvs = sorted(p.name for p in a.glob("*.csv"))
+    assert csvs and csvs == sorted(p.name for p in b.glob("*.csv"))
+    for name in csvs:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    assert (a / "qc.md").read_text() == (b / "qc.md").read_text()
+    sa, sb = json.loads((a / "status.json").read_text()), json.loads((b / "status.json").read_text())
+    for fit in sa.get("wing_fit", {}).values():
+        assert fit.pop("windows") == 1 and fit.pop("window_s") == stream.FIT_WINDOW_S
+    sa["warnings"] = [w for w in sa["warnings"] if not w.startswith("--stream")]
+    for k in ("timing",):
+        sa.pop(k), sb.pop(k)
+    assert sa == sb
+    ra, rb = bag.read_raw(a / "antennas"), bag.read_raw(b / "antennas")
+    assert ra.keys() == rb.keys()
+    for t in ra:
+        assert ra[t][1] == rb[t][1] and [bytes(x) for x in ra[t][2]] == [bytes(x) for x in rb[t][2]], t
+    assert sorted(p.name for p in (a / "qc").iterdir()) == sorted(p.name for p in (b / "qc").iterdir())
+    assert not (a / "metrics.json").exists() and (b / "metrics.json").exists()  # the truth is not evaluated
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_stream_gives_the_in_memory_products(tmp_path: Path, workers: str) -> None:
+    args = [str(SAMPLE), "--method", "ups", "--particles", "20", "--workers", workers]
+    assert process_cli.main([*args, "--stream", "on", "--out", str(tmp_path / "on")]) == 0
+    assert process_cli.main([*args, "--stream", "off", "--out", str(tmp_path / "off")]) == 0
+    _compare(tmp_path / "on", tmp_path / "off")
+    assert not [p for p in (tmp_path / "on").iterdir() if p.name.startswith(".")]  # the rows' scratch directory is gone
+
+
+def test_stream_with_the_wing_fit(tmp_path: Path) -> None:
+    rec = tmp_path / "wing"
+    assert sim_cli.main(["--scenario", "paper_wing", "--duration", "20", "--window", "10", "--out", str(rec)]) == 0
+    args = [str(rec), "--method", "urtss", "--workers", "1"]
+    assert process_cli.main([*args, "--stream", "on", "--out", str(tmp_path / "on")]) == 0
+    assert process_cli.main([*args, "--stream", "off", "--out", str(tmp_path / "off")]) == 0
+    _compare(tmp_path / "on", tmp_path / "off")
+
+
+def test_stream_refuses_a_re_run_main_pos(tmp_path: Path, capsys) -> None:
+    assert process_cli.main([str(SAMPLE), "--stream", "on", "--master-reference", "forward", "--out", str(tmp_path)]) == 2
+    assert "--master-reference recorded" in capsys.readouterr().err
