@@ -130,8 +130,10 @@ def session_streams(session: SimulatedSession, *, truth: bool = True, datum_llh:
 
 
 
-def _window_streams(session: SimulatedSession, w: Window, *, truth: bool, datum: NDArray[np.float64], last: bool) -> list[TopicStream]:
-    """The topics of :func:`session_streams`, in its order, over one window of a :class:`ChunkedSession`."""
+def _window_streams(session: SimulatedSession, w: Window, *, truth: bool, datum: NDArray[np.float64], last: bool,
+                    sar: list[TopicStream] | None = None) -> list[TopicStream]:
+    """The topics of :func:`session_streams`, in its order, over one window of a :class:`ChunkedSession`
+    (``sar``: the session's /sar/fix and /baro/pressure, :func:`sar_streams`, cut to the window)."""
     sc = session.scenario
     ac = sc.aircraft
     t0 = sc.start_time_s
@@ -147,6 +149,10 @@ def _window_streams(session: SimulatedSession, w: Window, *, truth: bool, datum:
         serialize_message(cv.navsatfix_msg(int(t), cv.GNSS_FRAME, g.llh[i], g.pos_sigma_m[i])) for i, t in enumerate(g_ns))))
     out.append(TopicStream(T.GNSS_VEL, T.TWIST_COV, g_ns, blobs=tuple(
         serialize_message(cv.gnss_vel_msg(int(t), g.vel_n_mps[i], g.vel_sigma_mps[i])) for i, t in enumerate(g_ns))))
+    for st in sar or ():  # the window's (t_a, t_b] (t_a = 0: from the start)
+        a_ns, b_ns = cv.stamps_ns(t0, np.array([w.t_a, w.t_b]))
+        sel = np.flatnonzero(((st.t_ns > a_ns) | (w.t_a == 0.0)) & (st.t_ns <= b_ns))
+        out.append(TopicStream(st.topic, st.msgtype, st.t_ns[sel], blobs=tuple(st.message(int(i)) for i in sel), qos=st.qos))
     out.append(_odometry_stream(T.MASTER_NAV, cv.MASTER_FRAME, w.master_nav, session, datum, with_cov=True))
     if truth:
         out.append(_odometry_stream(T.TRUTH_MASTER, cv.MASTER_FRAME, w.truth["master"], session, datum, with_cov=False))
@@ -176,11 +182,14 @@ def chunked_session_streams(session: SimulatedSession, window_s: float, *, truth
     one list per window, every topic in each (empty where it has no message in the window)."""
     datum = session.datum_llh if datum_llh is None else np.asarray(datum_llh, dtype=float)
     cs = ChunkedSession(session, truth=truth)
+    # a SINS/SAR scenario's fixes and heights: the whole session's (small: 1 Hz and 10 Hz; their draws do
+    # not depend on the windows), each window's cut from them
+    sar = sar_streams(session, datum) if session.scenario.sar is not None else None
     ws = cs.windows(window_s)
     w = next(ws, None)
     while w is not None:
         nxt = next(ws, None)
-        yield _window_streams(session, w, truth=truth, datum=datum, last=nxt is None)
+        yield _window_streams(session, w, truth=truth, datum=datum, last=nxt is None, sar=sar)
         w = nxt
 
 
