@@ -39,11 +39,11 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from dpos_core.config import ConfigError, load_aircraft
+from dpos_core.config import AircraftConfig, ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
-from dpos_ros.io.session import SessionError, read_session
+from dpos_ros.io.session import RecordedSession, SessionError, read_session
 from dpos_ros.products.master_reference import REFERENCES, accuracy, aligned_since, master_reference
 from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
 from dpos_ros.runtime.pool import warm_pool
@@ -145,6 +145,21 @@ def main(argv: list[str] | None = None) -> int:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _aircraft(args: argparse.Namespace, sess: RecordedSession) -> AircraftConfig:
+    """The aircraft: ``--aircraft``, else the one embedded in the recording; SessionError without either."""
+    if args.aircraft:
+        return load_aircraft(args.aircraft)
+    if "dpos.aircraft_yaml" in sess.custom:
+        return load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
+    raise SessionError(f"{args.bag} carries no aircraft configuration: pass --aircraft")
+
+
+def _refuse_existing(final: Path) -> int:
+    print(f"dpos-process: error: {final} exists (products of an earlier run): pass --overwrite to replace them, "
+          "or choose another --out", file=sys.stderr)
+    return EXIT_ERROR
+
+
 def _streaming(args: argparse.Namespace) -> bool:
     """Whether ``--stream`` (module docstring) takes the streaming path for this recording."""
     if args.stream == "off":
@@ -163,12 +178,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         return _process_streaming(args, target, pool)
     try:
         sess = read_session(args.bag)
-        if args.aircraft:
-            aircraft = load_aircraft(args.aircraft)
-        elif "dpos.aircraft_yaml" in sess.custom:
-            aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
-        else:
-            raise SessionError(f"{args.bag} carries no aircraft configuration: pass --aircraft")
+        aircraft = _aircraft(args, sess)
         ref = master_reference(sess, aircraft, args.master_reference)
     except (SessionError, ConfigError) as e:
         print(f"dpos-process: error: {e}", file=sys.stderr)
@@ -179,9 +189,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
     final = args.out / sess.session_id
     had_products = final.exists()
     if had_products and not args.overwrite:
-        print(f"dpos-process: error: {final} exists (products of an earlier run): pass --overwrite to replace them, "
-              "or choose another --out", file=sys.stderr)
-        return EXIT_ERROR
+        return _refuse_existing(final)
     ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
     for w in sess.warnings:
@@ -249,12 +257,7 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
         if meta is None:
             raise SessionError(f"{args.bag}: --stream reads rosbag2 recordings with their metadata.yaml")
         sess = read_session_streaming(args.bag, keep=lambda t: False)  # the main POS only
-        if args.aircraft:
-            aircraft = load_aircraft(args.aircraft)
-        elif "dpos.aircraft_yaml" in sess.custom:
-            aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
-        else:
-            raise SessionError(f"{args.bag} carries no aircraft configuration: pass --aircraft")
+        aircraft = _aircraft(args, sess)
     except (SessionError, ConfigError) as e:
         print(f"dpos-process: error: {e}", file=sys.stderr)
         return EXIT_ERROR
@@ -264,9 +267,7 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
     final = args.out / sess.session_id
     had_products = final.exists()
     if had_products and not args.overwrite:
-        print(f"dpos-process: error: {final} exists (products of an earlier run): pass --overwrite to replace them, "
-              "or choose another --out", file=sys.stderr)
-        return EXIT_ERROR
+        return _refuse_existing(final)
     topics = meta[0]
     subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
     if any(t.startswith("/truth/") for t in topics):

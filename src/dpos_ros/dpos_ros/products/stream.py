@@ -352,16 +352,7 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
     for name, a in antennas.items():
         f = files.get(name)
         summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
-    status = {name: a.status for name, a in antennas.items()}
-    repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.rows is not None}
-    doc = {"session_id": sess.session_id, "method": method, "antennas": status, "warnings": sess.warnings, "timing": timing,
-           "chol_jitter_repairs": repairs}
-    fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
-    if fits:
-        doc["wing_fit"] = fits
-    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
-    if inst:  # as dpos_ros.products.ta.write
-        doc["installation_states"] = inst
+    doc = P.status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.rows is not None})
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
     doc["qc"] = _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete

@@ -196,6 +196,23 @@ def solve(
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
 
 
+def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[str, float], estimated: set[str]) -> dict:
+    """status.json without its ``qc`` (design.md "Products"): the antennas' status, the warnings,
+    the timing, the jitter repairs of the ``estimated`` antennas, the wing fits and each sub-IMU's
+    installation states (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states).
+    ``antennas``: AntennaSolution or the streaming path's antennas (the same fields)."""
+    doc = {"session_id": sess.session_id, "method": method, "antennas": {name: a.status for name, a in antennas.items()},
+           "warnings": sess.warnings, "timing": timing,
+           "chol_jitter_repairs": {name: a.chol_jitter_repairs for name, a in antennas.items() if name in estimated}}
+    fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
+    if fits:
+        doc["wing_fit"] = fits
+    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
+    if inst:
+        doc["installation_states"] = inst
+    return doc
+
+
 def _sub_imu_antenna(sess: RecordedSession, aircraft: AircraftConfig, a: AntennaConfig, r: pipeline.TAResult,
                      output_rate_hz: float) -> AntennaSolution:
     """Antenna ``a`` (one with a sub-IMU) carried by its sub-IMU's solution ``r`` (:func:`solve`):
@@ -469,16 +486,7 @@ def _write_products(
     if est:  # (out is a new directory: write() never mixes runs); a batch of poses in memory at a time
         write_stream_batches(bag_dir, antenna_stream_batches(sess, est),
                              custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
-    status = {name: a.status for name, a in antennas.items()}
-    repairs = {name: a.chol_jitter_repairs for name, a in antennas.items() if a.traj is not None}
-    doc = {"session_id": sess.session_id, "method": method, "antennas": status, "warnings": sess.warnings, "timing": timing,
-           "chol_jitter_repairs": repairs}
-    fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
-    if fits:
-        doc["wing_fit"] = fits
-    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
-    if inst:  # the estimated installation of each sub-IMU (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states)
-        doc["installation_states"] = inst
+    doc = status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.traj is not None})
     doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth (its figures: _antenna_files)
     if evaluation:
         metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
