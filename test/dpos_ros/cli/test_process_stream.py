@@ -63,3 +63,24 @@ def test_stream_with_the_wing_fit(tmp_path: Path) -> None:
 def test_stream_refuses_a_re_run_main_pos(tmp_path: Path, capsys) -> None:
     assert process_cli.main([str(SAMPLE), "--stream", "on", "--master-reference", "forward", "--out", str(tmp_path)]) == 2
     assert "--master-reference recorded" in capsys.readouterr().err
+
+
+def test_stream_wing_fit_windows_on_the_workers(tmp_path: Path, monkeypatch) -> None:
+    """The wing fit's windows fitted on the workers (a few in flight, taken in order) give the
+    products of the windows fitted one after the other in this process, byte for byte."""
+    rec = tmp_path / "wing"
+    assert sim_cli.main(["--scenario", "paper_wing", "--duration", "20", "--window", "10", "--out", str(rec)]) == 0
+    monkeypatch.setattr(stream, "FIT_WINDOW_S", 4.0)  # 5 windows, more than FIT_IN_FLIGHT
+    monkeypatch.setattr(stream, "FIT_IN_FLIGHT", 2)
+    for workers in ("1", "2"):
+        assert process_cli.main([str(rec), "--method", "urtss", "--workers", workers, "--stream", "on", "--out", str(tmp_path / workers)]) == 0
+    (sid,) = [p.name for p in (tmp_path / "1").iterdir()]
+    a, b = tmp_path / "1" / sid, tmp_path / "2" / sid
+    csvs = sorted(p.name for p in a.glob("*.csv"))
+    assert len(csvs) == 12 and csvs == sorted(p.name for p in b.glob("*.csv"))
+    for name in csvs:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    sa, sb = json.loads((a / "status.json").read_text()), json.loads((b / "status.json").read_text())
+    assert [f["windows"] for f in sa["wing_fit"].values()] == [5] * len(sa["wing_fit"])
+    sa.pop("timing"), sb.pop("timing")
+    assert sa == sb

@@ -28,6 +28,7 @@ import json
 import shutil
 import tempfile
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -56,6 +57,8 @@ from . import ta as P
 ROW_BLOCK = 2**16
 #: seconds of the wing fit's windows (module docstring)
 FIT_WINDOW_S = 300.0
+#: wing-fit windows submitted to the workers ahead of the one being stored (their rows in memory)
+FIT_IN_FLIGHT = 4
 #: the columns of an antenna's (or a sub-IMU's) rows
 ROW_COLUMNS: dict[str, tuple[tuple[int, ...], str]] = {
     "t_s": ((), "<f8"), "q_nb": ((4,), "<f8"), "vel_n_mps": ((3,), "<f8"), "llh": ((3,), "<f8"), "sigma": ((9,), "<f8"),
@@ -109,6 +112,43 @@ class RowStore:
         shutil.rmtree(self.path, ignore_errors=True)
 
 
+class StampCursor:
+    """The rows of a :class:`RowStore` before a time, found from its stamps read a block at a time
+    (issue #17: a long flight's stamps are not held): :meth:`index` is ``np.searchsorted(t_s,
+    t_edge)`` over all its stamps, for ``t_edge`` asked in increasing order."""
+
+    def __init__(self, rows: RowStore, block: int = ROW_BLOCK) -> None:
+        self.rows, self.block = rows, block
+        self.base = 0  # the row of t[0]
+        self.t = rows.read("t_s", 0, block)
+
+    def index(self, t_edge: float) -> int:
+        """The first row at or after ``t_edge`` [s] (not before an earlier call's answer)."""
+        while True:
+            j = int(np.searchsorted(self.t, t_edge))
+            if j < self.t.size or self.base + self.t.size >= self.rows.n:
+                self.base, self.t = self.base + j, self.t[j:]
+                return self.base
+            self.base += self.t.size
+            self.t = self.rows.read("t_s", self.base, self.base + self.block)
+
+    def first_last(self) -> tuple[float, float]:
+        """The first and the last stamp [s] (the store has rows)."""
+        return float(self.rows.read("t_s", 0, 1)[0]), float(self.rows.read("t_s", self.rows.n - 1)[0])
+
+
+def release_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc ``malloc_trim``; nothing elsewhere): a
+    worker's heap otherwise keeps what a task grew it to while it idles or runs a smaller task."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def _nav(cols: dict[str, NDArray]) -> NavSeries:
     return NavSeries(cols["t_s"], cols["q_nb"], cols["vel_n_mps"], cols["llh"])
 
@@ -152,6 +192,16 @@ def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg
     rows (``antennas``: name, lever arm) and its own at ``output_rate_hz`` written to RowStores under
     ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.ta.solve` computes
     them.  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
+    try:
+        return _align_to_store(bag, sub, master, ins, cfg, method, particles, seed, err0_deg, antennas, output_rate_hz, inflate_sigma,
+                               aligned_sigma_deg, store_dir)
+    finally:
+        release_memory()
+
+
+def _align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg: TAConfig, method: str, particles: int,
+                    seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
+                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
     sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub))
     if sub not in sess.sub_imus:
         return {"missing": True, "warnings": sess.warnings}
@@ -257,49 +307,73 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
             why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
             out[a.name] = StreamedAntenna(a.name, a.sub_imu, f"not estimated: {why}")
     if any(a.sub_imu is None for a in aircraft.antennas):
-        out.update(_fit_windows(sess, aircraft, carriers, store_dir))
+        out.update(_fit_windows(sess, aircraft, carriers, store_dir, pool))
+    release_memory()
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
 
 
+def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
+               ranges: dict[str, tuple[int, int]]) -> tuple[dict[str, P.AntennaSolution], list[str]]:
+    """One window of :func:`_fit_windows` (a worker's task): :func:`dpos_ros.products.ta.fit_antennas`
+    of the carriers' rows ``ranges`` (name -> ``(i0, i1)``) with ``sess`` (its main POS cut to the
+    window); returns the ``fit`` antennas' solutions and the warnings it added."""
+    ants: dict[str, P.AntennaSolution] = {}
+    for name, st in carriers.items():
+        c = st.rows(*ranges[name])
+        s = aircraft.sub_imu(name)
+        tr = SubImuTrack(name, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
+                         c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
+        ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
+    warnings: list[str] = []
+    sol = P.fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
+    return {a.name: sol[a.name] for a in aircraft.antennas if a.sub_imu is None and a.name in sol}, warnings
+
+
 def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
-                 store_dir: Path) -> dict[str, StreamedAntenna]:
+                 store_dir: Path, pool: cf.Executor | None = None) -> dict[str, StreamedAntenna]:
     """The ``fit`` antennas by :func:`dpos_ros.products.ta.fit_antennas` over consecutive windows of
-    :data:`FIT_WINDOW_S` (module docstring), their rows appended window by window."""
+    :data:`FIT_WINDOW_S` (module docstring), their rows appended window by window; the windows
+    fitted on ``pool`` when given (a few at a time, taken in order)."""
     fits = [a for a in aircraft.antennas if a.sub_imu is None]
-    times = {name: st.read("t_s") for name, st in carriers.items()}
-    if not times:
+    cursors = {name: StampCursor(st) for name, st in carriers.items()}
+    if not cursors:
         sol = P.fit_antennas(sess, aircraft, {})
         return {a.name: StreamedAntenna(a.name, None, sol[a.name].status) for a in fits if a.name in sol}
-    t_lo = min(float(t[0]) for t in times.values())
-    t_hi = max(float(t[-1]) for t in times.values())
+    spans = [c.first_last() for c in cursors.values()]
+    t_lo = min(lo for lo, _ in spans)
+    t_hi = max(hi for _, hi in spans)
     n_win = max(1, int(np.ceil((t_hi - t_lo) / FIT_WINDOW_S - 1e-9)))
     edges = t_lo + FIT_WINDOW_S * np.arange(n_win + 1)
     edges[-1] = np.inf
     stores = {a.name: RowStore(store_dir / f"ant_{a.name}") for a in fits}
     first: dict[str, P.AntennaSolution] = {}
     statuses: dict[str, set[str]] = {a.name: set() for a in fits}
-    for w in range(n_win):
-        ants: dict[str, P.AntennaSolution] = {}
-        for name, st in carriers.items():
-            t = times[name]
-            i0, i1 = int(np.searchsorted(t, edges[w])), int(np.searchsorted(t, edges[w + 1]))
-            c = st.rows(i0, i1)
-            s = aircraft.sub_imu(name)
-            tr = SubImuTrack(name, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
-                             c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
-            ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
+
+    def task(w: int) -> tuple:
+        ranges = {name: (cursors[name].index(edges[w]), cursors[name].index(edges[w + 1])) for name in carriers}
         lo, hi = (edges[w] - 1.0, edges[w + 1] + 1.0)
         m = sess.master.select((sess.master.t_s >= lo) & (sess.master.t_s <= hi))
-        sol = P.fit_antennas(dc_replace(sess, master=m, warnings=sess.warnings), aircraft, ants)
-        for a in fits:
-            fa = sol.get(a.name)
-            if fa is None:
-                continue
-            statuses[a.name].add(fa.status)
-            first.setdefault(a.name, fa)
-            if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
-                stores[a.name].append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh,
-                                      sigma=fa.sigma, flags=fa.flags)
+        return dc_replace(sess, master=m, warnings=[]), aircraft, carriers, ranges
+
+    pending: deque = deque()
+    for w in range(n_win):
+        if pool is None:
+            pending.append(fit_window(*task(w)))
+        else:
+            pending.append(pool.submit(fit_window, *task(w)))
+        while pending and (pool is None or len(pending) > FIT_IN_FLIGHT or w == n_win - 1):
+            r = pending.popleft()
+            sol, warnings = r if pool is None else r.result()
+            sess.warnings.extend(warnings)
+            for a in fits:
+                fa = sol.get(a.name)
+                if fa is None:
+                    continue
+                statuses[a.name].add(fa.status)
+                first.setdefault(a.name, fa)
+                if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
+                    stores[a.name].append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh,
+                                          sigma=fa.sigma, flags=fa.flags)
     out: dict[str, StreamedAntenna] = {}
     for a in fits:
         f0 = first.get(a.name)
@@ -360,6 +434,13 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
 
 def _antenna_files(out: Path, a: StreamedAntenna, t0_ns: int, method: str) -> dict:
     """One estimated antenna's CSV and QC figure; returns its QC summary (a worker's task)."""
+    try:
+        return _antenna_files_in(out, a, t0_ns, method)
+    finally:
+        release_memory()
+
+
+def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) -> dict:
     from .qc import plot_qc, qc_dir
 
     assert a.rows is not None
@@ -387,19 +468,19 @@ def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
 
 def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float = P.BAG_BATCH_S):
     """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows."""
-    times = {name: a.rows.read("t_s") for name, a in est.items() if a.rows is not None}
-    nonempty = [t for t in times.values() if t.size]
-    t_lo = min((float(t[0]) for t in nonempty), default=0.0)
-    t_hi = max((float(t[-1]) for t in nonempty), default=t_lo)
+    cursors = {name: StampCursor(a.rows) for name, a in est.items() if a.rows is not None}
+    spans = [c.first_last() for c in cursors.values() if c.rows.n]
+    t_lo = min((lo for lo, _ in spans), default=0.0)
+    t_hi = max((hi for _, hi in spans), default=t_lo)
     n = max(1, int(np.floor((t_hi - t_lo) / batch_s)) + 1)
     edges = t_lo + batch_s * np.arange(n + 1)
     edges[-1] = np.inf
+    i_from = dict.fromkeys(cursors, 0)
     for k in range(n):
         out = []
         for name, a in est.items():
-            t = times[name]
-            i0 = 0 if k == 0 else int(np.searchsorted(t, edges[k]))
-            i1 = int(np.searchsorted(t, edges[k + 1]))
+            i0 = i_from[name]  # (the first batch from row 0)
+            i1 = i_from[name] = cursors[name].index(edges[k + 1])
             out.append(P._antenna_stream(sess, name, a.solution(i0, i1), slice(None)))
         yield out
 
