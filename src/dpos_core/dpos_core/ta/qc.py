@@ -44,6 +44,7 @@ separation and the flagged time, and a verdict line; ``dpos_ros.products.ta`` wr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -331,7 +332,7 @@ def _pct(v: FloatArray) -> dict[str, float]:
     return {"p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
 
 
-def summarize(t_rows: FloatArray, sigma: FloatArray, flags: F.FlagArray | None, qc: EpochQC | None = None,
+def summarize(t_rows: FloatArray, sigma: FloatArray | Callable[[int], FloatArray], flags: F.FlagArray | None, qc: EpochQC | None = None,
               wing_fit: dict | None = None, window_s: float = WINDOW_S, prob: float = PROB) -> dict:
     """The QC summary of one antenna (docs/qc.md; ``status.json`` ``qc``): rows and duration;
     ``sigma``: per component of :data:`SIGMA_COMPONENTS` the 50th / 95th percentile and the
@@ -343,12 +344,16 @@ def summarize(t_rows: FloatArray, sigma: FloatArray, flags: F.FlagArray | None, 
     variance factors and its cross-validation scores at the chosen degree (and, without ``qc``, the
     :data:`.flags.INCONSISTENT_INNOVATIONS` its sub-IMUs carried in as a cause); ``flags``: per bit
     set on any row the flagged time [s] and fraction; ``verdict``: ``ok`` or ``check: ...``
-    (the causes over :data:`CHECK_FRACTION` of the time), ``notes`` (causes below it)."""
+    (the causes over :data:`CHECK_FRACTION` of the time), ``notes`` (causes below it).
+
+    ``sigma``: the rows' 1-sigma (N, 9), or a function giving its column ``i`` (N,) (a long
+    flight's rows read one column at a time)."""
     t = np.asarray(t_rows, dtype=float)
     dur = _row_durations(t)
     total = float(dur.sum())
     out: dict = {"rows": int(t.size), "duration_s": total}
-    out["sigma"] = {name: _pct(sigma[:, i] * scale) for name, i, scale in SIGMA_COMPONENTS}
+    column = sigma if callable(sigma) else (lambda i: sigma[:, i])
+    out["sigma"] = {name: _pct(column(i) * scale) for name, i, scale in SIGMA_COMPONENTS}
     checks: list[str] = []
     notes: list[str] = []
     if qc is not None and qc.epochs_s.size:

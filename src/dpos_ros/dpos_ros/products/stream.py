@@ -105,6 +105,14 @@ class RowStore:
         a = np.fromfile(self._file(name), dtype=dt, count=(i1 - i0) * size, offset=i0 * size * dt.itemsize)
         return a.reshape((i1 - i0, *shape))
 
+    def column(self, name: str, j: int) -> NDArray:
+        """Column ``j`` (N,) of the rows of the 2-D column ``name``, read a block of rows at a time."""
+        shape, dtype = self.columns[name]
+        out = np.empty(self.n, dtype=dtype)
+        for i0 in range(0, self.n, ROW_BLOCK):
+            out[i0:i0 + ROW_BLOCK] = self.read(name, i0, i0 + ROW_BLOCK)[:, j]
+        return out
+
     def rows(self, i0: int = 0, i1: int | None = None) -> dict[str, NDArray]:
         return {name: self.read(name, i0, i1) for name in self.columns}
 
@@ -445,9 +453,10 @@ def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) ->
 
     assert a.rows is not None
     _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows)
-    t, sigma, flags = a.rows.read("t_s"), a.rows.read("sigma"), a.rows.read("flags")
-    s = Q.summarize(t, sigma, flags, a.qc, a.wing_fit)
-    del t, sigma, flags
+    rows = a.rows
+    t, flags = rows.read("t_s"), rows.read("flags")
+    s = Q.summarize(t, lambda j: rows.column("sigma", j), flags, a.qc, a.wing_fit)  # (a column of the sigmas at a time)
+    del t, flags
     s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
     step = max(1, a.rows.n // (50 * 4000))  # plot_qc strides to 4000 points: every row is not needed
     plot_qc(qc_dir(out) / f"{a.name}_qc.png", a.solution(step=step), method)
