@@ -62,6 +62,8 @@ Keys (in order):
                                one of them; long_flight_<d>_time_ratio: its wall time / flight duration; long_flight_<d>_status: "ok",
                                or why there is no figure (the run killed above --long-flight-rss-cap-mb, 6000, to spare the
                                shared machine; the bag not fitting the disk); long_flight_<d>_sim_*: the simulation's;
+                               long_flight_<d>_loadavg: the machine's 1-minute load average before and after
+                               dpos-process (2 cores; another engineer's work slows the time ratio);
                                long_flight_peak_rss_mb / long_flight_time_ratio: those of the longest flight
   soak_processing_time_ratio   finalize processing time (status.json timing.processing_s: the smoothers
                                of the 6 sub-IMUs) / data duration; soak_data_wall_s: wall time of the
@@ -796,15 +798,18 @@ def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...
                 continue
             results[f"{key}_bag_mb"] = round(sum(f.stat().st_size for f in bag.iterdir()) / 1e6, 1)
             one: dict[str, float] = {}
+            load0 = os.getloadavg()[0]
             rc, wall, peak, status = _run_watched([str(bindir / "dpos-process"), str(bag), "--out", str(tmp / "products"),
                                                    "--workers", "2", "--stream", "on"], rss_cap_mb, tmp / "process.log", one)
             results[f"{key}_largest_process_rss_mb"] = round(one.get("mb", 0.0), 1)
+            results[f"{key}_loadavg"] = [round(load0, 2), round(os.getloadavg()[0], 2)]
             if rc not in (0, 1):  # 1: some antenna not estimated (products written)
                 status = status if rc is None else f"dpos-process exit {rc}: {(tmp / 'process.log').read_text()[-500:]}"
             results[f"{key}_status"] = status
             results[f"{key}_peak_rss_mb"] = round(peak, 1) if rc in (0, 1) else None
             results[f"{key}_time_ratio"] = round(wall / d, 5) if rc in (0, 1) else None
-            print(f"{key}: dpos-process peak {peak:.0f} MB, {wall:.0f} s (ratio {wall / d:.4f}), {status}; simulation peak "
+            print(f"{key}: dpos-process peak {peak:.0f} MB, {wall:.0f} s (ratio {wall / d:.4f}, load {load0:.1f} -> "
+                  f"{os.getloadavg()[0]:.1f}), {status}; simulation peak "
                   f"{results[f'{key}_sim_peak_rss_mb']:.0f} MB, ratio {results[f'{key}_sim_time_ratio']:.4f}; bag {results[f'{key}_bag_mb']} MB")
             last = key
         finally:
