@@ -57,6 +57,9 @@ from . import ta as P
 ROW_BLOCK = 2**16
 #: seconds of the wing fit's windows (module docstring)
 FIT_WINDOW_S = 300.0
+#: seconds of antenna poses per batch of the antenna bag (the in-memory path's 60 s: ~0.2 GB of
+#: messages and their values for twelve antennas at 200 Hz in this process at once)
+BAG_BATCH_S = 20.0
 #: wing-fit windows submitted to the workers ahead of the one being stored (their rows in memory)
 FIT_IN_FLIGHT = 4
 #: the columns of an antenna's (or a sub-IMU's) rows
@@ -193,13 +196,15 @@ class StreamedAntenna:
 # ------------------------------------------------------------------------------------ the workers
 
 
-def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg: TAConfig, method: str, particles: int,
+def align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
                    seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
     """One sub-IMU (a worker's task; module docstring): its topic read alone, aligned, its antennas'
     rows (``antennas``: name, lever arm) and its own at ``output_rate_hz`` written to RowStores under
     ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.ta.solve` computes
-    them.  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
+    them.  ``master``: the aligned main POS, or None for that of the recording as this worker reads
+    it with its topic (:func:`dpos_ros.products.ta.aligned_master`: the same series, not sent to
+    the worker).  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
     try:
         return _align_to_store(bag, sub, master, ins, cfg, method, particles, seed, err0_deg, antennas, output_rate_hz, inflate_sigma,
                                aligned_sigma_deg, store_dir)
@@ -207,13 +212,17 @@ def align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg
         release_memory()
 
 
-def _align_to_store(bag: str, sub: str, master: NavSeries, ins: Installation, cfg: TAConfig, method: str, particles: int,
+def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
                     seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
                     inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
     sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub))
     if sub not in sess.sub_imus:
         return {"missing": True, "warnings": sess.warnings}
     imu = sess.sub_imus[sub]
+    if master is None:
+        master = P.aligned_master(sess, aligned_sigma_deg)
+        if master is None:  # (the caller has found it aligned)
+            return {"rejected": "the main POS is never aligned", "warnings": sess.warnings}
     base = Path(store_dir)
     ta_rows = RowStore(base / f"ta_{sub}", {k: v for k, v in ROW_COLUMNS.items() if k != "flags"})
 
@@ -270,9 +279,11 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
                    master_error_tau_s=master_error_tau_s)
     t0 = time.perf_counter()
     master = P.aligned_master(sess, master_aligned_sigma_deg)
+    release_memory()  # (what reading the main POS grew the heap to)
     e = initial_attitude_error_deg
     present = set(sess.sub_imus if sub_imus is None else sub_imus)
-    tasks = {s.name: (str(bag), s.name, master, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed, (e, e, e),
+    # the workers read the main POS with their sub-IMU's topic (a long flight's main POS is not pickled to them)
+    tasks = {s.name: (str(bag), s.name, master if pool is None else None, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed, (e, e, e),
                       [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
                       output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir))
              for s in aircraft.sub_imus if s.name in present and master is not None}
@@ -333,7 +344,11 @@ def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[s
                          c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
         ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
     warnings: list[str] = []
-    sol = P.fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
+    try:
+        sol = P.fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
+    finally:
+        del ants
+        release_memory()
     return {a.name: sol[a.name] for a in aircraft.antennas if a.sub_imu is None and a.name in sol}, warnings
 
 
@@ -475,8 +490,10 @@ def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
     part.unlink(missing_ok=True)
 
 
-def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float = P.BAG_BATCH_S):
-    """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows."""
+def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float | None = None):
+    """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
+    at a time (the same messages in the same order; a batch's last chunk is closed with it)."""
+    batch_s = BAG_BATCH_S if batch_s is None else batch_s
     cursors = {name: StampCursor(a.rows) for name, a in est.items() if a.rows is not None}
     spans = [c.first_last() for c in cursors.values() if c.rows.n]
     t_lo = min((lo for lo, _ in spans), default=0.0)
