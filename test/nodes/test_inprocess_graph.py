@@ -172,6 +172,8 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
     # the products
     status = json.loads((products / "status.json").read_text())
     assert status["antennas"] == {a: "estimated" for a in ANTENNAS} and status["method"] == "urtss"
+    # the simulator's reference main POS (no /pos_master/status): white noise, as [Gong2018] models it
+    assert status["master_error_model"]["tau_s"] == 0.0 and "white noise" in status["master_error_model"]["why"], status
     for a in ANTENNAS:
         assert (products / f"{a}.csv").is_file()
     rmse = json.loads((products / "metrics.json").read_text())["methods"]["urtss"]["mean"]["rmse"]

@@ -1,6 +1,8 @@
 """transfer_align_node with a main POS that never reports an aligned attitude: the session is
 finalized, the products say why no antenna was estimated, nothing is published on /antenna/*,
-and the node stays up for the next session (in-process, bounded waits)."""
+and the node stays up for the next session (in-process, bounded waits).  The fake main POS also
+publishes /pos_master/status, as pos_master_node does for its GNSS/INS mechanization: the node's
+default ``master_error_tau_s`` (auto) takes its errors as correlated (status.json, the spill's metadata)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
@@ -19,8 +22,11 @@ from repo_paths import REPO
 from ros_wait import spin_until  # test/support/ros_wait.py
 from std_srvs.srv import Trigger
 
-from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS
+from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
 from dpos_ros.io import bag
+from dpos_ros.io.session import MASTER_SOURCE_KEY
+from dpos_ros.io.spill import read_spill
+from dpos_ros.products.master_reference import GNSS_INS_ERROR_TAU_S
 
 pytestmark = [pytest.mark.ros]
 
@@ -66,6 +72,7 @@ def test_never_aligned_main_pos(ros_context, tmp_path: Path) -> None:
     for a in ("ant_r", "ant_l"):
         watcher.create_subscription(Odometry, f"/antenna/{a}/odom", odoms.append, _keep_all(NAV_QOS))
     pubs = {t: src.create_publisher(message_class(types.get(t, "sensor_msgs/msg/Imu")), t, _keep_all(q)) for t, q in qos.items()}
+    src.create_publisher(DiagnosticArray, "/pos_master/status", STATUS_QOS)  # (its existence is what counts)
     client = src.create_client(Trigger, "/transfer_align_node/finalize")
     for n in (ta, src, watcher):
         executor.add_node(n)
@@ -98,3 +105,7 @@ def test_never_aligned_main_pos(ros_context, tmp_path: Path) -> None:
     assert any("never aligned" in w for w in st["warnings"]), st["warnings"]
     assert odoms == [] and ta._device is None  # no antenna-pose device was started (it used to fail on empty streams)
     assert "ready for the next session" in ta._progress
+    # the main POS is pos_master_node's (a /pos_master/status publisher): correlated errors, also for dpos-process on the spill
+    assert st["master_error_model"]["tau_s"] == GNSS_INS_ERROR_TAU_S and "/pos_master/status" in st["master_error_model"]["why"], st
+    (spill,) = (tmp_path / "spill").iterdir()
+    assert read_spill(spill)[1][MASTER_SOURCE_KEY] == "mechanized"

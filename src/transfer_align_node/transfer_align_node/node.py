@@ -87,8 +87,9 @@ from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
 from dpos_ros.devices.sim_device import SimDevice
-from dpos_ros.io.session import read_session, reject_reasons
+from dpos_ros.io.session import MASTER_SOURCE_KEY, read_session, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
+from dpos_ros.products.master_reference import master_error_tau
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
@@ -277,6 +278,7 @@ class TransferAlignNode(Node):
         self._frames: dict[str, tuple[bytes, cdr.Layout | None]] = {}  # topic -> frame_id bytes of its first message (Imu: layout)
         self._rejected: dict[str, dict[str, int]] = {}  # topic -> reason -> messages the session reader rejects
         self._disk: BufferedSpill | None = None  # a closing spill waiting for the disk (finalize)
+        self._saw_master_status = False  # a /pos_master/status publisher seen during the session (_publish_status)
         self._stopping_at: float | None = None  # time.monotonic() of the shutdown (bounds the wait for the disk)
         self._device: SimDevice | None = None  # publishing the antenna poses of the last session
         self._n_workers = worker_count(cfg.workers, len(self.sub_names))
@@ -366,6 +368,7 @@ class TransferAlignNode(Node):
             custom = {"dpos.session_id": sid, "dpos.aircraft_yaml": self.aircraft_yaml}
             sp = self._spill = BufferedSpill(lambda: SpillWriter(d, sid, custom), self._max_held)
             self._frames = {}
+            self._saw_master_status = False
             self.get_logger().info(f"new session: spilling to {self._spill_dir}")
             if self._datum is not None:
                 sp.write(T.DATUM, T.NAVSATFIX, *self._datum)
@@ -434,6 +437,7 @@ class TransferAlignNode(Node):
                 time.sleep(0.1)
             with self._lock:
                 sp, spill_dir = self._spill, self._spill_dir
+                saw_status = self._saw_master_status
                 missing = [t for t in needed if t not in self._streams]
                 if sp is not None and T.DATUM not in self._streams and cfg.datum:
                     self._spill_datum(sp)
@@ -462,8 +466,11 @@ class TransferAlignNode(Node):
             if sp is None or spill_dir is None:  # (both are set together by _ensure_spill)
                 log.error("finalize: nothing buffered")
                 return
-            self._close_spill(sp, sid)
-            self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()})
+            # /master/nav is pos_master_node's GNSS/INS mechanization when its status is published
+            # (also kept in the spill's metadata, for dpos-process on the spill)
+            mechanized = saw_status or self.count_publishers(T.POS_MASTER_STATUS) > 0
+            self._close_spill(sp, sid, mechanized)
+            self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()}, mechanized)
         except Exception as e:  # noqa: BLE001 - logged with its traceback, status ERROR; the node stays up for the next session
             log.error(f"finalize failed: {_describe(e)}\n{''.join(traceback.format_exception(e)).rstrip()}")
             with self._lock:
@@ -473,7 +480,7 @@ class TransferAlignNode(Node):
             with self._lock:
                 self._finalizing = False
 
-    def _close_spill(self, sp: BufferedSpill, sid: str) -> None:
+    def _close_spill(self, sp: BufferedSpill, sid: str, mechanized: bool = False) -> None:
         """Write out what is held in memory (waiting, with the status at ERROR, while the disk
         refuses it: nothing held is dropped), name the session and close the spill.  At shutdown
         the wait is bounded by ``finalize_timeout_s``: what the disk still refuses then is lost
@@ -494,6 +501,8 @@ class TransferAlignNode(Node):
                     if sid and sp.writer is not None:
                         sp.writer.session_id = sid
                         sp.writer.set_custom("dpos.session_id", sid)
+                    if mechanized and sp.writer is not None:
+                        sp.writer.set_custom(MASTER_SOURCE_KEY, "mechanized")
                     sp.close()
                     break
             except OSError as e:  # naming the session (spill.json) failed: the disk still refuses
@@ -524,9 +533,11 @@ class TransferAlignNode(Node):
             ex.submit(_warm_worker, self.config.method)
         return ex
 
-    def _process(self, spill_dir: Path, counts: dict) -> None:
+    def _process(self, spill_dir: Path, counts: dict, mechanized: bool = False) -> None:
         cfg = self.config
         log = self.get_logger()
+        tau, why = master_error_tau(cfg.master_error_tau_s, mechanized)
+        log.info(f"main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
         t0 = time.perf_counter()
         n_workers = self._n_workers
         self._progress = f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {n_workers} worker(s)"
@@ -544,7 +555,7 @@ class TransferAlignNode(Node):
         def submit_all(ex: cf.Executor) -> dict[cf.Future, str]:
             return {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
                               cfg.initial_attitude_error_deg, cfg.filter_rate_hz, cfg.output_rate_hz, cfg.position_matching,
-                              cfg.sigma_inflation, cfg.master_error_tau_s): n
+                              cfg.sigma_inflation, tau): n
                     for n in self.sub_names}
 
         try:
@@ -596,6 +607,7 @@ class TransferAlignNode(Node):
                 antennas[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: sub-IMU {a.sub_imu} has no data")
         sess = read_session(spill_dir, include_late=False, keep=lambda t: not t.startswith("/sub_imu/"))  # the products need no IMU data
         sess.warnings = list(dict.fromkeys(warnings + sess.warnings))  # the workers read the same spill: each warning once
+        sess.master_error_model = {"tau_s": tau, "why": why}
         antennas.update(fit_antennas(sess, self.aircraft, antennas))  # the `fit` antennas: least-squares wing fit ([LSFit] sec. 2)
         streams = [s for s in antenna_streams(sess, antennas) if len(s)]
         if self._device is not None:
@@ -653,6 +665,8 @@ class TransferAlignNode(Node):
 
     def _publish_status(self) -> None:
         self._retry_disk()
+        if self._spill is not None and not self._saw_master_status and self.count_publishers(T.POS_MASTER_STATUS) > 0:
+            self._saw_master_status = True
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         st = DiagnosticStatus()

@@ -16,6 +16,10 @@ def _check_sub_imus(names: tuple[str, ...]) -> str | None:
     return None
 
 
+def _check_tau(tau: float) -> str | None:
+    return None if tau >= 0 or tau == -1 else "must be >= 0 s, or -1 (auto)"
+
+
 @dataclass(frozen=True)
 class TransferAlignConfig:
     """Validated parameters of transfer_align_node.
@@ -31,7 +35,10 @@ class TransferAlignConfig:
         sigma_inflation: scale the output 1-sigma by the innovations' variance factor where they say
             the filter is optimistic (docs/qc.md "Sigma inflation"; default on).
         master_error_tau_s: correlation time of the main POS's position and velocity errors; > 0
-            estimates them as states and the antennas follow the main POS; 0 = white noise.
+            estimates them as states and the antennas follow the main POS; 0 = white noise; -1
+            (default) = auto: :data:`~dpos_ros.products.master_reference.GNSS_INS_ERROR_TAU_S` when a
+            /pos_master/status publisher exists at the session's end (/master/nav is
+            pos_master_node's GNSS/INS mechanization), else 0 (the simulator's reference main POS).
         output_dir: session products go to ``output_dir/<session id>/``.
         output_rate_hz: rate of /antenna/<name>/odom and the CSVs; 0 = the sub-IMU rate.
         sub_imus: names of the sub-IMUs to process; empty = all.
@@ -52,8 +59,9 @@ class TransferAlignConfig:
     filter_rate_hz: float = param(1.0, "filter measurement update rate [Hz]", minimum=0.0, exclusive_minimum=True)
     position_matching: bool = param(True, "match the main POS position too (false: attitude + velocity matching, [Gong2018])")
     sigma_inflation: bool = param(True, "inflate the output sigma where the innovations say the filter is optimistic")
-    master_error_tau_s: float = param(0.0, "correlation time of the main POS's position and velocity errors [s]: > 0 estimates them "
-                                      "as states and the antennas follow the main POS (docs/mismatch.md); 0 = white noise", minimum=0.0)
+    master_error_tau_s: float = param(-1.0, "correlation time of the main POS's position and velocity errors [s]: > 0 estimates them "
+                                      "as states and the antennas follow the main POS (docs/mismatch.md); 0 = white noise; -1 = auto: "
+                                      "20 s when /pos_master/status is published (pos_master_node's GNSS/INS), else 0", check=_check_tau)
     output_dir: str = param("out", "directory of the session products", non_empty=True)
     output_rate_hz: float = param(0.0, "output rate [Hz], 0 = the sub-IMU rate", minimum=0.0)
     sub_imus: tuple[str, ...] = param((), "sub-IMUs to process ([] = all)", check=_check_sub_imus)

@@ -44,7 +44,15 @@ from dpos_core.ta.pipeline import METHODS
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
 from dpos_ros.io.session import RecordedSession, SessionError, read_session
-from dpos_ros.products.master_reference import REFERENCES, accuracy, aligned_since, master_reference
+from dpos_ros.products.master_reference import (
+    AUTO_TAU,
+    GNSS_INS_ERROR_TAU_S,
+    REFERENCES,
+    accuracy,
+    aligned_since,
+    master_error_tau,
+    master_reference,
+)
 from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
 from dpos_ros.runtime.pool import warm_pool
 
@@ -67,9 +75,11 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--filter-rate", type=float, default=1.0, metavar="HZ", help="filter update rate (default 1 Hz, [Gong2018])")
     ap.add_argument("--no-position-matching", dest="position_matching", action="store_false",
                     help="match attitude and velocity only ([Gong2018]); default: the lever-arm-compensated main-POS position too")
-    ap.add_argument("--master-error-tau", type=float, default=0.0, metavar="S",
+    ap.add_argument("--master-error-tau", type=_tau, default=AUTO_TAU, metavar="S|auto",
                     help="correlation time of the main POS's position and velocity errors: > 0 estimates them as states and the "
-                         "antennas follow the main POS (docs/mismatch.md 'Installation states'); default 0 = white noise")
+                         "antennas follow the main POS (docs/mismatch.md 'Installation states'); 0 = white noise; auto (default) "
+                         f"= {GNSS_INS_ERROR_TAU_S:g} s for a GNSS/INS main POS (pos_master_node's, --master-reference forward or "
+                         "smoothed), 0 for the simulator's reference main POS")
     ap.add_argument("--no-sigma-inflation", dest="inflate_sigma", action="store_false",
                     help="report the smoother's own 1-sigma, without the innovations' variance factor (docs/qc.md)")
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
@@ -90,6 +100,28 @@ def parser() -> argparse.ArgumentParser:
                     help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
                          "(the old ones are kept if the run fails)")
     return ap
+
+
+def _tau(text: str) -> float:
+    """``--master-error-tau``: ``auto`` or seconds >= 0."""
+    if text == "auto":
+        return AUTO_TAU
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds nor 'auto': {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be >= 0 s or 'auto', got {text}")
+    return v
+
+
+def _master_error(args: argparse.Namespace, sess: RecordedSession, which: str) -> float:
+    """The main POS's error model of ``--master-error-tau`` (:func:`master_error_tau`): printed, and
+    kept for status.json (``sess.master_error_model``)."""
+    tau, why = master_error_tau(args.master_error_tau, sess.master_mechanized, which)
+    sess.master_error_model = {"tau_s": tau, "why": why}
+    print(f"dpos-process: main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
+    return tau
 
 
 def _check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -216,7 +248,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
     antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
                              filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate, workers=args.workers,
                              position_matching=args.position_matching, inflate_sigma=args.inflate_sigma,
-                             master_error_tau_s=args.master_error_tau, pool=pool)
+                             master_error_tau_s=_master_error(args, sess, ref.which), pool=pool)
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
@@ -284,7 +316,7 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
             antennas, timing = solve_streaming(args.bag, sess, aircraft, Path(tmp), args.method, args.particles, args.seed, err0,
                                                filter_rate_hz=args.filter_rate, position_matching=args.position_matching,
                                                inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
-                                               sub_imus=subs, master_error_tau_s=args.master_error_tau)
+                                               sub_imus=subs, master_error_tau_s=_master_error(args, sess, "recorded"))
             out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool)
     except ProductsExistError:
         print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)

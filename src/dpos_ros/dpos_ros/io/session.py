@@ -11,6 +11,7 @@ import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +24,19 @@ from dpos_ros.contract import topics as T
 from dpos_ros.io import bag
 from dpos_ros.io.messages import Messages, RawTopic
 
+#: metadata key (rosbag2 ``custom_data``, a spill's ``custom_data``) naming the source of /master/nav:
+#: ``mechanized`` = pos_master_node's GNSS/INS mechanization (transfer_align_node writes it into its
+#: spill when a /pos_master/status publisher exists)
+MASTER_SOURCE_KEY = "dpos.master_source"
+
+
+def master_is_mechanized(custom: dict[str, str], status_messages: int) -> bool:
+    """Whether /master/nav is pos_master_node's mechanization (a GNSS/INS): the recording's
+    ``/pos_master/status`` (``status_messages`` > 0, what dpos-record keeps of a graph) or its
+    :data:`MASTER_SOURCE_KEY` metadata say so.  The simulator's ``reference`` main POS (truth +
+    white noise; dpos-sim, pos_master_node ``alignment: reference``) publishes no status."""
+    return status_messages > 0 or custom.get(MASTER_SOURCE_KEY) == "mechanized"
+
 
 class SessionError(ValueError):
     """The recording cannot be processed (the message says why)."""
@@ -34,7 +48,12 @@ class RecordedSession:
 
     master: the main-system navigation with its body rate and covariances (local ENU);
     sub_imus: {name: ImuSeries}; truth: {"master" | "sub_imu/<name>" | "antenna/<name>": NavSeries};
-    custom: the recording's dpos.* metadata; warnings: what was wrong with the data.
+    custom: the recording's dpos.* metadata; warnings: what was wrong with the data;
+    master_mechanized: /master/nav is pos_master_node's mechanization of the main IMU aligned by GNSS
+    (``alignment`` ifa or given: a GNSS/INS, whose errors are correlated in time), known from the
+    recording's ``/pos_master/status`` or its ``dpos.master_source`` metadata (:data:`MASTER_SOURCE_KEY`);
+    master_error_model: how the processing modelled the main POS's errors (``tau_s``, ``why``;
+    :func:`dpos_ros.products.master_reference.master_error_tau`), for status.json.
     """
 
     path: Path
@@ -47,6 +66,8 @@ class RecordedSession:
     custom: dict[str, str]
     end_s: float | None
     warnings: list[str] = field(default_factory=list)
+    master_mechanized: bool = False
+    master_error_model: dict[str, Any] = field(default_factory=dict)
 
     def imaging_segments(self) -> dict[str, tuple[float, float]]:
         segs = json.loads(self.custom.get("dpos.imaging_segments", "{}") or "{}")
@@ -158,7 +179,7 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
     ``keep``: read only the topics it accepts (/master/nav and /dpos/datum are always read)."""
     if keep is not None:
         only = keep
-        keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END) or only(t)  # noqa: E731
+        keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) or only(t)  # noqa: E731
     path = Path(path)
     from dpos_ros.io.spill import is_spill, read_spill
 
@@ -238,7 +259,9 @@ def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedS
     if T.SESSION_END in raw and raw[T.SESSION_END][1]:
         end_s = ts(max(raw[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
-    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings)
+    status = raw.get(T.POS_MASTER_STATUS)
+    mech = master_is_mechanized(custom, 0 if status is None else len(status[1]))
+    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings, master_mechanized=mech)
 
 
 #: bytes of raw messages decoded at a time by :func:`read_session_streaming`
@@ -262,13 +285,13 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     if is_spill(path) or not (path / "metadata.yaml").is_file():
         return read_session(path, keep=keep)
     file = bag._single_mcap(path)
-    wanted = (lambda t: t != T.DATUM and t != T.SESSION_END) if keep is None else \
-        (lambda t: t == T.MASTER_NAV or (t not in (T.DATUM, T.SESSION_END) and keep(t)))  # noqa: E731
+    wanted = (lambda t: t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)) if keep is None else \
+        (lambda t: t == T.MASTER_NAV or (t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) and keep(t)))  # noqa: E731
     parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes)
     if parts is None:
         return read_session(path, keep=keep)
     custom = bag.custom_data(path)
-    small = bag.read_raw(path, [T.DATUM, T.SESSION_END])  # (only the chunks that hold them are read)
+    small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
     if T.DATUM not in small or not small[T.DATUM][2]:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
     from rclpy.serialization import deserialize_message
@@ -323,7 +346,9 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     if T.SESSION_END in small and small[T.SESSION_END][1]:
         end_s = ts_(max(small[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
-    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings)
+    status = small.get(T.POS_MASTER_STATUS)
+    mech = master_is_mechanized(custom, 0 if status is None else len(status[1]))
+    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings, master_mechanized=mech)
 
 
 def _kind(topic: str, msgtype: str) -> str | None:

@@ -105,6 +105,36 @@ def ifa_references(sess: RecordedSession, aircraft: AircraftConfig, which: str =
             for w, nav in (("forward", sm.forward), ("smoothed", sm.nav))}
 
 
+#: correlation time [s] of a GNSS/INS main POS's position and velocity errors when they are
+#: estimated by default (``master_error_tau_s`` / ``--master-error-tau`` auto): that of the
+#: mismatch suite's master_ref_ifa+states (docs/mismatch.md "Installation states"); the graph's
+#: own ADD2 alignment on paper_su decorrelates to 1/e in 6-13 s, the smoothed one more slowly
+GNSS_INS_ERROR_TAU_S = 20.0
+#: ``master_error_tau_s`` value meaning "from the main POS's source" (:func:`master_error_tau`)
+AUTO_TAU = -1.0
+
+
+def master_error_tau(requested: float, mechanized: bool, which: str = "recorded") -> tuple[float, str]:
+    """The correlation time [s] of the main POS's position and velocity errors the transfer
+    alignment takes (``TAConfig.master_error_tau_s``; 0 = white noise), and why.
+
+    ``requested`` >= 0 is taken as given.  :data:`AUTO_TAU` (-1) derives it from the main POS's
+    source: a GNSS/INS - the in-flight alignment re-run offline (``which`` forward or smoothed),
+    or a recorded /master/nav that is pos_master_node's mechanization (``mechanized``:
+    :attr:`~dpos_ros.io.session.RecordedSession.master_mechanized`) - has errors correlated in time, estimated as states with
+    :data:`GNSS_INS_ERROR_TAU_S`; the simulator's reference main POS (truth + white noise, [Gong2018]'s
+    model; no /pos_master/status) keeps 0."""
+    if requested >= 0:
+        return float(requested), "configured"
+    if requested != AUTO_TAU:
+        raise ValueError(f"master_error_tau_s must be >= 0 or {AUTO_TAU:g} (auto), got {requested:g}")
+    if which != "recorded":
+        return GNSS_INS_ERROR_TAU_S, f"auto: the main POS is the in-flight alignment ({which}), a GNSS/INS with correlated errors"
+    if mechanized:
+        return GNSS_INS_ERROR_TAU_S, "auto: /master/nav is pos_master_node's GNSS/INS mechanization (/pos_master/status), correlated errors"
+    return 0.0, "auto: /master/nav without /pos_master/status (the simulator's reference main POS): white noise"
+
+
 def aligned_since(nav: NavSeries, sigma_deg: float = 0.1) -> float:
     """The first stamp from which the attitude 1-sigma (every axis) stays below ``sigma_deg`` (the
     transfer alignment's rule for an aligned main POS); the first stamp without covariance."""
@@ -136,4 +166,4 @@ def accuracy(nav: NavSeries, truth: NavSeries, since_s: float, until_s: float = 
     return {"hpr_deg": rms(att), "vel_mps": rms(n.vel_n_mps - tr.vel_n_mps), "pos_m": rms(dllh_to_enu(n.llh - tr.llh, tr.llh))}
 
 
-__all__ = ["REFERENCES", "IFA_TOPICS", "MasterReference", "master_reference", "ifa_references", "ifa_config", "accuracy", "aligned_since"]
+__all__ = ["REFERENCES", "GNSS_INS_ERROR_TAU_S", "AUTO_TAU", "master_error_tau", "IFA_TOPICS", "MasterReference", "master_reference", "ifa_references", "ifa_config", "accuracy", "aligned_since"]

@@ -199,7 +199,8 @@ def solve(
 def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[str, float], estimated: set[str]) -> dict:
     """status.json without its ``qc`` (design.md "Products"): the antennas' status, the warnings,
     the timing, the jitter repairs of the ``estimated`` antennas, the wing fits and each sub-IMU's
-    installation states (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states).
+    installation states (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states)
+    and how the main POS's errors were modelled (``sess.master_error_model``: tau_s, why).
     ``antennas``: AntennaSolution or the streaming path's antennas (the same fields)."""
     doc = {"session_id": sess.session_id, "method": method, "antennas": {name: a.status for name, a in antennas.items()},
            "warnings": sess.warnings, "timing": timing,
@@ -210,6 +211,8 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
     inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
     if inst:
         doc["installation_states"] = inst
+    if sess.master_error_model:
+        doc["master_error_model"] = sess.master_error_model
     return doc
 
 
