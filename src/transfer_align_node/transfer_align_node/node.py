@@ -35,9 +35,10 @@ Disk faults
     written are reported at ERROR with the command that makes them from the spill.
 
 Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
-    Waits, at most ``finalize_timeout_s``, until every stream has reached the end stamp (the
-    truth streams too, unless they stopped arriving for ``STALL_S``) and reports what is
-    missing; then runs
+    Waits until every stream has reached the end stamp (the truth streams too, unless they
+    stopped arriving for ``STALL_S``): at most ``finalize_timeout_s`` after the wait began or after
+    the latest message of a stream still short of the end (a loaded machine drains its queues
+    slowly), 10x ``finalize_timeout_s`` in all; reports what is missing; then runs
     the smoother for each sub-IMU in worker processes (in parallel on the available cores; the
     workers are started when the node starts and load the filters then, so the time after the
     session's end goes to the session: ~1.5 s of CPU per worker; a pool broken by a dead worker is
@@ -415,6 +416,7 @@ class TransferAlignNode(Node):
             end_ns, sid = self._end
             needed = [T.MASTER_NAV] + [T.sub_imu(n) for n in self.sub_names]
             deadline = time.monotonic() + cfg.finalize_timeout_s
+            hard_deadline = time.monotonic() + 10 * cfg.finalize_timeout_s
             while True:
                 # the streams the smoother needs, and every other stream of the session (truth,
                 # datum) that is still arriving: none may be cut off by closing the spill
@@ -431,7 +433,10 @@ class TransferAlignNode(Node):
                     # close once nothing stamped up to the end arrived for SETTLE_S
                     behind += [t for t, st in self._streams.items() if t != T.DATUM and t not in behind
                                and st.last_ns <= end_ns and now - st.arrived < SETTLE_S]
-                if not behind or now > deadline:
+                    # data up to the end still coming in (a loaded machine drains its queues slowly):
+                    # the bound counts from the latest such arrival, up to 10x finalize_timeout_s
+                    arriving = max((self._streams[t].arrived for t in behind if t in self._streams), default=0.0)
+                if not behind or now > min(max(deadline, arriving + cfg.finalize_timeout_s), hard_deadline):
                     break
                 self._progress = f"waiting for data up to the end: {behind}"
                 time.sleep(0.1)
