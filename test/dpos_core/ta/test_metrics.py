@@ -255,3 +255,54 @@ def test_end_to_end_segment_stats_of_a_constant_offset() -> None:
     for k, v in expected.items():
         assert av["rmse"][k] == pytest.approx(v, rel=REL, abs=POS_ATOL_M if k.endswith("_m") else 0.0), k
         assert av["std"][k] == pytest.approx(0.0, abs=POS_ATOL_M), k
+
+
+def _honest_runs(rng: np.random.Generator, trials: int, runs: int, n: int, phi: float) -> np.ndarray:
+    """Normalized errors (trials, runs, n) of an honest sigma: stationary AR(1) in time with unit
+    variance and lag-one correlation ``phi`` (1: constant over the run), independent across runs."""
+    from scipy.signal import lfilter
+
+    if phi >= 1.0:
+        return np.repeat(rng.standard_normal((trials, runs, 1)), n, axis=2)
+    xi = rng.standard_normal((trials, runs, n))
+    xi[..., 0] /= np.sqrt(1.0 - phi ** 2)  # the stationary start
+    return lfilter([np.sqrt(1.0 - phi ** 2)], [1.0, -phi], xi, axis=-1)
+
+
+@pytest.mark.parametrize("runs", [2, 3, 10])
+def test_anees_bounds_hold_whatever_the_time_correlation(runs: int) -> None:
+    """An honest sigma's ANEES pooled over the runs (M.consistency per run, M.average_consistency)
+    falls outside M.nees_bounds in at most 2.5 % of experiments on each side, from white errors to
+    errors constant over each run (where the bound is exact: chi^2(R) / R); 4000 experiments per
+    correlation, the allowance 3 binomial sigmas (0.0074)."""
+    rng = np.random.default_rng(7)
+    trials, n = 4000, 200
+    tol = 3.0 * np.sqrt(0.025 * 0.975 / trials)
+    lo, hi = M.nees_bounds(runs)
+    sig = np.full((n, 9), 2.0)
+    for phi in (0.0, 0.98, 0.999, 1.0):
+        z = _honest_runs(rng, trials, runs, n, phi)
+        # the library's path for a few experiments: each run's consistency, pooled, judged
+        for t in range(3):
+            pooled = M.average_consistency([M.consistency(np.repeat(2.0 * z[t, r][:, None], 9, axis=1), sig) for r in range(runs)])
+            assert pooled["nees"]["rot_e"] == pytest.approx(np.mean(z[t] ** 2), rel=1e-12)
+            assert M.anees_in_bounds(pooled["nees"], runs)["rot_u"] == bool(lo <= np.mean(z[t] ** 2) <= hi)
+        anees = np.mean(z ** 2, axis=(1, 2))  # (trials,)
+        inside = M.anees_in_bounds({str(i): float(a) for i, a in enumerate(anees)}, runs)
+        out = np.array([not inside[str(i)] for i in range(trials)])
+        above, below = np.mean(out & (anees > hi)), np.mean(out & (anees < lo))
+        assert above <= 0.025 + tol and below <= 0.025 + tol, (phi, above, below)
+        if phi >= 1.0:  # exact there: not conservative
+            assert above >= 0.025 - tol and below >= 0.025 - tol, (above, below)
+
+
+def test_anees_bounds_flag_an_optimistic_sigma() -> None:
+    """Errors constant over each run and 1.5x their sigma (ANEES 2.25): over 30 runs the pooled
+    ANEES is outside the bounds in P(chi^2(30) > 30 * 1.566 / 2.25) = 0.89 of the experiments; over
+    3 runs, where the bounds are [0.07, 3.12], in only P(chi^2(3) > 3 * 3.12 / 2.25) = 0.24."""
+    rng = np.random.default_rng(8)
+    for runs, expected in ((30, 0.89), (3, 0.24)):
+        anees = np.mean((1.5 * _honest_runs(rng, 4000, runs, 10, 1.0)) ** 2, axis=(1, 2))
+        inside = M.anees_in_bounds({str(i): float(a) for i, a in enumerate(anees)}, runs)
+        flagged = 1.0 - np.mean(list(inside.values()))
+        assert flagged == pytest.approx(expected, abs=0.03), runs

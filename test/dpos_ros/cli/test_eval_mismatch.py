@@ -59,5 +59,13 @@ def test_short_suite_writes_the_table(tmp_path: Path, capsys) -> None:
     cons = c["methods"]["urtss"]["consistency"]
     assert set(cons["within_2sigma"]) == set(cons["nees"]) == {"rot_e", "rot_n", "rot_u", "vel_e", "vel_n", "vel_u", "pos_e", "pos_n", "pos_u"}
     assert len(c["nees_bounds"]) == 2 and set(c["goal"]["urtss"]) == {"heading", "baseline", "ratio", "met"}
+    # one run: its ANEES is the pooled one, judged against chi^2(1)'s bounds
+    assert all(cons["nees_per_run"][k] == [pytest.approx(cons["nees"][k])] for k in cons["nees"])
+    lo, hi = c["nees_bounds"]
+    assert cons["nees_in_bounds"] == {k: lo <= v <= hi for k, v in cons["nees"].items()}
     report = (out / "report.md").read_text()
     assert "| time_offset_20ms | urtss |" in report and "## time_offset_20ms" in report
+    # the worst ANEES is starred where it is outside the bounds
+    worst = max(cons["nees"], key=cons["nees"].get)
+    row = next(line for line in report.splitlines() if line.startswith("| time_offset_20ms | urtss |"))
+    assert f"({worst}){'' if cons['nees_in_bounds'][worst] else ' *'} |" in row

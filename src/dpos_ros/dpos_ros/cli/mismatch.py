@@ -91,6 +91,13 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
                 inside[k] = float(np.mean(fr))
         if inside:
             entry["methods"][m].setdefault("consistency", {})["epochs_in_nees_bounds"] = inside
+        # each run's ANEES (pooled over antennas) and whether the runs' pooled ANEES is inside the bounds
+        runs = [M.average_consistency([a["consistency"] for a in run.values() if a.get("consistency")]) for run in per_method[m]]
+        if runs and all(r["n"] for r in runs):
+            cons = entry["methods"][m].setdefault("consistency", {})
+            cons["nees_per_run"] = {k: [r["nees"][k] for r in runs] for k in M.CONS_KEYS}
+            if cons.get("nees"):
+                cons["nees_in_bounds"] = M.anees_in_bounds(cons["nees"], len(seeds))
     if ORACLE in methods:
         o = metrics["methods"][ORACLE]["mean"]["rmse"]
         entry["ratio_to_oracle"] = {m: {k: (metrics["methods"][m]["mean"]["rmse"][k] / o[k] if o.get(k) else None)
@@ -136,7 +143,9 @@ def report_md(doc: dict) -> str:
              f"antennas. Goal: heading <= {GOAL_HEADING_DEG} deg, baseline <= {GOAL_BASELINE_M * 1e3:g} mm, both within "
              f"{GOAL_RATIO:g}x of the oracle. Consistency of the reported 1-sigma: fraction of errors within 2 sigma "
              "(0.95 when honest), worst component; ANEES = mean e^2/sigma^2 per component, worst (largest) one, "
-             f"per-epoch chi^2 bounds for {doc['runs']} run(s): [{lo:.2f}, {hi:.2f}].", "",
+             f"with * where it is outside the chi^2 bounds for {doc['runs']} run(s), [{lo:.2f}, {hi:.2f}] (per epoch, and "
+             "for the ANEES whatever the errors' correlation in time: metrics.anees_in_bounds). The attitude errors "
+             "stay nearly constant over a flight: a few runs' fractions and ANEES scatter widely (docs/mismatch.md).", "",
              "| case | method | heading (deg) | baseline (mm) | heading / oracle | baseline / oracle | worst ratio (row) "
              "| within 2σ (worst) | ANEES (worst) | goal |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, c in doc["cases"].items():
@@ -148,7 +157,9 @@ def report_md(doc: dict) -> str:
             w2 = cons.get("within_2sigma", {})
             ne = cons.get("nees", {})
             w2s = f"{min(w2.values()):.2f} ({min(w2, key=w2.get)})" if w2 else "—"
-            nes = f"{max(ne.values()):.3g} ({max(ne, key=ne.get)})" if ne else "—"
+            ib = cons.get("nees_in_bounds", {})
+            kw = max(ne, key=ne.get) if ne else ""
+            nes = f"{ne[kw]:.3g} ({kw}){'' if ib.get(kw, True) else ' *'}" if ne else "—"
             g = c["goal"][m]
             miss = [w for w, ok in (("heading", g["heading"]), ("baseline", g["baseline"]), ("ratio", g["ratio"])) if ok is False]
             lines.append(f"| {name} | {m} | {_f(r['heading_deg'])} | {_f(r.get('baseline_m', np.nan) * 1e3)} | "
