@@ -204,6 +204,34 @@ def _streaming(args: argparse.Namespace) -> bool:
     return meta is not None and meta[1] > STREAM_AUTO_S and args.master_reference == "recorded"
 
 
+def _read_error(e: Exception, bag: Path) -> int:
+    """Exit 2 for an unusable recording or aircraft, with its one-line error."""
+    what = f"cannot read the recording: {os_error_text(e, bag)}" if isinstance(e, OSError) else str(e)
+    print(f"dpos-process: error: {what}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+def _write_error(e: OSError, target: OutputTarget, final: Path, had_products: bool) -> int:
+    """Exit 2 when the products could not be written: they appeared while processing
+    (:class:`ProductsExistError`), or the disk refused them (the partial products are removed)."""
+    if isinstance(e, ProductsExistError):
+        print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
+        return EXIT_ERROR
+    target.cleanup()
+    kept = f"; the earlier products in {final} are kept" if had_products else ""
+    print(f"dpos-process: error: writing the products to {final} failed: {os_error_text(e, final)}; "
+          f"the partial products were removed{kept}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+def _summary(antennas: dict, timing: dict[str, float], out: Path) -> None:
+    for name, a in antennas.items():
+        print(f"  {name}: {a.status}")
+    print(f"processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data "
+          f"(ratio {timing['processing_s'] / max(timing['data_s'], 1e-9):.4f})")
+    print(f"products in {out}")
+
+
 def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
     """:func:`main` once the output target is checked: read, align (on ``pool`` when given), write."""
     if _streaming(args):
@@ -212,12 +240,8 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         sess = read_session(args.bag)
         aircraft = _aircraft(args, sess)
         ref = master_reference(sess, aircraft, args.master_reference)
-    except (SessionError, ConfigError) as e:
-        print(f"dpos-process: error: {e}", file=sys.stderr)
-        return EXIT_ERROR
-    except OSError as e:
-        print(f"dpos-process: error: cannot read the recording: {os_error_text(e, args.bag)}", file=sys.stderr)
-        return EXIT_ERROR
+    except (SessionError, ConfigError, OSError) as e:
+        return _read_error(e, args.bag)
     final = args.out / sess.session_id
     had_products = final.exists()
     if had_products and not args.overwrite:
@@ -252,20 +276,9 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
-    except ProductsExistError:  # appeared while processing
-        print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
-        return EXIT_ERROR
-    except OSError as e:  # ENOSPC, EACCES, EROFS, EIO: write() removed its partial products
-        target.cleanup()
-        kept = f"; the earlier products in {final} are kept" if had_products else ""
-        print(f"dpos-process: error: writing the products to {final} failed: {os_error_text(e, final)}; "
-              f"the partial products were removed{kept}", file=sys.stderr)
-        return EXIT_ERROR
-    for name, a in antennas.items():
-        print(f"  {name}: {a.status}")
-    print(f"processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data "
-          f"(ratio {timing['processing_s'] / max(timing['data_s'], 1e-9):.4f})")
-    print(f"products in {out}")
+    except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
+        return _write_error(e, target, final, had_products)
+    _summary(antennas, timing, out)
     if ev:
         print((out / "report.md").read_text())
     problem = not_estimated(antennas, aircraft.name, list(sess.sub_imus))
@@ -290,12 +303,8 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
             raise SessionError(f"{args.bag}: --stream reads rosbag2 recordings with their metadata.yaml")
         sess = read_session_streaming(args.bag, keep=lambda t: False)  # the main POS only
         aircraft = _aircraft(args, sess)
-    except (SessionError, ConfigError) as e:
-        print(f"dpos-process: error: {e}", file=sys.stderr)
-        return EXIT_ERROR
-    except OSError as e:
-        print(f"dpos-process: error: cannot read the recording: {os_error_text(e, args.bag)}", file=sys.stderr)
-        return EXIT_ERROR
+    except (SessionError, ConfigError, OSError) as e:
+        return _read_error(e, args.bag)
     final = args.out / sess.session_id
     had_products = final.exists()
     if had_products and not args.overwrite:
@@ -318,20 +327,9 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
                                                inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
                                                sub_imus=subs, master_error_tau_s=_master_error(args, sess, "recorded"))
             out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool)
-    except ProductsExistError:
-        print(f"dpos-process: error: {final} appeared while processing: pass --overwrite to replace it", file=sys.stderr)
-        return EXIT_ERROR
     except OSError as e:
-        target.cleanup()
-        kept = f"; the earlier products in {final} are kept" if had_products else ""
-        print(f"dpos-process: error: writing the products to {final} failed: {os_error_text(e, final)}; "
-              f"the partial products were removed{kept}", file=sys.stderr)
-        return EXIT_ERROR
-    for name, a in antennas.items():
-        print(f"  {name}: {a.status}")
-    print(f"processing {timing['processing_s']:.1f} s for {timing['data_s']:.0f} s of sub-IMU data "
-          f"(ratio {timing['processing_s'] / max(timing['data_s'], 1e-9):.4f})")
-    print(f"products in {out}")
+        return _write_error(e, target, final, had_products)
+    _summary(antennas, timing, out)
     problem = (f"no antenna was estimated: the aircraft {aircraft.name!r} configures no antenna" if not antennas else
                _not_estimated_text({name: a.status for name, a in antennas.items() if a.rows is None}, len(antennas), subs))
     if problem is not None:

@@ -30,12 +30,13 @@ from dpos_ros.io.messages import Messages, RawTopic
 MASTER_SOURCE_KEY = "dpos.master_source"
 
 
-def master_is_mechanized(custom: dict[str, str], status_messages: int) -> bool:
+def master_is_mechanized(custom: dict[str, str], raw: dict) -> bool:
     """Whether /master/nav is pos_master_node's mechanization (a GNSS/INS): the recording's
-    ``/pos_master/status`` (``status_messages`` > 0, what dpos-record keeps of a graph) or its
+    ``/pos_master/status`` (a message of it in ``raw``, what dpos-record keeps of a graph) or its
     :data:`MASTER_SOURCE_KEY` metadata say so.  The simulator's ``reference`` main POS (truth +
     white noise; dpos-sim, pos_master_node ``alignment: reference``) publishes no status."""
-    return status_messages > 0 or custom.get(MASTER_SOURCE_KEY) == "mechanized"
+    status = raw.get(T.POS_MASTER_STATUS)
+    return (status is not None and len(status[1]) > 0) or custom.get(MASTER_SOURCE_KEY) == "mechanized"
 
 
 class SessionError(ValueError):
@@ -259,9 +260,8 @@ def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedS
     if T.SESSION_END in raw and raw[T.SESSION_END][1]:
         end_s = ts(max(raw[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
-    status = raw.get(T.POS_MASTER_STATUS)
-    mech = master_is_mechanized(custom, 0 if status is None else len(status[1]))
-    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings, master_mechanized=mech)
+    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings,
+                           master_mechanized=master_is_mechanized(custom, raw))
 
 
 #: bytes of raw messages decoded at a time by :func:`read_session_streaming`
@@ -346,9 +346,8 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     if T.SESSION_END in small and small[T.SESSION_END][1]:
         end_s = ts_(max(small[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
-    status = small.get(T.POS_MASTER_STATUS)
-    mech = master_is_mechanized(custom, 0 if status is None else len(status[1]))
-    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings, master_mechanized=mech)
+    return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings,
+                           master_mechanized=master_is_mechanized(custom, small))
 
 
 def _kind(topic: str, msgtype: str) -> str | None:
