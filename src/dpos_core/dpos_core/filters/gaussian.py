@@ -41,6 +41,7 @@ from dpos_core.units import FloatArray
 from .dd2 import divided_differences
 from .linalg import chol, gain, symmetrize
 from .points import CENTRAL_DIFFERENCE_POINTS, CentralDifferencePoints, UnscentedPoints
+from .store import EpochStore, PerEpoch, blocks
 
 Fn = Callable[[FloatArray], FloatArray]
 
@@ -162,23 +163,43 @@ def cd_update(
     return Update(xn, symmetrize(P - K @ Py @ np.swapaxes(K, -1, -2)), nu, Py, K)
 
 
+#: epochs the RTS recursion reads and writes at once (:func:`rts_smooth`)
+RTS_BLOCK = 256
+
+
 def rts_smooth(
-    x_f: FloatArray, P_f: FloatArray, x_p: FloatArray, P_p: FloatArray, C: FloatArray
-) -> tuple[FloatArray, FloatArray]:
+    x_f: PerEpoch, P_f: PerEpoch, x_p: PerEpoch, P_p: PerEpoch, C: PerEpoch, store: EpochStore | None = None,
+    block: int | None = None,
+) -> tuple[PerEpoch, PerEpoch]:
     """Fixed-interval smoother over K epochs.
 
     Args:
         x_f, P_f: filtered ``x_{k|k}`` (K, n), ``P_{k|k}`` (K, n, n).
         x_p, P_p: predictions ``x_{k+1|k}`` (K-1, n), ``P_{k+1|k}`` (K-1, n, n).
         C: cross-covariances ``C_k`` (K-1, n, n).
+        store: where the result goes (:class:`~.store.EpochStore`; default in memory).  The inputs
+            (numpy arrays or :class:`~.store.EpochArray` files) are read and the result written
+            ``block`` epochs at a time (default :data:`RTS_BLOCK`), last to first: the same numbers
+            whatever the block.
 
     Returns:
         Smoothed ``x_{k|K}`` (K, n), ``P_{k|K}`` (K, n, n).
     """
-    xs = x_f.copy()
-    Ps = P_f.copy()
-    for k in range(x_f.shape[0] - 2, -1, -1):
-        G = gain(C[k], P_p[k])  # C_k P_{k+1|k}^-1 (P_p is SPD)
-        xs[k] = x_f[k] + G @ (xs[k + 1] - x_p[k])
-        Ps[k] = symmetrize(P_f[k] + G @ (Ps[k + 1] - P_p[k]) @ G.T)
+    st = EpochStore() if store is None else store
+    block = RTS_BLOCK if block is None else max(int(block), 1)
+    K = len(x_f)
+    n = x_f.shape[1]
+    xs, Ps = st.array("x_s", K, (n,)), st.array("P_s", K, (n, n))
+    if K == 0:
+        return xs, Ps
+    x_next, P_next = np.array(x_f[K - 1]), np.array(P_f[K - 1])  # x_{k+1|K}, P_{k+1|K}
+    xs[K - 1], Ps[K - 1] = x_next, P_next
+    for b0, b1 in blocks(K - 1, block, reverse=True):
+        xf, Pf, xp, Pp, Cb = x_f[b0:b1], P_f[b0:b1], x_p[b0:b1], P_p[b0:b1], C[b0:b1]
+        xs_b, Ps_b = np.empty_like(xf), np.empty_like(Pf)
+        for i in range(b1 - b0 - 1, -1, -1):
+            G = gain(Cb[i], Pp[i])  # C_k P_{k+1|k}^-1 (P_p is SPD)
+            xs_b[i] = x_next = xf[i] + G @ (x_next - xp[i])
+            Ps_b[i] = P_next = symmetrize(Pf[i] + G @ (P_next - Pp[i]) @ G.T)
+        xs[b0:b1], Ps[b0:b1] = xs_b, Ps_b
     return xs, Ps

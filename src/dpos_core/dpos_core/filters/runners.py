@@ -47,7 +47,7 @@ from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .pf import children_mask
 from .points import CentralDifferencePoints, UnscentedPoints
-from .store import EpochArray
+from .store import EpochArray, EpochStore, PerEpoch
 from .variational import CGInfo, CGSettings, CGStats, cdvf_update
 
 # ------------------------------------------------------------------------------------ Gaussian
@@ -59,17 +59,19 @@ class GaussianTrack:
 
     x_f (K, n), P_f (K, n, n): filtered, after the feedback shift; x_p, P_p, C (K-1, ...):
     predictions (shifted like the filtered state of their epoch) and cross-covariances; corrections (K, n) applied (zeros when none);
-    nu (K, p) innovations and S (K, p, p) their covariances (NaN where no measurement).
+    nu (K, p) innovations and S (K, p, p) their covariances (NaN where no measurement).  Each is a
+    numpy array, or an :class:`~.store.EpochArray` file when the runner was given an on-disk
+    :class:`~.store.EpochStore` (issue #17: then read a block of epochs at a time).
     """
 
-    x_f: FloatArray
-    P_f: FloatArray
-    x_p: FloatArray
-    P_p: FloatArray
-    C: FloatArray
-    corrections: FloatArray
-    nu: FloatArray
-    S: FloatArray
+    x_f: PerEpoch
+    P_f: PerEpoch
+    x_p: PerEpoch
+    P_p: PerEpoch
+    C: PerEpoch
+    corrections: PerEpoch
+    nu: PerEpoch
+    S: PerEpoch
     #: the variational rule's conjugate-gradient record per epoch (None for the other rules)
     cg: CGStats | None = None
 
@@ -114,54 +116,81 @@ class VariationalRule(CentralDifferenceRule):
 GaussianRule = UnscentedRule | CentralDifferenceRule | VariationalRule
 
 
+class _Innovations:
+    """A forward pass's innovations ``nu`` (K, p) and their covariances ``S`` (K, p, p) in ``store``,
+    NaN at the epochs without a measurement; p is the first measurement's size (0 without any)."""
+
+    def __init__(self, store: EpochStore, n_epochs: int) -> None:
+        self.store, self.K = store, n_epochs
+        self.nu: PerEpoch | None = None
+        self.S: PerEpoch | None = None
+
+    def put(self, k: int, nu: FloatArray | None, S: FloatArray | None) -> None:
+        """Epoch k's innovation (p,) and covariance (p, p), or None (none measured)."""
+        if nu is None or S is None:
+            return
+        if self.nu is None:
+            p = nu.shape[0]
+            self.nu = self.store.array("nu", self.K, (p,), fill=np.nan)
+            self.S = self.store.array("S", self.K, (p, p), fill=np.nan)
+        assert self.S is not None
+        self.nu[k], self.S[k] = nu, S
+
+    def arrays(self) -> tuple[PerEpoch, PerEpoch]:
+        if self.nu is None or self.S is None:
+            return np.zeros((self.K, 0)), np.zeros((self.K, 0, 0))
+        return self.nu, self.S
+
+
 def run_sigma_point_filter(model: StateSpaceModel, x0: FloatArray, P0: FloatArray, points=UnscentedPoints(),
-                           rule: GaussianRule | None = None) -> GaussianTrack:
+                           rule: GaussianRule | None = None, store: EpochStore | None = None) -> GaussianTrack:
     """The forward pass of a Gaussian filter over ``model`` from the prior ``x0`` (n,), ``P0``
     (n, n): ``rule``'s predict and update at every epoch (default the UKF with ``points``), then the
-    model's feedback and shift."""
+    model's feedback and shift.  ``store``: where the per-epoch arrays go (default in memory; the
+    same numbers either way)."""
     rule = UnscentedRule(points) if rule is None else rule
+    st = EpochStore() if store is None else store
     K, n = model.n_epochs, model.n
     x, P = np.asarray(x0, dtype=float).copy(), np.asarray(P0, dtype=float).copy()
-    x_f, P_f = np.empty((K, n)), np.empty((K, n, n))
-    x_p, P_p, C = np.empty((K - 1, n)), np.empty((K - 1, n, n)), np.empty((K - 1, n, n))
-    corr = np.zeros((K, n))
-    nus: list[FloatArray | None] = []
-    Ss: list[FloatArray | None] = []
+    x_f, P_f = st.array("x_f", K, (n,)), st.array("P_f", K, (n, n))
+    x_p, P_p, C = st.array("x_p", K - 1, (n,)), st.array("P_p", K - 1, (n, n)), st.array("C", K - 1, (n, n))
+    corr = st.array("corrections", K, (n,), fill=0.0)
+    inn = _Innovations(st, K)
     infos: list[CGInfo | None] = []
+    xp_k = np.zeros(n)  # x_{k|k-1}, stored once shifted by epoch k's correction
     for k in range(K):
         if k > 0:
             pr = rule.predict(x, P, lambda X: model.f(k - 1, X), model.Q(k - 1))
-            x_p[k - 1], P_p[k - 1], C[k - 1] = pr.x, pr.P, pr.C
+            xp_k = pr.x
+            P_p[k - 1], C[k - 1] = pr.P, pr.C
             x, P = pr.x, pr.P
         y = model.y(k)
         info: CGInfo | None = None
         if y is not None:
             up, info = rule.update(x, P, y, lambda X: model.h(k, X), model.R(k), model.residual)
             x, P = up.x, up.P
-            nus.append(up.nu)
-            Ss.append(up.S)
-        else:
-            nus.append(None)
-            Ss.append(None)
-        infos.append(info)
+            inn.put(k, up.nu, up.S)
+        if isinstance(rule, VariationalRule):
+            infos.append(info)
         c = model.feedback(k, x)
         if c is not None:
             corr[k] = c
             x = model.shift(k, x, c)
             if k > 0:  # keep x_{k|k-1} in the same (corrected) coordinates as x_{k|k} for the smoother
-                x_p[k - 1] = model.shift(k, x_p[k - 1], c)
+                xp_k = model.shift(k, xp_k, c)
+        if k > 0:
+            x_p[k - 1] = xp_k
         x_f[k], P_f[k] = x, P
-    p = next((v.shape[0] for v in nus if v is not None), 0)
-    nu = np.array([v if v is not None else np.full(p, np.nan) for v in nus])
-    S = np.array([s if s is not None else np.full((p, p), np.nan) for s in Ss])
     cg = CGStats.from_infos(infos) if isinstance(rule, VariationalRule) else None
-    return GaussianTrack(x_f, P_f, x_p, P_p, C, corr, nu, S, cg)
+    return GaussianTrack(x_f, P_f, x_p, P_p, C, corr, *inn.arrays(), cg)
 
 
-def smooth_gaussian(track: GaussianTrack) -> tuple[FloatArray, FloatArray]:
+def smooth_gaussian(track: GaussianTrack, store: EpochStore | None = None) -> tuple[PerEpoch, PerEpoch]:
     """URTSS (or RTS for a linear filter): smoothed ``x_{k|K}`` (K, n) and ``P_{k|K}`` (K, n, n),
-    in the coordinates of the filtered states (after each epoch's feedback)."""
-    return rts_smooth(track.x_f, track.P_f, track.x_p, track.P_p, track.C)
+    in the coordinates of the filtered states (after each epoch's feedback); in ``store`` (default
+    in memory), the track read and the result written a block of epochs at a time
+    (:func:`~.gaussian.rts_smooth`)."""
+    return rts_smooth(track.x_f, track.P_f, track.x_p, track.P_p, track.C, store=store)
 
 
 # ------------------------------------------------------------------------------------ particles
@@ -186,24 +215,29 @@ class ParticleTrack:
     (moment matched; NaN where no measurement).
     """
 
-    particles: FloatArray | EpochArray
-    proposed: FloatArray | EpochArray
-    logw: FloatArray
-    pred_mean: FloatArray | EpochArray
-    pred_cov: FloatArray | EpochArray
+    particles: PerEpoch
+    proposed: PerEpoch
+    logw: PerEpoch
+    pred_mean: PerEpoch
+    pred_cov: PerEpoch
     sampled: NDArray[np.intp]
-    corrections: FloatArray
+    corrections: PerEpoch
     ess: FloatArray
     resampled: NDArray[np.bool_]
     mixture: GaussianTrack
+    #: where the per-epoch arrays are (``run_upf(store=...)``)
+    store: EpochStore | None = None
 
     @property
-    def mean(self) -> FloatArray:
+    def mean(self) -> PerEpoch:
         """Weighted filtered means (K, n) (the mixture's)."""
         return self.mixture.x_f
 
     def close(self) -> None:
-        """Remove the files of the per-particle arrays kept on disk (``run_upf(store=...)``)."""
+        """Remove the files of the per-epoch arrays kept on disk (``run_upf(store=...)``; the
+        smoother's results in the same store too)."""
+        if self.store is not None:
+            self.store.close()
         for a in (self.particles, self.proposed, self.pred_mean, self.pred_cov):
             if isinstance(a, EpochArray):
                 a.close()
@@ -330,7 +364,7 @@ def run_upf(
     engine: PerParticleUKF | SharedLinearizationUKF | None = None,
     resample: str = RESAMPLING[0],
     move: bool = False,
-    store: Path | None = None,
+    store: Path | EpochStore | None = None,
 ) -> ParticleTrack:
     """Rao-Blackwellized unscented particle filter (module docstring).
 
@@ -352,9 +386,10 @@ def run_upf(
             target given the particle's path, so the Metropolis-Hastings move with it as proposal
             is accepted with probability 1 (a Gibbs move): the copies stop sharing the epoch's
             draw.  Off by default (docs/sar.md: on paper_su it moves the errors by 3 % at most).
-        store: a directory for the per-particle arrays of the track (particles, proposed,
-            predicted densities: :class:`~.store.EpochArray` files, removed by
-            :meth:`ParticleTrack.close`); default in memory.  The same numbers either way.
+        store: where the per-epoch arrays of the track go (particles, proposed, predicted
+            densities, weights, the mixture's moments and innovations): an
+            :class:`~.store.EpochStore` or a directory for one (:class:`~.store.EpochArray` files,
+            removed by :meth:`ParticleTrack.close`); default in memory.  The same numbers either way.
     """
     rng = np.random.default_rng() if rng is None else rng
     engine = SharedLinearizationUKF() if engine is None else engine
@@ -365,31 +400,30 @@ def run_upf(
         raise ValueError(f"unknown resampling scheme {resample!r}; choose one of {RESAMPLING}")
     S = sampled_indices(model, n, sampled)
     s = S.size
-    def per_epoch(name: str, k: int, shape: tuple[int, ...]) -> FloatArray | EpochArray:
-        return np.empty((k, *shape)) if store is None else EpochArray(k, shape, Path(store) / f"{name}.f64")
-
-    parts = per_epoch("particles", K, (N, n))
-    proposed = per_epoch("proposed", K, (N, n))
-    logws = np.empty((K, N))
-    pred_mean = per_epoch("pred_mean", max(K - 1, 0), (N, s))
-    pred_cov = per_epoch("pred_cov", max(K - 1, 0), (N, s, s))
-    mix_x_f, mix_P_f = np.empty((K, n)), np.empty((K, n, n))
-    mix_x_p, mix_P_p, mix_C = np.empty((max(K - 1, 0), n)), np.empty((max(K - 1, 0), n, n)), np.empty((max(K - 1, 0), n, n))
-    corr = np.zeros((K, n))
+    st = store if isinstance(store, EpochStore) else EpochStore(None if store is None else Path(store))
+    K1 = max(K - 1, 0)
+    parts = st.array("particles", K, (N, n))
+    proposed = st.array("proposed", K, (N, n))
+    logws = st.array("logw", K, (N,))
+    pred_mean = st.array("pred_mean", K1, (N, s))
+    pred_cov = st.array("pred_cov", K1, (N, s, s))
+    mix_x_f, mix_P_f = st.array("x_f", K, (n,)), st.array("P_f", K, (n, n))
+    mix_x_p, mix_P_p, mix_C = st.array("x_p", K1, (n,)), st.array("P_p", K1, (n, n)), st.array("C", K1, (n, n))
+    corr = st.array("corrections", K, (n,), fill=0.0)
     ess_k = np.empty(K)
     res_k = np.zeros(K, dtype=bool)
 
     m = np.broadcast_to(np.asarray(x0, dtype=float), (N, n)).copy()  # each particle's UKF (predicted)
     P = engine.init(np.asarray(P0, dtype=float), N)
     logw = np.full(N, -np.log(N))
-    mix_nu: list[tuple[FloatArray, FloatArray] | None] = []  # the mixture's innovation and its covariance
+    inn = _Innovations(st, K)  # the mixture's innovations and their covariances
+    xp_k = np.zeros(n)  # the mixture's prediction of epoch k, stored once shifted by its correction
     for k in range(K):
         y = model.y(k)
-        mix_nu.append(None)
         if y is not None:
             w_pred = np.exp(logw)
             m, P, nu, S_y = engine.update(model, k, m, P, w_pred, y, points)
-            mix_nu[k] = _mixture(w_pred, nu, S_y)
+            inn.put(k, *_mixture(w_pred, nu, S_y))
             logw = log_normalize(logw + gauss_logpdf(nu, S_y))
         # sample the components S from each particle's UKF posterior (eq. 6), condition the rest
         L_SS = chol(P[..., S[:, None], S[None, :]])
@@ -405,20 +439,24 @@ def run_upf(
             corr[k] = c
             m = model.shift(k, m, c)  # exact for P: the shifted components are linear or sampled
             if k > 0:  # the mixture's prediction of k in the corrected coordinates of k (for the smoother)
-                mix_x_p[k - 1] = model.shift(k, mix_x_p[k - 1], c)
+                xp_k = model.shift(k, xp_k, c)
+        if k > 0:
+            mix_x_p[k - 1] = xp_k
         parts[k] = m
         logws[k] = logw
         ess_k[k] = ess(logw)
         # moments of the mixture (the carried Gaussians and the spread of their means)
-        mix_x_f[k], mix_P_f[k] = _mixture(w, m, P)
+        xf_k, Pf_k = _mixture(w, m, P)
+        mix_x_f[k], mix_P_f[k] = xf_k, Pf_k
         if k + 1 == K:
             break
         m_k = m
         m, P, C = engine.predict(model, k, m, P, w, S, points)
         pred_mean[k] = m[:, S]
         pred_cov[k] = P[..., S[:, None], S[None, :]]
-        mix_x_p[k], mix_P_p[k] = _mixture(w, m, P)
-        dm, dp = m_k - mix_x_f[k], m - mix_x_p[k]
+        xp_k, Pp_k = _mixture(w, m, P)
+        mix_P_p[k] = Pp_k
+        dm, dp = m_k - xf_k, m - xp_k
         mix_C[k] = (C if C.ndim == 2 else np.einsum("n,nij->ij", w, C)) + (dm * w[:, None]).T @ dp
         if ess_k[k] < ess_threshold * N:
             idx = resample_indices(logw, rng, resample)
@@ -427,11 +465,8 @@ def run_upf(
             res_k[k] = True
             if move:
                 m, P = _resample_move(model, k, engine, points, S, idx, m_u, P_u, m, P, c, rng)
-    p = next((v[0].shape[0] for v in mix_nu if v is not None), 0)
-    nu_k = np.array([v[0] if v is not None else np.full(p, np.nan) for v in mix_nu]).reshape(K, p)
-    S_k = np.array([v[1] if v is not None else np.full((p, p), np.nan) for v in mix_nu]).reshape(K, p, p)
-    mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, nu_k, S_k)
-    return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture)
+    mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, *inn.arrays())
+    return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture, st)
 
 
 def _resample_move(model: StateSpaceModel, k: int, engine, points, S: NDArray[np.intp], idx: NDArray[np.intp], m_u: FloatArray,
@@ -463,24 +498,27 @@ def _resample_move(model: StateSpaceModel, k: int, engine, points, S: NDArray[np
 FFBSM_BLOCK = 256
 
 
-def ffbsm(track: ParticleTrack) -> FloatArray:
+def ffbsm(track: ParticleTrack) -> PerEpoch:
     """Backward reweighting ([Gong2018] eq. 9) of the sampled components: smoothed normalized log
-    weights (K, N) of ``track.particles``.  ``w_{K-1|K} = w_{K-1}``; the transition density
-    ``p(x_{k+1}^j | x_{0:k}^i)`` is particle i's predicted Gaussian of the sampled components
-    (the carried states marginalized).  :func:`rb_smooth` also smooths the carried states."""
+    weights (K, N) of ``track.particles`` (in the track's store: :func:`run_upf`).  ``w_{K-1|K} =
+    w_{K-1}``; the transition density ``p(x_{k+1}^j | x_{0:k}^i)`` is particle i's predicted
+    Gaussian of the sampled components (the carried states marginalized).  :func:`rb_smooth` also
+    smooths the carried states."""
     K, N, _ = track.particles.shape
     S = track.sampled
-    logws = np.empty((K, N))
-    logws[-1] = track.logw[-1]
+    logws = (EpochStore() if track.store is None else track.store).array("logw_s", K, (N,))
+    lw_next = np.array(track.logw[K - 1])  # logw_{k+1|K}
+    logws[K - 1] = lw_next
     # a block of epochs' factors at once when none needs a repair (else epoch by epoch, repaired as chol does);
     # blocks of FFBSM_BLOCK epochs, read from disk when the track is there (run_upf(store=...))
     for b1 in range(K - 1, 0, -FFBSM_BLOCK):
         b0 = max(0, b1 - FFBSM_BLOCK)
         pred_cov, pred_mean = track.pred_cov[b0:b1], track.pred_mean[b0:b1]
+        lw_blk, lws_blk = track.logw[b0:b1], np.empty((b1 - b0, N))
         L_blk = chol_unrepaired(pred_cov)
         W_blk = solve_lower(L_blk, np.eye(S.size)) if L_blk is not None else None
         for k in range(b1 - 1, b0 - 1, -1):
-            lwk = track.logw[k]
+            lwk = lw_blk[k - b0]
             nxt = track.proposed[k + 1][:, S]  # x_{k+1}^j (N, s) in the transition's coordinates
             if L_blk is not None and W_blk is not None:
                 Li, Wi = L_blk[k - b0], W_blk[k - b0]
@@ -491,21 +529,26 @@ def ffbsm(track: ParticleTrack) -> FloatArray:
             # L[i, j] = log p(x_{k+1}^j | i) + const = -|W_i (x_{k+1}^j - mean_i)|^2 / 2 - log det L_i;
             # logw_{k|K}^i = logw_k^i + lse_j(logw_{k+1|K}^j + L[i, j] - lse_m(logw_k^m + L[m, j]))  (numba kernel)
             lw = np.empty(N)
-            _pk.backward_step(np.ascontiguousarray(lwk), np.ascontiguousarray(logws[k + 1]), np.ascontiguousarray(nxt),
+            _pk.backward_step(np.ascontiguousarray(lwk), np.ascontiguousarray(lw_next), np.ascontiguousarray(nxt),
                               np.ascontiguousarray(pred_mean[k - b0]), np.ascontiguousarray(Wi), half_logdet, lw)
-            logws[k] = log_normalize(lw)
+            lws_blk[k - b0] = lw_next = log_normalize(lw)
+        logws[b0:b1] = lws_blk
     return logws
 
 
-def rb_smooth(track: ParticleTrack) -> tuple[FloatArray, FloatArray, FloatArray]:
+def rb_smooth(track: ParticleTrack) -> tuple[PerEpoch, PerEpoch, PerEpoch]:
     """The unscented particle smoother (module docstring).  Returns the FFBSm log weights (K, N)
     (eq. 9) and the smoothed mean (K, n) and covariance (K, n, n): the FFBSm moments when every
-    component is sampled, else the RTS recursion on the moments of the particles' mixture."""
+    component is sampled, else the RTS recursion on the moments of the particles' mixture.  In the
+    track's store (:func:`run_upf`; the smoothed moments read and written a block of epochs at a time
+    when it is on disk)."""
     lw = ffbsm(track)
+    x: PerEpoch
+    P: PerEpoch
     if track.sampled.size == track.particles.shape[2]:
-        x, P = weighted_moments(np.asarray(track.particles), lw)
+        x, P = weighted_moments(np.asarray(track.particles), np.asarray(lw))
     else:
-        x, P = smooth_gaussian(track.mixture)
+        x, P = smooth_gaussian(track.mixture, track.store)
     return lw, x, P
 
 

@@ -18,9 +18,9 @@ from dpos_core.units import FloatArray
 
 
 class EpochArray:
-    """A float64 array (K, ...) indexed by epoch: ``a[k] = v`` and ``a[k]``, ``a[k0:k1]`` (step 1) and
-    ``a[-1]``; ``shape``.  In memory (``path`` None) or in the file ``path`` (created, removed by
-    :meth:`close`)."""
+    """A float64 array (K, ...) indexed by epoch: ``a[k] = v``, ``a[k0:k1] = block`` and ``a[k]``,
+    ``a[k0:k1]`` (step 1) and ``a[-1]``; ``shape``.  In memory (``path`` None) or in the file
+    ``path`` (created, removed by :meth:`close`)."""
 
     def __init__(self, n_epochs: int, shape: tuple[int, ...], path: Path | None = None) -> None:
         self.shape = (int(n_epochs), *(int(s) for s in shape))
@@ -49,14 +49,23 @@ class EpochArray:
             raise IndexError(f"epoch {k} of {self.shape[0]}")
         return k
 
-    def __setitem__(self, k: int, value) -> None:
+    def __setitem__(self, k: int | slice, value) -> None:
         if self._mem is not None:
             self._mem[k] = value
             return
         assert self._fd is not None
-        k = self._index(k)
-        rec = np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), self._rec))
-        if os.pwrite(self._fd, rec.tobytes(), k * self._rec_bytes) != self._rec_bytes:
+        if isinstance(k, slice):
+            a, b, step = k.indices(self.shape[0])
+            if step != 1:
+                raise IndexError("only slices of step 1")
+            n = max(b - a, 0)
+            shape: tuple[int, ...] = (n, *self._rec)
+            k = a
+        else:
+            k, shape = self._index(k), self._rec
+        rec = np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), shape))
+        size = rec.size * 8
+        if size and os.pwrite(self._fd, rec.data.cast("B"), k * self._rec_bytes) != size:
             raise OSError(f"short write to {self.path}")
 
     def __getitem__(self, k: int | slice) -> FloatArray:
@@ -90,3 +99,57 @@ class EpochArray:
                 self.path.unlink(missing_ok=True)
             self._mem = np.empty((0, *self._rec))
             self.shape = (0, *self._rec)
+
+
+#: what :meth:`EpochStore.array` makes: an array in memory, or one in a file
+PerEpoch = FloatArray | EpochArray
+
+
+class EpochStore:
+    """Where a filter or smoother keeps its per-epoch arrays (issue #17): ``directory`` None keeps
+    them in memory (``numpy`` arrays, the default of every runner), else each array is an
+    :class:`EpochArray` file in ``directory`` (the same numbers; memory then holds the records being
+    read or written).  :meth:`close` removes the files of the arrays it made."""
+
+    def __init__(self, directory: Path | None = None) -> None:
+        self.directory = None if directory is None else Path(directory)
+        self._made: list[EpochArray] = []
+        self._names: set[str] = set()
+
+    @property
+    def on_disk(self) -> bool:
+        return self.directory is not None
+
+    def array(self, name: str, n_epochs: int, shape: tuple[int, ...], fill: float | None = None) -> PerEpoch:
+        """A float64 array (n_epochs, *shape) named ``name`` (unique in the store), uninitialized, or
+        every record ``fill``."""
+        if self.directory is None:
+            return np.empty((n_epochs, *shape)) if fill is None else np.full((n_epochs, *shape), fill)
+        if name in self._names:
+            raise ValueError(f"the store already has an array {name!r}")
+        self._names.add(name)
+        a = EpochArray(n_epochs, shape, self.directory / f"{name}.f64")
+        self._made.append(a)
+        if fill is not None:
+            blk = max(1, 2**20 // max(a._rec_bytes, 1))
+            for k0 in range(0, n_epochs, blk):
+                a[k0:min(k0 + blk, n_epochs)] = fill
+        return a
+
+    def close(self) -> None:
+        """Remove the files of the arrays made (those in memory are left to the caller)."""
+        for a in self._made:
+            a.close()
+        self._made.clear()
+
+
+def in_memory(a: PerEpoch) -> FloatArray:
+    """The whole array in memory (read from its file when an :class:`EpochArray`)."""
+    return np.asarray(a) if isinstance(a, EpochArray) else a
+
+
+def blocks(n: int, block: int, reverse: bool = False):
+    """The ranges ``(k0, k1)`` covering ``0 .. n`` in steps of ``block`` (last to first with ``reverse``)."""
+    starts = range(0, n, block)
+    for k0 in (reversed(starts) if reverse else starts):
+        yield k0, min(k0 + block, n)

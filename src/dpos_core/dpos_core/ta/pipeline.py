@@ -49,6 +49,7 @@ from ..errors import RejectedInput
 from ..filters.linalg import JitterRepairs
 from ..filters.points import UnscentedPoints
 from ..filters.runners import CentralDifferenceRule, VariationalRule, rb_smooth, run_sigma_point_filter, run_upf, smooth_gaussian
+from ..filters.store import EpochStore, PerEpoch, in_memory
 from ..filters.variational import CGStats
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
@@ -269,9 +270,9 @@ def run(
 
 
 def _installation(model: TransferAlignmentModel, x: FloatArray, P: FloatArray) -> dict[str, dict[str, list[float]]]:
-    """TAResult.installation from the epoch estimates x (K, n) and P (K, n, n)."""
-    sd = np.sqrt(np.maximum(np.diagonal(P[-1]), 0.0))
-    return {name: {"value": [float(v) for v in x[-1, sl]], "sigma": [float(v) for v in sd[sl]]} for name, sl in model.extra.items()}
+    """TAResult.installation from the estimates at the last epoch x (n,) and P (n, n)."""
+    sd = np.sqrt(np.maximum(np.diagonal(P), 0.0))
+    return {name: {"value": [float(v) for v in x[sl]], "sigma": [float(v) for v in sd[sl]]} for name, sl in model.extra.items()}
 
 
 def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
@@ -305,44 +306,61 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             raise ValueError("the oracle needs the truth (evaluation of simulations only)")
         lin = LinearizedAboutTruth(model, *oracle_truth)
         tr = run_sigma_point_filter(lin, x0, P0, points)
+        x_f, P_f = in_memory(tr.x_f), in_memory(tr.P_f)  # (a store in memory)
         if method == ORACLE:
-            x, P = lin.to_model(*smooth_gaussian(tr))
-            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, *lin.to_model(tr.x_f, tr.P_f), x, P)
+            xo, Po = lin.to_model(*(in_memory(a) for a in smooth_gaussian(tr)))
+            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, *lin.to_model(x_f, P_f), xo, Po)
         else:
-            x, P = lin.to_model(tr.x_f, tr.P_f)
-            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, x, P)
-        return TAResult(method, *_apply(model, x, P, tr.corrections), model.epochs_s, x, P, None, flags=_bridged_flags(model), qc=qc,
-                        installation=_installation(model, x, P))
+            xo, Po = lin.to_model(x_f, P_f)
+            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, xo, Po)
+        return TAResult(method, *_apply(model, xo, Po, tr.corrections), model.epochs_s, xo, Po, None, flags=_bridged_flags(model), qc=qc,
+                        installation=_installation(model, xo[-1], Po[-1]))
     cg: CGStats | None = None
-    if method in _GAUSSIAN:
-        rule, smoothed = _GAUSSIAN[method]
-        tr = run_sigma_point_filter(model, x0, P0, points, rule=rule)
-        corr = tr.corrections
-        cg = tr.cg
-        if smoothed:
-            x, P = smooth_gaussian(tr)
-        else:
-            x, P = tr.x_f, tr.P_f
-        qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((x, P) if smoothed else (None, None)))
-    else:
-        with tempfile.TemporaryDirectory(prefix="dpos_upf_") as tmp:
-            # the particle track (~50 kB an epoch at 100 particles) in files when large (filters.store)
-            big = model.n_epochs * particles * model.n * 8 * 2 > TRACK_IN_MEMORY_BYTES
-            ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc",
-                          store=Path(tmp) if big else None)
-            corr = ptr.corrections
-            ess = ptr.ess
-            smoothed = method in ("ups", "ups_mcmc")
-            if smoothed:
-                _, x, P = rb_smooth(ptr)
+    particle = method not in _GAUSSIAN
+    with tempfile.TemporaryDirectory(prefix="dpos_ta_") as tmp:
+        # the per-epoch arrays of the filter and the smoother (~20 kB an epoch, and the particle track ~50 kB
+        # at 100 particles) in files when large (filters.store), read back a block of epochs at a time
+        big = model.n_epochs * per_epoch_bytes(model.n, particles if particle else 0, _sampled_size(model)) > TRACK_IN_MEMORY_BYTES
+        store = EpochStore(Path(tmp) if big else None)
+        try:
+            if not particle:
+                rule, smoothed = _GAUSSIAN[method]
+                tr = run_sigma_point_filter(model, x0, P0, points, rule=rule, store=store)
+                cg = tr.cg
             else:
-                x, P = ptr.mixture.x_f, ptr.mixture.P_f
-            ptr.close()
-        mx = ptr.mixture
-        qc = epoch_qc(model.epochs_s, mx.nu, mx.S, mx.x_f, mx.P_f, *((x, P) if smoothed else (None, None)))
-    out = _apply(model, x, P, corr) if sink is None else _to_sink(model, x, P, corr, sink)
-    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg,
-                    installation=_installation(model, x, P))
+                ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc",
+                              store=store)
+                ess = ptr.ess
+                smoothed = method in ("ups", "ups_mcmc")
+                tr = ptr.mixture
+            xs: PerEpoch
+            Ps: PerEpoch
+            if smoothed:
+                xs, Ps = rb_smooth(ptr)[1:] if particle else smooth_gaussian(tr, store)
+            else:
+                xs, Ps = tr.x_f, tr.P_f
+            qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((xs, Ps) if smoothed else (None, None)))
+            corr = tr.corrections
+            out = _apply(model, xs, Ps, corr) if sink is None else _to_sink(model, xs, Ps, corr, sink)
+            installation = _installation(model, np.asarray(xs[-1]), np.asarray(Ps[-1]))
+            # the estimates at the epochs: kept in memory, or (the rows handed to a sink) not kept (issue #17)
+            x, P = (in_memory(xs), in_memory(Ps)) if sink is None else (np.zeros((0, model.n)), np.zeros((0, model.n, model.n)))
+        finally:
+            store.close()
+    return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg, installation=installation)
+
+
+def per_epoch_bytes(n: int, particles: int = 0, sampled: int = 0) -> int:
+    """Bytes a filter and its smoother keep per epoch for the backward pass and the output (n
+    states; a particle filter's ``particles`` with ``sampled`` sampled components): the filtered,
+    predicted, cross- and smoothed covariances and the means, and the particle track."""
+    N, s = particles, sampled
+    return 8 * (4 * n * n + 5 * n + 100 + (2 * N * n + 2 * N + N * s + N * s * s if N else 0))
+
+
+def _sampled_size(model: TransferAlignmentModel) -> int:
+    """The number of components the particle filters sample (``model.sampled``)."""
+    return int(np.arange(model.n)[model.sampled].size)
 
 
 def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t: FloatArray, llh: FloatArray, vel: FloatArray,
@@ -387,15 +405,17 @@ def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t
 #: keep the nominal at the IMU rate through the filter (True), or re-integrate it interval by interval
 #: in the output pass (False, the default: the same numbers without the trajectory in memory; issue #17)
 KEEP_NOMINAL = False
-#: a UPF particle track larger than this goes to files in a temporary directory for its backward pass
-#: (``run_upf(store=...)``, :mod:`dpos_core.filters.store`): 64 MB is ~20 min at 100 particles
+#: per-epoch arrays of a filter and its smoother (:func:`per_epoch_bytes`) larger than this go to files in a
+#: temporary directory for the backward pass, the quality measures and the output pass, which read them a
+#: block of epochs at a time (:class:`dpos_core.filters.store.EpochStore`): 64 MB is ~20 min of the UPS at
+#: 100 particles, ~1 h of the URTSS (24 states, 1 Hz)
 TRACK_IN_MEMORY_BYTES = 64 * 2**20
 #: intervals (filter epochs) whose rows the output pass builds at once (:func:`iter_rows`)
 APPLY_BLOCK = 64
 
 
-def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
-           corr: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+def _apply(model: TransferAlignmentModel, x: PerEpoch, P: PerEpoch,
+           corr: PerEpoch) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """The trajectory at the IMU rate from the epoch errors (module docstring): ``(t_s, llh, vel_n_mps, q_nb, sigma)``,
     the blocks of :func:`iter_rows` concatenated."""
     parts = list(iter_rows(model, x, P, corr))
@@ -406,7 +426,7 @@ def _apply(model: TransferAlignmentModel, x: FloatArray, P: FloatArray,
 RowSink = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray], None]
 
 
-def _to_sink(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
+def _to_sink(model: TransferAlignmentModel, x: PerEpoch, P: PerEpoch, corr: PerEpoch,
              sink: RowSink) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """The rows of :func:`_apply` handed to ``sink`` block by block; returns their stamps and
     empty (0, m) arrays in place of the other columns (issue #17: the trajectory is not kept)."""
@@ -417,38 +437,44 @@ def _to_sink(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: 
     return np.concatenate(ts), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 9))
 
 
-def iter_rows(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, corr: FloatArray,
+def iter_rows(model: TransferAlignmentModel, x: PerEpoch, P: PerEpoch, corr: PerEpoch,
               block: int | None = None):
     """:func:`_apply`'s rows, ``block`` intervals at a time (the nominal of each re-integrated when the
     model does not keep it, :attr:`.model.TransferAlignmentModel.keep_nominal`): ``(t_s, llh,
     vel_n_mps, q_nb, sigma)`` per block (default :data:`APPLY_BLOCK`), the same numbers as at once
-    (row by row arithmetic).  With the ``time_offset`` state the rows are shifted in time across
-    rows (:func:`shift_in_time`): one block of every row then (not streamed)."""
+    (row by row arithmetic).  The epoch estimates x (K, n), P (K, n, n) and the corrections (K, n)
+    (numpy arrays or :class:`~dpos_core.filters.store.EpochArray` files) are read a block at a time.
+    With the ``time_offset`` state the rows are shifted in time across rows (:func:`shift_in_time`):
+    one block of every row then (not streamed)."""
     n = int(model.interval_sizes().size)
     block = APPLY_BLOCK if block is None else block
     if "time_offset" in model.extra:  # shift_in_time moves each row by the offset between its neighbours: every row at once
         block = max(n, 1)
-    e1 = x[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
-    e1[:, PHI] = compose_rotvec(x[1:, PHI], corr[1:, PHI])
-    e1[:, DV] = x[1:, DV] + corr[1:, DV]
-    e1[:, DP] = x[1:, DP] + corr[1:, DP]
     for k0 in range(0, max(n, 1), block):
-        yield _apply_block(model, x, P, e1, k0, [model.nominal_chunk(k) for k in range(k0, min(k0 + block, n))])
+        k1 = min(k0 + block, n)
+        xb, Pb = np.asarray(x[k0:k1 + 1]), np.asarray(P[k0:k1 + 1])  # the epochs k0 .. k1
+        cb = np.asarray(corr[k0 + 1:k1 + 1])
+        e1 = xb[1:].copy()  # the errors at the interval ends, before the end epoch's correction (undo its shift)
+        e1[:, PHI] = compose_rotvec(xb[1:, PHI], cb[:, PHI])
+        e1[:, DV] = xb[1:, DV] + cb[:, DV]
+        e1[:, DP] = xb[1:, DP] + cb[:, DP]
+        yield _apply_block(model, xb, Pb, e1, k0, [model.nominal_chunk(k) for k in range(k0, k1)])
 
 
 def _apply_block(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, e1: FloatArray, k0: int,
                  chunks: list[NavSeries]) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """The rows of the intervals k0, k0 + 1, .. (their nominal ``chunks``) at once: the interval of each
-    row, the errors at its two epochs (x (K, 24), P (K, 24, 24); ``e1`` (K - 1, 24): the errors at
-    the interval ends before the end epoch's correction) interpolated to the rows."""
+    row, the errors at its two epochs (x (B + 1, n), P (B + 1, n, n): those of the epochs k0 .. k0 + B,
+    B = len(chunks); ``e1`` (B, n): the errors at the interval ends before the end epoch's correction)
+    interpolated to the rows.  With the ``time_offset`` state (one block of every row) x and P are
+    every epoch's."""
     sizes = np.array([ch.t_s.size for ch in chunks], dtype=int)
-    kl = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row, in the block
-    kk = k0 + kl  # and in the session
+    kk = np.repeat(np.arange(len(chunks)), sizes)  # the interval of each row, in the block (k0 + kk in the session)
     t = np.concatenate([ch.t_s for ch in chunks])
     vel = np.concatenate([ch.vel_n_mps for ch in chunks])
     llh = np.concatenate([ch.llh for ch in chunks])
     q = np.concatenate([ch.q_nb for ch in chunks])
-    t0, t1 = model.epochs_s[:-1][kk], model.epochs_s[1:][kk]
+    t0, t1 = model.epochs_s[:-1][k0 + kk], model.epochs_s[1:][k0 + kk]
     a = ((t - t0) / (t1 - t0))[:, None]
     err = (1.0 - a) * x[kk, :9] + a * e1[kk, :9]
     dP = np.diagonal(P, axis1=1, axis2=2)[:, :9]
@@ -473,10 +499,10 @@ def _apply_block(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, e1
     # vibration (0.4 m/s at 9 m) into mm/s across the span, twice the error at the epochs
     ends = np.cumsum(sizes)
     first, last = ends - sizes, ends - 1
-    vib = np.flatnonzero(sizes[kl] > 2)  # rows of intervals with more than 2 rows
+    vib = np.flatnonzero(sizes[kk] > 2)  # rows of intervals with more than 2 rows
     if vib.size:
         kv = kk[vib]
-        f, la = first[kl[vib]], last[kl[vib]]
+        f, la = first[kk[vib]], last[kk[vib]]
         b = ((t[vib] - t[f]) / (t[la] - t[f]))[:, None]
         D = vel[vib] - vel[f] - b * (vel[la] - vel[f])
         err[vib, DV] += cross(D, err[vib, PHI])

@@ -53,6 +53,7 @@ from scipy.special import gammaincinv
 
 from dpos_core.units import DEG, FloatArray
 
+from ..filters.store import PerEpoch, blocks, in_memory
 from . import flags as F
 
 #: the state groups of the separation: the first 9 error states (attitude rad, velocity m/s, position m)
@@ -158,9 +159,30 @@ def separation(x_f: FloatArray, P_f: FloatArray, x_s: FloatArray, P_s: FloatArra
     return sep, dof, norm
 
 
-def epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArray, P_f: FloatArray,
-             x_s: FloatArray | None = None, P_s: FloatArray | None = None) -> EpochQC:
-    """The :class:`EpochQC` of a filter's innovations and its filtered and (if any) smoothed estimates."""
+#: epochs whose measures :func:`epoch_qc` computes at once
+QC_BLOCK = 256
+
+
+def epoch_qc(epochs_s: FloatArray, nu: PerEpoch, S: PerEpoch, x_f: PerEpoch, P_f: PerEpoch,
+             x_s: PerEpoch | None = None, P_s: PerEpoch | None = None, block: int | None = None) -> EpochQC:
+    """The :class:`EpochQC` of a filter's innovations ``nu`` (K, p), ``S`` (K, p, p) and its filtered
+    ``x_f`` (K, n), ``P_f`` (K, n, n) and (if any) smoothed ``x_s``, ``P_s`` estimates: numpy arrays or
+    :class:`~dpos_core.filters.store.EpochArray` files, read ``block`` epochs at a time (default
+    :data:`QC_BLOCK`; every measure is per epoch: the same numbers whatever the block)."""
+    K = np.asarray(epochs_s).size
+    block = QC_BLOCK if block is None else max(int(block), 1)
+    if K <= block:
+        return _epoch_qc(epochs_s, in_memory(nu), in_memory(S), in_memory(x_f), in_memory(P_f),
+                         None if x_s is None else in_memory(x_s), None if P_s is None else in_memory(P_s))
+    sl = lambda a, k0, k1: np.asarray(a[k0:k1])  # noqa: E731
+    return EpochQC.concat([_epoch_qc(np.asarray(epochs_s)[k0:k1], sl(nu, k0, k1), sl(S, k0, k1), sl(x_f, k0, k1), sl(P_f, k0, k1),
+                                     None if x_s is None else sl(x_s, k0, k1), None if P_s is None else sl(P_s, k0, k1))
+                           for k0, k1 in blocks(K, block)])
+
+
+def _epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArray, P_f: FloatArray,
+              x_s: FloatArray | None = None, P_s: FloatArray | None = None) -> EpochQC:
+    """:func:`epoch_qc` of arrays in memory at once."""
     v, dof = nis(nu, S)
     K = np.asarray(epochs_s).size
     with np.errstate(invalid="ignore", divide="ignore"):
