@@ -179,3 +179,22 @@ def test_installation_states_with_the_re_integrated_nominal(flight, monkeypatch)
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", False)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 3)
     _same(stored, pipeline.run_segments(imu, master, ins, cfg, "urtss"))
+
+
+@pytest.mark.parametrize("M", [3, 4, 50, 1000])
+def test_imu_rates_by_block_are_the_functions_at_once(M) -> None:
+    from dpos_core.ta.antenna import ImuRates, rate_at, rate_interpolation_var
+
+    rng = np.random.default_rng(M)
+    t = np.cumsum(rng.uniform(0.004, 0.006, M))
+    w = rng.normal(size=(M, 3))
+    x = np.sort(rng.uniform(t[0] - 0.01, t[-1] + 0.01, 3 * M))  # before the first and after the last sample too
+    want_w, want_v = rate_at(t, w, x), rate_interpolation_var(t, w, x)
+    assert np.any(want_v > 0)
+    for block in (1, 7, 100, 10**6):
+        r = ImuRates(t, w)
+        assert np.array_equal(np.concatenate([r.rate_at(x[i:i + block]) for i in range(0, x.size, block)]), want_w), block
+        assert np.array_equal(np.concatenate([r.interpolation_var(x[i:i + block]) for i in range(0, x.size, block)]), want_v), block
+    r = ImuRates(t, w)  # blocks out of order: the running sum restarts
+    assert np.array_equal(np.concatenate([r.interpolation_var(x[x.size // 2:]), r.interpolation_var(x[:x.size // 2])]),
+                          np.concatenate([want_v[x.size // 2:], want_v[:x.size // 2]]))

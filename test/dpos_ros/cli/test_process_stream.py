@@ -51,6 +51,19 @@ def test_stream_gives_the_in_memory_products(tmp_path: Path, workers: str) -> No
     assert not [p for p in (tmp_path / "on").iterdir() if p.name.startswith(".")]  # the rows' scratch directory is gone
 
 
+def test_stream_in_row_blocks_with_the_per_epoch_arrays_in_files(tmp_path: Path, monkeypatch) -> None:
+    """The worker's rows a block at a time (quality bits, decimation, rates: blocks that do not divide
+    the rows nor the decimation's steps) and the filter's per-epoch arrays in files: the same products."""
+    from dpos_core.ta import pipeline
+
+    monkeypatch.setattr(stream, "ROW_BLOCK", 997)
+    monkeypatch.setattr(pipeline, "TRACK_IN_MEMORY_BYTES", 0)
+    args = [str(SAMPLE), "--method", "ups", "--particles", "20", "--workers", "1", "--output-rate", "30"]
+    assert process_cli.main([*args, "--stream", "on", "--out", str(tmp_path / "on")]) == 0
+    assert process_cli.main([*args, "--stream", "off", "--out", str(tmp_path / "off")]) == 0
+    _compare(tmp_path / "on", tmp_path / "off")
+
+
 def test_stream_with_the_wing_fit(tmp_path: Path) -> None:
     rec = tmp_path / "wing"
     assert sim_cli.main(["--scenario", "paper_wing", "--duration", "20", "--window", "10", "--out", str(rec)]) == 0

@@ -51,3 +51,35 @@ def test_read_batches_hold_read_s_messages() -> None:
     for topic, (_mt, times, blobs) in whole.items():
         assert [t for p in parts for t in p[topic][1]] == times
         assert [bytes(m) for p in parts for m in p[topic][2]] == [bytes(m) for m in blobs]
+
+
+@pytest.mark.parametrize("counts", [{}, "small"])
+def test_series_grow_beyond_the_metadatas_message_counts(monkeypatch, counts) -> None:
+    """The reader fills arrays of the metadata's message count per topic; without one (or with too
+    small a count) they grow: the same series."""
+    from dpos_ros.io import session
+
+    real = session.message_counts(SAMPLE)
+    assert real and all(v > 0 for v in real.values())
+    monkeypatch.setattr(session, "message_counts", lambda p: {} if counts == {} else {k: v // 7 for k, v in real.items()})
+    a, b = read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=150_000)
+    _same(a.master, b.master)
+    for k in a.sub_imus:
+        _same(a.sub_imus[k], b.sub_imus[k])
+    assert a.warnings == b.warnings
+
+
+def test_clean_groups_is_clean_of_the_columns_side_by_side() -> None:
+    from dpos_ros.io.session import _clean, _clean_groups
+
+    rng = np.random.default_rng(1)
+    t = np.array([0, 10, 20, 20, 15, 30, 40, 40, 50, 60, 200], dtype=np.int64)  # out of order, duplicates, a gap
+    v = rng.normal(size=(t.size, 5))
+    v[7] = v[6]  # an identical duplicate
+    v[5, 3] = np.nan  # a NaN row
+    w1: list[str] = []
+    w2: list[str] = []
+    ta, va = _clean("/x", t, v, w1)
+    tb, gb = _clean_groups("/x", t, [v[:, :2], v[:, 2:4], v[:, 4:]], w2)
+    assert np.array_equal(ta, tb) and np.array_equal(va, np.hstack(gb)) and w1 == w2
+    assert len(w1) == 4 and ta.size == t.size - 3  # sorted; 2 duplicates and a NaN row removed; a gap

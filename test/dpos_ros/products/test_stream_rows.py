@@ -39,3 +39,16 @@ def test_stamp_cursor_is_searchsorted(tmp_path: Path, block: int) -> None:
     assert cur.first_last() == (0.0, float(t[-1]))
     edges = [-1.0, 0.0, 0.05, 0.3, 0.3, 2.0, 5.0, 5.55, 6.1, 7.0, np.inf]
     assert [cur.index(e) for e in edges] == [int(np.searchsorted(t, e)) for e in edges]
+
+
+@pytest.mark.parametrize("rate", [0.0, 30.0, 7.0])
+def test_kept_rows_by_block_are_the_decimation(rate: float) -> None:
+    from dpos_ros.products.ta import _decimate
+
+    t = np.cumsum(np.random.default_rng(2).uniform(0.004, 0.006, 3000))
+    want = np.zeros(t.size, dtype=bool)
+    want[_decimate(t, rate)] = True
+    for block in (1, 13, 500, 10**6):
+        got = np.concatenate([stream._kept(t, i0, min(i0 + block, t.size), rate) for i0 in range(0, t.size, block)])
+        assert np.array_equal(got, want), block
+    assert 0 < want.sum() <= t.size

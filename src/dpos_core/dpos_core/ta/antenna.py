@@ -97,3 +97,66 @@ def lever_velocity_var(C_nb: FloatArray, omega_var: FloatArray, lever_arm_b_m: A
     M = np.einsum("nij,jk->nik", C_nb, Rx)  # (N, 3, 3)
     return np.einsum("nik,nk->ni", M**2, omega_var)
 
+
+
+class ImuRates:
+    """:func:`rate_at` and :func:`rate_interpolation_var` of one IMU's samples, ``t_imu_s`` (M,) and
+    ``omega_radps`` (M, 3), for times given a block at a time in increasing order (issue #17): each
+    block computes the samples' middles and roughness over the samples around it only (no array of
+    the flight's length; the running sum of :func:`step_roughness` is carried from block to block),
+    the same numbers as the functions on every time at once.  Blocks out of order are right too,
+    the running sum then restarting from the first sample."""
+
+    #: samples beyond a block's on either side whose middles it computes
+    MARGIN = 3
+
+    def __init__(self, t_imu_s: FloatArray, omega_radps: FloatArray) -> None:
+        self.t = np.asarray(t_imu_s, dtype=float)
+        self.w = np.asarray(omega_radps, dtype=float)
+        M = self.t.size
+        self._k = min(ROUGHNESS_WINDOW, M - 2) if M >= 3 else 0  # step_roughness's window
+        self._ic = 0  # the running sum c[i] = sum of the squared second differences before i, at i = _ic
+        self._c = np.zeros((1, 3))
+
+    def _window(self, t_s: FloatArray) -> tuple[int, FloatArray]:
+        """The first index i0 and the middles (m,) of the samples around times t_s (N,) (increasing)."""
+        t, M = self.t, self.t.size
+        i0 = max(int(np.searchsorted(t, t_s[0], side="right")) - self.MARGIN, 0)
+        i1 = min(int(np.searchsorted(t, t_s[-1], side="right")) + self.MARGIN, M)
+        if i0 == 0:
+            dt = np.diff(t[:i1])
+            dt = np.concatenate([dt[:1], dt])
+        else:
+            dt = np.diff(t[i0 - 1:i1])
+        return i0, t[i0:i1] - 0.5 * dt
+
+    def rate_at(self, t_s: FloatArray) -> FloatArray:
+        """:func:`rate_at` (N, 3) at the times t_s (N,)."""
+        t_s = np.asarray(t_s, dtype=float)
+        if self.t.size < 2 or t_s.size == 0:
+            return rate_at(self.t, self.w, t_s)
+        i0, mid = self._window(t_s)
+        w = self.w[i0:i0 + mid.size]
+        return np.stack([np.interp(t_s, mid, w[:, i]) for i in range(3)], axis=1)
+
+    def interpolation_var(self, t_s: FloatArray) -> FloatArray:
+        """:func:`rate_interpolation_var` (N, 3) at the times t_s (N,)."""
+        t_s = np.asarray(t_s, dtype=float)
+        M = self.t.size
+        if M < 3 or t_s.size == 0:
+            return rate_interpolation_var(self.t, self.w, t_s)
+        i0, mid = self._window(t_s)
+        j = np.clip(i0 + np.searchsorted(mid, t_s, side="right") - 1, 0, M - 2)
+        a = np.clip((t_s - mid[j - i0]) / (mid[j + 1 - i0] - mid[j - i0]), 0.0, 1.0)[:, None]
+        k = self._k
+        lo = np.clip(j - k // 2, 0, (M - 2) - k)
+        lo0, hi = int(lo.min()), int(lo.max()) + k
+        if lo0 < self._ic:  # (times before the last block's: the running sum from the start again)
+            self._ic, self._c = 0, np.zeros((1, 3))
+        ic = self._ic
+        d = np.diff(self.w[ic:hi + 2], axis=0)
+        dd = np.diff(d, axis=0) ** 2  # the squared second differences ic .. hi - 1
+        c = np.cumsum(np.concatenate([self._c, dd[:hi - ic]]), axis=0)  # c[ic .. hi]
+        self._ic, self._c = lo0, c[lo0 - ic:lo0 - ic + 1]
+        q = 0.5 * (c[lo + k - ic] - c[lo - ic]) / k
+        return a * (1.0 - a) * q

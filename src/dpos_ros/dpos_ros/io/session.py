@@ -79,29 +79,40 @@ class RecordedSession:
 
 def _clean(topic: str, t_ns: NDArray[np.int64], vals: FloatArray, warnings: list[str]) -> tuple[NDArray[np.int64], FloatArray]:
     """Sort, drop duplicates and NaN rows, count gaps; warn about each."""
+    t_ns, (vals,) = _clean_groups(topic, t_ns, [vals], warnings)
+    return t_ns, vals
+
+
+def _clean_groups(topic: str, t_ns: NDArray[np.int64], groups: list[FloatArray],
+                  warnings: list[str]) -> tuple[NDArray[np.int64], list[FloatArray]]:
+    """:func:`_clean` of the rows whose values are the columns of ``groups`` (each (N, m_i)) side by side:
+    the same rows kept and the same warnings; arrays without a problem are returned as they are."""
     if t_ns.size == 0:
-        return t_ns, vals
+        return t_ns, groups
     if np.any(np.diff(t_ns) < 0):
         n_bad = int(np.sum(np.diff(t_ns) < 0))
         warnings.append(f"{topic}: {n_bad} message(s) out of stamp order; sorted")
         order = np.argsort(t_ns, kind="stable")
-        t_ns, vals = t_ns[order], vals[order]
+        t_ns, groups = t_ns[order], [g[order] for g in groups]
     dup = np.concatenate([[False], np.diff(t_ns) == 0])
     if dup.any():
-        same = np.all(vals[1:][dup[1:]] == vals[:-1][dup[1:]], axis=1)
+        d = dup[1:]
+        same = np.all(np.stack([np.all(g[1:][d] == g[:-1][d], axis=1) for g in groups]), axis=0)
         warnings.append(f"{topic}: {int(dup.sum())} duplicate stamp(s) ({int(same.sum())} identical messages) removed; the first of each kept")
-        t_ns, vals = t_ns[~dup], vals[~dup]
-    bad = ~np.all(np.isfinite(vals), axis=1)
+        t_ns, groups = t_ns[~dup], [g[~dup] for g in groups]
+    bad = np.zeros(t_ns.size, dtype=bool)
+    for g in groups:
+        bad |= ~np.all(np.isfinite(g), axis=1)
     if bad.any():
         warnings.append(f"{topic}: {int(bad.sum())} sample(s) with NaN/inf removed (first at stamp {int(t_ns[bad][0])} ns)")
-        t_ns, vals = t_ns[~bad], vals[~bad]
+        t_ns, groups = t_ns[~bad], [g[~bad] for g in groups]
     if t_ns.size > 2:
         d = np.diff(t_ns)
         med = np.median(d)
         gaps = d > GAP_FACTOR * med
         if gaps.any():
             warnings.append(f"{topic}: {int(gaps.sum())} gap(s) in the stamps, longest {d.max() * 1e-9:.3f} s (nominal step {med * 1e-9:.4f} s)")
-    return t_ns, vals
+    return t_ns, groups
 
 
 #: sensor_msgs/Imu doubles (cdr.IMU_DOUBLES): angular velocity and linear acceleration covariance diagonals
@@ -299,7 +310,8 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
 
     datum = cv.datum_from_msg(deserialize_message(small[T.DATUM][2][0], NavSatFix))
     warnings: list[str] = []
-    acc: dict[str, tuple[str, list[NDArray[np.int64]], list[FloatArray]]] = {}  # topic -> (kind, stamps, rows)
+    counts = message_counts(path)
+    acc: dict[str, _Rows] = {}  # topic -> its stamps and numbers so far
     failed: set[str] = set()
     for part in parts:
         for topic, (msgtype, _, blobs) in part.items():
@@ -314,40 +326,83 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
                 warnings.append(f"{e}; the topic is ignored")
                 failed.add(topic)
                 continue
-            acc.setdefault(topic, (kind, [], []))
-            acc[topic][1].append(t)
-            acc[topic][2].append(_compact(kind, t, v, datum))
+            if topic not in acc:
+                acc[topic] = _Rows(_GROUPS[kind], counts.get(topic, 0))
+            acc[topic].append(t, _compact(kind, t, v, datum))
     for topic in failed:
         acc.pop(topic, None)
     if T.MASTER_NAV not in acc:
         raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
-    cols: dict[str, tuple[NDArray[np.int64], FloatArray]] = {}
+    cols: dict[str, tuple[NDArray[np.int64], list[FloatArray]]] = {}
     for topic in sorted(acc):
-        kind, ts, rows = acc.pop(topic)
-        cols[topic] = _clean(topic, np.concatenate(ts), np.concatenate(rows), warnings)
-    t_nav, m = cols.pop(T.MASTER_NAV)
+        cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
+    t_nav, (llh, vel, q, w, c_att, c_vel, c_pos, _) = cols.pop(T.MASTER_NAV)
     if t_nav.size == 0:
         raise SessionError(f"{path}: no usable /master/nav message: the transfer alignment needs the main-system navigation")
     t0_ns = int(round(float(custom["dpos.start_time_s"]) * 1e9)) if "dpos.start_time_s" in custom else int(t_nav[0])
     ts_ = lambda t: (t - t0_ns) * 1e-9  # noqa: E731
     n = t_nav.size
-    master = NavSeries(ts_(t_nav), m[:, 6:10].copy(), m[:, 3:6].copy(), m[:, 0:3].copy(), omega_eb_b_radps=m[:, 10:13].copy(),
-                       att_cov=m[:, 13:22].reshape(n, 3, 3).copy(), vel_cov=m[:, 22:31].reshape(n, 3, 3).copy(),
-                       pos_cov=m[:, 31:40].reshape(n, 3, 3).copy())
+    master = NavSeries(ts_(t_nav), q, vel, llh, omega_eb_b_radps=w, att_cov=c_att.reshape(n, 3, 3), vel_cov=c_vel.reshape(n, 3, 3),
+                       pos_cov=c_pos.reshape(n, 3, 3))
     subs: dict[str, ImuSeries] = {}
     truth: dict[str, NavSeries] = {}
-    for topic, (t, v) in cols.items():
+    for topic, (t, g) in cols.items():
         parts_ = topic.strip("/").split("/")
         if _kind(topic, T.IMU) == "imu":
-            subs[parts_[1]] = ImuSeries(ts_(t), v[:, 0:3].copy(), v[:, 3:6].copy())
+            subs[parts_[1]] = ImuSeries(ts_(t), g[0], g[1])
         else:
-            truth["/".join(parts_[1:])] = NavSeries(ts_(t), v[:, 6:10].copy(), v[:, 3:6].copy(), v[:, 0:3].copy())
+            truth["/".join(parts_[1:])] = NavSeries(ts_(t), g[2], g[1], g[0])
     end_s = None
     if T.SESSION_END in small and small[T.SESSION_END][1]:
         end_s = ts_(max(small[T.SESSION_END][1]))
     sid = custom.get("dpos.session_id") or path.name
     return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings,
                            master_mechanized=master_is_mechanized(custom, small))
+
+
+#: the column groups of :func:`_compact`'s rows per kind (each group one array of the series; the
+#: last, a NaN flag, is for the cleaning only)
+_GROUPS = {"imu": (3, 3, 1), "truth": (3, 3, 4, 1), "master": (3, 3, 4, 3, 9, 9, 9, 1)}
+
+
+class _Rows:
+    """A topic's stamps and numbers read so far, one array per column group (``widths``), appended a
+    part at a time into arrays of ``capacity`` rows (the recording's message count: the whole is never
+    held twice nor copied to its series; grown by half when more messages come)."""
+
+    def __init__(self, widths: tuple[int, ...], capacity: int) -> None:
+        self.n = 0
+        self.t = np.empty(max(capacity, 0), dtype=np.int64)
+        self.groups = [np.empty((max(capacity, 0), w)) for w in widths]
+        self._edges = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+
+    def append(self, t: NDArray[np.int64], rows: FloatArray) -> None:
+        """Rows (m, sum of the widths) stamped t (m,)."""
+        need = self.n + t.size
+        if need > self.t.size:
+            cap = max(need, self.t.size + self.t.size // 2)
+            self.t = np.concatenate([self.t[:self.n], np.empty(cap - self.n, dtype=np.int64)])
+            self.groups = [np.concatenate([g[:self.n], np.empty((cap - self.n, g.shape[1]))]) for g in self.groups]
+        self.t[self.n:need] = t
+        for g, a, b in zip(self.groups, self._edges[:-1], self._edges[1:], strict=True):
+            g[self.n:need] = rows[:, a:b]
+        self.n = need
+
+    def arrays(self) -> tuple[NDArray[np.int64], list[FloatArray]]:
+        """The stamps (n,) and the groups (n, width) read (views)."""
+        return self.t[:self.n], [g[:self.n] for g in self.groups]
+
+
+def message_counts(path: Path) -> dict[str, int]:
+    """The message count per topic that the rosbag2 metadata of ``path`` lists ({} without one)."""
+    import yaml
+
+    meta = Path(path) / "metadata.yaml"
+    try:
+        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+        return {str(t["topic_metadata"]["name"]): int(t.get("message_count") or 0) for t in info.get("topics_with_message_count") or []}
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
+        return {}
 
 
 def _kind(topic: str, msgtype: str) -> str | None:

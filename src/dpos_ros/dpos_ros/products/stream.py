@@ -44,7 +44,7 @@ from dpos_core.series import NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import pipeline
 from dpos_core.ta import qc as Q
-from dpos_core.ta.antenna import antenna_motion, lever_velocity_var, rate_at, rate_interpolation_var
+from dpos_core.ta.antenna import ImuRates, antenna_motion, lever_velocity_var
 from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack
 from dpos_core.units import FloatArray
@@ -216,6 +216,7 @@ def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installat
                     seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
                     inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
     sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub))
+    release_memory()  # (what decoding the recording's parts left in the heap)
     if sub not in sess.sub_imus:
         return {"missing": True, "warnings": sess.warnings}
     imu = sess.sub_imus[sub]
@@ -234,34 +235,46 @@ def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installat
     except RejectedInput as ex:
         ta_rows.remove()
         return {"rejected": str(ex), "warnings": sess.warnings}
-    flags = res.flags | P._qc_flags(res, master, aligned_sigma_deg)
-    keep = np.zeros(res.t_s.size, dtype=bool)
-    keep[P._decimate(res.t_s, output_rate_hz)] = True
-    n_kept = np.concatenate([[0], np.cumsum(keep)])  # kept rows before each row
-    # the rate at the rows (with a time offset, at the instant the moved rows stand for) and what the rate
-    # between the IMU's samples leaves unknown, as _sub_imu_antenna (dpos_ros.products.ta)
+    # the rows' quality bits, the decimation, the rate at the rows (with a time offset, at the instant the moved
+    # rows stand for) and what the rate between the IMU's samples leaves unknown, as _sub_imu_antenna
+    # (dpos_ros.products.ta), a block of rows at a time (issue #17: no array of them all but their stamps and flags)
+    (att_cov,) = master.required("att_cov")
+    att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))  # (as P._qc_flags)
     tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
-    w_var = rate_interpolation_var(imu.t_s, imu.omega_radps, res.t_s[keep] + tau) if antennas else np.zeros((0, 3))
+    rates = ImuRates(imu.t_s, imu.omega_radps)
     stores = {name: RowStore(base / f"ant_{name}") for name, _ in antennas}
     own = RowStore(base / f"sub_{sub}")
     for i0 in range(0, res.t_s.size, ROW_BLOCK):
         i1 = min(i0 + ROW_BLOCK, res.t_s.size)
         c = ta_rows.rows(i0, i1)
         t, sigma = c["t_s"], c["sigma"]
+        flags = res.flags[i0:i1] | Q.row_flags(t, res.qc, master.t_s, att_sig, np.deg2rad(aligned_sigma_deg))
+        k = _kept(res.t_s, i0, i1, output_rate_hz)
         if inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
             sigma = sigma * Q.sigma_scale(res.qc, t)
         C = quat_to_dcm(c["q_nb"])
-        k = keep[i0:i1]
-        w = rate_at(imu.t_s, imu.omega_radps, t + tau) if antennas else np.zeros((0, 3))
+        w = rates.rate_at(t + tau) if antennas else np.zeros((0, 3))
+        w_var = rates.interpolation_var(t[k] + tau) if antennas else np.zeros((0, 3))
         for name, lever in antennas:
             llh, v = antenna_motion(C, c["vel_n_mps"], c["llh"], w, lever)
             s_a = sigma[k].copy()
-            s_a[:, 3:6] = np.sqrt(s_a[:, 3:6] ** 2 + lever_velocity_var(C[k], w_var[n_kept[i0]:n_kept[i1]], lever))
-            stores[name].append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=v[k], llh=llh[k], sigma=s_a, flags=flags[i0:i1][k])
-        own.append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=c["vel_n_mps"][k], llh=c["llh"][k], sigma=sigma[k], flags=flags[i0:i1][k])
+            s_a[:, 3:6] = np.sqrt(s_a[:, 3:6] ** 2 + lever_velocity_var(C[k], w_var, lever))
+            stores[name].append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=v[k], llh=llh[k], sigma=s_a, flags=flags[k])
+        own.append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=c["vel_n_mps"][k], llh=c["llh"][k], sigma=sigma[k], flags=flags[k])
     ta_rows.remove()
     return {"stores": stores, "own": own, "qc": res.qc, "cg": res.cg, "not_estimated": list(res.not_estimated),
             "chol_jitter_repairs": res.chol_jitter_repairs, "installation": res.installation, "warnings": sess.warnings}
+
+
+def _kept(t_s: FloatArray, i0: int, i1: int, rate_hz: float) -> NDArray[np.bool_]:
+    """Which of the rows i0 .. i1 - 1 of the rows stamped ``t_s`` (N,) :func:`dpos_ros.products.ta._decimate`
+    keeps at ``rate_hz`` (the same rows, from the block and the row before it)."""
+    if rate_hz <= 0.0:
+        return np.ones(i1 - i0, dtype=bool)
+    j0 = max(i0 - 1, 0)  # (the row before decides whether row i0 starts a new step)
+    kept = np.zeros(i1 - j0, dtype=bool)
+    kept[P._decimate(t_s[j0:i1], rate_hz)] = True
+    return kept[i0 - j0:]
 
 
 # ------------------------------------------------------------------------------------ the session
