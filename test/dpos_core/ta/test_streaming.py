@@ -198,3 +198,33 @@ def test_imu_rates_by_block_are_the_functions_at_once(M) -> None:
     r = ImuRates(t, w)  # blocks out of order: the running sum restarts
     assert np.array_equal(np.concatenate([r.interpolation_var(x[x.size // 2:]), r.interpolation_var(x[:x.size // 2])]),
                           np.concatenate([want_v[x.size // 2:], want_v[:x.size // 2]]))
+
+
+@pytest.mark.parametrize("method", ["urtss", "ups"])
+def test_model_dropping_the_passed_epochs_gives_the_same_track(flight, method) -> None:
+    """keep_epoch_data=False (what pipeline.run does): the forward pass and the smoother give the same
+    numbers; the epochs and intervals the filter has passed are gone."""
+    from dpos_core.filters.store import in_memory
+
+    imu, master, ins = flight
+    init = pipeline.initial_from_master(master, ins)
+    out = []
+    for keep in (True, False):
+        m = TransferAlignmentModel(imu, master, ins, TAConfig(attitude_sigma_deg=1.0), init, keep_nominal=False, keep_epoch_data=keep)
+        x0, P0 = m.prior()
+        if method == "ups":
+            tr = runners.run_upf(m, x0, P0, 12, np.random.default_rng(1))
+            out.append((m, tr.mixture, *runners.rb_smooth(tr)[1:]))
+        else:
+            tr = runners.run_sigma_point_filter(m, x0, P0)
+            out.append((m, tr, *runners.smooth_gaussian(tr)))
+    (kept, a, xa, Pa), (lean, b, xb, Pb) = out
+    for name in ("x_f", "P_f", "x_p", "P_p", "C", "corrections", "nu", "S"):
+        assert np.array_equal(in_memory(getattr(a, name)), in_memory(getattr(b, name)), equal_nan=True), name
+    assert np.array_equal(xa, xb) and np.array_equal(Pa, Pb)
+    x = np.zeros(lean.n)
+    kept.h(0, x), kept.f(0, x)  # (kept: still there)
+    for call in (lambda: lean.h(0, x), lambda: lean.f(0, x), lambda: lean.Q(0), lambda: lean.nominal_at_epochs()):
+        with pytest.raises(RuntimeError):
+            call()
+    assert sum(e is not None for e in lean._epochs) <= 2 and sum(e is not None for e in kept._epochs) == kept.n_epochs

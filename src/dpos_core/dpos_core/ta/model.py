@@ -104,6 +104,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -331,6 +332,11 @@ class TransferAlignmentModel:
     #: keep the nominal at the IMU rate (:meth:`nominal_chunks`); False: only the integrator's state at
     #: each epoch, the interval re-integrated from it by :meth:`nominal_chunk` (the same numbers; issue #17)
     keep_nominal: bool = True
+    #: keep every epoch's measurement data and every interval's transition data (False: each is dropped
+    #: once the forward filter has passed it - ``feedback(k)`` drops those of epoch k - 1 and interval
+    #: k - 1 -, and ``y``, ``h``, ``R``, ``f``, ``Q`` of them raise: a model for one forward pass,
+    #: its memory flat with the session's length; issue #17)
+    keep_epoch_data: bool = True
 
     def __post_init__(self) -> None:
         # the master's body rate and covariances (ValueError without them)
@@ -355,7 +361,7 @@ class TransferAlignmentModel:
                                            reference_span_m=1.0, span_exponent=0.0)
         self.n = i
         self._pos_floor_m = self.cfg.pos_noise_floor_estimated_arm_m if "lever_arm" in self.extra else self.cfg.pos_noise_floor_m
-        self._K_axes: list[tuple[FloatArray, FloatArray, FloatArray]] = []  # per interval (3, 9) each: int C_est W(omega) dt, int C_est W(f) dt, L
+        self._K_axes: list[tuple[FloatArray, FloatArray, FloatArray] | None] = []  # per interval (3, 9) each: int C_est W(omega) dt, int C_est W(f) dt, L
         t_imu = self.imu.t_s
         check_imu_stamps(t_imu)
         if not np.all(np.isfinite(self.imu.omega_radps)) or not np.all(np.isfinite(self.imu.f_mps2)):
@@ -379,12 +385,12 @@ class TransferAlignmentModel:
         self.epochs_s = np.concatenate([[t0], t_imu[self._epoch_idx[1:]]])
         self.n_epochs = int(self.epochs_s.size)
         self.strapdown = Strapdown(self.initial)
-        self._intervals: list[Interval] = []
+        self._intervals: list[Interval | None] = []
         self._epochs: list[_Epoch | None] = [None] * self.n_epochs
         self._chunks: list[NavSeries] = []
         self._last_chunk: NavSeries | None = None  # the nominal of the last interval integrated
         self._starts: list[tuple] = []  # the integrator's state at the start of each interval (Strapdown.snapshot)
-        self._nominal_at: list[NavState] = [self.initial.copy()]  # nominal at each epoch, before its correction
+        self._nominal_at: list[NavState | None] = [self.initial.copy()]  # nominal at each epoch, before its correction
         self._flex = self.install.flexure
         self._flex_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
         self._q_cache: dict[float, FloatArray] = {}
@@ -393,6 +399,7 @@ class TransferAlignmentModel:
         self._vib_gate: dict[int, float] = {}  # vibration_variance's chi^2 gate per number of main-POS epochs
         #: the intervals k (epoch k to k + 1) that contained a short gap integrated across
         self.bridged_intervals: list[int] = []
+        self._forgotten = -1  # the last epoch dropped (keep_epoch_data=False)
         self._build_epoch(0)
 
     # ------------------------------------------------------------------ nominal / epochs
@@ -407,6 +414,7 @@ class TransferAlignmentModel:
 
     def _build_epoch(self, k: int) -> None:
         nom = self._nominal_at[k]
+        assert nom is not None
         ms = self._master_at(float(self.epochs_s[k]))
         ins = self.install
         p = 9 if self.cfg.use_position else 6
@@ -468,6 +476,7 @@ class TransferAlignmentModel:
         t, v = ch.t_s, ch.vel_n_mps
         if t.size < 2:
             prev = self._nominal_at[k - 1]
+            assert prev is not None  # (built as epoch k: k - 1 is kept until then)
             return (v[-1] - prev.vel_n_mps) / max(float(t[-1] - prev.t_s), 1e-9)
         j = max(0, min(int(np.searchsorted(t, t[-1] - 0.1)), t.size - 2))
         return (v[-1] - v[j]) / float(t[-1] - t[j])
@@ -567,21 +576,23 @@ class TransferAlignmentModel:
     def f(self, k: int, x: FloatArray) -> FloatArray:
         """The transition over interval k of states x (..., n) (numba kernel, module docstring; the
         installation states are constants)."""
-        it = self._intervals[k]
+        it = self._interval(k)
         rows = np.ascontiguousarray(x, dtype=float).reshape(-1, self.n)
         out = np.empty_like(rows)
         base = rows if self.n == N_STATES else np.ascontiguousarray(rows[:, :N_STATES])
         core = out if self.n == N_STATES else np.empty_like(base)
         ga, aa = self.extra.get("gyro_axes"), self.extra.get("accel_axes")
-        gx = rows[:, ga] @ self._K_axes[k][0].T if ga is not None else np.zeros((rows.shape[0], 3))
+        K_axes = self._K_axes[k] if ga is not None or aa is not None else None
+        gx = rows[:, ga] @ K_axes[0].T if ga is not None and K_axes is not None else np.zeros((rows.shape[0], 3))
         _error_kernel.ta_transition(base, it.kernel_consts, it.F_n, it.C_int, it.w_ie, it.w_en, it.v, self._flex_discrete(it.T)[0],
                                     np.ascontiguousarray(gx), core)
         if ga is not None or aa is not None:  # the axis errors' velocity, and the position it builds over the interval
             dv = np.zeros((rows.shape[0], 3))
+            assert K_axes is not None  # (dropped with the interval)
             if ga is not None:
-                dv -= rows[:, ga] @ self._K_axes[k][2].T
+                dv -= rows[:, ga] @ K_axes[2].T
             if aa is not None:
-                dv += rows[:, aa] @ self._K_axes[k][1].T
+                dv += rows[:, aa] @ K_axes[1].T
             core[:, DV] += dv
             core[:, DP] += 0.5 * it.T * dv
         if self.n != N_STATES:
@@ -615,7 +626,7 @@ class TransferAlignmentModel:
         return self._flex_cache[key]
 
     def Q(self, k: int) -> FloatArray:
-        T = self._intervals[k].T
+        T = self._interval(k).T
         key = round(T, 9)
         if key not in self._q_cache:
             self._q_cache[key] = self._process_noise(T)
@@ -667,10 +678,34 @@ class TransferAlignmentModel:
                 Q[np.ix_(ii, ii)] = Qm[i]
         return Q
 
+    def _interval(self, k: int) -> Interval:
+        """The nominal's integrals over interval k (RuntimeError once dropped: :attr:`keep_epoch_data`)."""
+        it = self._intervals[k]
+        if it is None:
+            raise RuntimeError(f"interval {k} is dropped: the model keeps the intervals the forward filter has passed "
+                               "only with keep_epoch_data=True")
+        return it
+
+    def _forget(self, k: int) -> None:
+        """Drop what the forward filter alone needs of epoch k and interval k (:attr:`keep_epoch_data`)."""
+        if k < 0:
+            return
+        self._epochs[k] = None
+        self._forgotten = max(self._forgotten, k)
+        if k < len(self._intervals):
+            self._intervals[k] = None
+        if k < len(self._K_axes):
+            self._K_axes[k] = None
+        if k < len(self._nominal_at):
+            self._nominal_at[k] = None
+
     def _epoch(self, k: int) -> _Epoch:
         """The measurement data of epoch k (built when the nominal reaches it: by the feedback of epoch k - 1)."""
         ep = self._epochs[k]
         if ep is None:
+            if k <= self._forgotten:
+                raise RuntimeError(f"epoch {k} is dropped: the model keeps the epochs the forward filter has passed "
+                                   "only with keep_epoch_data=True")
             raise RuntimeError(f"epoch {k} is not built yet: the filter has not fed back epoch {k - 1}")
         return ep
 
@@ -703,6 +738,8 @@ class TransferAlignmentModel:
         self.strapdown.correct(phi_n_rad=c[PHI], dvel_n_mps=c[DV], dllh=dllh)
         if k + 1 < self.n_epochs:
             self._propagate(k)
+        if not self.keep_epoch_data:
+            self._forget(k - 1)
         return c
 
     def shift(self, k: int, x: FloatArray, c: FloatArray) -> FloatArray:
@@ -772,5 +809,8 @@ class TransferAlignmentModel:
         return np.diff(self._epoch_idx)[: len(self._starts)]
 
     def nominal_at_epochs(self) -> list[NavState]:
-        """The nominal at each epoch before its correction (index k)."""
-        return self._nominal_at
+        """The nominal at each epoch before its correction (index k); RuntimeError without
+        :attr:`keep_epoch_data` (those the filter has passed are dropped)."""
+        if not self.keep_epoch_data:
+            raise RuntimeError("the nominal at the epochs is kept only with keep_epoch_data=True")
+        return cast(list[NavState], self._nominal_at)

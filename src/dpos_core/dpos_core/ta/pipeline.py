@@ -296,7 +296,9 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
         raise ValueError(f"unknown method {method!r}; choose one of {METHODS}")
     if initial is None:
         initial = initial_from_master(master, install)
-    model = TransferAlignmentModel(imu, master, install, cfg, initial, keep_nominal=KEEP_NOMINAL)
+    # (the oracle's linearization reads the model's epochs after the forward pass: it keeps them)
+    model = TransferAlignmentModel(imu, master, install, cfg, initial, keep_nominal=KEEP_NOMINAL,
+                                   keep_epoch_data=method in (ORACLE, ORACLE_FILTER))
     x0, P0 = model.prior()
     ess: FloatArray | None = None
     if method in (ORACLE, ORACLE_FILTER):
@@ -430,11 +432,14 @@ def _to_sink(model: TransferAlignmentModel, x: PerEpoch, P: PerEpoch, corr: PerE
              sink: RowSink) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """The rows of :func:`_apply` handed to ``sink`` block by block; returns their stamps and
     empty (0, m) arrays in place of the other columns (issue #17: the trajectory is not kept)."""
-    ts = []
+    t = np.empty(int(np.sum(model.interval_sizes())))  # (the stamps filled in place: no list of blocks concatenated)
+    i = 0
     for blk in iter_rows(model, x, P, corr):
         sink(*blk)
-        ts.append(blk[0])
-    return np.concatenate(ts), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 9))
+        t[i:i + blk[0].size] = blk[0]
+        i += blk[0].size
+    assert i == t.size
+    return t, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 9))
 
 
 def iter_rows(model: TransferAlignmentModel, x: PerEpoch, P: PerEpoch, corr: PerEpoch,
