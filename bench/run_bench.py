@@ -64,7 +64,10 @@ Keys (in order):
                                shared machine; the bag not fitting the disk); long_flight_<d>_sim_*: the simulation's;
                                long_flight_<d>_loadavg: the machine's 1-minute load average before and after
                                dpos-process (2 cores; another engineer's work slows the time ratio);
-                               long_flight_peak_rss_mb / long_flight_time_ratio: those of the longest flight
+                               long_flight_peak_rss_mb / long_flight_time_ratio: those of the longest flight;
+                               long_flight_<d>_worker_task_peak_rss_mb / _worker_task_s: one worker task alone
+                               (bench/worker_memory.py: sub-IMU imu01's read, alignment and rows in a fresh
+                               spawned, warmed-up process; its ru_maxrss and wall time), run after dpos-process
   soak_processing_time_ratio   finalize processing time (status.json timing.processing_s: the smoothers
                                of the 6 sub-IMUs) / data duration; soak_data_wall_s: wall time of the
                                data flow
@@ -76,6 +79,7 @@ import argparse
 import concurrent.futures as cf
 import json
 import os
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -806,6 +810,12 @@ def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...
             if rc not in (0, 1):  # 1: some antenna not estimated (products written)
                 status = status if rc is None else f"dpos-process exit {rc}: {(tmp / 'process.log').read_text()[-500:]}"
             results[f"{key}_status"] = status
+            wm = tmp / "worker.json"  # one worker task alone (issue #17: memory flat with the flight)
+            if subprocess.run([sys.executable, str(Path(__file__).with_name("worker_memory.py")), str(bag), "--json", str(wm)],
+                              capture_output=True).returncode == 0:
+                w = json.loads(wm.read_text())
+                results[f"{key}_worker_task_peak_rss_mb"] = round(w["peak_rss_mb"], 1)
+                results[f"{key}_worker_task_s"] = round(w["wall_s"], 1)
             results[f"{key}_peak_rss_mb"] = round(peak, 1) if rc in (0, 1) else None
             results[f"{key}_time_ratio"] = round(wall / d, 5) if rc in (0, 1) else None
             print(f"{key}: dpos-process peak {peak:.0f} MB, {wall:.0f} s (ratio {wall / d:.4f}, load {load0:.1f} -> "
