@@ -3,7 +3,7 @@
 Runs :func:`dpos_ros.products.stream.align_to_store` for one sub-IMU of a recording, as
 ``dpos-process --stream on`` gives it to a worker (the worker reads its topic and the main POS
 itself), in a fresh spawned process warmed up as the pool's workers are
-(:func:`dpos_core.ta.warmup.warm_up`), and prints its peak RSS (``getrusage(RUSAGE_SELF).ru_maxrss``)
+(:func:`dpos_core.ta.warmup.warm_up`), and prints its peak RSS (``getrusage(RUSAGE_SELF).ru_maxrss``), its wall and CPU time
 with the largest RSS seen in each stage (``/proc/self/status`` every 20 ms; a stage is the
 innermost of the functions wrapped below that is running)::
 
@@ -88,8 +88,11 @@ def _task(args: tuple, method: str) -> dict:
     th = threading.Thread(target=sample, daemon=True)
     th.start()
     t0 = time.perf_counter()
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
     r = stream.align_to_store(*args)
     wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     done.set()
     th.join()
     ok = "stores" in r
@@ -97,7 +100,7 @@ def _task(args: tuple, method: str) -> dict:
         n_rows = r["own"].n
         for s in (*r["stores"].values(), r["own"]):
             s.remove()
-    return {"status": "ok" if ok else str(r), "wall_s": wall, "start_rss_mb": start_mb, "after_rss_mb": _rss_mb(),
+    return {"status": "ok" if ok else str(r), "wall_s": wall, "cpu_s": cpu, "start_rss_mb": start_mb, "after_rss_mb": _rss_mb(),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "stage_peak_rss_mb": {k: round(v, 1) for k, v in peaks.items()}, "stage_end_rss_mb": {k: round(v, 1) for k, v in ends.items()},
             "stage_s": {k: round(v, 2) for k, v in times.items()},
