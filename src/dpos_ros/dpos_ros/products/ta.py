@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from dpos_core import earth
-from dpos_core.attitude import dcm_to_quat, mount_dcm
+from dpos_core.attitude import mount_dcm
 from dpos_core.config import AircraftConfig, AntennaConfig
 from dpos_core.errors import RejectedInput
 from dpos_core.filters.variational import CGStats, pool_summaries
