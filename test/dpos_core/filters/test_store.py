@@ -96,6 +96,23 @@ def test_ups_smoother_in_files_equals_in_memory(tmp_path, monkeypatch) -> None:
     assert not list(tmp_path.iterdir())
 
 
+def test_ups_of_the_sampled_components_alone_equals_the_full_track(tmp_path) -> None:
+    """run_upf(full_track=False): only the proposed particles' sampled components are kept, the
+    smoother's numbers are the full track's."""
+    m = _model(29)
+    a = runners.run_upf(m, np.zeros(3), np.eye(3), 16, np.random.default_rng(6), sampled=[1])
+    b = runners.run_upf(m, np.zeros(3), np.eye(3), 16, np.random.default_rng(6), sampled=[1], full_track=False, store=tmp_path)
+    assert b.particles is None and b.proposed is None and b.proposed_sampled is not None and b.proposed_sampled.shape == (29, 16, 1)
+    assert a.proposed is not None and np.array_equal(in_memory(b.proposed_sampled), np.asarray(a.proposed)[:, :, [1]])
+    for x, y in zip(runners.rb_smooth(a), runners.rb_smooth(b), strict=True):
+        assert np.array_equal(in_memory(x), in_memory(y))
+    b.close()
+    assert not list(tmp_path.iterdir())
+    every = runners.run_upf(m, np.zeros(3), np.eye(3), 8, np.random.default_rng(6), full_track=False)
+    with pytest.raises(ValueError):
+        runners.rb_smooth(every)  # (every component sampled: the smoother takes the particles' moments)
+
+
 def test_epoch_qc_in_blocks_equals_at_once(tmp_path) -> None:
     m = _model()
     st = EpochStore(tmp_path)

@@ -212,11 +212,13 @@ class ParticleTrack:
     with the mixture's innovations: ``nu = sum_i w_i nu^i`` (the measurement minus the weighted mean
     of the particles' predictions, weights before the update) and
     ``S = sum_i w_i (S^i + (nu^i - nu)(nu^i - nu)^T)``, the predictive covariance of the mixture
-    (moment matched; NaN where no measurement).
+    (moment matched; NaN where no measurement).  ``run_upf(full_track=False)`` keeps of the particles
+    only what FFBSm reads: particles and proposed None, proposed_sampled (K, N, s) the proposed
+    particles' sampled components.
     """
 
-    particles: PerEpoch
-    proposed: PerEpoch
+    particles: PerEpoch | None
+    proposed: PerEpoch | None
     logw: PerEpoch
     pred_mean: PerEpoch
     pred_cov: PerEpoch
@@ -227,6 +229,8 @@ class ParticleTrack:
     mixture: GaussianTrack
     #: where the per-epoch arrays are (``run_upf(store=...)``)
     store: EpochStore | None = None
+    #: (K, N, s): the proposed particles' sampled components (``run_upf(full_track=False)``), else None
+    proposed_sampled: PerEpoch | None = None
 
     @property
     def mean(self) -> PerEpoch:
@@ -238,7 +242,7 @@ class ParticleTrack:
         smoother's results in the same store too)."""
         if self.store is not None:
             self.store.close()
-        for a in (self.particles, self.proposed, self.pred_mean, self.pred_cov):
+        for a in (self.particles, self.proposed, self.pred_mean, self.pred_cov, self.proposed_sampled):
             if isinstance(a, EpochArray):
                 a.close()
 
@@ -365,6 +369,7 @@ def run_upf(
     resample: str = RESAMPLING[0],
     move: bool = False,
     store: Path | EpochStore | None = None,
+    full_track: bool = True,
 ) -> ParticleTrack:
     """Rao-Blackwellized unscented particle filter (module docstring).
 
@@ -390,6 +395,10 @@ def run_upf(
             densities, weights, the mixture's moments and innovations): an
             :class:`~.store.EpochStore` or a directory for one (:class:`~.store.EpochArray` files,
             removed by :meth:`ParticleTrack.close`); default in memory.  The same numbers either way.
+        full_track: keep every particle's state (``particles``, ``proposed``: 2 N n numbers an
+            epoch); False keeps only the proposed particles' sampled components FFBSm reads
+            (``proposed_sampled``, N s; issue #17: a third of the bytes of the UPS's track on the
+            transfer-alignment model), the smoother's numbers unchanged.
     """
     rng = np.random.default_rng() if rng is None else rng
     engine = SharedLinearizationUKF() if engine is None else engine
@@ -402,8 +411,9 @@ def run_upf(
     s = S.size
     st = store if isinstance(store, EpochStore) else EpochStore(None if store is None else Path(store))
     K1 = max(K - 1, 0)
-    parts = st.array("particles", K, (N, n))
-    proposed = st.array("proposed", K, (N, n))
+    parts = st.array("particles", K, (N, n)) if full_track else None
+    proposed = st.array("proposed", K, (N, n)) if full_track else None
+    proposed_s = None if full_track else st.array("proposed_sampled", K, (N, s))
     logws = st.array("logw", K, (N,))
     pred_mean = st.array("pred_mean", K1, (N, s))
     pred_cov = st.array("pred_cov", K1, (N, s, s))
@@ -431,7 +441,10 @@ def run_upf(
         xs = m[:, S] + (z @ L_SS.T if L_SS.ndim == 2 else np.einsum("nij,nj->ni", L_SS, z))
         m_u, P_u = m, P  # the UKF posterior before the draw (the resample-move's target)
         m, P = _condition(m, P, S, xs)
-        proposed[k] = m
+        if proposed is not None:
+            proposed[k] = m
+        if proposed_s is not None:
+            proposed_s[k] = m[:, S]
         w = np.exp(logw)
         mean = w @ m
         c = model.feedback(k, mean)
@@ -442,7 +455,8 @@ def run_upf(
                 xp_k = model.shift(k, xp_k, c)
         if k > 0:
             mix_x_p[k - 1] = xp_k
-        parts[k] = m
+        if parts is not None:
+            parts[k] = m
         logws[k] = logw
         ess_k[k] = ess(logw)
         # moments of the mixture (the carried Gaussians and the spread of their means)
@@ -466,7 +480,7 @@ def run_upf(
             if move:
                 m, P = _resample_move(model, k, engine, points, S, idx, m_u, P_u, m, P, c, rng)
     mixture = GaussianTrack(mix_x_f, mix_P_f, mix_x_p, mix_P_p, mix_C, corr, *inn.arrays())
-    return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture, st)
+    return ParticleTrack(parts, proposed, logws, pred_mean, pred_cov, S, corr, ess_k, res_k, mixture, st, proposed_s)
 
 
 def _resample_move(model: StateSpaceModel, k: int, engine, points, S: NDArray[np.intp], idx: NDArray[np.intp], m_u: FloatArray,
@@ -504,7 +518,7 @@ def ffbsm(track: ParticleTrack) -> PerEpoch:
     w_{K-1}``; the transition density ``p(x_{k+1}^j | x_{0:k}^i)`` is particle i's predicted
     Gaussian of the sampled components (the carried states marginalized).  :func:`rb_smooth` also
     smooths the carried states."""
-    K, N, _ = track.particles.shape
+    K, N = track.logw.shape
     S = track.sampled
     logws = (EpochStore() if track.store is None else track.store).array("logw_s", K, (N,))
     lw_next = np.array(track.logw[K - 1])  # logw_{k+1|K}
@@ -519,7 +533,8 @@ def ffbsm(track: ParticleTrack) -> PerEpoch:
         W_blk = solve_lower(L_blk, np.eye(S.size)) if L_blk is not None else None
         for k in range(b1 - 1, b0 - 1, -1):
             lwk = lw_blk[k - b0]
-            nxt = track.proposed[k + 1][:, S]  # x_{k+1}^j (N, s) in the transition's coordinates
+            # x_{k+1}^j (N, s) in the transition's coordinates
+            nxt = track.proposed_sampled[k + 1] if track.proposed_sampled is not None else _proposed(track)[k + 1][:, S]
             if L_blk is not None and W_blk is not None:
                 Li, Wi = L_blk[k - b0], W_blk[k - b0]
             else:
@@ -536,6 +551,12 @@ def ffbsm(track: ParticleTrack) -> PerEpoch:
     return logws
 
 
+def _proposed(track: ParticleTrack) -> PerEpoch:
+    if track.proposed is None:
+        raise ValueError("the track keeps neither the proposed particles nor their sampled components")
+    return track.proposed
+
+
 def rb_smooth(track: ParticleTrack) -> tuple[PerEpoch, PerEpoch, PerEpoch]:
     """The unscented particle smoother (module docstring).  Returns the FFBSm log weights (K, N)
     (eq. 9) and the smoothed mean (K, n) and covariance (K, n, n): the FFBSm moments when every
@@ -545,7 +566,9 @@ def rb_smooth(track: ParticleTrack) -> tuple[PerEpoch, PerEpoch, PerEpoch]:
     lw = ffbsm(track)
     x: PerEpoch
     P: PerEpoch
-    if track.sampled.size == track.particles.shape[2]:
+    if track.sampled.size == track.mixture.x_f.shape[1]:
+        if track.particles is None:
+            raise ValueError("the smoother of a particle filter sampling every component needs run_upf(full_track=True)")
         x, P = weighted_moments(np.asarray(track.particles), np.asarray(lw))
     else:
         x, P = smooth_gaussian(track.mixture, track.store)

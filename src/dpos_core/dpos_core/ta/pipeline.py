@@ -320,8 +320,8 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
     cg: CGStats | None = None
     particle = method not in _GAUSSIAN
     with tempfile.TemporaryDirectory(prefix="dpos_ta_") as tmp:
-        # the per-epoch arrays of the filter and the smoother (~20 kB an epoch, and the particle track ~50 kB
-        # at 100 particles) in files when large (filters.store), read back a block of epochs at a time
+        # the per-epoch arrays of the filter and the smoother (~20 kB an epoch, and the UPS's track ~13 kB at
+        # 100 particles) in files when large (filters.store), read back a block of epochs at a time
         big = model.n_epochs * per_epoch_bytes(model.n, particles if particle else 0, _sampled_size(model)) > TRACK_IN_MEMORY_BYTES
         store = EpochStore(Path(tmp) if big else None)
         try:
@@ -330,8 +330,9 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
                 tr = run_sigma_point_filter(model, x0, P0, points, rule=rule, store=store)
                 cg = tr.cg
             else:
+                # (the track of what FFBSm reads: the model samples some components only)
                 ptr = run_upf(model, x0, P0, particles, np.random.default_rng(seed), points, engine=upf_engine, move=method == "ups_mcmc",
-                              store=store)
+                              store=store, full_track=_sampled_size(model) == model.n)
                 ess = ptr.ess
                 smoothed = method in ("ups", "ups_mcmc")
                 tr = ptr.mixture
@@ -355,9 +356,10 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
 def per_epoch_bytes(n: int, particles: int = 0, sampled: int = 0) -> int:
     """Bytes a filter and its smoother keep per epoch for the backward pass and the output (n
     states; a particle filter's ``particles`` with ``sampled`` sampled components): the filtered,
-    predicted, cross- and smoothed covariances and the means, and the particle track."""
+    predicted, cross- and smoothed covariances and the means, and the particle track (the weights,
+    the proposed particles' sampled components and their predicted densities: ``run_upf(full_track=False)``)."""
     N, s = particles, sampled
-    return 8 * (4 * n * n + 5 * n + 100 + (2 * N * n + 2 * N + N * s + N * s * s if N else 0))
+    return 8 * (4 * n * n + 5 * n + 100 + (2 * N + 2 * N * s + N * s * s if N else 0))
 
 
 def _sampled_size(model: TransferAlignmentModel) -> int:
