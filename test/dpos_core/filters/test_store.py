@@ -51,6 +51,27 @@ def test_store_round_trip_in_files(tmp_path) -> None:
     assert not list(tmp_path.iterdir())
 
 
+def test_buffered_writes_are_read_back(tmp_path, monkeypatch) -> None:
+    """Records written one epoch after the other are gathered before they reach the file: every read
+    sees them, in any order of writes and reads."""
+    from dpos_core.filters import store
+
+    monkeypatch.setattr(store, "WRITE_BUFFER_BYTES", 3 * 16)  # 3 records of (2,) a buffer
+    rng = np.random.default_rng(5)
+    want = rng.normal(size=(11, 2))
+    a = EpochArray(11, (2,), tmp_path / "b.f64")
+    for k in (0, 1, 2, 3, 4):  # a full buffer written, then two records pending
+        a[k] = want[k]
+    assert np.array_equal(a[3], want[3]) and np.array_equal(a[0:5], want[0:5])
+    a[7] = want[7]  # not after the pending ones: they are written first
+    a[5] = want[5]
+    a[6] = 0.0  # (broadcast)
+    a[6] = want[6]  # the same epoch again
+    a[8:11] = want[8:11]  # a block
+    assert np.array_equal(in_memory(a), want)
+    a.close()
+
+
 def test_store_in_memory_is_numpy() -> None:
     st = EpochStore()
     a = st.array("a", 4, (2,), fill=0.0)
