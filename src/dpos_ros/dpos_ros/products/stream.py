@@ -125,6 +125,16 @@ class RowStore:
     def rows(self, i0: int = 0, i1: int | None = None) -> dict[str, NDArray]:
         return {name: self.read(name, i0, i1) for name in self.columns}
 
+    def extend(self, other: RowStore) -> None:
+        """Append the rows of ``other`` (the same columns), file to file (not through memory), and remove it."""
+        if other.columns != self.columns:
+            raise ValueError("extend needs a store of the same columns")
+        for name in self.columns:
+            with self._file(name).open("ab") as f, other._file(name).open("rb") as g:
+                shutil.copyfileobj(g, f, 2**20)
+        self.n += other.n
+        other.remove()
+
     def remove(self) -> None:
         shutil.rmtree(self.path, ignore_errors=True)
 
@@ -338,10 +348,12 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
 
 
 def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
-               ranges: dict[str, tuple[int, int]]) -> tuple[dict[str, P.AntennaSolution], list[str]]:
+               ranges: dict[str, tuple[int, int]], store_dir: Path) -> tuple[dict[str, tuple[str, dict | None, RowStore | None]], list[str]]:
     """One window of :func:`_fit_windows` (a worker's task): :func:`dpos_ros.products.ta.fit_antennas`
     of the carriers' rows ``ranges`` (name -> ``(i0, i1)``) with ``sess`` (its main POS cut to the
-    window); returns the ``fit`` antennas' solutions and the warnings it added."""
+    window); each ``fit`` antenna's rows written to a RowStore under ``store_dir`` (not sent back:
+    the main process appends the files).  Returns per fit antenna (status, wing_fit info, its
+    rows or None) and the warnings it added."""
     ants: dict[str, P.AntennaSolution] = {}
     for name, st in carriers.items():
         c = st.rows(*ranges[name])
@@ -350,12 +362,22 @@ def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[s
                          c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
         ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
     warnings: list[str] = []
+    out: dict[str, tuple[str, dict | None, RowStore | None]] = {}
     try:
         sol = P.fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
-    finally:
         del ants
+        for a in aircraft.antennas:
+            fa = sol.get(a.name)
+            if a.sub_imu is not None or fa is None:
+                continue
+            rows = None
+            if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
+                rows = RowStore(Path(store_dir) / a.name)
+                rows.append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh, sigma=fa.sigma, flags=fa.flags)
+            out[a.name] = (fa.status, fa.wing_fit, rows)
+    finally:
         release_memory()
-    return {a.name: sol[a.name] for a in aircraft.antennas if a.sub_imu is None and a.name in sol}, warnings
+    return out, warnings
 
 
 def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
@@ -375,46 +397,46 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
     edges = t_lo + FIT_WINDOW_S * np.arange(n_win + 1)
     edges[-1] = np.inf
     stores = {a.name: RowStore(store_dir / f"ant_{a.name}") for a in fits}
-    first: dict[str, P.AntennaSolution] = {}
+    first: dict[str, tuple[str, dict | None]] = {}
     statuses: dict[str, set[str]] = {a.name: set() for a in fits}
 
     def task(w: int) -> tuple:
         ranges = {name: (cursors[name].index(edges[w]), cursors[name].index(edges[w + 1])) for name in carriers}
         lo, hi = (edges[w] - 1.0, edges[w + 1] + 1.0)
         m = sess.master.select((sess.master.t_s >= lo) & (sess.master.t_s <= hi))
-        return dc_replace(sess, master=m, warnings=[]), aircraft, carriers, ranges
+        return dc_replace(sess, master=m, warnings=[]), aircraft, carriers, ranges, store_dir / f"fit_window{w:05d}"
 
     pending: deque = deque()
     for w in range(n_win):
         if pool is None:
-            pending.append(fit_window(*task(w)))
+            pending.append((w, fit_window(*task(w))))
         else:
-            pending.append(pool.submit(fit_window, *task(w)))
+            pending.append((w, pool.submit(fit_window, *task(w))))
         while pending and (pool is None or len(pending) > FIT_IN_FLIGHT or w == n_win - 1):
-            r = pending.popleft()
+            w_done, r = pending.popleft()
             sol, warnings = r if pool is None else r.result()
             sess.warnings.extend(warnings)
             for a in fits:
-                fa = sol.get(a.name)
-                if fa is None:
+                if a.name not in sol:
                     continue
-                statuses[a.name].add(fa.status)
-                first.setdefault(a.name, fa)
-                if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
-                    stores[a.name].append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh,
-                                          sigma=fa.sigma, flags=fa.flags)
+                status, info, rows = sol[a.name]
+                statuses[a.name].add(status)
+                first.setdefault(a.name, (status, info))
+                if rows is not None:
+                    stores[a.name].extend(rows)
+            shutil.rmtree(store_dir / f"fit_window{w_done:05d}", ignore_errors=True)
     out: dict[str, StreamedAntenna] = {}
     for a in fits:
-        f0 = first.get(a.name)
-        if f0 is None:
+        if a.name not in first:
             continue
+        status0, info0 = first[a.name]
         est = sorted(s for s in statuses[a.name] if s.startswith("estimated"))
-        status = est[0] if est else f0.status
+        status = est[0] if est else status0
         if len(statuses[a.name]) > 1:
             status += f" ({len(statuses[a.name])} different outcomes over the {n_win} windows of the fit)"
-        info = None if f0.wing_fit is None else {**f0.wing_fit, "windows": n_win, "window_s": FIT_WINDOW_S}
+        info = None if info0 is None else {**info0, "windows": n_win, "window_s": FIT_WINDOW_S}
         rows = stores[a.name] if stores[a.name].n else None
-        out[a.name] = StreamedAntenna(a.name, None, status if rows is not None else f0.status, rows, wing_fit=info)
+        out[a.name] = StreamedAntenna(a.name, None, status if rows is not None else status0, rows, wing_fit=info)
     return out
 
 
@@ -483,14 +505,11 @@ def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) ->
 
 def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
     """The antenna CSV of :func:`dpos_ros.products.ta._write_csv`, ROW_BLOCK rows at a time."""
-    part = path.with_name(path.name + ".part")
     with path.open("wb") as f:
-        for i0 in range(0, max(rows.n, 1), ROW_BLOCK):
+        f.write(P.CSV_HEADER.encode() + b"\n")
+        for i0 in range(0, rows.n, ROW_BLOCK):
             c = rows.rows(i0, i0 + ROW_BLOCK)
-            P._write_csv(part, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"])
-            data = part.read_bytes()
-            f.write(data if i0 == 0 else data[data.index(b"\n") + 1:])  # the header once
-    part.unlink(missing_ok=True)
+            f.write(P.csv_text(t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"]))
 
 
 def _bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
