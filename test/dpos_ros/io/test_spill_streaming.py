@@ -55,7 +55,7 @@ def _write(d: Path, raw: dict, topics=None, custom: dict[str, str] | None = None
     late = spill.SpillWriter(d / spill.LATE_DIR, "sess") if late_after_s is not None else None
     t_first = raw[T.MASTER_NAV][1][0]
     rows = []
-    for topic, (mt, times, blobs) in raw.items():
+    for topic, (mt, _times, blobs) in raw.items():
         if topics is not None and topic not in topics:
             continue
         blobs = [bytes(b) for b in blobs]
