@@ -45,6 +45,18 @@ Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     replaced for the next session) while the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
 
+Long sessions (issue #17)
+    A session whose streams span more than ``stream_above_s`` is finalized with memory that does
+    not grow with it (:meth:`TransferAlignNode._process_streaming`), by ``dpos-process --stream
+    on``'s code (:mod:`dpos_ros.products.stream`) on the spill: the workers read their sub-IMU's
+    log and the main POS's a block of records at a time
+    (:func:`dpos_ros.io.session.read_session_streaming`, without the late messages), the rows go to
+    files beside the products, the poses are published from them
+    :data:`~dpos_ros.products.stream.BAG_BATCH_S` at a time (:class:`~dpos_ros.devices.sim_device.StreamBatches`:
+    the same writers, order and flow control), and the products are written a block at a time.
+    The same poses and products as in memory, except the ``fit`` antennas' wing fit over 5-minute
+    windows and no evaluation against the truth.
+
 Errors
     A sub-IMU whose smoother fails - bad data (:class:`~dpos_core.errors.RejectedInput`), a
     numerical failure (:class:`~dpos_core.errors.NumericalFailure`), a bug or a dead worker -
