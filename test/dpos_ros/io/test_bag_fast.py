@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zstandard
-from mcap.records import Chunk, ChunkIndex, Footer, MessageIndex, SummaryOffset
+from mcap.records import Chunk, ChunkIndex, Footer, MessageIndex, MetadataIndex, SummaryOffset
 from mcap.stream_reader import StreamReader
 from repo_paths import REPO
 from rosbags.rosbag2 import Writer
@@ -69,6 +69,8 @@ def _layout(mcap: Path) -> list[object]:
                 out.append(type(r).__name__)
             elif isinstance(r, MessageIndex):
                 out.append(("message index", r.channel_id, r.records))
+            elif isinstance(r, MetadataIndex):  # (its offset follows the compressed sizes)
+                out.append(("metadata index", r.length, r.name))
             else:
                 out.append(r)
     return out
@@ -229,3 +231,37 @@ def test_messages_behave_as_a_list_of_bytes() -> None:
     with pytest.raises(ValueError, match="different sizes"):
         m.rows()
     assert Messages.concat([m[:2], m[2:]]) == m and Messages.from_rows(rows) == blobs[:2]
+
+
+def test_batches_encoded_elsewhere_give_the_same_file(streams: list[TopicStream], tmp_path: Path) -> None:
+    """Batches laid out and compressed apart (``encode_streams``, a process pool's task) and
+    appended in order (``Writer.add_encoded``) give the file that ``Writer.add`` writes, byte for
+    byte; a batch out of place (the first without the writer's prefix) is refused."""
+    edges = [int(np.quantile(np.concatenate([s.t_ns for s in streams]), q)) for q in (0.3, 0.7)]
+
+    def batches() -> list[list[TopicStream]]:
+        out = []
+        for lo, hi in zip([None, *edges], [*edges, None], strict=True):
+            part = []
+            for s in streams:
+                sel = np.ones(len(s), dtype=bool) if lo is None else s.t_ns >= lo
+                if hi is not None:
+                    sel &= s.t_ns < hi
+                idx = np.flatnonzero(sel)
+                part.append(TopicStream(s.topic, s.msgtype, s.t_ns[idx], rows=None if s.rows is None else s.rows[idx],
+                                        blobs=None if s.blobs is None else tuple(s.blobs[i] for i in idx)))
+            out.append(part)
+        return out
+
+    custom = {"dpos.session_id": "s1"}
+    added, encoded = tmp_path / "added" / "b", tmp_path / "encoded" / "b"  # (the name is in the file)
+    bag.write_stream_batches(added, batches(), custom_data=custom)
+    w = bag.new_writer(encoded, [(s.topic, s.msgtype) for s in streams], custom)
+    with pytest.raises(ValueError, match="prefix"):
+        w.add_encoded(bag.encode_streams(batches()[0]))
+    for k, part in enumerate(batches()):
+        w.add_encoded(bag.encode_streams(part, w.prefix if k == 0 else b""))
+    w.close()
+    assert (encoded / "b.mcap").read_bytes() == (added / "b.mcap").read_bytes()
+    assert (encoded / "metadata.yaml").read_text() == (added / "metadata.yaml").read_text()
+    assert sum(len(v[2]) for v in bag.read_raw(encoded).values()) == sum(len(s) for s in streams)

@@ -26,6 +26,8 @@ from dpos_ros.io.messages import Messages, RawTopic
 from dpos_ros.io.streams import TopicStream, merged_order
 
 ROSBAG2_VERSION = 9
+#: a batch laid out and compressed for a writer (:func:`encode_streams`)
+EncodedBatch = _mcap.EncodedBatch
 
 
 def typestore():
@@ -46,13 +48,42 @@ def write_streams(
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
     from importlib.metadata import version
 
-    topics = [_mcap.Topic(s.topic, s.msgtype, s.t_ns, Messages.from_rows(s.rows) if s.rows is not None
-                          else Messages.from_list(s.blobs or ())) for s in streams]
-    n = _mcap.write(path, topics, merged_order(streams) if streams else (np.zeros(0, dtype=np.int64),) * 3,
+    n = _mcap.write(path, _topics(streams), merged_order(streams) if streams else (np.zeros(0, dtype=np.int64),) * 3,
                     dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}", progress)
     if progress is not None:
         progress(n, n)
     return n
+
+
+def _topics(streams: Sequence[TopicStream]) -> list[_mcap.Topic]:
+    return [_mcap.Topic(s.topic, s.msgtype, s.t_ns, Messages.from_rows(s.rows) if s.rows is not None
+                        else Messages.from_list(s.blobs or ())) for s in streams]
+
+
+def new_writer(path: Path, channels: Sequence[tuple[str, str]], custom_data: dict[str, str] | None = None) -> _mcap.Writer:
+    """A rosbag2 directory ``path`` (new) written batch by batch (``channels``: (topic, type) in
+    the order of every batch's streams): :meth:`~dpos_ros.io._mcap.Writer.add` or, for batches encoded
+    on other processes (:func:`encode_streams`), :meth:`~dpos_ros.io._mcap.Writer.add_encoded`;
+    :meth:`~dpos_ros.io._mcap.Writer.close` at the end, :func:`abort_writer` on failure."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
+    from importlib.metadata import version
+
+    return _mcap.Writer(path, list(channels), dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}")
+
+
+def abort_writer(w: _mcap.Writer) -> None:
+    """Stop a failed :func:`new_writer` (its compression threads, its file; the caller removes the directory)."""
+    w.pool.shutdown(wait=True, cancel_futures=True)
+    w.f.close()
+
+
+def encode_streams(streams: Sequence[TopicStream], prefix: bytes = b"") -> EncodedBatch:
+    """One batch of streams (the writer's channels, in order) laid out and compressed as
+    :meth:`~dpos_ros.io._mcap.Writer.add` would (a process pool's task); ``prefix``: the writer's
+    ``prefix`` for the file's first batch."""
+    return _mcap.encode_batch(_topics(streams), merged_order(list(streams)), prefix)
 
 
 def write_stream_batches(
@@ -65,20 +96,14 @@ def write_stream_batches(
     :func:`dpos_ros.devices.sim_streams.chunked_session_streams`) to a new rosbag2 directory, one
     batch in memory at a time; returns the message count and ``(topic, type, count)`` per topic.
     ``progress(t_ns)`` after each batch with its last stamp."""
-    path = Path(path)
-    if path.exists():
+    if Path(path).exists():  # (before the first batch is made)
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
-    from importlib.metadata import version
-
     w: _mcap.Writer | None = None
     try:
         for streams in batches:
             if w is None:
-                w = _mcap.Writer(path, [(s.topic, s.msgtype) for s in streams], dict(custom_data or {}), ROSBAG2_VERSION,
-                                 f"rosbags-{version('rosbags')}")
-            topics = [_mcap.Topic(s.topic, s.msgtype, s.t_ns, Messages.from_rows(s.rows) if s.rows is not None
-                                  else Messages.from_list(s.blobs or ())) for s in streams]
-            w.add(topics, merged_order(streams))
+                w = new_writer(Path(path), [(s.topic, s.msgtype) for s in streams], custom_data)
+            w.add(_topics(streams), merged_order(streams))
             if progress is not None:
                 progress(max((int(s.t_ns[-1]) for s in streams if len(s)), default=0))
         if w is None:
@@ -86,8 +111,7 @@ def write_stream_batches(
         w.close()
     except BaseException:
         if w is not None:
-            w.pool.shutdown(wait=True, cancel_futures=True)
-            w.f.close()
+            abort_writer(w)
         raise
     return w.n, [(t, m, int(c)) for (t, m), c in zip(w.channels, w.counts, strict=True)]
 

@@ -5,10 +5,12 @@ Each sub-IMU's worker reads only its own topic and the main POS from the recordi
 (:func:`dpos_ros.io.session.read_session_streaming`), aligns it with the output rows handed over a
 block at a time (``pipeline.run_segments(sink=...)``: the nominal re-integrated, the UPS's
 particle track in files) and writes its antennas' rows and its own (the wing fit's input) to
-files (:class:`RowStore`) as they come; it returns the per-epoch results only.  The main
-process then writes the products from those files a block of rows at a time: the CSV files, the
-antenna bag (a minute of poses per batch), the quality control (each antenna's stamps, sigmas and
-flags loaded one antenna at a time; its figure from every n-th row), ``status.json``.
+files (:class:`RowStore`) as they come; it returns the per-epoch results only.  The products
+are then written from those files a block of rows at a time: the CSV files and the quality
+control (each antenna's stamps, sigmas and flags loaded one antenna at a time; its figure from
+every n-th row) by the workers, an antenna each; the antenna bag :data:`BAG_BATCH_S` of poses per
+batch, each batch's messages made and compressed by a worker and the file written by the main
+process in order; ``status.json``.
 
 The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.products.ta.solve`
 (tested on a short session), except:
@@ -29,6 +31,7 @@ import shutil
 import tempfile
 import time
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -49,6 +52,7 @@ from dpos_core.ta.model import Installation, TAConfig
 from dpos_core.ta.wingfit import SubImuTrack
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
+from dpos_ros.io.bag import EncodedBatch
 from dpos_ros.io.session import RecordedSession, read_session_streaming
 
 from . import ta as P
@@ -60,6 +64,8 @@ FIT_WINDOW_S = 300.0
 #: seconds of antenna poses per batch of the antenna bag (the in-memory path's 60 s: ~0.2 GB of
 #: messages and their values for twelve antennas at 200 Hz in this process at once)
 BAG_BATCH_S = 20.0
+#: antenna-bag batches made on the workers ahead of the one being written (~12 MB each compressed)
+BAG_IN_FLIGHT = 4
 #: wing-fit windows submitted to the workers ahead of the one being stored (their rows in memory)
 FIT_IN_FLIGHT = 4
 #: the columns of an antenna's (or a sub-IMU's) rows
@@ -419,8 +425,8 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
 def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
                     *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
     """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent.
-    ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers while
-    this process writes the antenna bag."""
+    ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers, and the
+    antenna bag's batches made and compressed there while this process writes them to the file."""
     final = Path(out_root) / sess.session_id
     out = P._new_products_dir(final, overwrite)
     try:
@@ -435,8 +441,6 @@ def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, S
 
 def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
            pool: cf.Executor | None) -> None:
-    from dpos_ros.io.bag import write_stream_batches
-
     from .qc import _json_safe, qc_dir, qc_md
 
     est = {name: a for name, a in antennas.items() if a.rows is not None}
@@ -444,8 +448,7 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
         qc_dir(out).mkdir(exist_ok=True)
     files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method) if pool is not None else None) for name, a in est.items()}
     if est:
-        write_stream_batches(out / "antennas", _bag_batches(sess, est),
-                             custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
+        _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool)
     summ: dict[str, dict] = {}
     for name, a in antennas.items():
         f = files.get(name)
@@ -491,9 +494,9 @@ def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
     part.unlink(missing_ok=True)
 
 
-def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float | None = None):
-    """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
-    at a time (the same messages in the same order; a batch's last chunk is closed with it)."""
+def _bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
+    """Each batch's rows ``(i0, i1)`` per antenna: :data:`BAG_BATCH_S` of poses from the first row
+    of all (the last batch to the end), found from the stamps a block at a time (:class:`StampCursor`)."""
     batch_s = BAG_BATCH_S if batch_s is None else batch_s
     cursors = {name: StampCursor(a.rows) for name, a in est.items() if a.rows is not None}
     spans = [c.first_last() for c in cursors.values() if c.rows.n]
@@ -504,12 +507,69 @@ def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s
     edges[-1] = np.inf
     i_from = dict.fromkeys(cursors, 0)
     for k in range(n):
-        out = []
-        for name, a in est.items():
+        ranges = {}
+        for name in est:
             i0 = i_from[name]  # (the first batch from row 0)
             i1 = i_from[name] = cursors[name].index(edges[k + 1])
-            out.append(P._antenna_stream(sess, name, a.solution(i0, i1), slice(None)))
-        yield out
+            ranges[name] = (i0, i1)
+        yield ranges
+
+
+def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float | None = None):
+    """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
+    at a time (the same messages in the same order; a batch's last chunk is closed with it)."""
+    for ranges in _bag_ranges(est, batch_s):
+        yield _bag_streams(sess, est, ranges)
+
+
+def _bag_streams(sess: RecordedSession, est: dict[str, StreamedAntenna], ranges: dict[str, tuple[int, int]]) -> list:
+    return [P._antenna_stream(sess, name, a.solution(*ranges[name]), slice(None)) for name, a in est.items()]
+
+
+def encode_bag_batch(sess: RecordedSession, est: dict[str, StreamedAntenna], ranges: dict[str, tuple[int, int]],
+                     prefix: bytes) -> EncodedBatch:
+    """One batch of the antenna bag (:func:`_bag_batches`'s) made and compressed (a worker's task;
+    ``sess`` and ``est`` as :func:`_light`); ``prefix``: the writer's, for the first batch."""
+    from dpos_ros.io.bag import encode_streams
+
+    try:
+        return encode_streams(_bag_streams(sess, est, ranges), prefix)
+    finally:
+        release_memory()
+
+
+def _light(sess: RecordedSession, est: dict[str, StreamedAntenna]) -> tuple[RecordedSession, dict[str, StreamedAntenna]]:
+    """What a bag batch needs, to pickle to a worker: the session without its main POS (one epoch
+    kept), the antennas' rows without their per-epoch QC."""
+    return (dc_replace(sess, master=sess.master.select(slice(0, 1)), warnings=[]),
+            {name: StreamedAntenna(name, a.sub_imu, a.status, a.rows) for name, a in est.items()})
+
+
+def _write_bag(path: Path, sess: RecordedSession, est: dict[str, StreamedAntenna], custom_data: dict[str, str],
+               pool: cf.Executor | None) -> None:
+    """The antenna bag of ``est``: batches made and compressed on ``pool`` (:data:`BAG_IN_FLIGHT` at
+    a time, appended in order: the same file as made here) or in this process."""
+    from dpos_ros.io.bag import abort_writer, new_writer, write_stream_batches
+
+    if pool is None:
+        write_stream_batches(path, _bag_batches(sess, est), custom_data=custom_data)
+        return
+    w = new_writer(path, [(T.antenna_odom(name), T.ODOMETRY) for name in est], custom_data)
+    s_l, e_l = _light(sess, est)
+    pending: deque[cf.Future] = deque()
+    try:
+        for k, ranges in enumerate(_bag_ranges(est)):
+            pending.append(pool.submit(encode_bag_batch, s_l, e_l, ranges, w.prefix if k == 0 else b""))
+            while len(pending) > BAG_IN_FLIGHT:
+                w.add_encoded(pending.popleft().result())
+        while pending:
+            w.add_encoded(pending.popleft().result())
+        w.close()
+    except BaseException:
+        for f in pending:
+            f.cancel()
+        abort_writer(w)
+        raise
 
 
 def scratch_dir(out_root: Path) -> tempfile.TemporaryDirectory:
