@@ -214,24 +214,24 @@ class StreamedAntenna:
 
 def align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
                    seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
-                   inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
+                   inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str, include_late: bool = True) -> dict:
     """One sub-IMU (a worker's task; module docstring): its topic read alone, aligned, its antennas'
     rows (``antennas``: name, lever arm) and its own at ``output_rate_hz`` written to RowStores under
     ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.ta.solve` computes
-    them.  ``master``: the aligned main POS, or None for that of the recording as this worker reads
+    them (``include_late``: a spill's late messages too, :func:`read_session_streaming`).  ``master``: the aligned main POS, or None for that of the recording as this worker reads
     it with its topic (:func:`dpos_ros.products.ta.aligned_master`: the same series, not sent to
     the worker).  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
     try:
         return _align_to_store(bag, sub, master, ins, cfg, method, particles, seed, err0_deg, antennas, output_rate_hz, inflate_sigma,
-                               aligned_sigma_deg, store_dir)
+                               aligned_sigma_deg, store_dir, include_late)
     finally:
         release_memory()
 
 
 def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
                     seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
-                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
-    sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub))
+                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str, include_late: bool = True) -> dict:
+    sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub), include_late=include_late)
     if sub not in sess.sub_imus:
         return {"missing": True, "warnings": sess.warnings}
     imu = sess.sub_imus[sub]
@@ -287,10 +287,11 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
                     particles: int = 100, seed: int = 0, initial_attitude_error_deg: float = 0.0, filter_rate_hz: float = 1.0,
                     position_matching: bool = True, inflate_sigma: bool = True, output_rate_hz: float = 0.0,
                     master_aligned_sigma_deg: float = 0.1, pool: cf.Executor | None = None, master_error_tau_s: float = 0.0,
-                    sub_imus: list[str] | None = None) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
+                    sub_imus: list[str] | None = None, include_late: bool = True) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
     """:func:`dpos_ros.products.ta.solve` of the recording ``bag`` (``sess``: its main POS, read
     without the sub-IMUs; ``sub_imus``: the sub-IMU topics it has), the rows in files under
-    ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``)."""
+    ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``).
+    ``include_late``: the workers read a spill's late messages too (transfer_align_node: not)."""
     cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching,
                    master_error_tau_s=master_error_tau_s)
     t0 = time.perf_counter()
@@ -301,7 +302,7 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
     # the workers read the main POS with their sub-IMU's topic (a long flight's main POS is not pickled to them)
     tasks = {s.name: (str(bag), s.name, master if pool is None else None, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed, (e, e, e),
                       [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
-                      output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir))
+                      output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir), include_late)
              for s in aircraft.sub_imus if s.name in present and master is not None}
     futs = {name: pool.submit(align_to_store, *args) for name, args in tasks.items()} if pool is not None else {}
     out: dict[str, StreamedAntenna] = {}
