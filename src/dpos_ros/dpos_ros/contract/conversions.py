@@ -119,6 +119,30 @@ def odometry_values(
     return out
 
 
+def antenna_odometry_values(llh: FloatArray, vel_n_mps: FloatArray, C_nb: FloatArray, sigma: FloatArray,
+                            datum_llh: FloatArray) -> FloatArray:
+    """Double block (N, 85) of an antenna's ``nav_msgs/Odometry`` (design.md "Session products":
+    pose in ``enu``, twist in the body) with its covariances from the 1-sigma ``sigma`` (N, 9) of
+    ``AntennaSolution`` (attitude east/north/up [rad], velocity ENU [m/s], position ENU [m], all
+    in the local ENU frame at the row): the pose's position and orientation blocks
+    ``R diag(s^2) R^T`` with ``R`` the rotation local ENU -> ``enu`` (:func:`dpos_core.earth.C_datum_n`),
+    the twist's linear block ``C_bn diag(s_v^2) C_nb``, the angular rate unknown (-1 on its
+    diagonal); llh (N, 3), vel_n_mps (N, 3) local ENU, C_nb (N, 3, 3) body -> local ENU.  The same
+    numbers as :func:`odometry_values` and those products (to rounding), one numba loop."""
+    from . import _odometry_kernel as K
+
+    llh = np.ascontiguousarray(llh, dtype=float)
+    n = llh.shape[0]
+    lat0, lon0, h0 = (float(v) for v in np.asarray(datum_llh, dtype=float))
+    out = np.empty((n, cdr.ODOM_DOUBLES))
+    C_wb = np.empty((n, 3, 3))
+    K.odometry_rows(llh, np.ascontiguousarray(vel_n_mps, dtype=float), np.ascontiguousarray(C_nb, dtype=float),
+                    np.ascontiguousarray(sigma, dtype=float), np.ascontiguousarray(earth.C_en(lat0, lon0)),
+                    np.asarray(earth.geodetic_to_ecef(lat0, lon0, h0), dtype=float), earth.A_M, earth.E2, out, C_wb)
+    out[:, 3:7] = quat_xyzw(dcm_to_quat(C_wb))
+    return out
+
+
 @dataclass(frozen=True)
 class OdometryBlock:
     """Decoded Odometry samples back in the core's terms.

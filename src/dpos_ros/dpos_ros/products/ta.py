@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from dpos_core import earth
-from dpos_core.attitude import dcm_to_quat, mount_dcm
+from dpos_core.attitude import mount_dcm
 from dpos_core.config import AircraftConfig, AntennaConfig
 from dpos_core.errors import RejectedInput
 from dpos_core.filters.variational import CGStats, pool_summaries
@@ -558,19 +557,7 @@ def _antenna_stream(sess: RecordedSession, name: str, a: AntennaSolution, rows: 
     assert a.traj is not None and a.sigma is not None
     tr, s = a.traj.select(rows), a.sigma[rows]
     t_ns = antenna_stamps_ns(sess, tr.t_s)
-    q = dcm_to_quat(tr.C_nb)
-    n = tr.t_s.size
-    vals = cv.odometry_values(tr.llh, tr.vel_n_mps, q, sess.datum_llh, None)
-    Rw = earth.C_datum_n(tr.llh[:, 0], tr.llh[:, 1], sess.datum_llh)
-    pose = np.zeros((n, 6, 6))
-    pose[:, :3, :3] = Rw @ (s[:, 6:9, None] ** 2 * np.swapaxes(Rw, 1, 2))
-    pose[:, 3:, 3:] = Rw @ (s[:, 0:3, None] ** 2 * np.swapaxes(Rw, 1, 2))
-    twist = np.zeros((n, 6, 6))
-    C_bn = np.swapaxes(tr.C_nb, 1, 2)
-    twist[:, :3, :3] = C_bn @ (s[:, 3:6, None] ** 2 * tr.C_nb)
-    twist[:, 3:, 3:] = -np.eye(3)  # angular rate not estimated
-    vals[:, 7:43] = pose.reshape(n, 36)
-    vals[:, 49:85] = twist.reshape(n, 36)
+    vals = cv.antenna_odometry_values(tr.llh, tr.vel_n_mps, tr.C_nb, s, sess.datum_llh)
     return TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav")
 
 
