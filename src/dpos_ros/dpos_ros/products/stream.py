@@ -19,8 +19,9 @@ The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.p
   :data:`FIT_WINDOW_S` (the rigid misalignment, the degree choice and the variance factor per
   window; the same as the whole-session fit for a session shorter than one window);
   ``status.json`` ``wing_fit`` gives the first window's choice and the number of windows;
-* no evaluation against the truth (``metrics.json``, ``report.md``, the error figures): the
-  truth topics are not read (a warning says so when the recording has them).
+* the evaluation against the truth (``metrics.json``, ``report.md``, the error figures) is
+  :mod:`dpos_ros.products.evaluate_stream`'s, a part of the truth and a block of rows at a time:
+  the same metrics, the error figures from every n-th row, and metrics.json's ``evaluation`` note.
 """
 
 from __future__ import annotations
@@ -445,14 +446,16 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
 
 
 def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
-                    *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
+                    *, overwrite: bool = False, pool: cf.Executor | None = None, evaluation: dict[str, dict] | None = None) -> Path:
     """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent.
     ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers, and the
-    antenna bag's batches made and compressed there while this process writes them to the file."""
+    antenna bag's batches made and compressed there while this process writes them to the file.
+    ``evaluation``: :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`'s result, written
+    (metrics.json, report.md, error figures) before status.json."""
     final = Path(out_root) / sess.session_id
     out = P._new_products_dir(final, overwrite)
     try:
-        _write(out, sess, antennas, method, timing, pool)
+        _write(out, sess, antennas, method, timing, pool, evaluation)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
@@ -462,7 +465,7 @@ def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, S
 
 
 def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
-           pool: cf.Executor | None) -> None:
+           pool: cf.Executor | None, evaluation: dict[str, dict] | None = None) -> None:
     from .qc import _json_safe, qc_dir, qc_md
 
     est = {name: a for name, a in antennas.items() if a.rows is not None}
@@ -477,6 +480,10 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
         summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
     doc = P.status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.rows is not None})
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
+    if evaluation:  # against the truth (dpos_ros.products.evaluate_stream)
+        from .evaluate_stream import write_evaluation
+
+        write_evaluation(out, sess, evaluation, method, timing, pool)
     doc["qc"] = _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
