@@ -175,21 +175,8 @@ def _pose_batches(sess: RecordedSession, est: dict[str, stream.StreamedAntenna],
     stored rows of ``est`` (every antenna with rows), ``batch_s`` seconds of poses at a time
     (default :data:`dpos_ros.products.stream.BAG_BATCH_S`): each batch a stream per antenna in
     ``est``'s order (empty where it has no row then), the batches in time order."""
-    batch_s = stream.BAG_BATCH_S if batch_s is None else batch_s
-    cursors = {name: stream.StampCursor(a.rows) for name, a in est.items() if a.rows is not None}
-    spans = [c.first_last() for c in cursors.values()]
-    t_lo = min((lo for lo, _ in spans), default=0.0)
-    t_hi = max((hi for _, hi in spans), default=t_lo)
-    n = max(1, int(np.floor((t_hi - t_lo) / batch_s)) + 1)
-    i_from = dict.fromkeys(cursors, 0)
-    for k in range(n):
-        edge = t_lo + batch_s * (k + 1) if k < n - 1 else np.inf
-        rows = {}
-        for name, a in est.items():
-            i0 = i_from[name]
-            i1 = i_from[name] = cursors[name].index(edge)
-            rows[name] = a.solution(i0, i1)
-        yield antenna_streams(sess, rows)
+    for ranges in stream.bag_ranges(est, batch_s):
+        yield antenna_streams(sess, {name: a.solution(*ranges[name]) for name, a in est.items()})
 
 
 class _SubImuTasks(cf.Executor):

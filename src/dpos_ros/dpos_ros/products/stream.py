@@ -520,7 +520,7 @@ def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
             f.write(P.csv_text(t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"]))
 
 
-def _bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
+def bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
     """Each batch's rows ``(i0, i1)`` per antenna: :data:`BAG_BATCH_S` of poses from the first row
     of all (the last batch to the end), found from the stamps a block at a time (:class:`StampCursor`)."""
     batch_s = BAG_BATCH_S if batch_s is None else batch_s
@@ -544,7 +544,7 @@ def _bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -
 def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float | None = None):
     """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
     at a time (the same messages in the same order; a batch's last chunk is closed with it)."""
-    for ranges in _bag_ranges(est, batch_s):
+    for ranges in bag_ranges(est, batch_s):
         yield _bag_streams(sess, est, ranges)
 
 
@@ -584,7 +584,7 @@ def _write_bag(path: Path, sess: RecordedSession, est: dict[str, StreamedAntenna
     s_l, e_l = _light(sess, est)
     pending: deque[cf.Future] = deque()
     try:
-        for k, ranges in enumerate(_bag_ranges(est)):
+        for k, ranges in enumerate(bag_ranges(est)):
             pending.append(pool.submit(encode_bag_batch, s_l, e_l, ranges, w.prefix if k == 0 else b""))
             while len(pending) > BAG_IN_FLIGHT:
                 w.add_encoded(pending.popleft().result())
