@@ -8,37 +8,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 from repo_paths import REPO
+from same_session import same_session
 
-from dpos_core.series import ImuSeries, NavSeries
 from dpos_ros.contract import topics as T
 from dpos_ros.io import bag, spill
-from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, SessionError, read_session, read_session_streaming
+from dpos_ros.io.session import MASTER_SOURCE_KEY, SessionError, read_session, read_session_streaming
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 SUB_R, SUB_L = T.sub_imu("sub_r"), T.sub_imu("sub_l")
-
-
-def _same_series(a: ImuSeries | NavSeries, b: ImuSeries | NavSeries) -> None:
-    for name in ("t_s", "q_nb", "vel_n_mps", "llh", "omega_eb_b_radps", "att_cov", "vel_cov", "pos_cov", "omega_radps", "f_mps2"):
-        va, vb = getattr(a, name, None), getattr(b, name, None)
-        assert (va is None) == (vb is None), name
-        if va is not None:
-            assert va.dtype == vb.dtype and np.array_equal(va, vb), name
-
-
-def _same(a: RecordedSession, b: RecordedSession) -> None:
-    _same_series(a.master, b.master)
-    assert a.sub_imus.keys() == b.sub_imus.keys() and a.truth.keys() == b.truth.keys()
-    for k in a.sub_imus:
-        _same_series(a.sub_imus[k], b.sub_imus[k])
-    for k in a.truth:
-        _same_series(a.truth[k], b.truth[k])
-    assert (a.session_id, a.t0_ns, a.end_s, a.custom, a.master_mechanized) == (b.session_id, b.t0_ns, b.end_s, b.custom, b.master_mechanized)
-    assert a.warnings == b.warnings
-    assert np.array_equal(a.datum_llh, b.datum_llh)
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +59,7 @@ def test_spill_read_in_blocks_is_read_session(tmp_path: Path, raw, batch_bytes: 
     d = _write(tmp_path / "s", raw, custom={MASTER_SOURCE_KEY: "mechanized", "dpos.start_time_s": "1700000000.0"})
     a = read_session(d)
     b = read_session_streaming(d, batch_bytes=batch_bytes)
-    _same(a, b)
+    same_session(a, b)
     assert b.master_mechanized and b.custom[MASTER_SOURCE_KEY] == "mechanized" and set(b.sub_imus) == {"sub_r", "sub_l"}
     assert b.truth  # (the sample bag has truth)
 
@@ -90,7 +69,7 @@ def test_late_messages_merged_or_left_out_as_read_session(tmp_path: Path, raw, i
     d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R, SUB_L}, late_after_s=30.0)
     a = read_session(d, include_late=include_late)
     b = read_session_streaming(d, batch_bytes=30_000, include_late=include_late)
-    _same(a, b)
+    same_session(a, b)
     n_all = len(raw[SUB_R][1])
     assert (b.sub_imus["sub_r"].t_s.size == n_all) == include_late
     assert any("arrived after the session was closed" in w for w in b.warnings) == include_late
@@ -101,7 +80,7 @@ def test_one_sub_imu_log_alone(tmp_path: Path, raw) -> None:
     keep = lambda t: t == SUB_L  # noqa: E731
     a = read_session(d, include_late=False, keep=keep)
     b = read_session_streaming(d, keep=keep, batch_bytes=50_000, include_late=False)
-    _same(a, b)
+    same_session(a, b)
     assert list(b.sub_imus) == ["sub_l"] and not b.truth
 
 
@@ -114,7 +93,7 @@ def test_last_record_cut_short_is_dropped_with_a_warning(tmp_path: Path, raw) ->
             fh.truncate(f.stat().st_size - cut)
     a = read_session(d)
     b = read_session_streaming(d, batch_bytes=10_000)
-    _same(a, b)
+    same_session(a, b)
     cut_notes = [w for w in b.warnings if "cut short" in w]
     assert len(cut_notes) == 3 and cut_notes[2].startswith(f"{spill.LATE_DIR}/{SUB_R}"), cut_notes
     assert b.sub_imus["sub_r"].t_s.size == len(raw[SUB_R][1]) - 2  # the two cut records only
@@ -172,7 +151,7 @@ def test_bad_messages_same_checks_and_warnings(tmp_path: Path, raw, late_after_s
     d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R}, late_after_s=late_after_s, edit=_edit)
     a = read_session(d)
     b = read_session_streaming(d, batch_bytes=40_000)
-    _same(a, b)
+    same_session(a, b)
     w = " | ".join(b.warnings)
     for text in ("3 message(s) with other frame names", "3 message(s) rejected (zero_stamp", "1 message(s) rejected (unavailable",
                  "NaN/inf removed", "3 duplicate stamp(s) (1 identical messages)"):
