@@ -45,6 +45,18 @@ Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     replaced for the next session) while the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
 
+Long sessions (issue #17)
+    A session whose streams span more than ``stream_above_s`` is finalized with memory that does
+    not grow with it (:meth:`TransferAlignNode._process_streaming`), by ``dpos-process --stream
+    on``'s code (:mod:`dpos_ros.products.stream`) on the spill: the workers read their sub-IMU's
+    log and the main POS's a block of records at a time
+    (:func:`dpos_ros.io.session.read_session_streaming`, without the late messages), the rows go to
+    files beside the products, the poses are published from them
+    :data:`~dpos_ros.products.stream.BAG_BATCH_S` at a time (:class:`~dpos_ros.devices.sim_device.StreamBatches`:
+    the same writers, order and flow control), and the products are written a block at a time.
+    The same poses and products as in memory, except the ``fit`` antennas' wing fit over 5-minute
+    windows and no evaluation against the truth.
+
 Errors
     A sub-IMU whose smoother fails - bad data (:class:`~dpos_core.errors.RejectedInput`), a
     numerical failure (:class:`~dpos_core.errors.NumericalFailure`), a bug or a dead worker -
@@ -67,7 +79,7 @@ import tempfile
 import threading
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -87,9 +99,10 @@ from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
-from dpos_ros.devices.sim_device import SimDevice
-from dpos_ros.io.session import MASTER_SOURCE_KEY, read_session, reject_reasons
-from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter
+from dpos_ros.devices.sim_device import SimDevice, StreamBatches, StreamInfo
+from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, read_session_streaming, reject_reasons
+from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter, spill_meta
+from dpos_ros.products import stream
 from dpos_ros.products.master_reference import master_error_tau
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
@@ -156,13 +169,57 @@ def _describe(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
+def _pose_batches(sess: RecordedSession, est: dict[str, stream.StreamedAntenna],
+                  batch_s: float | None = None) -> Iterator[list[Any]]:
+    """The ``/antenna/<name>/odom`` streams (:func:`dpos_ros.products.ta.antenna_streams`) of the
+    stored rows of ``est`` (every antenna with rows), ``batch_s`` seconds of poses at a time
+    (default :data:`dpos_ros.products.stream.BAG_BATCH_S`): each batch a stream per antenna in
+    ``est``'s order (empty where it has no row then), the batches in time order."""
+    for ranges in stream.bag_ranges(est, batch_s):
+        yield antenna_streams(sess, {name: a.solution(*ranges[name]) for name, a in est.items()})
+
+
+class _SubImuTasks(cf.Executor):
+    """The executor :func:`dpos_ros.products.stream.solve_streaming` gets in the node: its sub-IMU
+    tasks (:func:`~dpos_ros.products.stream.align_to_store`) that fail - a numerical failure, a
+    bug, a dead worker, an unreadable log - cost that sub-IMU only (module docstring, "Errors"): the
+    exception is kept in :attr:`failed` and the task's result says that its antennas are not
+    estimated; every other task goes to ``pool`` as it is."""
+
+    def __init__(self, pool: cf.Executor, method: str) -> None:
+        self.pool = pool
+        self.method = method
+        self.failed: dict[str, BaseException] = {}  # sub-IMU -> what its task raised
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
+        fut = self.pool.submit(fn, *args, **kwargs)
+        if fn is not stream.align_to_store:
+            return fut
+        sub = str(args[1])
+        out: cf.Future = cf.Future()
+
+        def done(f: cf.Future) -> None:
+            try:
+                out.set_result(f.result())
+            except BaseException as e:  # noqa: BLE001 - this sub-IMU only (the node reports it)
+                self.failed[sub] = e
+                out.set_result({"rejected": f"the {self.method} smoother failed ({_describe(e)})", "warnings": []})
+
+        fut.add_done_callback(done)
+        return out
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        """(The pool is the node's: it stays up.)"""
+
+
 class _Stream:
     """What arrived on one topic: created with its first message (stamp ``t`` [ns])."""
 
-    __slots__ = ("count", "last_ns", "min_dt", "gaps", "arrived")
+    __slots__ = ("count", "first_ns", "last_ns", "min_dt", "gaps", "arrived")
 
     def __init__(self, t: int) -> None:
         self.count = 1
+        self.first_ns: int = t  # the oldest stamp
         self.last_ns: int = t  # the newest stamp
         self.min_dt: int | None = None
         self.gaps = 0
@@ -177,6 +234,7 @@ class _Stream:
             elif dt > 2 * self.min_dt:
                 self.gaps += 1
         self.count += 1
+        self.first_ns = min(self.first_ns, t)
         self.last_ns = max(self.last_ns, t)
 
 
@@ -475,7 +533,9 @@ class TransferAlignNode(Node):
             # (also kept in the spill's metadata, for dpos-process on the spill)
             mechanized = saw_status or self.count_publishers(T.POS_MASTER_STATUS) > 0
             self._close_spill(sp, sid, mechanized)
-            self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()}, mechanized)
+            timed = [st for t, st in streams.items() if t != T.DATUM]  # (the latched datum's stamp may be old)
+            span_s = (max(st.last_ns for st in timed) - min(st.first_ns for st in timed)) * 1e-9 if timed else 0.0
+            self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()}, mechanized, span_s)
         except Exception as e:  # noqa: BLE001 - logged with its traceback, status ERROR; the node stays up for the next session
             log.error(f"finalize failed: {_describe(e)}\n{''.join(traceback.format_exception(e)).rstrip()}")
             with self._lock:
@@ -538,11 +598,14 @@ class TransferAlignNode(Node):
             ex.submit(_warm_worker, self.config.method)
         return ex
 
-    def _process(self, spill_dir: Path, counts: dict, mechanized: bool = False) -> None:
+    def _process(self, spill_dir: Path, counts: dict, mechanized: bool = False, span_s: float = 0.0) -> None:
         cfg = self.config
         log = self.get_logger()
         tau, why = master_error_tau(cfg.master_error_tau_s, mechanized)
         log.info(f"main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
+        if span_s > cfg.stream_above_s:
+            self._process_streaming(spill_dir, tau, why, span_s)
+            return
         t0 = time.perf_counter()
         n_workers = self._n_workers
         self._progress = f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {n_workers} worker(s)"
@@ -614,35 +677,124 @@ class TransferAlignNode(Node):
         sess.warnings = list(dict.fromkeys(warnings + sess.warnings))  # the workers read the same spill: each warning once
         sess.master_error_model = {"tau_s": tau, "why": why}
         antennas.update(fit_antennas(sess, self.aircraft, antennas))  # the `fit` antennas: least-squares wing fit ([LSFit] sec. 2)
+        antennas = {a.name: antennas[a.name] for a in self.aircraft.antennas if a.name in antennas}  # the aircraft's order, not the workers'
         streams = [s for s in antenna_streams(sess, antennas) if len(s)]
-        if self._device is not None:
-            self._device.stop()
-            self._device = None
-        if streams:
-            self._progress = f"publishing {sum(len(s) for s in streams)} antenna poses"
-            device = self._device = SimDevice(self, streams, 0.0).start()
-            device.finished.wait()
-            device.stop()  # every pose is published: do not hold the session's poses until the next one
-            self._device = None
-        else:
-            log.warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
-        sid = sess.session_id
-        k = 2
-        while (self.output_dir / sess.session_id).exists():  # a repeated id (the same bag replayed): never overwrite a flight's products
-            sess.session_id = f"{sid}_{k}"
-            k += 1
-        if sess.session_id != sid:
-            log.warning(f"products of a session {sid!r} exist in {self.output_dir}: this session's go to {sess.session_id!r}")
+        self._publish_poses(streams, sum(len(s) for s in streams))
+        self._unique_session_id(sess)
         try:
             out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None, pool=self._executor)
         except OSError as e:
-            why = f"the products of session {sess.session_id} could not be written ({e.strerror or e}: {e.filename or self.output_dir})"
-            with self._lock:
-                self._errors["products"] = why
-            self._progress = f"{why}; the spill is kept: dpos-process {spill_dir} --out <dir> makes them"
-            log.error(self._progress)
-            self._sessions_done += 1
+            self._products_failed(sess, e, spill_dir)
             return
+        self._session_done(spill_dir, sess, out, {name: a.status for name, a in antennas.items()}, failed, timing)
+
+    def _publish_poses(self, streams: Sequence[Any] | StreamBatches, n: int) -> None:
+        """Publish the antenna poses (``n`` messages; whole streams or :class:`StreamBatches`) without
+        loss (:class:`SimDevice`, as fast as the subscribers take them) and wait until they are."""
+        if self._device is not None:
+            self._device.stop()
+            self._device = None
+        if not n:
+            self.get_logger().warning("no antenna estimated in this session: nothing to publish on /antenna/*/odom")
+            return
+        self._progress = f"publishing {n} antenna poses"
+        device = self._device = SimDevice(self, streams, 0.0).start()
+        device.finished.wait()
+        device.stop()  # every pose is published: do not hold the session's poses until the next one
+        self._device = None
+
+    def _process_streaming(self, spill_dir: Path, tau: float, why: str, span_s: float) -> None:
+        """:meth:`_process` of a long session with memory that does not grow with it (module docstring,
+        "Long sessions"): :func:`dpos_ros.products.stream.solve_streaming` on the spill (each worker
+        reads its sub-IMU's log and the main POS's, the rows go to files beside the products), the
+        poses published from those files :data:`~dpos_ros.products.stream.BAG_BATCH_S` at a time,
+        :func:`~dpos_ros.products.stream.write_streaming`."""
+        cfg = self.config
+        log = self.get_logger()
+        t0 = time.perf_counter()
+        self._progress = (f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {self._n_workers} worker(s), "
+                          f"streaming ({span_s:.0f} s of session > stream_above_s {cfg.stream_above_s:g} s)")
+        log.info(self._progress)
+        sess = read_session_streaming(spill_dir, keep=lambda t: False, include_late=False)  # the main POS alone
+        sess.master_error_model = {"tau_s": tau, "why": why}
+        topics = spill_meta(spill_dir)[0]
+        subs = [n for n in self.sub_names if T.sub_imu(n) in topics]
+        if any(t.startswith("/truth/") for t in topics):
+            sess.warnings.append(f"stream_above_s: the session ({span_s:.0f} s) was finalized by streaming; its truth topics are "
+                                 "not evaluated (no metrics.json, report.md, error figures)")
+        ex = self._executor if self._executor is not None else self._new_pool()
+        try:
+            ex.submit(int).result()  # (a pool broken since the last session - a worker died - refuses work)
+        except cf.BrokenExecutor:
+            log.warning("the smoothers' worker pool is broken (a worker died since the node started): starting new workers")
+            ex.shutdown(wait=False, cancel_futures=True)
+            ex = self._new_pool()
+        self._executor = ex
+        tasks = _SubImuTasks(ex, cfg.method)
+        with stream.scratch_dir(self.output_dir) as tmp:
+            antennas, timing = stream.solve_streaming(
+                spill_dir, sess, self.aircraft, Path(tmp), cfg.method, cfg.particles, cfg.seed, cfg.initial_attitude_error_deg,
+                filter_rate_hz=cfg.filter_rate_hz, position_matching=cfg.position_matching, inflate_sigma=cfg.sigma_inflation,
+                output_rate_hz=cfg.output_rate_hz, pool=tasks, master_error_tau_s=tau, sub_imus=subs, include_late=False)
+            # the antennas of the sub-IMUs not configured (sub_imus) are not the session's (as _process)
+            other = [s.name for s in self.aircraft.sub_imus if s.name not in self.sub_names]
+            antennas = {k: a for k, a in antennas.items() if a.sub_imu is None or a.sub_imu in self.sub_names}
+            sess.warnings = [w for w in sess.warnings if not any(w.startswith(f"sub-IMU {n}: no /sub_imu/{n}/imu ") for n in other)]
+            failed = {sub: _describe(e) for sub, e in tasks.failed.items()}
+            for sub, e in tasks.failed.items():
+                tb = "" if isinstance(e, RejectedInput) else "\n" + "".join(traceback.format_exception(e)).rstrip()
+                log.error(f"sub-IMU {sub}: the {cfg.method} smoother failed: {_describe(e)}; its antennas are not estimated{tb}")
+                for a in antennas.values():
+                    if a.sub_imu == sub:
+                        a.status = f"failed: {failed[sub]}"
+            with self._lock:
+                self._errors.update(failed)
+            per_sub: dict[str, int] = {}
+            for a in antennas.values():
+                if a.sub_imu is not None:
+                    per_sub[a.sub_imu] = max(per_sub.get(a.sub_imu, 0), a.chol_jitter_repairs)
+            self._chol_jitter_repairs = sum(per_sub.values())
+            if self._chol_jitter_repairs:
+                log.warning(f"the smoothers repaired {self._chol_jitter_repairs} covariance(s) with a diagonal jitter (chol_jitter_repairs)")
+            if any(isinstance(e, cf.BrokenExecutor) for e in tasks.failed.values()):  # a dead worker breaks the pool: new workers
+                ex.shutdown(wait=False, cancel_futures=True)
+                self._executor = None
+                self._executor = self._new_pool()
+            est = {name: a for name, a in antennas.items() if a.rows is not None and a.rows.n}
+            info = [StreamInfo(T.antenna_odom(name), T.ODOMETRY, "nav", a.rows.n) for name, a in est.items() if a.rows is not None]
+            self._publish_poses(StreamBatches(info, lambda: _pose_batches(sess, est)), sum(i.count for i in info))
+            self._unique_session_id(sess)
+            timing["processing_s"] = time.perf_counter() - t0
+            try:
+                out = stream.write_streaming(self.output_dir, sess, antennas, cfg.method, timing, pool=self._executor)
+            except OSError as e:
+                self._products_failed(sess, e, spill_dir)
+                return
+        self._session_done(spill_dir, sess, out, {name: a.status for name, a in antennas.items()}, failed, timing)
+
+    def _unique_session_id(self, sess: RecordedSession) -> None:
+        """A repeated session id (the same bag replayed) gets a suffix: never overwrite a flight's products."""
+        sid = sess.session_id
+        k = 2
+        while (self.output_dir / sess.session_id).exists():
+            sess.session_id = f"{sid}_{k}"
+            k += 1
+        if sess.session_id != sid:
+            self.get_logger().warning(f"products of a session {sid!r} exist in {self.output_dir}: this session's go to {sess.session_id!r}")
+
+    def _products_failed(self, sess: RecordedSession, e: OSError, spill_dir: Path) -> None:
+        """The products could not be written: ERROR naming the spill to run dpos-process on."""
+        why = f"the products of session {sess.session_id} could not be written ({e.strerror or e}: {e.filename or self.output_dir})"
+        with self._lock:
+            self._errors["products"] = why
+        self._progress = f"{why}; the spill is kept: dpos-process {spill_dir} --out <dir> makes them"
+        self.get_logger().error(self._progress)
+        self._sessions_done += 1
+
+    def _session_done(self, spill_dir: Path, sess: RecordedSession, out: Path, statuses: dict[str, str], failed: dict[str, str],
+                      timing: dict[str, float]) -> None:
+        """The session's products are written in ``out``: its late messages noted, the outcome logged."""
+        log = self.get_logger()
         with self._lock:
             closed = self._closed
             if closed is not None and closed.spill_dir == spill_dir:
@@ -653,8 +805,8 @@ class TransferAlignNode(Node):
         if late:
             _note_late(out, spill_dir, late)
         self._sessions_done += 1
-        for name, sol in antennas.items():
-            log.info(f"antenna {name}: {sol.status}")
+        for name, status in statuses.items():
+            log.info(f"antenna {name}: {status}")
         errors = ", ".join(f"{sub} ({' '.join(a.name for a in self.aircraft.antennas if a.sub_imu == sub)})" for sub in sorted(failed))
         errors = f" with failed sub-IMU(s) {errors}" if failed else ""
         self._progress = f"session {sess.session_id} done{errors}: products in {out}; ready for the next session"

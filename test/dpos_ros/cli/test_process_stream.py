@@ -1,7 +1,8 @@
 """dpos-process --stream (issue #17, dpos_ros.products.stream): the products of the streaming path
 are those of the in-memory path - the CSV files byte for byte, the antenna bag message for
-message, qc.md and status.json but for the documented differences (no evaluation against the
-truth, the wing fit's window count) - on a session shorter than one wing-fit window."""
+message, qc.md and status.json but for the documented differences (the wing fit's window count),
+metrics.json and report.md of the evaluation against the truth to 1e-12 relative (but the timing) -
+on a session shorter than one wing-fit window."""
 
 from __future__ import annotations
 
@@ -39,7 +40,30 @@ def _compare(on: Path, off: Path) -> None:
     for t in ra:
         assert ra[t][1] == rb[t][1] and [bytes(x) for x in ra[t][2]] == [bytes(x) for x in rb[t][2]], t
     assert sorted(p.name for p in (a / "qc").iterdir()) == sorted(p.name for p in (b / "qc").iterdir())
-    assert not (a / "metrics.json").exists() and (b / "metrics.json").exists()  # the truth is not evaluated
+    # the evaluation against the truth (products.evaluate_stream): the same metrics, the same report
+    # but for the timing line, the same error figures (drawn from every n-th row: n = 1 here)
+    assert sorted(p.name for p in a.glob("errors_*.png")) == sorted(p.name for p in b.glob("errors_*.png"))
+    ma, mb = json.loads((a / "metrics.json").read_text()), json.loads((b / "metrics.json").read_text())
+    assert ma.pop("evaluation") == {"path": "streaming", "plot_step": dict.fromkeys(ma["methods"][next(iter(ma["methods"]))]["antennas"], 1)}
+    _close(ma, mb, "metrics.json")
+    assert _untimed(a / "report.md") == _untimed(b / "report.md")
+
+
+def _untimed(path: Path) -> list[str]:
+    return [x for x in path.read_text().splitlines() if "processing time / data duration" not in x]
+
+
+def _close(x, y, path: str) -> None:
+    """``x`` equals ``y`` but for the timings and the floats' rounding (1e-12 relative)."""
+    if isinstance(x, dict):
+        assert x.keys() == y.keys(), path
+        for k in x:
+            if k != "timing":
+                _close(x[k], y[k], f"{path}/{k}")
+    elif isinstance(x, float) and isinstance(y, float):
+        assert x == pytest.approx(y, rel=1e-12, nan_ok=True), path
+    else:
+        assert x == y, path
 
 
 @pytest.mark.parametrize("workers", ["1", "2"])

@@ -6,40 +6,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from repo_paths import REPO
+from same_session import same_series, same_session
 
-from dpos_core.series import ImuSeries, NavSeries
 from dpos_ros.io import _mcap, bag
 from dpos_ros.io.session import read_session, read_session_streaming
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 
 
-def _same(a: ImuSeries | NavSeries, b: ImuSeries | NavSeries) -> None:
-    for name in ("t_s", "q_nb", "vel_n_mps", "llh", "omega_eb_b_radps", "att_cov", "vel_cov", "pos_cov", "omega_radps", "f_mps2"):
-        va, vb = getattr(a, name, None), getattr(b, name, None)
-        assert (va is None) == (vb is None), name
-        if va is not None:
-            assert np.array_equal(va, vb), name
-
-
 @pytest.mark.parametrize("batch_bytes", [150_000, 2**26])
 def test_streaming_reader_gives_read_sessions_series(batch_bytes) -> None:
-    a, b = read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=batch_bytes)
-    _same(a.master, b.master)
-    assert a.sub_imus.keys() == b.sub_imus.keys() and a.truth.keys() == b.truth.keys()
-    for k in a.sub_imus:
-        _same(a.sub_imus[k], b.sub_imus[k])
-    for k in a.truth:
-        _same(a.truth[k], b.truth[k])
-    assert (a.session_id, a.t0_ns, a.end_s, a.custom, a.warnings) == (b.session_id, b.t0_ns, b.end_s, b.custom, b.warnings)
-    assert np.array_equal(a.datum_llh, b.datum_llh)
+    same_session(read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=batch_bytes))
 
 
 def test_one_sub_imu_alone() -> None:
     name = sorted(read_session(SAMPLE).sub_imus)[0]
     s = read_session_streaming(SAMPLE, keep=lambda t: t == f"/sub_imu/{name}/imu", batch_bytes=100_000)
     assert list(s.sub_imus) == [name] and not s.truth
-    _same(s.sub_imus[name], read_session(SAMPLE).sub_imus[name])
+    same_series(s.sub_imus[name], read_session(SAMPLE).sub_imus[name])
 
 
 def test_read_batches_hold_read_s_messages() -> None:
@@ -62,11 +46,7 @@ def test_series_grow_beyond_the_metadatas_message_counts(monkeypatch, counts) ->
     real = session.message_counts(SAMPLE)
     assert real and all(v > 0 for v in real.values())
     monkeypatch.setattr(session, "message_counts", lambda p: {} if counts == {} else {k: v // 7 for k, v in real.items()})
-    a, b = read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=150_000)
-    _same(a.master, b.master)
-    for k in a.sub_imus:
-        _same(a.sub_imus[k], b.sub_imus[k])
-    assert a.warnings == b.warnings
+    same_session(read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=150_000))
 
 
 def test_clean_groups_is_clean_of_the_columns_side_by_side() -> None:

@@ -11,6 +11,15 @@ state with the true noise statistics (the practical bound; simulations only), ``
 its forward filter alone (the bound of the forward filters ukf, upf, cdkf, cdvf).  Writes
 ``metrics.json`` (design.md schema, means over runs and antennas) and ``report.md`` ([Gong2018]
 Table 1 layout with the paper's columns, and each method's ratio to the oracle).
+
+``--stream``: a run longer than an hour (``auto``, the default; ``on``: every run) is simulated
+window by window into a temporary recording beside ``--out`` (dpos-sim ``--window``'s
+machinery, deleted after the run) and processed and evaluated as ``dpos-process --stream on``
+does (dpos_ros.products.stream, dpos_ros.products.evaluate_stream), so a run's memory does not
+grow with its duration.  That path takes the recorded main POS, fits the wing over 5-minute
+windows and draws other white-noise samples than the in-memory simulation (the same statistics);
+the oracles need the simulation in memory (``--stream on`` with one is refused).  metrics.json's
+``evaluation.paths`` and a line of report.md say which path each run took.
 """
 
 from __future__ import annotations
@@ -18,9 +27,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 from pathlib import Path
 
 from dpos_core.config import ConfigError, config_text
@@ -40,6 +52,12 @@ from dpos_ros.products.ta import combine_runs, evaluate, metrics_json, report_md
 
 #: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
+#: --stream auto: the streaming path for runs longer than this [s] (dpos-process's threshold)
+STREAM_AUTO_S = 3600.0
+#: the windows of a streamed run's simulation [s] (dpos-sim --window)
+STREAM_SIM_WINDOW_S = 60.0
+#: the run paths (metrics.json ``evaluation.paths``)
+PATH_MEMORY, PATH_STREAMING = "in memory", "streaming"
 
 
 def methods_of(text: str | None, *, ifa: bool) -> list[str]:
@@ -73,6 +91,11 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-position-matching", dest="position_matching", action="store_false",
                     help="transfer alignment by attitude and velocity matching only, [Gong2018]'s setting (docs/ups.md)")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
+                    help="long runs: on = each run simulated into a temporary recording beside --out window by window and "
+                         "processed and evaluated by dpos-process --stream on's path (bounded memory; the wing fit in 5 min "
+                         f"windows, other noise samples); auto (default) = on for runs over {STREAM_AUTO_S / 3600:g} h without "
+                         "an oracle method")
     ap.add_argument("--mismatch", metavar="CASE[,CASE..]|all",
                     help="the mismatch suite (docs/mismatch.md): simulate each case's truth while the filter keeps the "
                          f"nominal configuration; oracle added to --methods (default ups,urtss). Cases: {', '.join(MISMATCH_CASES)}")
@@ -140,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
 
         return main_ifa(ap, args, scenario, methods)
     plan = ta_plan(ap, args, scenario, methods)
-    runs = [ta_run(plan, args.seed + r, label=f"run {r + 1}/{args.runs}") for r in range(args.runs)]
+    runs = [ta_run(plan, args.seed + r, label=f"run {r + 1}/{args.runs}", scratch=args.out) for r in range(args.runs)]
     ta_write(args.out, plan, runs)
     return 0
 
@@ -157,6 +180,7 @@ class TAPlan:
     initial_attitude_error_deg: float
     aircraft_text: str | None
     position_matching: bool
+    stream: bool = False
 
 
 @dataclass
@@ -170,6 +194,7 @@ class TARun:
     timing: dict[str, dict[str, float]]
     segments: list[str]
     lines: list[str] = field(default_factory=list)
+    path: str = PATH_MEMORY
 
 
 #: the per-epoch series of an evaluate() result, not needed to combine the runs
@@ -195,13 +220,23 @@ def ta_plan(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Sce
         ap.error(f"--duration must be >= {1.0 / TA_FILTER_RATE_HZ:g} s for transfer alignment "
                  f"(one epoch of the {TA_FILTER_RATE_HZ:g} Hz filter), got {args.duration:g}")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
+    oracles = [m for m in methods if m in (ORACLE, ORACLE_FILTER, ORACLE_WING)]
+    stream = getattr(args, "stream", "off")
+    if stream == "on" and oracles:
+        ap.error(f"--stream on: the oracle methods {oracles} need the simulation in memory; use --stream off or auto")
+    duration = args.duration if args.duration is not None else scenario.duration_s
+    streamed = stream == "on" or (stream == "auto" and duration > STREAM_AUTO_S and not oracles)
     return TAPlan(scenario, tuple(methods), args.particles, args.duration, err0,
-                  config_text("aircraft", args.aircraft) if args.aircraft else None, args.position_matching)
+                  config_text("aircraft", args.aircraft) if args.aircraft else None, args.position_matching, streamed)
 
 
-def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True) -> TARun:
+def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True, scratch: Path | None = None) -> TARun:
     """Simulate the scenario with ``seed`` and run every method of ``plan`` on it; one line per
-    method (printed when ``echo``, kept in ``TARun.lines`` either way)."""
+    method (printed when ``echo``, kept in ``TARun.lines`` either way).  ``plan.stream``: by
+    :func:`ta_run_streamed`, its temporary recording under ``scratch`` (default: the system's
+    temporary directory)."""
+    if plan.stream:
+        return ta_run_streamed(plan, seed, label, echo, scratch)
     scenario, methods = plan.scenario, plan.methods
     ss = SimulatedSession(scenario, seed, plan.duration_s)
     custom = session_custom_data(ss, plan.aircraft_text or "")
@@ -216,15 +251,64 @@ def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True) -> TA
                          oracle_truth=truth if m in (ORACLE, ORACLE_FILTER) else None, filter_rate_hz=TA_FILTER_RATE_HZ,
                          known_wing=wing if m == ORACLE_WING else None, position_matching=plan.position_matching)
         ev = evaluate(sess, ants)
-        run.evaluations[m] = {name: {k: v for k, v in e.items() if k not in _SERIES} for name, e in ev.items()}
-        run.timing[m] = {"processing_s": tm["processing_s"], "data_s": tm["data_s"]}
-        mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()])
-        line = (f"{label} seed {seed} {m:>6}: heading {mean['rmse']['heading_deg']:.2e} deg, "
-                f"vel_n {mean['rmse']['vel_n_mps']:.2e} m/s, lat {mean['rmse']['lat_m']:.2e} m "
-                f"({time.perf_counter() - t0:.1f} s)")
-        run.lines.append(line)
-        if echo:
-            print(line, flush=True)
+        _record(run, m, ev, tm, label, seed, t0, echo)
+    return run
+
+
+def _record(run: TARun, m: str, ev: dict[str, dict], tm: dict[str, float], label: str, seed: int, t0: float, echo: bool) -> None:
+    """Method ``m``'s evaluation ``ev`` and timing ``tm`` into ``run`` (without the per-row series), and its line."""
+    run.evaluations[m] = {name: {k: v for k, v in e.items() if k not in _SERIES} for name, e in ev.items()}
+    run.timing[m] = {"processing_s": tm["processing_s"], "data_s": tm["data_s"]}
+    mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()]) if ev else {"rmse": {}}
+    nan = float("nan")
+    line = (f"{label} seed {seed} {m:>6}: heading {mean['rmse'].get('heading_deg', nan):.2e} deg, "
+            f"vel_n {mean['rmse'].get('vel_n_mps', nan):.2e} m/s, lat {mean['rmse'].get('lat_m', nan):.2e} m "
+            f"({time.perf_counter() - t0:.1f} s{', streamed' if run.path == PATH_STREAMING else ''})")
+    run.lines.append(line)
+    if echo:
+        print(line, flush=True)
+
+
+def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = True, scratch: Path | None = None) -> TARun:
+    """:func:`ta_run` with memory that does not grow with the run's duration (module docstring): the
+    session simulated window by window (:data:`STREAM_SIM_WINDOW_S`) into a recording in a new
+    temporary directory under ``scratch``, each method run on it by ``dpos-process --stream on``'s
+    path (:func:`dpos_ros.products.stream.solve_streaming`, serially in this process) and evaluated
+    by :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`; the directory is deleted
+    afterwards, whatever happens.  The oracle methods are not available (they read the simulation)."""
+    from dpos_ros.devices.sim_streams import chunked_session_streams
+    from dpos_ros.io.bag import topics_and_duration, write_stream_batches
+    from dpos_ros.io.session import read_session_streaming
+    from dpos_ros.products.evaluate_stream import evaluate_streaming
+    from dpos_ros.products.stream import solve_streaming
+
+    scenario, methods = plan.scenario, plan.methods
+    oracles = [m for m in methods if m in (ORACLE, ORACLE_FILTER, ORACLE_WING)]
+    if oracles:
+        raise ValueError(f"the streamed run cannot run the oracle methods {oracles}")
+    ss = SimulatedSession(scenario, seed, plan.duration_s)
+    custom = session_custom_data(ss, plan.aircraft_text or "")
+    parent = Path(scratch) if scratch is not None else Path(tempfile.gettempdir())
+    parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".dpos_eval_seed{seed}_", dir=parent) as tmp:
+        rec = Path(tmp) / "recording"
+        write_stream_batches(rec, chunked_session_streams(ss, STREAM_SIM_WINDOW_S, truth=True), custom_data=custom)
+        del ss
+        meta = topics_and_duration(rec)
+        assert meta is not None  # (written just now)
+        topics = meta[0]
+        subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
+        base = read_session_streaming(rec, keep=lambda t: False)  # the main POS only
+        run = TARun(seed, {}, {}, list(base.imaging_segments().keys()) or ["session"], path=PATH_STREAMING)
+        for m in methods:
+            t0 = time.perf_counter()
+            sess = dc_replace(base, warnings=list(base.warnings))
+            store = Path(tmp) / f"rows_{m}"
+            ants, tm = solve_streaming(rec, sess, scenario.aircraft, store, m, plan.particles, seed, plan.initial_attitude_error_deg,
+                                       filter_rate_hz=TA_FILTER_RATE_HZ, position_matching=plan.position_matching, sub_imus=subs)
+            ev = evaluate_streaming(sess, ants, topics)
+            shutil.rmtree(store, ignore_errors=True)
+            _record(run, m, ev, tm, label, seed, t0, echo)
     return run
 
 
@@ -243,9 +327,16 @@ def ta_write(out: Path, plan: TAPlan, runs: list[TARun]) -> dict:
     combined = combine_runs(per_method, timing)
     metrics = metrics_json(None, combined, runs=len(runs), scenario=scenario.name)
     metrics["segments"] = runs[-1].segments
+    metrics["evaluation"] = {"paths": [run.path for run in runs], "seeds": [run.seed for run in runs]}
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     report = report_md(metrics, f"Monte Carlo evaluation: {scenario.name} ({scenario.source})")
+    streamed = [run.seed for run in runs if run.path == PATH_STREAMING]
+    if streamed:
+        report += (f"\nRuns of seed {', '.join(map(str, streamed))} took the streaming path (simulated window by window into a "
+                   f"temporary recording, {STREAM_SIM_WINDOW_S:g} s windows, and processed as dpos-process --stream on: the "
+                   "recorded main POS, the wing fit over 5-minute windows); "
+                   f"{len(runs) - len(streamed)} run(s) in memory.\n")
     for bound, what in ((ORACLE, "the oracle (1.0 = the practical bound)"),
                         (ORACLE_FILTER, "the oracle's forward filter (1.0 = the forward filters' practical bound)"),
                         (ORACLE_WING, "the oracle that knows the true wing (1.0 = the bound with the wing known)")):

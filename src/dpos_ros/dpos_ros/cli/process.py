@@ -12,7 +12,8 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
 ``--stream``: ``on`` reads, aligns and writes the products a part of the flight at a time, the
 rows in files beside the products (dpos_ros.products.stream; docs/campaign.md "Long flights"):
 each worker reads its own sub-IMU's topic and the main POS only; the wing fit is made over
-5-minute windows and there is no evaluation against the truth.  ``auto`` (the default) is
+5-minute windows; the truth, when recorded, is evaluated against a part at a time
+(dpos_ros.products.evaluate_stream: the same metrics.json, the error figures from every n-th row).  ``auto`` (the default) is
 ``on`` for a recording of more than an hour (the recorded main POS only), ``off`` the in-memory
 path.
 
@@ -93,7 +94,7 @@ def parser() -> argparse.ArgumentParser:
                     help="main-POS reference: recorded /master/nav (default), forward = the in-flight alignment re-run from "
                          "/master/imu + /gnss/*, smoothed = that run RTS-smoothed")
     ap.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
-                    help="long flights: on = bounded memory (the wing fit in 5 min windows, no truth evaluation); "
+                    help="long flights: on = bounded memory (the wing fit in 5 min windows); "
                          f"auto (default) = on above {STREAM_AUTO_S / 3600:g} h of recording")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
     ap.add_argument("--overwrite", action="store_true",
@@ -292,6 +293,7 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
     """:func:`_process` by :mod:`dpos_ros.products.stream` (``--stream``)."""
     from dpos_ros.io.bag import topics_and_duration
     from dpos_ros.io.session import read_session_streaming
+    from dpos_ros.products.evaluate_stream import evaluate_streaming
     from dpos_ros.products.stream import scratch_dir, solve_streaming, write_streaming
 
     if args.master_reference != "recorded":
@@ -311,9 +313,6 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
         return _refuse_existing(final)
     topics = meta[0]
     subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
-    if any(t.startswith("/truth/") for t in topics):
-        sess.warnings.append("--stream: the recording has truth topics; the products are not evaluated against them "
-                             "(no metrics.json, report.md, error figures)")
     ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
     err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
     for w in sess.warnings:
@@ -326,10 +325,14 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
                                                filter_rate_hz=args.filter_rate, position_matching=args.position_matching,
                                                inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
                                                sub_imus=subs, master_error_tau_s=_master_error(args, sess, "recorded"))
-            out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool)
+            ev = evaluate_streaming(sess, antennas, topics)  # against the truth, a part at a time (none without it)
+            out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool,
+                                  evaluation=ev or None)
     except OSError as e:
         return _write_error(e, target, final, had_products)
     _summary(antennas, timing, out)
+    if ev:
+        print((out / "report.md").read_text())
     problem = (f"no antenna was estimated: the aircraft {aircraft.name!r} configures no antenna" if not antennas else
                _not_estimated_text({name: a.status for name, a in antennas.items() if a.rows is None}, len(antennas), subs))
     if problem is not None:

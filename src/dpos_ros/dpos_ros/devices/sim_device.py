@@ -92,6 +92,14 @@ Taps (derived streams)
     (``min_subscribers`` counts the device's own streams only). ``tap_published`` counts its
     messages (``published`` counts the streams' only).
 
+Batches
+    :class:`StreamBatches` publishes streams too long to hold (transfer_align_node's antenna
+    poses of a long session, issue #17) a batch at a time: the writers and their depths come from
+    the streams' descriptions (topic, type, QoS, total count), the batches are generated in the
+    thread as they are published, each in its merged order, the flow control across them as for
+    whole streams: the same messages in the same order as the whole streams would be (the
+    batches split the session in time).  No tap, no latched stream.
+
 Progress is logged every ~10 % and at the end: ``published N messages on M topics in T s``.
 """
 
@@ -99,7 +107,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -120,7 +128,8 @@ from dpos_ros.io.flow import (
 )
 from dpos_ros.io.streams import TopicStream, merged_order
 
-__all__ = ["SimDevice", "Tap", "load_sim_session", "use_device_fastdds_profile"]
+__all__ = ["SimDevice", "StreamBatches", "StreamInfo", "Tap", "load_sim_session", "use_device_fastdds_profile"]
+
 
 @dataclass(frozen=True)
 class Tap:
@@ -140,6 +149,31 @@ class Tap:
     produce: Callable[[TopicStream, NDArray[np.int64]], Sequence[Sequence[bytes]]]
     qos: str = "nav"
     max_batch: int = 100
+
+
+@dataclass(frozen=True)
+class StreamInfo:
+    """What the writers need of a stream published in batches: its ``topic``, ``msgtype``, QoS
+    kind ``qos`` (:func:`qos_profile`) and its message ``count`` over all batches (``len()``:
+    the writer depths, :func:`writer_depths`)."""
+
+    topic: str
+    msgtype: str
+    qos: str
+    count: int
+
+    def __len__(self) -> int:
+        return self.count
+
+
+@dataclass(frozen=True)
+class StreamBatches:
+    """Streams published a batch at a time (module docstring, "Batches"): ``topics`` describes
+    the streams, ``batches()`` gives, in time order, lists of TopicStreams of those topics in
+    that order, every message of a batch stamped before those of the next one."""
+
+    topics: Sequence[StreamInfo]
+    batches: Callable[[], Iterable[Sequence[TopicStream]]]
 
 
 def load_sim_session(scenario: str, aircraft_config: str, seed: int, duration_s: float) -> Any:
@@ -179,7 +213,8 @@ class SimDevice:
 
     Args:
         node: the rclpy node that owns the publishers (and whose clock and logger are used).
-        streams: the streams, or a callable that generates them (called in the thread).
+        streams: the streams, or a callable that generates them (called in the thread), or
+            :class:`StreamBatches` (module docstring, "Batches").
         rate_factor: 1.0 = real time, 10 = ten times faster, 0 = as fast as subscribers keep up.
         min_subscribers: matched subscriptions every non-latched topic needs before starting.
         wait_subscribers_s: longest wait for ``min_subscribers`` [s].
@@ -193,7 +228,7 @@ class SimDevice:
     def __init__(
         self,
         node: Any,
-        streams: Sequence[TopicStream] | Callable[[], Sequence[TopicStream]],
+        streams: Sequence[TopicStream] | Callable[[], Sequence[TopicStream]] | StreamBatches,
         rate_factor: float,
         *,
         min_subscribers: int = 0,
@@ -265,17 +300,27 @@ class SimDevice:
 
     def _publish_all(self) -> None:
         source = self._streams_source
-        streams = list(source() if callable(source) else source)
-        topics = [s.topic for s in streams]
+        batches: Iterable[Sequence[TopicStream]]
+        heads: list[Any]
+        if isinstance(source, StreamBatches):
+            heads = list(source.topics)
+            if self.taps or any(h.qos == "datum" for h in heads):
+                raise ValueError("streams in batches take no tap and no latched stream")
+            batches = source.batches()  # (generated as they are published)
+        else:
+            streams = list(source() if callable(source) else source)
+            heads = streams
+            batches = [streams]
+        topics = [s.topic for s in heads]
         if len(set(topics)) != len(topics):
             raise ValueError(f"duplicate topics in the device streams: {topics}")
         if self._stop.is_set():
             return
-        self.streams = streams
-        self.topics = len(streams)
-        depth = writer_depths(streams)
+        self.streams = heads
+        self.topics = len(heads)
+        depth = writer_depths(heads)
         self.publishers = [
-            self._node.create_publisher(message_class(s.msgtype), s.topic, writer_qos(s, d)) for s, d in zip(streams, depth)
+            self._node.create_publisher(message_class(s.msgtype), s.topic, writer_qos(s, d)) for s, d in zip(heads, depth)
         ]
         # taps: one writer each after the streams' (index len(streams) + j), the source's depth
         tap_source: dict[int, int] = {}  # stream index -> tap index
@@ -296,84 +341,92 @@ class SimDevice:
         self.started.set()
         t0_wall = time.monotonic()
 
-        latched = [i for i, s in enumerate(streams) if s.qos == "datum"]
-        for i in latched:
-            for k in range(len(streams[i])):
-                self.publishers[i].publish(streams[i].message(k))
+        latched = [i for i, s in enumerate(heads) if s.qos == "datum"]
+        for i in latched:  # (whole streams only)
+            for k in range(len(heads[i])):
+                self.publishers[i].publish(heads[i].message(k))
                 self.published += 1
-        if not self._wait_for_subscribers([i for i in range(len(streams)) if i not in latched]):
+        if not self._wait_for_subscribers([i for i in range(len(heads)) if i not in latched]):
             return
 
-        t_all, si_all, mi_all = merged_order(streams)
-        keep = ~np.isin(si_all, latched)
-        t_all, si_all, mi_all = t_all[keep], si_all[keep], mi_all[keep]
-        n = len(t_all)
+        n = sum(len(h) for i, h in enumerate(heads) if i not in latched)
         unacked = [0] * len(self.publishers)
         tap_out: dict[int, dict[int, Sequence[bytes]]] = {i: {} for i in tap_source}  # derived messages per source message
         tap_next = {i: 0 for i in tap_source}  # first source message not handed to produce yet
-        end_index = {i for i, s in enumerate(streams) if s.topic == SESSION_END}
+        end_index = {i for i, s in enumerate(heads) if s.topic == SESSION_END}
         rate = self.rate_factor
-        t_first = int(t_all[0]) if n else 0
+        t_first: int | None = None
         wall_start = self._now_ns()
         now_rel = 0.0  # (now - wall_start) * rate, in stamp ns; refreshed only when needed
         next_report = 1
         self._log.info(
-            f"publishing {n} messages on {len(streams) - len(latched)} topics "
+            f"publishing {n} messages on {len(heads) - len(latched)} topics "
             f"({'as fast as subscribers keep up' if rate == 0 else f'rate_factor {rate:g}'})"
         )
-        for k in range(n):
-            if self._stop.is_set():
-                return
-            i = int(si_all[k])
-            if rate > 0.0:
-                due = int(t_all[k]) - t_first
-                while now_rel < due:
-                    now_rel = (self._now_ns() - wall_start) * rate
-                    if now_rel < due:
-                        wait_s = min((due - now_rel) / rate * 1e-9, POLL_S)
-                        if self._stop.wait(wait_s):
-                            return
-            m = int(mi_all[k])
-            if i in tap_source and m >= tap_next[i]:
-                tap = self.taps[tap_source[i]]
-                fed = streams[i]
-                hi = min(len(fed), m + max(1, tap.max_batch))
-                if rate > 0.0:  # only what is due now (at least this message)
-                    due_until = t_first + now_rel
-                    hi = max(m + 1, min(hi, int(np.searchsorted(fed.t_ns, due_until, side="right"))))
-                idx = np.arange(m, hi)
-                out = tap.produce(fed, idx)
-                if len(out) != idx.size:
-                    raise ValueError(f"tap {tap.topic}: produce returned {len(out)} entries for {idx.size} messages")
-                tap_out[i].update(zip(idx.tolist(), out))
-                tap_next[i] = hi
-            if i in end_index:
-                if not self._wait_acked(range(len(self.publishers)), unacked):
+        k_all = 0  # messages published of the batches so far
+        for batch in batches:
+            if [s.topic for s in batch] != topics:
+                raise ValueError(f"a batch has the topics {[s.topic for s in batch]}, not {topics}")
+            t_all, si_all, mi_all = merged_order(list(batch))
+            keep = ~np.isin(si_all, latched)
+            t_all, si_all, mi_all = t_all[keep], si_all[keep], mi_all[keep]
+            if t_first is None and len(t_all):
+                t_first = int(t_all[0])
+            t_ref = t_first or 0
+            for k in range(len(t_all)):
+                if self._stop.is_set():
                     return
-            elif unacked[i] >= depth[i] and not self._wait_acked([i], unacked):
-                return
-            self.publishers[i].publish(streams[i].message(m))
-            self.published += 1
-            unacked[i] += 1
-            if i in tap_source:
-                jt = len(streams) + tap_source[i]
-                for raw in tap_out[i].pop(m, ()):
-                    if unacked[jt] >= depth[jt] and not self._wait_acked([jt], unacked):
+                i = int(si_all[k])
+                if rate > 0.0:
+                    due = int(t_all[k]) - t_ref
+                    while now_rel < due:
+                        now_rel = (self._now_ns() - wall_start) * rate
+                        if now_rel < due:
+                            wait_s = min((due - now_rel) / rate * 1e-9, POLL_S)
+                            if self._stop.wait(wait_s):
+                                return
+                m = int(mi_all[k])
+                if i in tap_source and m >= tap_next[i]:
+                    tap = self.taps[tap_source[i]]
+                    fed = batch[i]
+                    hi = min(len(fed), m + max(1, tap.max_batch))
+                    if rate > 0.0:  # only what is due now (at least this message)
+                        due_until = t_ref + now_rel
+                        hi = max(m + 1, min(hi, int(np.searchsorted(fed.t_ns, due_until, side="right"))))
+                    idx = np.arange(m, hi)
+                    out = tap.produce(fed, idx)
+                    if len(out) != idx.size:
+                        raise ValueError(f"tap {tap.topic}: produce returned {len(out)} entries for {idx.size} messages")
+                    tap_out[i].update(zip(idx.tolist(), out))
+                    tap_next[i] = hi
+                if i in end_index:
+                    if not self._wait_acked(range(len(self.publishers)), unacked):
                         return
-                    self.publishers[jt].publish(raw)
-                    self.tap_published += 1
-                    unacked[jt] += 1
-            tenth = (k + 1) * 10 // n
-            if tenth >= next_report and k + 1 < n:
-                self._log.info(
-                    f"{tenth * 10}% published ({k + 1}/{n} messages, stamp "
-                    f"+{(int(t_all[k]) - t_first) * 1e-9:.1f} s, after {time.monotonic() - t0_wall:.1f} s)"
-                )
-                next_report = tenth + 1
+                elif unacked[i] >= depth[i] and not self._wait_acked([i], unacked):
+                    return
+                self.publishers[i].publish(batch[i].message(m))
+                self.published += 1
+                unacked[i] += 1
+                if i in tap_source:
+                    jt = len(heads) + tap_source[i]
+                    for raw in tap_out[i].pop(m, ()):
+                        if unacked[jt] >= depth[jt] and not self._wait_acked([jt], unacked):
+                            return
+                        self.publishers[jt].publish(raw)
+                        self.tap_published += 1
+                        unacked[jt] += 1
+                k_all += 1
+                tenth = k_all * 10 // n
+                if tenth >= next_report and k_all < n:
+                    self._log.info(
+                        f"{tenth * 10}% published ({k_all}/{n} messages, stamp "
+                        f"+{(int(t_all[k]) - t_ref) * 1e-9:.1f} s, after {time.monotonic() - t0_wall:.1f} s)"
+                    )
+                    next_report = tenth + 1
         if not self._wait_acked(range(len(self.publishers)), unacked):
             return
         self.elapsed_s = time.monotonic() - t0_wall
-        self._log.info(f"published {self.published} messages on {len(streams)} topics in {self.elapsed_s:.1f} s")
+        self._log.info(f"published {self.published} messages on {len(heads)} topics in {self.elapsed_s:.1f} s")
         if self._on_finished is not None:
             self._on_finished(self)
 

@@ -19,7 +19,6 @@ from typing import Any, Protocol
 from rclpy.qos import QoSProfile
 
 from dpos_ros.contract.qos import qos_profile
-from dpos_ros.io.streams import TopicStream
 
 
 class FlowStream(Protocol):
@@ -124,7 +123,7 @@ def writer_depths(streams: Sequence[FlowStream], window: int = FLOW_WINDOW) -> l
     return out
 
 
-def writer_qos(stream: TopicStream, depth: int) -> QoSProfile:
+def writer_qos(stream: FlowStream, depth: int) -> QoSProfile:
     """The stream's QoS profile with the device writer's ``depth``."""
     p = qos_profile(stream.qos)
     return QoSProfile(history=p.history, depth=depth, reliability=p.reliability, durability=p.durability)

@@ -129,44 +129,96 @@ def _decode_rows(topic: str, msgtype: str, blobs: Sequence[bytes], kind: str, wa
     acceleration covariance[0] = -1 (``unavailable``) or a negative variance (``negative_cov``).
     Each kind is counted in a warning naming the topic; the other messages are kept.  A topic
     none of whose messages can be decoded raises :class:`SessionError`."""
-    n_doubles = cdr.IMU_DOUBLES if kind == "imu" else cdr.ODOM_DOUBLES
-    if not len(blobs):
-        return np.zeros(0, dtype=np.int64), np.zeros((0, n_doubles))
-    msgs = Messages.from_list(blobs)  # (no copy when it is one already)
-    sizes = msgs.sizes
-    by_size: dict[int, tuple[NDArray[np.intp], NDArray[np.uint8]]] = {}
-    best: tuple[cdr.Layout, str, NDArray[np.uint8], NDArray[np.bool_]] | None = None
-    tried: set[tuple[str, str]] = set()
-    for i in sorted({0, len(blobs) // 2, len(blobs) - 1}):  # candidate frame names: a stray message is rarely all three
-        try:
-            frame, child = cdr.frame_ids(msgs[i], kind)
-            lay = cdr.layout(kind, frame, child)
-        except (UnicodeDecodeError, ValueError):
-            continue
-        if (frame, child) in tried:  # (the same candidate again: the same count)
-            continue
-        tried.add((frame, child))
-        if lay.size not in by_size:
+    dec = _TopicDecoder(topic, msgtype, kind)
+    out = dec.decode(blobs)
+    warnings.extend(dec.warnings())
+    return out
+
+
+#: the reasons of :func:`reject_reasons`, in the order of their warnings
+_REASONS = ("zero_stamp", "unavailable", "negative_cov")
+
+
+class _TopicDecoder:
+    """:func:`_decode_rows` of one topic's messages handed over a block at a time (the spill read
+    in blocks, :func:`read_session_streaming`): the frame names are chosen in the first block with
+    messages (as :func:`_decode_rows` chooses them in all of them: the names of most of the
+    messages at its first, middle and last one) and kept for the next blocks; the rejected
+    messages are counted over every block, so :meth:`warnings` are those of one
+    :func:`_decode_rows` of all the messages (``sorted_first``: the messages were merged in stamp
+    order afterwards, so the first of a kind is the one with the smallest stamp)."""
+
+    def __init__(self, topic: str, msgtype: str, kind: str) -> None:
+        self.topic, self.msgtype, self.kind = topic, msgtype, kind
+        self.layout: cdr.Layout | None = None
+        self.frames = ""
+        self.n_in = self.n_keep = 0
+        self.rejected: dict[str, list[int]] = {}  # reason -> [count, first stamp, smallest stamp]
+
+    def decode(self, blobs: Sequence[bytes]) -> tuple[NDArray[np.int64], FloatArray]:
+        """Stamps and doubles of the block's messages kept (:func:`_decode_rows`)."""
+        kind = self.kind
+        n_doubles = cdr.IMU_DOUBLES if kind == "imu" else cdr.ODOM_DOUBLES
+        empty = np.zeros(0, dtype=np.int64), np.zeros((0, n_doubles))
+        if not len(blobs):
+            return empty
+        msgs = Messages.from_list(blobs)  # (no copy when it is one already)
+        sizes = msgs.sizes
+        if self.layout is None:
+            by_size: dict[int, tuple[NDArray[np.intp], NDArray[np.uint8]]] = {}
+            best: tuple[cdr.Layout, str, NDArray[np.uint8], NDArray[np.bool_]] | None = None
+            tried: set[tuple[str, str]] = set()
+            for i in sorted({0, len(blobs) // 2, len(blobs) - 1}):  # candidate frame names: a stray message is rarely all three
+                try:
+                    frame, child = cdr.frame_ids(msgs[i], kind)
+                    lay = cdr.layout(kind, frame, child)
+                except (UnicodeDecodeError, ValueError):
+                    continue
+                if (frame, child) in tried:  # (the same candidate again: the same count)
+                    continue
+                tried.add((frame, child))
+                if lay.size not in by_size:
+                    idx = np.nonzero(sizes == lay.size)[0]
+                    by_size[lay.size] = idx, msgs.rows(idx) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
+                rows = by_size[lay.size][1]
+                ok = cdr.matches(lay, rows) if rows.shape[0] else np.zeros(0, dtype=bool)
+                if best is None or int(ok.sum()) > int(best[3].sum()):
+                    best = (lay, frame if kind != "odometry" else f"{frame}' -> '{child}", rows, ok)
+            if best is None or not best[3].any():
+                raise SessionError(f"{self.topic} ({self.msgtype}): no message has a readable {kind} layout")
+            self.layout, self.frames, rows, ok = best
+        else:
+            lay = self.layout
             idx = np.nonzero(sizes == lay.size)[0]
-            by_size[lay.size] = idx, msgs.rows(idx) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
-        rows = by_size[lay.size][1]
-        ok = cdr.matches(lay, rows) if rows.shape[0] else np.zeros(0, dtype=bool)
-        if best is None or int(ok.sum()) > int(best[3].sum()):
-            best = (lay, frame if kind != "odometry" else f"{frame}' -> '{child}", rows, ok)
-    if best is None or not best[3].any():
-        raise SessionError(f"{topic} ({msgtype}): no message has a readable {kind} layout")
-    lay, frames, rows, ok = best
-    n_keep = int(ok.sum())
-    if n_keep < len(blobs):
-        warnings.append(f"{topic}: {len(blobs) - n_keep} message(s) with other frame names than '{frames}' (or another type) "
-                        "rejected; the others kept")
-    t_ns, vals = cdr.decode(lay, rows if n_keep == len(blobs) else rows[ok], checked=True)
-    bad = np.zeros(t_ns.size, dtype=bool)
-    for why, mask in reject_reasons(kind, t_ns, vals).items():
-        if mask.any():
-            warnings.append(f"{topic}: {int(mask.sum())} message(s) rejected ({why}, first at stamp {int(t_ns[mask][0])} ns)")
-            bad |= mask
-    return (t_ns[~bad], vals[~bad]) if bad.any() else (t_ns, vals)
+            rows = msgs.rows(idx) if idx.size else np.zeros((0, lay.size), dtype=np.uint8)
+            ok = cdr.matches(lay, rows) if rows.shape[0] else np.zeros(0, dtype=bool)
+        n_keep = int(ok.sum())
+        self.n_in += len(blobs)
+        self.n_keep += n_keep
+        if not n_keep:
+            return empty
+        t_ns, vals = cdr.decode(self.layout, rows if n_keep == len(blobs) else rows[ok], checked=True)
+        bad = np.zeros(t_ns.size, dtype=bool)
+        for why, mask in reject_reasons(kind, t_ns, vals).items():
+            if mask.any():
+                t_bad = t_ns[mask]
+                rec = self.rejected.setdefault(why, [0, int(t_bad[0]), int(t_bad[0])])
+                rec[0] += int(mask.sum())
+                rec[2] = min(rec[2], int(t_bad.min()))
+                bad |= mask
+        return (t_ns[~bad], vals[~bad]) if bad.any() else (t_ns, vals)
+
+    def warnings(self, sorted_first: bool = False) -> list[str]:
+        """The warnings of :func:`_decode_rows` about the messages decoded so far."""
+        out = []
+        if self.n_keep < self.n_in:
+            out.append(f"{self.topic}: {self.n_in - self.n_keep} message(s) with other frame names than '{self.frames}' "
+                       "(or another type) rejected; the others kept")
+        for why in _REASONS:
+            if why in self.rejected:
+                n, first, smallest = self.rejected[why]
+                out.append(f"{self.topic}: {n} message(s) rejected ({why}, first at stamp {smallest if sorted_first else first} ns)")
+        return out
 
 
 def reject_reasons(kind: str, t_ns: NDArray[np.int64], vals: FloatArray) -> dict[str, NDArray[np.bool_]]:
@@ -280,20 +332,27 @@ STREAM_BATCH_BYTES = 2**24
 
 
 def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None,
-                           batch_bytes: int = STREAM_BATCH_BYTES) -> RecordedSession:
-    """:func:`read_session` of a rosbag2 MCAP recording with memory for one part of it (issue #17):
-    the file is read ``batch_bytes`` of messages at a time (:func:`dpos_ros.io._mcap.read_batches`),
-    each part's messages decoded and converted at once, and only the series kept (the sub-IMU's
-    7 numbers a sample instead of its ~330 bytes of CDR and 43 decoded doubles).  The same series
-    as :func:`read_session`; the data checks are the same, but a problem found in several parts is
-    warned about once per part, and duplicates are told identical by the kept numbers.  Recordings
-    the fast reader does not read (a spill, sqlite3, several files) go through :func:`read_session`."""
+                           batch_bytes: int = STREAM_BATCH_BYTES, include_late: bool = True) -> RecordedSession:
+    """:func:`read_session` of a rosbag2 MCAP recording or a spill with memory for one part of it
+    (issue #17): the file is read ``batch_bytes`` of messages at a time (MCAP:
+    :func:`dpos_ros.io._mcap.read_batches`; a spill: each wanted topic's log file alone,
+    :class:`dpos_ros.io.spill.LogBlocks`), each part's messages decoded and converted at once,
+    and only the series kept (the sub-IMU's 7 numbers a sample instead of its ~330 bytes of CDR
+    and 43 decoded doubles).  The same series as :func:`read_session`; the data checks are the
+    same.  MCAP: a problem found in several parts is warned about once per part, and duplicates
+    are told identical by the kept numbers.  A spill (``include_late`` as :func:`read_session`):
+    the same warnings as :func:`read_session` (the rejections counted over the parts, duplicates
+    told identical by a hash of all their numbers), except that a topic's frame names are chosen
+    in its first part (:class:`_TopicDecoder`).  Recordings the fast reader does not read
+    (sqlite3, several files) go through :func:`read_session`."""
     from dpos_ros.io import _mcap
 
     path = Path(path)
     from dpos_ros.io.spill import is_spill
 
-    if is_spill(path) or not (path / "metadata.yaml").is_file():
+    if is_spill(path):
+        return _read_spill_streaming(path, keep, batch_bytes, include_late)
+    if not (path / "metadata.yaml").is_file():
         return read_session(path, keep=keep)
     file = bag._single_mcap(path)
     wanted = (lambda t: t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)) if keep is None else \
@@ -305,10 +364,7 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
     if T.DATUM not in small or not small[T.DATUM][2]:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
-    from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import NavSatFix
-
-    datum = cv.datum_from_msg(deserialize_message(small[T.DATUM][2][0], NavSatFix))
+    datum = _datum(small[T.DATUM][2][0])
     warnings: list[str] = []
     counts = message_counts(path)
     acc: dict[str, _Rows] = {}  # topic -> its stamps and numbers so far
@@ -333,10 +389,38 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
         acc.pop(topic, None)
     if T.MASTER_NAV not in acc:
         raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
-    cols: dict[str, tuple[NDArray[np.int64], list[FloatArray]]] = {}
+    cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
     for topic in sorted(acc):
         cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
-    t_nav, (llh, vel, q, w, c_att, c_vel, c_pos, _) = cols.pop(T.MASTER_NAV)
+    return _session_from_cols(path, custom, datum, cols, small, warnings)
+
+
+def _datum(blob: bytes) -> FloatArray:
+    """The datum (lat, lon [rad], h [m]) of a /dpos/datum message."""
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import NavSatFix
+
+    return cv.datum_from_msg(deserialize_message(blob, NavSatFix))
+
+
+def _groups(topic: str, v: FloatArray | list[FloatArray]) -> list[FloatArray]:
+    """A topic's :func:`_compact` rows (N, m) as the arrays of its column groups (:data:`_GROUPS`),
+    copied; groups already are returned as they are."""
+    if isinstance(v, list):
+        return v
+    kind = "master" if topic == T.MASTER_NAV else "imu" if _kind(topic, T.IMU) == "imu" else "truth"
+    edges = np.concatenate([[0], np.cumsum(_GROUPS[kind])]).astype(int)
+    return [v[:, a:b].copy() for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _session_from_cols(path: Path, custom: dict[str, str], datum: FloatArray,
+                       cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]],
+                       small: dict, warnings: list[str]) -> RecordedSession:
+    """The session of the cleaned compact rows ``cols`` (topic -> stamps, :func:`_compact` rows or
+    the arrays of their column groups, :data:`_GROUPS`; /master/nav among them) and ``small`` (the raw
+    /session/end and /pos_master/status, when recorded)."""
+    t_nav, m_rows = cols.pop(T.MASTER_NAV)
+    llh, vel, q, w, c_att, c_vel, c_pos, _ = _groups(T.MASTER_NAV, m_rows)
     if t_nav.size == 0:
         raise SessionError(f"{path}: no usable /master/nav message: the transfer alignment needs the main-system navigation")
     t0_ns = int(round(float(custom["dpos.start_time_s"]) * 1e9)) if "dpos.start_time_s" in custom else int(t_nav[0])
@@ -346,8 +430,9 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
                        pos_cov=c_pos.reshape(n, 3, 3))
     subs: dict[str, ImuSeries] = {}
     truth: dict[str, NavSeries] = {}
-    for topic, (t, g) in cols.items():
+    for topic, (t, v) in cols.items():
         parts_ = topic.strip("/").split("/")
+        g = _groups(topic, v)
         if _kind(topic, T.IMU) == "imu":
             subs[parts_[1]] = ImuSeries(ts_(t), g[0], g[1])
         else:
@@ -358,6 +443,110 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     sid = custom.get("dpos.session_id") or path.name
     return RecordedSession(path, sid, t0_ns, datum, master, subs, truth, custom, end_s, warnings,
                            master_mechanized=master_is_mechanized(custom, small))
+
+
+def _row_hash(v: FloatArray) -> FloatArray:
+    """(N,) a 53-bit hash of each row of ``v`` as an exact, finite float (FNV-1a over the rows'
+    doubles, -0.0 taken as 0.0): two rows equal number for number hash alike."""
+    b = np.ascontiguousarray(v + 0.0).view(np.uint64)
+    h = np.full(b.shape[0], 0xCBF29CE484222325, dtype=np.uint64)
+    prime = np.uint64(0x100000001B3)
+    for j in range(b.shape[1]):
+        h = (h ^ b[:, j]) * prime
+    return (h >> np.uint64(11)).astype(np.float64)
+
+
+def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_bytes: int, include_late: bool) -> RecordedSession:
+    """:func:`read_session_streaming` of a spill (its docstring): each wanted topic's log (and its
+    late log) read a block at a time, the topics one after the other."""
+    from dpos_ros.io import spill as S
+
+    try:
+        topics, custom, sid = S.spill_meta(path)
+        late_dir = path / S.LATE_DIR
+        late = S.spill_meta(late_dir)[0] if include_late and S.is_spill(late_dir) else {}
+    except (ValueError, OSError) as e:
+        raise SessionError(f"{path}: cannot read the spill: {e}") from None
+    custom.setdefault("dpos.session_id", sid)
+    small_topics = (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)
+    wanted = [t for t in dict.fromkeys([*topics, *late]) if keep is None or t in small_topics or keep(t)]
+    cut: dict[tuple[int, str], str] = {}  # (0 the spill | 1 late/, topic) -> its cut-short warning
+    n_late: dict[str, int] = {}
+
+    def blocks(topic: str):
+        """(stamps, messages) of ``topic``'s log then its late log, a block at a time."""
+        for which, (src, prefix) in enumerate(((topics, ""), (late, f"{S.LATE_DIR}/"))):
+            if topic not in src:
+                continue
+            reader = S.LogBlocks(src[topic][1], batch_bytes)
+            yield from reader
+            if reader.cut_short:
+                cut[(which, topic)] = prefix + S.cut_short_warning(topic, src[topic][1], reader.cut_short)
+            if which == 1 and reader.count:
+                n_late[topic] = reader.count
+
+    def msgtype(topic: str) -> str:
+        return topics[topic][0] if topic in topics else late[topic][0]
+
+    try:
+        small: dict[str, RawTopic] = {}  # the datum, the session's end, the main POS's status: whole
+        for topic in wanted:
+            if topic in small_topics[1:]:
+                parts = list(blocks(topic))
+                t_all = np.concatenate([t for t, _ in parts]) if parts else np.zeros(0, dtype=np.int64)
+                msgs = Messages.concat([m for _, m in parts]) if parts else Messages.from_list([])
+                if n_late.get(topic) and topic in topics:  # merged in stamp order (read_spill)
+                    order = np.argsort(t_all, kind="stable")
+                    t_all, msgs = t_all[order], msgs.take(order)
+                small[topic] = RawTopic(msgtype(topic), t_all.tolist(), msgs)
+        if T.MASTER_NAV not in wanted or not any(len(m) for _, m in blocks(T.MASTER_NAV)):
+            raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
+        if T.DATUM not in small or not small[T.DATUM][2]:
+            raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
+        datum = _datum(small[T.DATUM][2][0])
+        warnings: list[str] = []
+        cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
+        for topic in [T.MASTER_NAV, *sorted(t for t in wanted if t != T.MASTER_NAV)]:  # session_from_raw's order
+            kind = _kind(topic, msgtype(topic))
+            if kind is None:
+                if topic not in small:
+                    for _ in blocks(topic):  # (read for its checks only: a cut-short record, late messages)
+                        pass
+                continue
+            dec = _TopicDecoder(topic, msgtype(topic), "odometry" if kind != "imu" else "imu")
+            ts: list[NDArray[np.int64]] = []
+            rows: list[FloatArray] = []
+            try:
+                for _, m_b in blocks(topic):
+                    t, v = dec.decode(m_b)
+                    if not t.size:
+                        continue
+                    ts.append(t)
+                    rows.append(np.hstack([_compact(kind, t, v, datum), _row_hash(v)[:, None]]))
+            except SessionError as e:
+                if topic == T.MASTER_NAV:
+                    raise
+                warnings.append(f"{e}; the topic is ignored")
+                for _ in blocks(topic):  # (its checks, as read_spill reads it whole)
+                    pass
+                continue
+            merged = bool(n_late.get(topic)) and topic in topics
+            warnings.extend(dec.warnings(sorted_first=merged))
+            n_cols = (7 if kind == "imu" else 11 if kind == "truth" else 41) + 1
+            t_all = np.concatenate(ts) if ts else np.zeros(0, dtype=np.int64)
+            v_all = np.concatenate(rows) if rows else np.zeros((0, n_cols))
+            del ts, rows
+            if merged:  # the late messages merged in stamp order (read_spill)
+                order = np.argsort(t_all, kind="stable")
+                t_all, v_all = t_all[order], v_all[order]
+            cols[topic] = _clean(topic, t_all, v_all, warnings)
+    except OSError as e:
+        raise SessionError(f"{path}: cannot read the spill: {e}") from None
+    notes = [cut[k] for k in sorted(cut, key=lambda k: (k[0], list((topics, late)[k[0]]).index(k[1])))]
+    notes += [S.late_note(t, n_late[t]) for t in late if t in n_late]
+    sess = _session_from_cols(path, custom, datum, cols, small, warnings)
+    sess.warnings[:0] = notes
+    return sess
 
 
 #: the column groups of :func:`_compact`'s rows per kind (each group one array of the series; the

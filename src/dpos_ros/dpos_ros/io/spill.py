@@ -36,7 +36,7 @@ import os
 import struct
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -134,8 +134,7 @@ def read_spill(path: Path, include_late: bool = True, keep: Callable[[str], bool
         for topic, (msgtype, times, blobs) in late.items():
             if not times:
                 continue
-            warnings.append(f"{topic}: {len(times)} message(s) arrived after the session was closed (late); "
-                            f"included from {LATE_DIR}/")
+            warnings.append(late_note(topic, len(times)))
             if topic not in raw:
                 raw[topic] = RawTopic(msgtype, times, blobs)
                 continue
@@ -143,6 +142,11 @@ def read_spill(path: Path, include_late: bool = True, keep: Callable[[str], bool
             order = np.argsort(t_all, kind="stable")
             raw[topic] = RawTopic(msgtype, t_all[order].tolist(), Messages.concat([raw[topic].blobs, blobs]).take(order))
     return raw, custom, sid, warnings
+
+
+def late_note(topic: str, n: int) -> str:
+    """The warning of :func:`read_spill` about ``n`` late messages of ``topic`` merged in."""
+    return f"{topic}: {n} message(s) arrived after the session was closed (late); included from {LATE_DIR}/"
 
 
 def _records(buf: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], int]:
@@ -180,23 +184,75 @@ def _records(buf: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.int6
     return np.array(times, dtype=np.int64), np.array(starts_l, dtype=np.int64), np.array(sizes_l, dtype=np.int64), o
 
 
-def _read_one(path: Path, keep: Callable[[str], bool] | None = None,
-              ) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
+def spill_meta(path: Path) -> tuple[dict[str, tuple[str, Path]], dict[str, str], str]:
+    """``({topic: (msgtype, log file)}, custom_data, session_id)`` of the spill directory ``path``
+    (its ``spill.json``, topics in the order they appeared); ValueError when it is not a spill of
+    this format and version, OSError when it cannot be read."""
+    path = Path(path)
     meta = json.loads((path / "spill.json").read_text())
     if meta.get("format") != FORMAT or meta.get("version") != VERSION:
         raise ValueError(f"{path}: not a {FORMAT} v{VERSION} directory")
+    topics = {topic: (str(info["msgtype"]), path / info["file"]) for topic, info in meta["topics"].items()}
+    return topics, dict(meta.get("custom_data") or {}), str(meta.get("session_id", path.name))
+
+
+def cut_short_warning(topic: str, file: Path, n_bytes: int) -> str:
+    """The warning about a last record of ``file`` cut short by ``n_bytes`` (a crash while writing)."""
+    return f"{topic}: the last record of {file.name} is cut short ({n_bytes} bytes, a crash while writing); dropped"
+
+
+class LogBlocks:
+    """The records of one topic's ``<n>.log`` read a block of about ``block_bytes`` at a time
+    (issue #17: a long session's log is never held whole): iterating gives ``(t_ns (N,), Messages)``
+    per block, the records in file order, exactly those :func:`read_spill` reads.  A record longer
+    than a block is read whole (the block grows).  After the iteration :attr:`cut_short` is the
+    size of a last record cut short (a crash while writing: dropped, 0 when none) and
+    :attr:`count` the records read.  A missing file has no record."""
+
+    def __init__(self, file: Path, block_bytes: int = 2**24) -> None:
+        if block_bytes < 1:
+            raise ValueError(f"block_bytes must be >= 1, got {block_bytes}")
+        self.file = Path(file)
+        self.block_bytes = int(block_bytes)
+        self.cut_short = 0
+        self.count = 0
+
+    def __iter__(self) -> Iterator[tuple[NDArray[np.int64], Messages]]:
+        self.cut_short = self.count = 0
+        if not self.file.is_file():
+            return
+        tail = np.zeros(0, dtype=np.uint8)
+        want = self.block_bytes
+        with self.file.open("rb") as f:
+            while True:
+                data = np.frombuffer(f.read(want), dtype=np.uint8)
+                eof = data.size < want  # (a regular file reads short at its end only)
+                buf = np.concatenate([tail, data]) if tail.size else data
+                t, starts, sizes, o = _records(buf)
+                tail = buf[o:]
+                if t.size:
+                    self.count += t.size
+                    yield t, Messages.pack(buf, starts, sizes)
+                if eof:
+                    break
+                want = self.block_bytes if t.size else 2 * want  # no whole record yet: one longer than a block
+        self.cut_short = int(tail.size)
+
+
+def _read_one(path: Path, keep: Callable[[str], bool] | None = None,
+              ) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
+    topics, custom, sid = spill_meta(path)
     raw: dict[str, RawTopic] = {}
     warnings: list[str] = []
-    for topic, info in meta["topics"].items():
+    for topic, (msgtype, f) in topics.items():
         if keep is not None and not keep(topic):
             continue
-        f = path / info["file"]
         buf = np.fromfile(f, dtype=np.uint8) if f.is_file() else np.zeros(0, dtype=np.uint8)
         t, starts, sizes, o = _records(buf)
         if o != buf.size:
-            warnings.append(f"{topic}: the last record of {f.name} is cut short ({buf.size - o} bytes, a crash while writing); dropped")
-        raw[topic] = RawTopic(info["msgtype"], t.tolist(), Messages.pack(buf, starts, sizes))
-    return raw, dict(meta.get("custom_data") or {}), str(meta.get("session_id", path.name)), warnings
+            warnings.append(cut_short_warning(topic, f, buf.size - o))
+        raw[topic] = RawTopic(msgtype, t.tolist(), Messages.pack(buf, starts, sizes))
+    return raw, custom, sid, warnings
 
 
 class BufferedSpill:

@@ -19,8 +19,9 @@ The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.p
   :data:`FIT_WINDOW_S` (the rigid misalignment, the degree choice and the variance factor per
   window; the same as the whole-session fit for a session shorter than one window);
   ``status.json`` ``wing_fit`` gives the first window's choice and the number of windows;
-* no evaluation against the truth (``metrics.json``, ``report.md``, the error figures): the
-  truth topics are not read (a warning says so when the recording has them).
+* the evaluation against the truth (``metrics.json``, ``report.md``, the error figures) is
+  :mod:`dpos_ros.products.evaluate_stream`'s, a part of the truth and a block of rows at a time:
+  the same metrics, the error figures from every n-th row, and metrics.json's ``evaluation`` note.
 """
 
 from __future__ import annotations
@@ -125,6 +126,16 @@ class RowStore:
     def rows(self, i0: int = 0, i1: int | None = None) -> dict[str, NDArray]:
         return {name: self.read(name, i0, i1) for name in self.columns}
 
+    def extend(self, other: RowStore) -> None:
+        """Append the rows of ``other`` (the same columns), file to file (not through memory), and remove it."""
+        if other.columns != self.columns:
+            raise ValueError("extend needs a store of the same columns")
+        for name in self.columns:
+            with self._file(name).open("ab") as f, other._file(name).open("rb") as g:
+                shutil.copyfileobj(g, f, 2**20)
+        self.n += other.n
+        other.remove()
+
     def remove(self) -> None:
         shutil.rmtree(self.path, ignore_errors=True)
 
@@ -204,24 +215,24 @@ class StreamedAntenna:
 
 def align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
                    seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
-                   inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
+                   inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str, include_late: bool = True) -> dict:
     """One sub-IMU (a worker's task; module docstring): its topic read alone, aligned, its antennas'
     rows (``antennas``: name, lever arm) and its own at ``output_rate_hz`` written to RowStores under
     ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.ta.solve` computes
-    them.  ``master``: the aligned main POS, or None for that of the recording as this worker reads
+    them (``include_late``: a spill's late messages too, :func:`read_session_streaming`).  ``master``: the aligned main POS, or None for that of the recording as this worker reads
     it with its topic (:func:`dpos_ros.products.ta.aligned_master`: the same series, not sent to
     the worker).  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
     try:
         return _align_to_store(bag, sub, master, ins, cfg, method, particles, seed, err0_deg, antennas, output_rate_hz, inflate_sigma,
-                               aligned_sigma_deg, store_dir)
+                               aligned_sigma_deg, store_dir, include_late)
     finally:
         release_memory()
 
 
 def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
                     seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
-                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str) -> dict:
-    sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub))
+                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str, include_late: bool = True) -> dict:
+    sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub), include_late=include_late)
     release_memory()  # (what decoding the recording's parts left in the heap)
     if sub not in sess.sub_imus:
         return {"missing": True, "warnings": sess.warnings}
@@ -290,10 +301,11 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
                     particles: int = 100, seed: int = 0, initial_attitude_error_deg: float = 0.0, filter_rate_hz: float = 1.0,
                     position_matching: bool = True, inflate_sigma: bool = True, output_rate_hz: float = 0.0,
                     master_aligned_sigma_deg: float = 0.1, pool: cf.Executor | None = None, master_error_tau_s: float = 0.0,
-                    sub_imus: list[str] | None = None) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
+                    sub_imus: list[str] | None = None, include_late: bool = True) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
     """:func:`dpos_ros.products.ta.solve` of the recording ``bag`` (``sess``: its main POS, read
     without the sub-IMUs; ``sub_imus``: the sub-IMU topics it has), the rows in files under
-    ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``)."""
+    ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``).
+    ``include_late``: the workers read a spill's late messages too (transfer_align_node: not)."""
     cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching,
                    master_error_tau_s=master_error_tau_s)
     t0 = time.perf_counter()
@@ -304,7 +316,7 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
     # the workers read the main POS with their sub-IMU's topic (a long flight's main POS is not pickled to them)
     tasks = {s.name: (str(bag), s.name, master if pool is None else None, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed, (e, e, e),
                       [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
-                      output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir))
+                      output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir), include_late)
              for s in aircraft.sub_imus if s.name in present and master is not None}
     futs = {name: pool.submit(align_to_store, *args) for name, args in tasks.items()} if pool is not None else {}
     out: dict[str, StreamedAntenna] = {}
@@ -351,10 +363,12 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
 
 
 def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
-               ranges: dict[str, tuple[int, int]]) -> tuple[dict[str, P.AntennaSolution], list[str]]:
+               ranges: dict[str, tuple[int, int]], store_dir: Path) -> tuple[dict[str, tuple[str, dict | None, RowStore | None]], list[str]]:
     """One window of :func:`_fit_windows` (a worker's task): :func:`dpos_ros.products.ta.fit_antennas`
     of the carriers' rows ``ranges`` (name -> ``(i0, i1)``) with ``sess`` (its main POS cut to the
-    window); returns the ``fit`` antennas' solutions and the warnings it added."""
+    window); each ``fit`` antenna's rows written to a RowStore under ``store_dir`` (not sent back:
+    the main process appends the files).  Returns per fit antenna (status, wing_fit info, its
+    rows or None) and the warnings it added."""
     ants: dict[str, P.AntennaSolution] = {}
     for name, st in carriers.items():
         c = st.rows(*ranges[name])
@@ -363,12 +377,22 @@ def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[s
                          c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
         ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
     warnings: list[str] = []
+    out: dict[str, tuple[str, dict | None, RowStore | None]] = {}
     try:
         sol = P.fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
-    finally:
         del ants
+        for a in aircraft.antennas:
+            fa = sol.get(a.name)
+            if a.sub_imu is not None or fa is None:
+                continue
+            rows = None
+            if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
+                rows = RowStore(Path(store_dir) / a.name)
+                rows.append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh, sigma=fa.sigma, flags=fa.flags)
+            out[a.name] = (fa.status, fa.wing_fit, rows)
+    finally:
         release_memory()
-    return {a.name: sol[a.name] for a in aircraft.antennas if a.sub_imu is None and a.name in sol}, warnings
+    return out, warnings
 
 
 def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
@@ -388,46 +412,46 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
     edges = t_lo + FIT_WINDOW_S * np.arange(n_win + 1)
     edges[-1] = np.inf
     stores = {a.name: RowStore(store_dir / f"ant_{a.name}") for a in fits}
-    first: dict[str, P.AntennaSolution] = {}
+    first: dict[str, tuple[str, dict | None]] = {}
     statuses: dict[str, set[str]] = {a.name: set() for a in fits}
 
     def task(w: int) -> tuple:
         ranges = {name: (cursors[name].index(edges[w]), cursors[name].index(edges[w + 1])) for name in carriers}
         lo, hi = (edges[w] - 1.0, edges[w + 1] + 1.0)
         m = sess.master.select((sess.master.t_s >= lo) & (sess.master.t_s <= hi))
-        return dc_replace(sess, master=m, warnings=[]), aircraft, carriers, ranges
+        return dc_replace(sess, master=m, warnings=[]), aircraft, carriers, ranges, store_dir / f"fit_window{w:05d}"
 
     pending: deque = deque()
     for w in range(n_win):
         if pool is None:
-            pending.append(fit_window(*task(w)))
+            pending.append((w, fit_window(*task(w))))
         else:
-            pending.append(pool.submit(fit_window, *task(w)))
+            pending.append((w, pool.submit(fit_window, *task(w))))
         while pending and (pool is None or len(pending) > FIT_IN_FLIGHT or w == n_win - 1):
-            r = pending.popleft()
+            w_done, r = pending.popleft()
             sol, warnings = r if pool is None else r.result()
             sess.warnings.extend(warnings)
             for a in fits:
-                fa = sol.get(a.name)
-                if fa is None:
+                if a.name not in sol:
                     continue
-                statuses[a.name].add(fa.status)
-                first.setdefault(a.name, fa)
-                if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
-                    stores[a.name].append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh,
-                                          sigma=fa.sigma, flags=fa.flags)
+                status, info, rows = sol[a.name]
+                statuses[a.name].add(status)
+                first.setdefault(a.name, (status, info))
+                if rows is not None:
+                    stores[a.name].extend(rows)
+            shutil.rmtree(store_dir / f"fit_window{w_done:05d}", ignore_errors=True)
     out: dict[str, StreamedAntenna] = {}
     for a in fits:
-        f0 = first.get(a.name)
-        if f0 is None:
+        if a.name not in first:
             continue
+        status0, info0 = first[a.name]
         est = sorted(s for s in statuses[a.name] if s.startswith("estimated"))
-        status = est[0] if est else f0.status
+        status = est[0] if est else status0
         if len(statuses[a.name]) > 1:
             status += f" ({len(statuses[a.name])} different outcomes over the {n_win} windows of the fit)"
-        info = None if f0.wing_fit is None else {**f0.wing_fit, "windows": n_win, "window_s": FIT_WINDOW_S}
+        info = None if info0 is None else {**info0, "windows": n_win, "window_s": FIT_WINDOW_S}
         rows = stores[a.name] if stores[a.name].n else None
-        out[a.name] = StreamedAntenna(a.name, None, status if rows is not None else f0.status, rows, wing_fit=info)
+        out[a.name] = StreamedAntenna(a.name, None, status if rows is not None else status0, rows, wing_fit=info)
     return out
 
 
@@ -435,14 +459,16 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
 
 
 def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
-                    *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
+                    *, overwrite: bool = False, pool: cf.Executor | None = None, evaluation: dict[str, dict] | None = None) -> Path:
     """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent.
     ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers, and the
-    antenna bag's batches made and compressed there while this process writes them to the file."""
+    antenna bag's batches made and compressed there while this process writes them to the file.
+    ``evaluation``: :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`'s result, written
+    (metrics.json, report.md, error figures) before status.json."""
     final = Path(out_root) / sess.session_id
     out = P._new_products_dir(final, overwrite)
     try:
-        _write(out, sess, antennas, method, timing, pool)
+        _write(out, sess, antennas, method, timing, pool, evaluation)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
@@ -452,7 +478,7 @@ def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, S
 
 
 def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
-           pool: cf.Executor | None) -> None:
+           pool: cf.Executor | None, evaluation: dict[str, dict] | None = None) -> None:
     from .qc import _json_safe, qc_dir, qc_md
 
     est = {name: a for name, a in antennas.items() if a.rows is not None}
@@ -467,6 +493,10 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
         summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
     doc = P.status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.rows is not None})
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
+    if evaluation:  # against the truth (dpos_ros.products.evaluate_stream)
+        from .evaluate_stream import write_evaluation
+
+        write_evaluation(out, sess, evaluation, method, timing, pool)
     doc["qc"] = _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
@@ -496,17 +526,14 @@ def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) ->
 
 def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
     """The antenna CSV of :func:`dpos_ros.products.ta._write_csv`, ROW_BLOCK rows at a time."""
-    part = path.with_name(path.name + ".part")
     with path.open("wb") as f:
-        for i0 in range(0, max(rows.n, 1), ROW_BLOCK):
+        f.write(P.CSV_HEADER.encode() + b"\n")
+        for i0 in range(0, rows.n, ROW_BLOCK):
             c = rows.rows(i0, i0 + ROW_BLOCK)
-            P._write_csv(part, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"])
-            data = part.read_bytes()
-            f.write(data if i0 == 0 else data[data.index(b"\n") + 1:])  # the header once
-    part.unlink(missing_ok=True)
+            f.write(P.csv_text(t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"]))
 
 
-def _bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
+def bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
     """Each batch's rows ``(i0, i1)`` per antenna: :data:`BAG_BATCH_S` of poses from the first row
     of all (the last batch to the end), found from the stamps a block at a time (:class:`StampCursor`)."""
     batch_s = BAG_BATCH_S if batch_s is None else batch_s
@@ -530,7 +557,7 @@ def _bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -
 def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float | None = None):
     """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
     at a time (the same messages in the same order; a batch's last chunk is closed with it)."""
-    for ranges in _bag_ranges(est, batch_s):
+    for ranges in bag_ranges(est, batch_s):
         yield _bag_streams(sess, est, ranges)
 
 
@@ -570,7 +597,7 @@ def _write_bag(path: Path, sess: RecordedSession, est: dict[str, StreamedAntenna
     s_l, e_l = _light(sess, est)
     pending: deque[cf.Future] = deque()
     try:
-        for k, ranges in enumerate(_bag_ranges(est)):
+        for k, ranges in enumerate(bag_ranges(est)):
             pending.append(pool.submit(encode_bag_batch, s_l, e_l, ranges, w.prefix if k == 0 else b""))
             while len(pending) > BAG_IN_FLIGHT:
                 w.add_encoded(pending.popleft().result())

@@ -565,16 +565,26 @@ def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray
     """The antenna CSV (design.md "Session products"): per row (N) stamp, position, velocity,
     attitude, their 1-sigma (s (N, 9) as AntennaSolution.sigma) and ``flags`` (N,) (the quality
     bits of :mod:`dpos_core.ta.flags`; 0 when None)."""
+    with open(path, "wb") as f:
+        f.write(CSV_HEADER.encode() + b"\n")
+        f.write(csv_text(t_ns, tr, s, flags))
+
+
+def csv_text(t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> bytes:
+    """The rows of :func:`_write_csv` without the header (a block of a file written in parts)."""
     hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
     fl = ta_flags.none(tr.t_s.size) if flags is None else flags
     cols = np.column_stack([
         np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
         s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]), fl,
     ])
-    header = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading_deg,pitch_deg,roll_deg,"
+    return csv_rows(np.asarray(t_ns, dtype=np.int64), cols, _CSV_FORMATS)
+
+
+#: the antenna CSV's header
+CSV_HEADER = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading_deg,pitch_deg,roll_deg,"
               "sigma_north_m,sigma_east_m,sigma_h_m,sigma_vel_e_mps,sigma_vel_n_mps,sigma_vel_u_mps,"
               "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg,flags")
-    write_csv_rows(path, header, np.asarray(t_ns, dtype=np.int64), cols, _CSV_FORMATS)
 
 
 #: the antenna CSV's columns after the stamp (``%.10f`` = ("f", 10), ``%.4e`` = ("e", 4), ``%d`` = ("d", 0))
@@ -585,8 +595,16 @@ _CSV_FORMATS: tuple[tuple[str, int], ...] = (
 def write_csv_rows(path: Path, header: str, t_ns: NDArray[np.int64], cols: FloatArray, formats: tuple[tuple[str, int], ...]) -> None:
     """``header``, then per row the stamp ``t_ns`` (N,) in seconds with its 9 decimals (exact: from
     the integer nanoseconds) and the columns ``cols`` (N, m) formatted as printf's ``%.<d>f``,
-    ``%.<d>e``, ``%d`` (``formats`` (m,): ``("f" | "e" | "d", d)``), comma-separated.  Written by a
-    numba kernel (:mod:`._csv_kernel`): ~0.7 us a number through ``np.savetxt``."""
+    ``%.<d>e``, ``%d`` (``formats`` (m,): ``("f" | "e" | "d", d)``), comma-separated
+    (:func:`csv_rows`)."""
+    with open(path, "wb") as f:
+        f.write(header.encode() + b"\n")
+        f.write(csv_rows(t_ns, cols, formats))
+
+
+def csv_rows(t_ns: NDArray[np.int64], cols: FloatArray, formats: tuple[tuple[str, int], ...]) -> bytes:
+    """The rows of :func:`write_csv_rows` (no header), by a numba kernel (:mod:`._csv_kernel`):
+    ~0.7 us a number through ``np.savetxt``."""
     from . import _csv_kernel as K
 
     kinds = np.array([{"f": K.FIXED, "e": K.EXP, "d": K.INT}[k] for k, _ in formats], dtype=np.int64)
@@ -595,9 +613,7 @@ def write_csv_rows(path: Path, header: str, t_ns: NDArray[np.int64], cols: Float
         raise ValueError(f"{len(formats)} formats for columns of shape {cols.shape}")
     text = K.rows(t_ns, np.ascontiguousarray(cols, dtype=float), kinds, decs, np.frombuffer(b"nan", np.uint8),
                   np.frombuffer(b"inf", np.uint8))
-    with open(path, "wb") as f:
-        f.write(header.encode() + b"\n")
-        f.write(text.tobytes())
+    return text.tobytes()
 
 
 def combine_runs(per_method: dict[str, list[dict]], timing: dict[str, dict]) -> dict[str, tuple[dict, dict]]:

@@ -1,0 +1,171 @@
+"""The streamed evaluation against the truth (dpos_ros.products.evaluate_stream, issue #17): the
+truth read a part at a time and the rows a block at a time give products.ta.evaluate's metrics,
+also with a gap in the truth or a truth topic missing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from repo_paths import REPO
+
+from dpos_core.config import load_aircraft
+from dpos_core.ta import metrics as M
+from dpos_ros.io import bag
+from dpos_ros.io import session as S
+from dpos_ros.products import evaluate_stream as E
+from dpos_ros.products import stream
+from dpos_ros.products import ta as P
+
+SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    """The sample aligned in memory (URTSS), its antennas' rows also written to RowStores."""
+    sess = S.read_session(SAMPLE)
+    aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
+    ants, _ = P.solve(sess, aircraft, "urtss", workers=1)
+    d = tmp_path_factory.mktemp("rows")
+    streamed = {}
+    for name, a in ants.items():
+        assert a.traj is not None and a.sigma is not None and a.flags is not None
+        st = stream.RowStore(d / name)
+        for i0 in range(0, a.traj.t_s.size, 1000):
+            sl = slice(i0, i0 + 1000)
+            st.append(t_s=a.traj.t_s[sl], q_nb=a.traj.q_nb[sl], vel_n_mps=a.traj.vel_n_mps[sl], llh=a.traj.llh[sl],
+                      sigma=a.sigma[sl], flags=a.flags[sl])
+        streamed[name] = stream.StreamedAntenna(name, a.sub_imu, a.status, st, cg=a.cg)
+    meta = bag.topics_and_duration(SAMPLE)
+    assert meta is not None
+    return sess, ants, streamed, set(meta[0])
+
+
+def _streamed_session() -> S.RecordedSession:
+    return S.read_session_streaming(SAMPLE, keep=lambda t: False)
+
+
+def _assert_same(got: dict, want: dict) -> None:
+    assert list(got) == list(want) and got
+    for name in want:
+        g, w = got[name], want[name]
+        for part in ("rmse", "std"):
+            assert g[part].keys() == w[part].keys()
+            for k in w[part]:
+                assert g[part][k] == pytest.approx(w[part][k], rel=1e-12, abs=1e-300), (name, part, k)
+            for seg in w["segments"]:
+                for k in w[part]:
+                    assert g["segments"][seg][part][k] == pytest.approx(w["segments"][seg][part][k], rel=1e-12), (name, seg, part, k)
+        assert g["consistency"]["n"] == w["consistency"]["n"] > 0
+        for part in ("within_2sigma", "nees"):
+            for k in M.CONS_KEYS:
+                assert g["consistency"][part][k] == pytest.approx(w["consistency"][part][k], rel=1e-12), (name, part, k)
+
+
+@pytest.mark.parametrize("batch_bytes, row_block", [(2**24, 2**16), (2**15, 333)])
+def test_streamed_evaluation_is_the_in_memory_one(solved, monkeypatch, batch_bytes: int, row_block: int) -> None:
+    sess, ants, streamed, topics = solved
+    monkeypatch.setattr(S, "STREAM_BATCH_BYTES", batch_bytes)  # many parts of the truth
+    monkeypatch.setattr(E, "ROW_BLOCK", row_block)  # the rows in many blocks
+    monkeypatch.setattr(E, "PLOT_POINTS", 700)
+    seen = []
+    real = E.truth_parts
+
+    def counting(*a, **k):
+        for p in real(*a, **k):
+            seen.append(p)
+            yield p
+
+    monkeypatch.setattr(E, "truth_parts", counting)
+    want = P.evaluate(sess, ants)
+    s2 = _streamed_session()
+    got = E.evaluate_streaming(s2, streamed, topics)
+    assert (len(seen) > 5) == (batch_bytes < 2**20)
+    _assert_same(got, want)
+    assert "baseline_m" in got["ant_r"]["rmse"]
+    assert not [w for w in s2.warnings if w.startswith("evaluation")]
+    for name, g in got.items():  # the figure's series: every step-th row
+        step = g["plot_step"]
+        assert step == -(-streamed[name].rows.n // 700) > 1
+        assert np.array_equal(g["t_s"], want[name]["t_s"][::step])
+        assert np.array_equal(g["errors"]["heading_deg"], want[name]["errors"]["heading_deg"][::step])
+    metrics = E.metrics_streaming(s2, got, "urtss", {"processing_s": 1.0, "data_s": 2.0})
+    assert metrics["evaluation"]["path"] == "streaming"
+    ref = P.metrics_json(sess, {"urtss": (want, {"processing_s": 1.0, "data_s": 2.0})}, runs=1)
+    for k in M.KEYS:
+        assert metrics["methods"]["urtss"]["mean"]["rmse"][k] == pytest.approx(ref["methods"]["urtss"]["mean"]["rmse"][k], rel=1e-12)
+
+
+def test_a_gap_in_the_truth(solved, monkeypatch) -> None:
+    """Rows without a truth sample are left out (counted in a warning), the others evaluated as in memory."""
+    sess, ants, streamed, topics = solved
+    monkeypatch.setattr(S, "STREAM_BATCH_BYTES", 2**15)
+    real = E.truth_parts
+    cut = (10.0, 17.5)
+
+    def gapped(*a, **k):
+        for p in real(*a, **k):
+            r = p.get("/truth/antenna/ant_r")
+            if r is not None:
+                p["/truth/antenna/ant_r"] = r[(r[:, 0] < cut[0]) | (r[:, 0] > cut[1])]
+            yield p
+
+    monkeypatch.setattr(E, "truth_parts", gapped)
+    tr = sess.truth["antenna/ant_r"]
+    sess_cut = S.RecordedSession(**{**sess.__dict__, "truth": {**sess.truth, "antenna/ant_r": tr.select((tr.t_s < cut[0]) | (tr.t_s > cut[1]))}})
+    want = P.evaluate(sess_cut, ants)
+    s2 = _streamed_session()
+    got = E.evaluate_streaming(s2, streamed, topics)
+    _assert_same(got, want)
+    assert got["ant_r"]["consistency"]["n"] < got["ant_l"]["consistency"]["n"]
+    (w,) = [w for w in s2.warnings if w.startswith("evaluation")]
+    t = streamed["ant_r"].rows.read("t_s")
+    assert f"antenna ant_r: {int(np.sum((t >= cut[0]) & (t <= cut[1])))} of {t.size} rows have no truth sample" in w
+
+
+def test_missing_truth_topics(solved) -> None:
+    """An antenna without its truth is named and not evaluated; without /truth/master no baseline."""
+    sess, ants, streamed, topics = solved
+    s2 = _streamed_session()
+    got = E.evaluate_streaming(s2, streamed, topics - {"/truth/antenna/ant_l", "/truth/master"})
+    assert list(got) == ["ant_r"] and "baseline_m" not in got["ant_r"]["rmse"]
+    assert any("no /truth/antenna/ant_l in the recording" in w for w in s2.warnings)
+    no_master = S.RecordedSession(**{**sess.__dict__, "truth": {k: v for k, v in sess.truth.items() if k != "master"}})
+    _assert_same(got, {"ant_r": P.evaluate(no_master, ants)["ant_r"]})
+    assert E.evaluate_streaming(_streamed_session(), streamed, {t for t in topics if not t.startswith("/truth/")}) == {}
+
+
+def test_moments_are_rmse_std() -> None:
+    rng = np.random.default_rng(5)
+    e = 3.0 + 1e-4 * rng.standard_normal((1000, 2))  # a mean 10^4 times the STD: STD from the merged deviations
+    m = E._Moments(2)
+    for a, b in ((0, 1), (1, 400), (400, 400), (400, 1000)):
+        m.add(e[a:b])
+    r, s = m.rmse_std()
+    for j in range(2):
+        want = M.rmse_std(e[:, j])
+        assert r[j] == pytest.approx(want[0], rel=1e-13) and s[j] == pytest.approx(want[1], rel=1e-12)
+    assert np.all(np.isnan(E._Moments(3).rmse_std()[0]))
+
+
+def test_truth_cleaner_is_the_readers_cleaning() -> None:
+    """Part by part, the cleaning of io.session._clean of the whole series (out of order within a
+    part, duplicates within and across parts, NaN rows); a sample older than an earlier part's is dropped."""
+    t = np.array([5, 1, 2, 2, 3, 4, 4, 6, 7, 9, 8, 10], dtype=np.int64) * 10
+    v = np.arange(t.size, dtype=float)[:, None].repeat(2, 1)
+    v[8, 1] = np.nan
+    parts = [(0, 5), (5, 7), (7, 12)]
+    want_t, want_v = S._clean("x", t[np.argsort(t, kind="stable")], v[np.argsort(t, kind="stable")], [])
+    c = E._TruthCleaner("x")
+    got = [c(t[a:b], v[a:b]) for a, b in parts]
+    gt = np.concatenate([g[0] for g in got])
+    # part 0 holds 5 (and 1, 2, 2, 3): sorted in it; part 1's 4, 4 come after 5 was read: older, dropped
+    assert np.array_equal(gt, [10, 20, 30, 50, 60, 80, 90, 100])
+    assert c.unsorted == 2 and c.dup == 1 and c.older == 2 and c.nan == 1
+    assert set(gt) <= set(want_t.tolist())
+    assert any("older than one read before" in w for w in c.warnings())
+    c2 = E._TruthCleaner("y")  # in order across parts: exactly _clean's
+    ts = np.sort(t)
+    vs = v[np.argsort(t, kind="stable")]
+    got2 = [c2(ts[a:b], vs[a:b]) for a, b in ((0, 2), (2, 5), (5, 12))]  # duplicates across parts
+    assert np.array_equal(np.concatenate([g[0] for g in got2]), want_t)
+    assert np.array_equal(np.concatenate([g[1] for g in got2]), want_v)

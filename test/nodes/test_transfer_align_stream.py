@@ -1,0 +1,160 @@
+"""transfer_align_node's streaming finalize (issue #17, parameter ``stream_above_s``), in-process:
+the sample bag's first 25 s (paper_su_pair: two sub-IMUs) fed to the subscription callbacks, the
+smoothers in threads, the antenna poses received through DDS by a subscriber in this process.
+
+A node finalizing by streaming (``stream_above_s`` 0: the spill read a block at a time, the rows
+in files, the poses published 2 s at a time) publishes the same poses (topic for topic, message
+for message) and writes the same products (CSV byte for byte, the antenna bag message for message,
+qc.md, status.json but its timing) as one finalizing in memory.  A sub-IMU whose smoother fails
+costs that sub-IMU only, as in memory.  Every wait is bounded; nothing sleeps.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import pytest
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile
+from repo_paths import REPO
+from ros_wait import spin_until  # test/support/ros_wait.py
+
+from dpos_core.errors import NumericalFailure
+from dpos_ros.contract import topics as T
+from dpos_ros.contract.qos import NAV_QOS
+from dpos_ros.io import bag
+from dpos_ros.products import stream
+
+pytestmark = pytest.mark.ros
+
+BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
+SECONDS = 25.0
+TOPICS = [T.DATUM, T.MASTER_NAV, T.sub_imu("sub_r"), T.sub_imu("sub_l")]
+ANTENNAS = ("ant_r", "ant_l")
+
+
+@pytest.fixture(scope="module")
+def msgs() -> dict[str, tuple[str, list[bytes]]]:
+    raw = bag.read_raw(BAG, TOPICS)
+    t_first = raw[T.MASTER_NAV][1][0]
+    return {topic: (mt, [bytes(d) for t, d in zip(t_log, data) if topic == T.DATUM or t - t_first <= SECONDS * 1e9])
+            for topic, (mt, t_log, data) in raw.items()}
+
+
+def _stamp(d: bytes) -> int:
+    return int.from_bytes(d[4:8], "little", signed=True) * 1_000_000_000 + int.from_bytes(d[8:12], "little")
+
+
+@pytest.fixture
+def graph(ros_context, monkeypatch):
+    """``(make, executor, received)``: ``make(out, **params)`` a transfer_align_node in this process
+    (smoothers in threads), spun with a subscriber that keeps every /antenna/<name>/odom message."""
+    import transfer_align_node.node as tan
+
+    monkeypatch.setattr(tan, "_pool", lambda n: cf.ThreadPoolExecutor(max_workers=max(1, n)))
+    monkeypatch.setattr(stream, "BAG_BATCH_S", 2.0)  # 13 batches of poses in 25 s
+    got: dict[str, list[bytes]] = defaultdict(list)
+    sub = rclpy.create_node("antenna_listener", context=ros_context)
+    keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=NAV_QOS.reliability, durability=NAV_QOS.durability)
+    for a in ANTENNAS:
+        sub.create_subscription(Odometry, T.antenna_odom(a), lambda raw, a=a: got[a].append(raw), keep_all, raw=True)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(sub)
+    nodes = []
+
+    def make(out: Path, **params: Any):
+        over = {"method": "urtss", "aircraft_config": "paper_su_pair", "output_dir": str(out), "finalize_timeout_s": 2.0,
+                "output_rate_hz": 10.0, "workers": 2} | params
+        ta = tan.TransferAlignNode(context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in over.items()])
+        ta.cbs = {t: ta._make_cb(t, mt) for t, (mt, _) in {T.DATUM: (T.NAVSATFIX, 0), T.MASTER_NAV: (T.ODOMETRY, 0),
+                                                            T.sub_imu("sub_r"): (T.IMU, 0), T.sub_imu("sub_l"): (T.IMU, 0)}.items()}
+        ex.add_node(ta)
+        nodes.append(ta)
+        return ta
+
+    yield make, ex, got
+    for n in nodes:
+        ex.remove_node(n)
+        n.destroy_node()
+    ex.remove_node(sub)
+    sub.destroy_node()
+    ex.shutdown(timeout_sec=5.0)
+
+
+def _session(ta, ex, msgs, sid: str) -> None:
+    """Feed the messages, finalize as session ``sid`` and spin until the finalize is done (bounded)."""
+    for topic in TOPICS:
+        for d in msgs[topic][1]:
+            ta.cbs[topic](d)
+    end = max(_stamp(d) for d in msgs[T.MASTER_NAV][1])
+    assert ta._start_finalize(end, sid)
+    spin_until(ex, lambda: not ta._finalize_thread.is_alive(), 240, lambda: f"the finalize ({ta._progress})")
+
+
+def _rows(products: Path, a: str) -> int:
+    return sum(1 for _ in (products / f"{a}.csv").open()) - 1
+
+
+def test_streaming_finalize_publishes_and_writes_what_the_in_memory_one_does(graph, msgs, tmp_path: Path) -> None:
+    make, ex, got = graph
+    received: dict[str, dict[str, list[bytes]]] = {}
+    for mode, limit in (("memory", 3600.0), ("stream", 0.0)):
+        got.clear()
+        ta = make(tmp_path / mode, stream_above_s=limit)
+        _session(ta, ex, msgs, "s")
+        products = tmp_path / mode / "s"
+        assert (products / "status.json").is_file(), ta._progress
+        spin_until(ex, lambda p=products: all(len(got[a]) >= _rows(p, a) for a in ANTENNAS), 30,
+                   lambda: f"every pose: { {a: len(v) for a, v in got.items()} }")
+        received[mode] = {a: list(got[a]) for a in ANTENNAS}
+        assert not ta._errors and not any(p.name.startswith(".dpos_rows_") for p in (tmp_path / mode).iterdir())
+    a, b = tmp_path / "stream" / "s", tmp_path / "memory" / "s"
+    # the poses: every row published once, in stamp order, the same messages
+    for ant in ANTENNAS:
+        stamps = [_stamp(m) for m in received["stream"][ant]]
+        assert len(stamps) == _rows(a, ant) == 251 and all(x < y for x, y in zip(stamps, stamps[1:])), ant
+        assert [bytes(m) for m in received["stream"][ant]] == [bytes(m) for m in received["memory"][ant]], ant
+    # the products
+    csvs = sorted(p.name for p in a.glob("*.csv"))
+    assert csvs == ["ant_l.csv", "ant_r.csv"] == sorted(p.name for p in b.glob("*.csv"))
+    for name in csvs:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    assert (a / "qc.md").read_text() == (b / "qc.md").read_text()
+    sa, sb = json.loads((a / "status.json").read_text()), json.loads((b / "status.json").read_text())
+    sa.pop("timing"), sb.pop("timing")
+    sa["warnings"], sb["warnings"] = sorted(sa["warnings"]), sorted(sb["warnings"])  # (in memory: in the workers' finishing order)
+    assert sa == sb and sa["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, (sa, sb)
+    ra, rb = bag.read_raw(a / "antennas"), bag.read_raw(b / "antennas")
+    assert ra.keys() == rb.keys() == {T.antenna_odom(x) for x in ANTENNAS}
+    for t in ra:
+        assert ra[t][1] == rb[t][1] and [bytes(x) for x in ra[t][2]] == [bytes(x) for x in rb[t][2]], t
+    assert sorted(p.name for p in (a / "qc").iterdir()) == sorted(p.name for p in (b / "qc").iterdir())
+
+
+def test_a_failed_sub_imu_costs_that_sub_imu_only(graph, msgs, tmp_path: Path, monkeypatch) -> None:
+    make, ex, got = graph
+    real = stream.align_to_store
+
+    def align(bag_, sub, *args, **kwargs):
+        if sub == "sub_l":
+            raise NumericalFailure("injected: the covariance is not positive definite")
+        return real(bag_, sub, *args, **kwargs)
+
+    monkeypatch.setattr(stream, "align_to_store", align)
+    ta = make(tmp_path / "out", stream_above_s=0.0)
+    _session(ta, ex, msgs, "f")
+    products = tmp_path / "out" / "f"
+    st = json.loads((products / "status.json").read_text())
+    assert st["antennas"]["ant_r"] == "estimated", st
+    assert st["antennas"]["ant_l"].startswith("failed: NumericalFailure: injected"), st
+    assert any(w.startswith("sub-IMU sub_l: the urtss smoother failed (NumericalFailure") for w in st["warnings"]), st["warnings"]
+    assert set(ta._errors) == {"sub_l"} and not (products / "ant_l.csv").exists()
+    spin_until(ex, lambda: len(got["ant_r"]) >= _rows(products, "ant_r"), 30, "ant_r's poses")
+    assert len(got["ant_r"]) == _rows(products, "ant_r") and not got["ant_l"]
