@@ -158,3 +158,25 @@ def test_a_failed_sub_imu_costs_that_sub_imu_only(graph, msgs, tmp_path: Path, m
     assert set(ta._errors) == {"sub_l"} and not (products / "ant_l.csv").exists()
     spin_until(ex, lambda: len(got["ant_r"]) >= _rows(products, "ant_r"), 30, "ant_r's poses")
     assert len(got["ant_r"]) == _rows(products, "ant_r") and not got["ant_l"]
+
+
+class _BrokenPool(cf.Executor):
+    """A pool one of whose workers died: it refuses every task."""
+
+    def submit(self, fn, /, *args, **kwargs):  # noqa: ANN001, ANN201
+        raise cf.process.BrokenProcessPool("a child process terminated abruptly")
+
+
+def test_a_broken_pool_costs_the_sub_imus_tasks_only() -> None:
+    """Once a worker has died (the pool broken), a sub-IMU's task still reports that sub-IMU as
+    failed, and the session's other tasks (the wing fit's windows, the products' files) run in the
+    node's process instead of failing the whole streamed finalize."""
+    from transfer_align_node.node import _SubImuTasks
+
+    tasks = _SubImuTasks(_BrokenPool(), "ups")
+    r = tasks.submit(stream.align_to_store, "spill", "sub_r").result(timeout=5)
+    assert "smoother failed" in r["rejected"] and "BrokenProcessPool" in r["rejected"]
+    assert list(tasks.failed) == ["sub_r"] and isinstance(tasks.failed["sub_r"], cf.BrokenExecutor)
+    assert tasks.submit(sum, [1, 2, 3]).result(timeout=5) == 6
+    with pytest.raises(ZeroDivisionError):
+        tasks.submit(divmod, 1, 0).result(timeout=5)

@@ -184,7 +184,8 @@ class _SubImuTasks(cf.Executor):
     tasks (:func:`~dpos_ros.products.stream.align_to_store`) that fail - a numerical failure, a
     bug, a dead worker, an unreadable log - cost that sub-IMU only (module docstring, "Errors"): the
     exception is kept in :attr:`failed` and the task's result says that its antennas are not
-    estimated; every other task goes to ``pool`` as it is."""
+    estimated; every other task goes to ``pool`` as it is, or runs in this process once the pool
+    is broken (a worker died: the sub-IMUs that finished still get their wing fit and products)."""
 
     def __init__(self, pool: cf.Executor, method: str) -> None:
         self.pool = pool
@@ -192,21 +193,34 @@ class _SubImuTasks(cf.Executor):
         self.failed: dict[str, BaseException] = {}  # sub-IMU -> what its task raised
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
-        fut = self.pool.submit(fn, *args, **kwargs)
+        out: cf.Future = cf.Future()
+        try:
+            fut = self.pool.submit(fn, *args, **kwargs)
+        except cf.BrokenExecutor as e:  # a worker died (a sub-IMU's task): the session goes on without the pool
+            if fn is stream.align_to_store:
+                self._failed(str(args[1]), e, out)
+            else:  # the wing fit's windows, the products' files: in this process
+                try:
+                    out.set_result(fn(*args, **kwargs))
+                except BaseException as ex:  # noqa: BLE001 - the caller's result() raises it
+                    out.set_exception(ex)
+            return out
         if fn is not stream.align_to_store:
             return fut
         sub = str(args[1])
-        out: cf.Future = cf.Future()
 
         def done(f: cf.Future) -> None:
             try:
                 out.set_result(f.result())
             except BaseException as e:  # noqa: BLE001 - this sub-IMU only (the node reports it)
-                self.failed[sub] = e
-                out.set_result({"rejected": f"the {self.method} smoother failed ({_describe(e)})", "warnings": []})
+                self._failed(sub, e, out)
 
         fut.add_done_callback(done)
         return out
+
+    def _failed(self, sub: str, e: BaseException, out: cf.Future) -> None:
+        self.failed[sub] = e
+        out.set_result({"rejected": f"the {self.method} smoother failed ({_describe(e)})", "warnings": []})
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         """(The pool is the node's: it stays up.)"""

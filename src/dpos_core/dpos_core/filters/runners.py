@@ -47,7 +47,7 @@ from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .pf import children_mask
 from .points import CentralDifferencePoints, UnscentedPoints
-from .store import EpochArray, EpochStore, PerEpoch
+from .store import EpochStore, PerEpoch
 from .variational import CGInfo, CGSettings, CGStats, cdvf_update
 
 # ------------------------------------------------------------------------------------ Gaussian
@@ -240,11 +240,8 @@ class ParticleTrack:
     def close(self) -> None:
         """Remove the files of the per-epoch arrays kept on disk (``run_upf(store=...)``; the
         smoother's results in the same store too)."""
-        if self.store is not None:
+        if self.store is not None:  # (every array of the track is the store's)
             self.store.close()
-        for a in (self.particles, self.proposed, self.pred_mean, self.pred_cov, self.proposed_sampled):
-            if isinstance(a, EpochArray):
-                a.close()
 
 
 def sampled_indices(model: StateSpaceModel, n: int, sampled=None) -> NDArray[np.intp]:

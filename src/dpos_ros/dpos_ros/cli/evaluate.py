@@ -48,6 +48,7 @@ from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products import lsfit_tables
+from dpos_ros.products.evaluate_stream import series_free
 from dpos_ros.products.ta import combine_runs, evaluate, metrics_json, report_md, solve
 
 #: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
@@ -197,9 +198,6 @@ class TARun:
     path: str = PATH_MEMORY
 
 
-#: the per-epoch series of an evaluate() result, not needed to combine the runs
-_SERIES = ("errors", "t_s", "nsq")
-
 
 def scenario_methods(ap: argparse.ArgumentParser, args: argparse.Namespace, scenario: Scenario) -> list[str]:
     """``--methods`` checked against the scenario (transfer or in-flight alignment), and
@@ -257,7 +255,7 @@ def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True, scrat
 
 def _record(run: TARun, m: str, ev: dict[str, dict], tm: dict[str, float], label: str, seed: int, t0: float, echo: bool) -> None:
     """Method ``m``'s evaluation ``ev`` and timing ``tm`` into ``run`` (without the per-row series), and its line."""
-    run.evaluations[m] = {name: {k: v for k, v in e.items() if k not in _SERIES} for name, e in ev.items()}
+    run.evaluations[m] = series_free(ev)
     run.timing[m] = {"processing_s": tm["processing_s"], "data_s": tm["data_s"]}
     mean = M.average([{"rmse": e["rmse"], "std": e["std"]} for e in ev.values()]) if ev else {"rmse": {}}
     nan = float("nan")

@@ -32,7 +32,8 @@ import shutil
 import tempfile
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -175,6 +176,20 @@ def release_memory() -> None:
         ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
+
+
+@contextmanager
+def _drained(futures: Callable[[], Iterable[cf.Future]]) -> Iterator[None]:
+    """On an error inside, cancel the pool's tasks ``futures()`` that have not started and wait for
+    those running: they write into a directory the caller removes (the rows' scratch, the products)."""
+    try:
+        yield
+    except BaseException:
+        fs = list(futures())
+        for f in fs:
+            f.cancel()
+        cf.wait(fs)
+        raise
 
 
 def _nav(cols: dict[str, NDArray]) -> NavSeries:
@@ -323,31 +338,32 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
     unusable: dict[str, str] = {}
     carriers: dict[str, RowStore] = {}
     n_done = 0
-    for s in aircraft.sub_imus:
-        if s.name not in present:
-            sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
-            continue
-        if master is None:
-            continue
-        r = futs[s.name].result() if futs else align_to_store(*tasks[s.name])
-        sess.warnings.extend(w for w in r.get("warnings", []) if w not in sess.warnings)
-        if "rejected" in r:
-            unusable[s.name] = f"sub-IMU {s.name}: {r['rejected']}"
-            sess.warnings.append(f"sub-IMU {s.name}: {r['rejected']}; its antennas are not estimated")
-            continue
-        if "missing" in r:
-            continue
-        n_done += 1
-        if r["not_estimated"]:
-            sess.warnings.append(f"sub-IMU {s.name}: no pose over {P._spans(r['not_estimated'])}; each part after a gap "
-                                 f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
-        status = f"estimated (not estimated over {P._spans(r['not_estimated'])})" if r["not_estimated"] else "estimated"
-        for a in aircraft.antennas:
-            if a.sub_imu == s.name:
-                out[a.name] = StreamedAntenna(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
-                                              list(r["not_estimated"]), r["qc"], r["cg"], installation=r["installation"])
-        if r["own"].n > 1 and any(a.sub_imu == s.name for a in aircraft.antennas):  # (as solve: the antennas' carriers)
-            carriers[s.name] = r["own"]
+    with _drained(futs.values):  # (a worker's failure: the others' rows are written in store_dir)
+        for s in aircraft.sub_imus:
+            if s.name not in present:
+                sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
+                continue
+            if master is None:
+                continue
+            r = futs[s.name].result() if futs else align_to_store(*tasks[s.name])
+            sess.warnings.extend(w for w in r.get("warnings", []) if w not in sess.warnings)
+            if "rejected" in r:
+                unusable[s.name] = f"sub-IMU {s.name}: {r['rejected']}"
+                sess.warnings.append(f"sub-IMU {s.name}: {r['rejected']}; its antennas are not estimated")
+                continue
+            if "missing" in r:
+                continue
+            n_done += 1
+            if r["not_estimated"]:
+                sess.warnings.append(f"sub-IMU {s.name}: no pose over {P._spans(r['not_estimated'])}; each part after a gap "
+                                     f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
+            status = f"estimated (not estimated over {P._spans(r['not_estimated'])})" if r["not_estimated"] else "estimated"
+            for a in aircraft.antennas:
+                if a.sub_imu == s.name:
+                    out[a.name] = StreamedAntenna(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
+                                                  list(r["not_estimated"]), r["qc"], r["cg"], installation=r["installation"])
+            if r["own"].n > 1 and any(a.sub_imu == s.name for a in aircraft.antennas):  # (as solve: the antennas' carriers)
+                carriers[s.name] = r["own"]
     for name in sorted(present):
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
@@ -422,24 +438,25 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
         return dc_replace(sess, master=m, warnings=[]), aircraft, carriers, ranges, store_dir / f"fit_window{w:05d}"
 
     pending: deque = deque()
-    for w in range(n_win):
-        if pool is None:
-            pending.append((w, fit_window(*task(w))))
-        else:
-            pending.append((w, pool.submit(fit_window, *task(w))))
-        while pending and (pool is None or len(pending) > FIT_IN_FLIGHT or w == n_win - 1):
-            w_done, r = pending.popleft()
-            sol, warnings = r if pool is None else r.result()
-            sess.warnings.extend(warnings)
-            for a in fits:
-                if a.name not in sol:
-                    continue
-                status, info, rows = sol[a.name]
-                statuses[a.name].add(status)
-                first.setdefault(a.name, (status, info))
-                if rows is not None:
-                    stores[a.name].extend(rows)
-            shutil.rmtree(store_dir / f"fit_window{w_done:05d}", ignore_errors=True)
+    with _drained(lambda: [f for _, f in pending if isinstance(f, cf.Future)]):
+        for w in range(n_win):
+            if pool is None:
+                pending.append((w, fit_window(*task(w))))
+            else:
+                pending.append((w, pool.submit(fit_window, *task(w))))
+            while pending and (pool is None or len(pending) > FIT_IN_FLIGHT or w == n_win - 1):
+                w_done, r = pending.popleft()
+                sol, warnings = r if pool is None else r.result()
+                sess.warnings.extend(warnings)
+                for a in fits:
+                    if a.name not in sol:
+                        continue
+                    status, info, rows = sol[a.name]
+                    statuses[a.name].add(status)
+                    first.setdefault(a.name, (status, info))
+                    if rows is not None:
+                        stores[a.name].extend(rows)
+                shutil.rmtree(store_dir / f"fit_window{w_done:05d}", ignore_errors=True)
     out: dict[str, StreamedAntenna] = {}
     for a in fits:
         if a.name not in first:
@@ -485,12 +502,13 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
     if est:
         qc_dir(out).mkdir(exist_ok=True)
     files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method) if pool is not None else None) for name, a in est.items()}
-    if est:
-        _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool)
     summ: dict[str, dict] = {}
-    for name, a in antennas.items():
-        f = files.get(name)
-        summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
+    with _drained(lambda: [f for f in files.values() if f is not None]):  # (they write into out)
+        if est:
+            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool)
+        for name, a in antennas.items():
+            f = files.get(name)
+            summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
     doc = P.status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.rows is not None})
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
     if evaluation:  # against the truth (dpos_ros.products.evaluate_stream)

@@ -565,20 +565,22 @@ def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray
     """The antenna CSV (design.md "Session products"): per row (N) stamp, position, velocity,
     attitude, their 1-sigma (s (N, 9) as AntennaSolution.sigma) and ``flags`` (N,) (the quality
     bits of :mod:`dpos_core.ta.flags`; 0 when None)."""
-    with open(path, "wb") as f:
-        f.write(CSV_HEADER.encode() + b"\n")
-        f.write(csv_text(t_ns, tr, s, flags))
+    write_csv_rows(path, CSV_HEADER, np.asarray(t_ns, dtype=np.int64), _csv_columns(tr, s, flags), _CSV_FORMATS)
 
 
 def csv_text(t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> bytes:
     """The rows of :func:`_write_csv` without the header (a block of a file written in parts)."""
+    return csv_rows(np.asarray(t_ns, dtype=np.int64), _csv_columns(tr, s, flags), _CSV_FORMATS)
+
+
+def _csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None) -> FloatArray:
+    """The antenna CSV's columns after the stamp (N, 19), as :data:`_CSV_FORMATS` formats them."""
     hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
     fl = ta_flags.none(tr.t_s.size) if flags is None else flags
-    cols = np.column_stack([
+    return np.column_stack([
         np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
         s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]), fl,
     ])
-    return csv_rows(np.asarray(t_ns, dtype=np.int64), cols, _CSV_FORMATS)
 
 
 #: the antenna CSV's header
