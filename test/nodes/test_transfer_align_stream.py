@@ -14,6 +14,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import json
 from collections import defaultdict
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -164,7 +165,7 @@ class _BrokenPool(cf.Executor):
     """A pool one of whose workers died: it refuses every task."""
 
     def submit(self, fn, /, *args, **kwargs):  # noqa: ANN001, ANN201
-        raise cf.process.BrokenProcessPool("a child process terminated abruptly")
+        raise BrokenProcessPool("a child process terminated abruptly")
 
 
 def test_a_broken_pool_costs_the_sub_imus_tasks_only() -> None:
