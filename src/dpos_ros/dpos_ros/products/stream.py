@@ -547,11 +547,12 @@ def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) ->
 
 def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
     """The antenna CSV of :func:`dpos_ros.products.ta._write_csv`, ROW_BLOCK rows at a time."""
+    text = P.CsvRows(P._CSV_FORMATS)  # one buffer for every block's text
     with path.open("wb") as f:
         f.write(P.CSV_HEADER.encode() + b"\n")
         for i0 in range(0, rows.n, ROW_BLOCK):
             c = rows.rows(i0, i0 + ROW_BLOCK)
-            f.write(P.csv_text(t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), _nav(c), c["sigma"], c["flags"]))
+            f.write(text.text(t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), P._csv_columns(_nav(c), c["sigma"], c["flags"])))
 
 
 def bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:

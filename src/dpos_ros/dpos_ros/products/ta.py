@@ -14,6 +14,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import errno
+import functools
 import json
 import os
 import shutil
@@ -601,21 +602,50 @@ def write_csv_rows(path: Path, header: str, t_ns: NDArray[np.int64], cols: Float
     (:func:`csv_rows`)."""
     with open(path, "wb") as f:
         f.write(header.encode() + b"\n")
-        f.write(csv_rows(t_ns, cols, formats))
+        f.write(CsvRows(formats).text(t_ns, cols))
 
 
 def csv_rows(t_ns: NDArray[np.int64], cols: FloatArray, formats: tuple[tuple[str, int], ...]) -> bytes:
     """The rows of :func:`write_csv_rows` (no header), by a numba kernel (:mod:`._csv_kernel`):
     ~0.7 us a number through ``np.savetxt``."""
+    return CsvRows(formats).text(t_ns, cols).tobytes()
+
+
+@functools.cache
+def _csv_tables() -> tuple[FloatArray, FloatArray]:
+    """The kernel's tables of ``10.0**e`` and of the starts of ``floor(log10)`` (each (661,))."""
     from . import _csv_kernel as K
 
-    kinds = np.array([{"f": K.FIXED, "e": K.EXP, "d": K.INT}[k] for k, _ in formats], dtype=np.int64)
-    decs = np.array([d for _, d in formats], dtype=np.int64)
-    if cols.shape[1:] != (len(formats),):
-        raise ValueError(f"{len(formats)} formats for columns of shape {cols.shape}")
-    text = K.rows(t_ns, np.ascontiguousarray(cols, dtype=float), kinds, decs, np.frombuffer(b"nan", np.uint8),
-                  np.frombuffer(b"inf", np.uint8))
-    return text.tobytes()
+    return K.pow10_table(), K.log10_floor_starts()
+
+
+class CsvRows:
+    """The rows of :func:`write_csv_rows` block after block (``formats`` (m,) as there), written
+    into one byte buffer kept between the blocks (grown when a block needs more)."""
+
+    def __init__(self, formats: tuple[tuple[str, int], ...]) -> None:
+        from . import _csv_kernel as K
+
+        self._k = K
+        self.m = len(formats)
+        self.kinds = np.array([{"f": K.FIXED, "e": K.EXP, "d": K.INT}[k] for k, _ in formats], dtype=np.int64)
+        self.decs = np.array([d for _, d in formats], dtype=np.int64)
+        self.pow10, self.starts = _csv_tables()
+        self.e_prev = np.zeros(self.m, dtype=np.int64)  # per EXP column its last exponent (the kernel's search start)
+        self.buf = np.empty(0, np.uint8)
+        self._nan, self._inf = np.frombuffer(b"nan", np.uint8), np.frombuffer(b"inf", np.uint8)
+
+    def text(self, t_ns: NDArray[np.int64], cols: FloatArray) -> memoryview:
+        """The text (L bytes) of the rows ``t_ns`` (N,) int64, ``cols`` (N, m): a view of the
+        buffer, valid until the next call."""
+        if cols.ndim != 2 or cols.shape[1] != self.m or cols.shape[0] != t_ns.shape[0]:
+            raise ValueError(f"{self.m} formats for columns of shape {cols.shape} ({t_ns.shape[0]} stamps)")
+        need = t_ns.shape[0] * self._k.max_line_bytes(self.m)
+        if self.buf.size < need:
+            self.buf = np.empty(need, np.uint8)
+        n = self._k.rows_into(self.buf, np.ascontiguousarray(t_ns, dtype=np.int64), np.ascontiguousarray(cols, dtype=float),
+                              self.kinds, self.decs, self._nan, self._inf, self.pow10, self.starts, self.e_prev)
+        return self.buf[:n].data
 
 
 def combine_runs(per_method: dict[str, list[dict]], timing: dict[str, dict]) -> dict[str, tuple[dict, dict]]:
