@@ -127,3 +127,26 @@ def test_seed_rfu_convention() -> None:
     np.testing.assert_allclose(frames.vec_rfu_from_flu(frames.vec_flu_from_rfu(v)), v)
     # [Gong2018] lever arm [5, 0.1, 0.1] m RFU = 5 m out on the right wing
     np.testing.assert_allclose(frames.vec_flu_from_rfu([5.0, 0.1, 0.1]), [0.1, -5.0, 0.1])
+
+
+def test_hpr_from_C_nb_is_the_products_angles_bit_for_bit() -> None:
+    """``hpr_from_C_nb`` without the 3 x 3 products: the same bits as through ``C_ENU_NED @ C @
+    C_FLU_FRD`` (the antenna CSV's attitude), for random DCMs, DCMs of exact zeros of either sign
+    and rows with NaN."""
+    from dpos_core.attitude import quat_to_dcm
+    from dpos_core.frames import C_ENU_NED, C_FLU_FRD, C_nb_from_hpr, hpr_from_C_nb
+
+    def by_products(C_nb: np.ndarray) -> np.ndarray:
+        C = C_ENU_NED @ C_nb @ C_FLU_FRD
+        return np.stack([np.mod(np.arctan2(C[..., 1, 0], C[..., 0, 0]), 2.0 * np.pi), -np.arcsin(np.clip(C[..., 2, 0], -1.0, 1.0)),
+                         np.arctan2(C[..., 2, 1], C[..., 2, 2])], axis=-1)
+
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(5000, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    right = rng.choice([0.0, -0.0, np.pi / 2, -np.pi / 2, np.pi, 0.3], (3, 2000))
+    signed = rng.choice([0.0, -0.0, 1.0, -1.0, 0.5, np.nan], (2000, 3, 3))
+    with np.errstate(invalid="ignore"):
+        for C in (quat_to_dcm(q), C_nb_from_hpr(*right), signed, quat_to_dcm(q)[0], signed[:4]):
+            a, b = by_products(C), hpr_from_C_nb(C)
+            assert a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))

@@ -56,12 +56,30 @@ def C_nb_from_hpr(heading_rad: ArrayLike, pitch_rad: ArrayLike, roll_rad: ArrayL
     return C_ENU_NED @ C_ned_frd @ C_FLU_FRD
 
 
+def _ned_frd_from_enu_flu(C_nb: FloatArray) -> FloatArray:
+    """The elements ``[0|1|2, 0]`` and ``[2, 1|2]`` of ``C_ENU_NED @ C_nb @ C_FLU_FRD`` (..., 3, 3)
+    (the others unset) without the products (a stack of 3 x 3 matmuls costs ~0.1 us a matrix):
+    rows 0 and 1 swapped, row 2 and columns 1, 2 negated.  The same values as the products: their
+    zero terms make a zero ``+0`` (the ``+ 0.0``) and a matrix with a non-finite element non-finite
+    throughout (here: NaN).  (A stack of matrices, as the product's: the ufuncs after see the same
+    strides, and so take the same loops.)"""
+    C = np.empty(np.broadcast_shapes(C_nb.shape, (3, 3)))
+    np.add(C_nb[..., 1, 0], 0.0, out=C[..., 0, 0])
+    np.add(C_nb[..., 0, 0], 0.0, out=C[..., 1, 0])
+    np.subtract(0.0, C_nb[..., 2, 0], out=C[..., 2, 0])  # 0 - x: -x, and +0 for a zero
+    np.add(C_nb[..., 2, 1:], 0.0, out=C[..., 2, 1:])
+    bad = ~np.isfinite(C_nb.reshape(*C_nb.shape[:-2], 9) @ np.ones(9))
+    if np.any(bad):
+        C[bad] = np.nan
+    return C
+
+
 def hpr_from_C_nb(C_nb: ArrayLike) -> FloatArray:
     """``C_nb`` (FLU body, ENU world) -> aviation ``[heading, pitch, roll]`` [rad], shape ``(..., 3)``.
 
     Heading in ``[0, 2 pi)``; at pitch = +-90 deg the split between heading and roll is arbitrary.
     """
-    C = C_ENU_NED @ np.asarray(C_nb, dtype=float) @ C_FLU_FRD  # = C_ned_frd
+    C = _ned_frd_from_enu_flu(np.asarray(C_nb, dtype=float))
     heading = np.mod(np.arctan2(C[..., 1, 0], C[..., 0, 0]), 2.0 * np.pi)
     pitch = -np.arcsin(np.clip(C[..., 2, 0], -1.0, 1.0))
     roll = np.arctan2(C[..., 2, 1], C[..., 2, 2])
