@@ -8,6 +8,7 @@ whether or not the recording has truth; nothing here reads it."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -146,6 +147,38 @@ def qc_md(summ: dict[str, dict], session_id: str, method: str) -> str:
     return "\n".join(L) + "\n"
 
 
+_SUPERSCRIPT = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+_MATH_POWER = re.compile(r"^\$\\mathdefault\{(?:(\d+)\\times)?(\d+)\^\{((?:-|\\minus)?\d+)\}\}\$$")
+
+
+def _plain_power(label: str) -> str:
+    """A log axis's mathtext label ``$\\mathdefault{[c\\times]10^{e}}$`` as plain text ``[c×]10ᵉ``
+    (superscript digits; another label as it is)."""
+    m = _MATH_POWER.match(label)
+    if m is None:
+        return label
+    c, base, e = m.groups()
+    return (f"{c}×" if c else "") + base + e.replace("\\minus", "-").translate(_SUPERSCRIPT)
+
+
+def _plain_log_labels(ax) -> None:
+    """The log y-axis of ``ax`` labelled as matplotlib's default (``LogFormatterSciNotation``) but in
+    plain text: a figure's renderer parses every mathtext label anew (its own parser: ~20 ms a label
+    with pyparsing).  Over more than a decade (the minor ticks unlabelled) without its minor ticks
+    (the tick objects are most of the figure's time; the major ticks and the grid stay)."""
+    from matplotlib.ticker import LogFormatterSciNotation, NullLocator
+
+    class Plain(LogFormatterSciNotation):
+        def __call__(self, x, pos=None):
+            return _plain_power(super().__call__(x, pos))
+
+    ax.yaxis.set_major_formatter(Plain(10.0))
+    ax.yaxis.set_minor_formatter(Plain(10.0, labelOnlyBase=False))
+    lo, hi = ax.get_ylim()
+    if lo > 0 and hi > 0 and abs(math.log10(hi / lo)) > 1.0:
+        ax.yaxis.set_minor_locator(NullLocator())
+
+
 def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
     """The antenna's QC figure: its 1-sigma over time per group, NIS per dof with its bounds (per
     epoch and windowed), the forward/backward separation in RMS sigmas, and the flags as bands."""
@@ -211,6 +244,8 @@ def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
     ax.set(xlabel="t [s]")
     for x in axs:
         x.grid(alpha=0.3)
+        if x.get_yscale() == "log":
+            _plain_log_labels(x)
     axs[0].set_title(f"antenna {a.name}: {method.upper()} quality control (no truth)")
     fig.savefig(path, dpi=80)
     return path
