@@ -351,7 +351,8 @@ def _pct(v: FloatArray) -> dict[str, float]:
     v = v[np.isfinite(v)]
     if v.size == 0:
         return {"p50": float("nan"), "p95": float("nan"), "max": float("nan")}
-    return {"p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+    p50, p95 = np.percentile(v, [50, 95])  # (one partition for both: the same values as one call each)
+    return {"p50": float(p50), "p95": float(p95), "max": float(v.max())}
 
 
 def summarize(t_rows: FloatArray, sigma: FloatArray | Callable[[int], FloatArray], flags: F.FlagArray | None, qc: EpochQC | None = None,
