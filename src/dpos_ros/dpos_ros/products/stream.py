@@ -552,7 +552,7 @@ def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
         f.write(P.CSV_HEADER.encode() + b"\n")
         for i0 in range(0, rows.n, ROW_BLOCK):
             c = rows.rows(i0, i0 + ROW_BLOCK)
-            f.write(text.text(t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), P._csv_columns(_nav(c), c["sigma"], c["flags"])))
+            text.write(f, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), P._csv_columns(_nav(c), c["sigma"], c["flags"]))
 
 
 def bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
