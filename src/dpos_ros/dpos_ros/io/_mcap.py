@@ -371,6 +371,11 @@ def _rec(op: int, body: bytes) -> bytes:
     return bytes([op]) + _u64(len(body)) + body
 
 
+def _buffer(data: bytes | NDArray[np.uint8]) -> bytes | memoryview:
+    """``data`` as zstd takes it, without a copy."""
+    return data.data if isinstance(data, np.ndarray) else data
+
+
 @dataclass(frozen=True)
 class _Chunk:
     """A chunk to write: its records ``data``, log time range [ns], the index of the message after
@@ -500,7 +505,7 @@ def encode_batch(topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArra
     cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
     chunks = []
     for ch in _chunks(topics, order, prefix):
-        chunks.append((_Chunk(b"", ch.t0, ch.t1, ch.end, ch.index), len(ch.data), cctx.compress(ch.data)))
+        chunks.append((_Chunk(b"", ch.t0, ch.t1, ch.end, ch.index), len(ch.data), cctx.compress(_buffer(ch.data))))
     return EncodedBatch([(tp.topic, tp.msgtype) for tp in topics], chunks, _batch_stats(len(topics), order), bool(prefix))
 
 
@@ -566,7 +571,7 @@ class Writer:
     def _compress(self, data: bytes | NDArray[np.uint8]) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
         if not hasattr(self._local, "cctx"):
             self._local.cctx = self._zstd.ZstdCompressor(level=ZSTD_LEVEL)
-        out: bytes = self._local.cctx.compress(data)
+        out: bytes = self._local.cctx.compress(_buffer(data))
         return out
 
     def _write_chunk(self, ch: _Chunk, usize: int, comp: bytes) -> None:
