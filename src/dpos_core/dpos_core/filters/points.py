@@ -15,6 +15,7 @@ Both are :func:`symmetric_points` of a square root of the covariance, with diffe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -46,6 +47,30 @@ def _required_cov(P: FloatArray | None) -> FloatArray:
     return P
 
 
+@lru_cache(maxsize=256)
+def _unscented_weights(alpha: float, beta: float, kappa: float, n: int) -> tuple[FloatArray, FloatArray]:
+    """The weights of :meth:`UnscentedPoints.weights`, computed once per (alpha, beta, kappa, n),
+    read-only (2n + 1,) each."""
+    lam = alpha**2 * (n + kappa) - n
+    wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    wc = wm.copy()
+    wm[0] = lam / (n + lam)
+    wc[0] = wm[0] + 1.0 - alpha**2 + beta
+    wm.flags.writeable = False
+    wc.flags.writeable = False
+    return wm, wc
+
+
+@lru_cache(maxsize=256)
+def _central_difference_weights(h: float, n: int) -> FloatArray:
+    """The mean weights of :meth:`CentralDifferencePoints.weights`, computed once per (h, n), read-only (2n + 1,)."""
+    h2 = h**2
+    wm = np.full(2 * n + 1, 0.5 / h2)
+    wm[0] = (h2 - n) / h2
+    wm.flags.writeable = False
+    return wm
+
+
 @dataclass(frozen=True)
 class UnscentedPoints:
     alpha: float = 1e-1
@@ -56,13 +81,8 @@ class UnscentedPoints:
         return self.alpha**2 * (n + self.kappa) - n
 
     def weights(self, n: int) -> tuple[FloatArray, FloatArray]:
-        """Mean and covariance weights, each (2n + 1,)."""
-        lam = self.lam(n)
-        wm = np.full(2 * n + 1, 0.5 / (n + lam))
-        wc = wm.copy()
-        wm[0] = lam / (n + lam)
-        wc[0] = wm[0] + 1.0 - self.alpha**2 + self.beta
-        return wm, wc
+        """Mean and covariance weights, each (2n + 1,) (read-only, computed once per n)."""
+        return _unscented_weights(float(self.alpha), float(self.beta), float(self.kappa), int(n))
 
     def points(self, x: FloatArray, P: FloatArray | None = None, *, S: FloatArray | None = None) -> FloatArray:
         """Sigma points (..., 2n + 1, n) of mean x (..., n) and covariance P (or square root S)."""
@@ -80,9 +100,7 @@ class CentralDifferencePoints:
         """Mean weights (2n + 1,), twice (as covariance weights of the unscented rule).  The CDKF's
         covariance is not a weighted sum over these points: :func:`~.gaussian.cd_predict` forms it
         from the first- and second-order divided differences (Stirling; gaussian.py docstring)."""
-        h2 = self.h**2
-        wm = np.full(2 * n + 1, 0.5 / h2)
-        wm[0] = (h2 - n) / h2
+        wm = _central_difference_weights(float(self.h), int(n))
         return wm, wm
 
     def points(self, x: FloatArray, P: FloatArray | None = None, *, S: FloatArray | None = None) -> FloatArray:

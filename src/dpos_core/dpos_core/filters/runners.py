@@ -33,6 +33,7 @@ the variants tried and the measurements.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -308,17 +309,43 @@ class SharedLinearizationUKF:
 
     def update(self, model: StateSpaceModel, k: int, m, P, w, y, points):
         m_bar = w @ m
-        up = ut_update(m_bar, P, y, lambda X: model.h(k, X), model.R(k), points, model.residual)
-        nu = up.nu[None, :] - model.residual(model.h(k, m), model.h(k, m_bar)[None, :])
+        h_m, h = _with_means(lambda X: model.h(k, X), m, m_bar)
+        up = ut_update(m_bar, P, y, h, model.R(k), points, model.residual)
+        Zm = h_m()  # h(m^i) (N, p) and h(m_bar) (1, p), from the sigma points' call
+        nu = up.nu[None, :] - model.residual(Zm[:-1], Zm[-1:])
         return m + nu @ up.K.T, up.P, nu, up.S
 
     def predict(self, model: StateSpaceModel, k: int, m, P, w, S, points):
         m_bar = w @ m
-        x_bar, Pp, C = _predict_given_sampled(m_bar[None], P[None], S, lambda X: model.f(k, X), model.Q(k), points)
-        return x_bar + model.f(k, m) - model.f(k, m_bar)[None, :], Pp[0], C[0]
+        f_m, f = _with_means(lambda X: model.f(k, X), m, m_bar)
+        x_bar, Pp, C = _predict_given_sampled(m_bar[None], P[None], S, f, model.Q(k), points)
+        Ym = f_m()  # f(m^i) (N, n) and f(m_bar) (1, n)
+        return x_bar + Ym[:-1] - Ym[-1:], Pp[0], C[0]
 
     def take(self, P: FloatArray, idx: NDArray[np.intp]) -> FloatArray:
         return P
+
+
+def _with_means(fn, m: FloatArray, m_bar: FloatArray):
+    """``fn`` (a model's f or h at one epoch, rows (..., n) -> (..., q)) wrapped to evaluate, in the
+    same call as the points it is given, the particles' means m (N, n) and their mean m_bar (n,)
+    too (one model call instead of three: a row's value does not depend on the others').
+    Returns ``(at_means, wrapped)``: ``at_means()`` gives ``fn`` of ``[m; m_bar]`` (N + 1, q) after
+    ``wrapped`` has been called once."""
+    n = m.shape[-1]
+    means = np.concatenate([m, m_bar[None]])
+    out: list[FloatArray] = []
+
+    def wrapped(X: FloatArray) -> FloatArray:
+        rows = X.reshape(-1, n)
+        Y = fn(np.concatenate([rows, means]))
+        out.append(Y[rows.shape[0]:])
+        return Y[: rows.shape[0]].reshape(X.shape[:-1] + Y.shape[-1:])
+
+    def at_means() -> FloatArray:
+        return out[-1] if out else fn(means)
+
+    return at_means, wrapped
 
 
 def _index(idx: NDArray[np.intp]) -> slice | NDArray[np.intp]:
@@ -328,17 +355,24 @@ def _index(idx: NDArray[np.intp]) -> slice | NDArray[np.intp]:
     return idx
 
 
+@lru_cache(maxsize=64)
+def _carried(n: int, S: tuple[int, ...]) -> tuple[NDArray[np.intp], slice | NDArray[np.intp]]:
+    """The components (r,) of n that are not in S and their :func:`_index` (computed once per (n, S))."""
+    keep = np.ones(n, dtype=bool)
+    keep[list(S)] = False
+    rest_idx = np.flatnonzero(keep)
+    rest_idx.flags.writeable = False
+    return rest_idx, _index(rest_idx)
+
+
 def _predict_given_sampled(m: FloatArray, P: FloatArray, S: NDArray[np.intp], f, Q: FloatArray, points) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Unscented time update (eq. 4) of Gaussians N(m, P) (N, n), (N, n, n) whose components S
     are known exactly (zero rows/columns of P): sigma points span only the other components.
     Returns the predicted means (N, n), covariances and cross-covariances Cov(x_k, x_k+1) (N, n, n)."""
     N, n = m.shape
-    keep = np.ones(n, dtype=bool)
-    keep[S] = False
-    rest_idx = np.flatnonzero(keep)
+    rest_idx, r = _carried(n, tuple(S.tolist()))
     if rest_idx.size == 0:
         return f(m), np.broadcast_to(Q, (N, n, n)).copy(), np.zeros((N, n, n))
-    r = _index(rest_idx)
     wm, wc = points.weights(rest_idx.size)
     P_rr = P[:, r, :][:, :, r] if isinstance(r, np.ndarray) else P[:, r, r]
     Xr = points.points(m[:, r], P_rr)  # (N, 2r + 1, r)
