@@ -203,7 +203,11 @@ def gauss_logpdf(r: FloatArray, S: FloatArray) -> FloatArray:
     """log N(r; 0, S) for residuals r (..., p) and covariances S (..., p, p), broadcast together."""
     L = chol(S)
     p = r.shape[-1]
-    z = _lower_solve(L, np.asarray(r, dtype=float)[..., None])[..., 0]
+    r = np.asarray(r, dtype=float)
+    if L.ndim == 2 and r.ndim == 2:  # one covariance for every residual: one solve of the residuals' columns (the same sums)
+        z = np.ascontiguousarray(_lower_solve(L, r.T).T)
+    else:
+        z = _lower_solve(L, r[..., None])[..., 0]
     half_logdet = np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     return -0.5 * np.sum(z * z, axis=-1) - half_logdet - 0.5 * p * np.log(2.0 * np.pi)
 

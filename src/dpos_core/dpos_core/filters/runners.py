@@ -43,7 +43,7 @@ from dpos_core.units import FloatArray
 
 from . import _particle_kernel as _pk
 from .gaussian import Prediction, Update, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
-from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
+from .linalg import _lower_solve, chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .pf import children_mask
@@ -255,14 +255,28 @@ def sampled_indices(model: StateSpaceModel, n: int, sampled=None) -> NDArray[np.
     return idx
 
 
-def _condition(m: FloatArray, P: FloatArray, S: NDArray[np.intp], xs: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _sampled_block(P: FloatArray, S: NDArray[np.intp]) -> FloatArray:
+    """``P[..., S, S]`` (..., s, s) of covariances P (..., n, n): a view when S is contiguous."""
+    Si = _index_of(tuple(S.tolist()))
+    return P[..., Si, Si] if isinstance(Si, slice) else P[..., S[:, None], S[None, :]]
+
+
+def _condition(m: FloatArray, P: FloatArray, S: NDArray[np.intp], xs: FloatArray,
+               L_SS: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Condition Gaussians N(m_i, P) (m (N, n); P (N, n, n) or one shared (n, n)) on their
-    components S taking the values xs (N, s): conditional means and covariances (exact)."""
+    components S taking the values xs (N, s): conditional means and covariances (exact).
+    ``L_SS``: the Cholesky factor of ``P[..., S, S]`` when the caller has it (:func:`~.linalg.chol`)."""
     shared = P.ndim == 2
     Pb = P[None] if shared else P
-    P_xS = Pb[:, :, S]  # (., n, s)
-    G = gain(P_xS, Pb[:, S[:, None], S[None, :]])  # P_xS P_SS^-1
-    m_c = m + np.einsum("nij,nj->ni", np.broadcast_to(G, (m.shape[0],) + G.shape[1:]), xs - m[:, S])
+    Si = _index_of(tuple(S.tolist()))
+    P_xS = Pb[:, :, Si]  # (., n, s)
+    if L_SS is None:
+        G = gain(P_xS, _sampled_block(Pb, S))  # P_xS P_SS^-1
+    else:  # the same solves as gain's, with the factor given
+        L = L_SS[None] if shared else L_SS
+        G = np.swapaxes(_lower_solve(L, _lower_solve(L, np.swapaxes(P_xS, -1, -2)), transposed=True), -1, -2)
+    d = xs - m[:, Si]
+    m_c = m + (np.einsum("ij,nj->ni", G[0], d) if shared else np.einsum("nij,nj->ni", G, d))
     P_c = symmetrize(Pb - G @ np.swapaxes(P_xS, -1, -2))
     P_c[:, S, :] = 0.0
     P_c[:, :, S] = 0.0
@@ -356,6 +370,14 @@ def _index(idx: NDArray[np.intp]) -> slice | NDArray[np.intp]:
 
 
 @lru_cache(maxsize=64)
+def _index_of(idx: tuple[int, ...]) -> slice | NDArray[np.intp]:
+    """:func:`_index` of the indices idx, computed once per idx (read-only)."""
+    a = np.asarray(idx, dtype=np.intp)
+    a.flags.writeable = False
+    return _index(a)
+
+
+@lru_cache(maxsize=64)
 def _carried(n: int, S: tuple[int, ...]) -> tuple[NDArray[np.intp], slice | NDArray[np.intp]]:
     """The components (r,) of n that are not in S and their :func:`_index` (computed once per (n, S))."""
     keep = np.ones(n, dtype=bool)
@@ -440,6 +462,7 @@ def run_upf(
         raise ValueError(f"unknown resampling scheme {resample!r}; choose one of {RESAMPLING}")
     S = sampled_indices(model, n, sampled)
     s = S.size
+    Si = _index_of(tuple(S.tolist()))  # a slice when contiguous (views)
     st = store if isinstance(store, EpochStore) else EpochStore(None if store is None else Path(store))
     K1 = max(K - 1, 0)
     parts = st.array("particles", K, (N, n)) if full_track else None
@@ -467,15 +490,15 @@ def run_upf(
             inn.put(k, *_mixture(w_pred, nu, S_y))
             logw = log_normalize(logw + gauss_logpdf(nu, S_y))
         # sample the components S from each particle's UKF posterior (eq. 6), condition the rest
-        L_SS = chol(P[..., S[:, None], S[None, :]])
+        L_SS = chol(_sampled_block(P, S))
         z = rng.standard_normal((N, s))
-        xs = m[:, S] + (z @ L_SS.T if L_SS.ndim == 2 else np.einsum("nij,nj->ni", L_SS, z))
+        xs = m[:, Si] + (z @ L_SS.T if L_SS.ndim == 2 else np.einsum("nij,nj->ni", L_SS, z))
         m_u, P_u = m, P  # the UKF posterior before the draw (the resample-move's target)
-        m, P = _condition(m, P, S, xs)
+        m, P = _condition(m, P, S, xs, L_SS)
         if proposed is not None:
             proposed[k] = m
         if proposed_s is not None:
-            proposed_s[k] = m[:, S]
+            proposed_s[k] = m[:, Si]
         w = np.exp(logw)
         mean = w @ m
         c = model.feedback(k, mean)
@@ -497,8 +520,8 @@ def run_upf(
             break
         m_k = m
         m, P, C = engine.predict(model, k, m, P, w, S, points)
-        pred_mean[k] = m[:, S]
-        pred_cov[k] = P[..., S[:, None], S[None, :]]
+        pred_mean[k] = m[:, Si]
+        pred_cov[k] = _sampled_block(P, S)
         xp_k, Pp_k = _mixture(w, m, P)
         mix_P_p[k] = Pp_k
         dm, dp = m_k - xf_k, m - xp_k
