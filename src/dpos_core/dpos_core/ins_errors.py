@@ -65,7 +65,7 @@ class IntervalIntegrals:
 
     def __init__(self, start: NavState) -> None:
         self.start = start
-        self.end: NavState | None = None
+        self._last: NavSeries | None = None  # the last chunk added (its last epoch is the end)
         self.T = 0.0
         self.F_n = np.zeros(3)
         self.C_int = np.zeros((3, 3))
@@ -78,16 +78,21 @@ class IntervalIntegrals:
         self.F_n = self.F_n + np.einsum("kij,kj->i", C_mid, f_b_mps2 * dt[:, None])
         self.C_int = self.C_int + np.einsum("kij,k->ij", C_mid, dt)
         self.T += float(np.sum(dt))
-        self.end = chunk.state(-1)
+        self._last = chunk
+
+    @property
+    def end(self) -> NavState | None:
+        """The nominal at the end of the chunks added (None before the first)."""
+        return None if self._last is None else self._last.state(-1)
 
     def close(self) -> Interval | None:
         """The interval's constants (None when no time passed)."""
-        if self.end is None or self.T <= 0.0:
+        if self._last is None or self.T <= 0.0:
             return None
-        a, b = self.start, self.end
-        v = 0.5 * (a.vel_n_mps + b.vel_n_mps)
-        lat = 0.5 * (a.llh[0] + b.llh[0])
-        h = 0.5 * (a.llh[2] + b.llh[2])
+        a, b_vel, b_llh = self.start, self._last.vel_n_mps[-1], self._last.llh[-1]
+        v = 0.5 * (a.vel_n_mps + b_vel)
+        lat = 0.5 * (a.llh[0] + b_llh[0])
+        h = 0.5 * (a.llh[2] + b_llh[2])
         return Interval(self.T, self.F_n.copy(), self.C_int.copy(), earth.earth_rate_n(lat), earth.transport_rate_n(lat, h, v),
                         v, float(lat), float(h), float(earth.normal_gravity(lat, h)))
 

@@ -262,6 +262,20 @@ class Strapdown:
         self._mode = _k.MODE_INCREMENTS
         return self._run(_k.MODE_INCREMENTS, t, dt, a, b)
 
+    def run_valid_increments(self, t_s: FloatArray, dt_s: FloatArray, dtheta_rad: FloatArray, dvel_mps: FloatArray) -> NavSeries:
+        """:meth:`run_increments` of input its caller has validated (the same numbers, without the
+        checks: a filter's model integrating, epoch after epoch, samples it checked once).
+
+        Args:
+            t_s: end times (N,), strictly increasing and after the current state time.
+            dt_s: their steps (N,) from the current state time (``np.diff(t_s, prepend=t0)``).
+            dtheta_rad, dvel_mps: finite increments (N, 3), as :meth:`run_increments`.
+        """
+        self._check_mode(_k.MODE_INCREMENTS)
+        self._mode = _k.MODE_INCREMENTS
+        return self._run(_k.MODE_INCREMENTS, np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(dt_s, dtype=float),
+                         np.ascontiguousarray(dtheta_rad, dtype=float), np.ascontiguousarray(dvel_mps, dtype=float))
+
     def run_rates(self, t_s: ArrayLike, omega_ib_b_radps: ArrayLike, f_ib_b_mps2: ArrayLike) -> NavSeries:
         """Integrate angular rate / specific force samples.
 

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from dpos_core.units import FloatArray
 
 from . import _particle_kernel as _pk
-from .gaussian import Prediction, Update, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
+from .gaussian import Prediction, Update, _ut_moments, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
 from .linalg import _lower_solve, chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
@@ -403,10 +403,10 @@ def _predict_given_sampled(m: FloatArray, P: FloatArray, S: NDArray[np.intp], f,
     Y = f(X)
     xp = wm @ Y
     dY = Y - xp[:, None, :]
-    Pp = np.swapaxes(dY * wc[:, None], -1, -2) @ dY + Q
+    Pp, C_r = _ut_moments(Xr - m[:, None, r], dY, wc, Q)
     C = np.zeros((N, n, n))
-    C[:, r, :] = np.swapaxes((Xr - m[:, None, r]) * wc[:, None], -1, -2) @ dY
-    return xp, symmetrize(Pp), C
+    C[:, r, :] = C_r
+    return xp, Pp, C
 
 
 def run_upf(

@@ -545,7 +545,7 @@ class TransferAlignmentModel:
         om, f = self.imu.omega_radps[i0:i1], self.imu.f_mps2[i0:i1]
         start = self.strapdown.state
         self._starts.append(self.strapdown.snapshot())
-        chunk = self.strapdown.run_increments(t, om * dt, f * dt)
+        chunk = self.strapdown.run_valid_increments(t, dt[:, 0], om * dt, f * dt)  # (checked in __post_init__)
         self._last_chunk = chunk
         if self.keep_nominal:
             self._chunks.append(chunk)
@@ -802,7 +802,7 @@ class TransferAlignmentModel:
         dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
         sd = Strapdown(self.initial)
         sd.restore(self._starts[k])
-        return sd.run_increments(t, self.imu.omega_radps[i0:i1] * dt, self.imu.f_mps2[i0:i1] * dt)
+        return sd.run_valid_increments(t, dt[:, 0], self.imu.omega_radps[i0:i1] * dt, self.imu.f_mps2[i0:i1] * dt)
 
     def interval_sizes(self) -> NDArray[np.intp]:
         """The rows (sub-IMU samples) of each interval integrated so far (those of :meth:`nominal_chunk`)."""
