@@ -140,17 +140,13 @@ def _correct(x: FloatArray, P: FloatArray, Pxz: FloatArray, S: FloatArray, nu: F
     (numba kernel; an S not positive definite to rounding goes through :func:`~.linalg.gain`, which
     repairs or raises)."""
     n, p = Pxz.shape[-2], Pxz.shape[-1]
-    if x.ndim == 1 and P.ndim == 2 and Pxz.ndim == 2 and S.ndim == 2 and nu.ndim == 1:  # one filter (no broadcasting)
-        lead: tuple[int, ...] = ()
-        args = [np.ascontiguousarray(a, dtype=float)[None] for a in (x, P, Pxz, S, nu)]
-    else:
-        lead = np.broadcast_shapes(x.shape[:-1], P.shape[:-2], Pxz.shape[:-2], S.shape[:-2], nu.shape[:-1])
-        args = [np.ascontiguousarray(np.broadcast_to(a, lead + a.shape[a.ndim - k:]), dtype=float).reshape((-1,) + a.shape[a.ndim - k:])
-                for a, k in ((x, 1), (P, 2), (Pxz, 2), (S, 2), (nu, 1))]
-    B = args[0].shape[0]
-    xn, Pn, K = np.empty((B, n)), np.empty((B, n, n)), np.empty((B, n, p))
-    if _utk.correct(*args, xn, Pn, K):
-        return Update(xn.reshape(lead + (n,)), Pn.reshape(lead + (n, n)), nu, S, K.reshape(lead + (n, p)))
+    lead = x.shape[:-1]
+    if P.shape[:-2] == lead and Pxz.shape[:-2] == lead and S.shape[:-2] == lead and nu.shape[:-1] == lead:  # (else broadcast below)
+        args = [np.ascontiguousarray(a, dtype=float).reshape((-1,) + a.shape[a.ndim - k:]) for a, k in ((x, 1), (P, 2), (Pxz, 2), (S, 2), (nu, 1))]
+        B = args[0].shape[0]
+        xn, Pn, K = np.empty((B, n)), np.empty((B, n, n)), np.empty((B, n, p))
+        if _utk.correct(*args, xn, Pn, K):
+            return Update(xn.reshape(lead + (n,)), Pn.reshape(lead + (n, n)), nu, S, K.reshape(lead + (n, p)))
     K = gain(Pxz, S)
     xn = x + np.einsum("...ij,...j->...i", K, nu)
     return Update(xn, symmetrize(P - K @ S @ np.swapaxes(K, -1, -2)), nu, S, K)
