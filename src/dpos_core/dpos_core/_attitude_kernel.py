@@ -143,3 +143,14 @@ def rows_compose_rotvec(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
         bw, bx, by, bz = rotvec_quat(b[m, 0], b[m, 1], b[m, 2])
         w, x, y, z = quat_mul(aw, ax, ay, az, bw, bx, by, bz)
         out[m, 0], out[m, 1], out[m, 2] = quat_rotvec(w, x, y, z)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_compose_rotvec_one(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Rows ``log(expm([a x]) expm([b x]))`` of a, out (M, 3) with one b (3,) (:func:`rows_compose_rotvec`
+    of b repeated)."""
+    bw, bx, by, bz = rotvec_quat(b[0], b[1], b[2])
+    for m in range(a.shape[0]):
+        aw, ax, ay, az = rotvec_quat(a[m, 0], a[m, 1], a[m, 2])
+        w, x, y, z = quat_mul(aw, ax, ay, az, bw, bx, by, bz)
+        out[m, 0], out[m, 1], out[m, 2] = quat_rotvec(w, x, y, z)

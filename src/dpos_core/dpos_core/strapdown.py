@@ -179,6 +179,11 @@ class Strapdown:
         """Current navigation state (a copy)."""
         return NavState._from_state_vector(self._t_s, self._state)
 
+    @property
+    def llh(self) -> FloatArray:
+        """The current position (3,) ``[lat_rad, lon_rad, h_m]`` (a copy; ``state.llh`` without the rest)."""
+        return self._state[7:10].copy()
+
     def set_state(self, state: NavState) -> None:
         """Replace the navigation state at the current time, keeping the IMU-sample memory."""
         if abs(state.t_s - self._t_s) > 1e-9:
