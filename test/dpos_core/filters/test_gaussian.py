@@ -149,3 +149,20 @@ def test_gauss_logpdf_kernel_shared_covariance() -> None:
     r = rng.normal(size=(100, 9)) * 0.3
     np.testing.assert_allclose(gauss_logpdf(r, C), multivariate_normal(np.zeros(9), C).logpdf(r), rtol=1e-12)
     np.testing.assert_allclose(gauss_logpdf(r, C), gauss_logpdf(r, np.broadcast_to(C, (100, 9, 9))), rtol=1e-12)
+
+
+def test_symmetric_points_kernel_is_the_numpy_formula() -> None:
+    """points.symmetric_points (numba kernel filters._points_kernel for one square root per mean) =
+    ``[x, x + scale s_j, x - scale s_j]``, bit for bit, batched or not; a square root shared by
+    several means goes through numpy."""
+    from dpos_core.filters.points import symmetric_points
+
+    rng = np.random.default_rng(9)
+    for lead in ((), (3,), (2, 4)):
+        x, S = rng.normal(size=lead + (5,)), rng.normal(size=lead + (5, 5))
+        d = 1.7 * np.swapaxes(S, -1, -2)
+        ref = np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
+        np.testing.assert_array_equal(symmetric_points(x, S, 1.7), ref)
+    x, S = rng.normal(size=(3, 5)), rng.normal(size=(5, 5))
+    d = 1.7 * S.T
+    np.testing.assert_array_equal(symmetric_points(x, S, 1.7), np.concatenate([x[:, None], x[:, None] + d, x[:, None] - d], axis=-2))

@@ -21,6 +21,7 @@ import numpy as np
 
 from dpos_core.units import FloatArray
 
+from . import _points_kernel as _pk
 from .linalg import chol
 
 #: the central-difference step ``h = sqrt(3)`` (``h^2`` = 3, the kurtosis of a Gaussian prior; Norgaard 2000)
@@ -36,6 +37,13 @@ def symmetric_points(x: FloatArray, S: FloatArray, scale: float) -> FloatArray:
         scale: ``sqrt(n + lambda)`` for the unscented transform ([Gong2018] eq. 2), the step
             ``h`` for central differences ([Fang2012] eq. 2-14, Norgaard 2000).
     """
+    n = x.shape[-1]
+    lead = x.shape[:-1]
+    if S.shape[:-2] == lead:  # one square root per mean: the kernel (the same sums)
+        fx = np.ascontiguousarray(x, dtype=float).reshape(-1, n)
+        out = np.empty((fx.shape[0], 2 * n + 1, n))
+        _pk.symmetric_points(fx, np.ascontiguousarray(S, dtype=float).reshape(-1, n, n), float(scale), out)
+        return out.reshape(lead + (2 * n + 1, n))
     d = scale * np.swapaxes(S, -1, -2)  # rows = scaled columns of S
     return np.concatenate([x[..., None, :], x[..., None, :] + d, x[..., None, :] - d], axis=-2)
 

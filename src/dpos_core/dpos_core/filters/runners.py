@@ -41,9 +41,10 @@ from numpy.typing import NDArray
 
 from dpos_core.units import FloatArray
 
+from . import _condition_kernel as _ck
 from . import _particle_kernel as _pk
 from .gaussian import Prediction, Update, _ut_moments, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
-from .linalg import _lower_solve, chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
+from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
 from .pf import children_mask
@@ -268,13 +269,14 @@ def _condition(m: FloatArray, P: FloatArray, S: NDArray[np.intp], xs: FloatArray
     ``L_SS``: the Cholesky factor of ``P[..., S, S]`` when the caller has it (:func:`~.linalg.chol`)."""
     shared = P.ndim == 2
     Pb = P[None] if shared else P
+    if L_SS is not None:  # G = P_xS P_SS^-1 by the factor's two solves, m + G (xs - m_S), sym(P - G P_xS^T), S zeroed (numba kernel)
+        m_c, P_c = np.empty(m.shape), np.empty(Pb.shape)
+        _ck.condition(np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(Pb, dtype=float), np.ascontiguousarray(S, dtype=np.intp),
+                      np.ascontiguousarray(L_SS[None] if shared else L_SS, dtype=float), np.ascontiguousarray(xs, dtype=float), m_c, P_c)
+        return m_c, (P_c[0] if shared else P_c)
     Si = _index_of(tuple(S.tolist()))
     P_xS = Pb[:, :, Si]  # (., n, s)
-    if L_SS is None:
-        G = gain(P_xS, _sampled_block(Pb, S))  # P_xS P_SS^-1
-    else:  # the same solves as gain's, with the factor given
-        L = L_SS[None] if shared else L_SS
-        G = np.swapaxes(_lower_solve(L, _lower_solve(L, np.swapaxes(P_xS, -1, -2)), transposed=True), -1, -2)
+    G = gain(P_xS, _sampled_block(Pb, S))  # P_xS P_SS^-1
     d = xs - m[:, Si]
     m_c = m + (np.einsum("ij,nj->ni", G[0], d) if shared else np.einsum("nij,nj->ni", G, d))
     P_c = symmetrize(Pb - G @ np.swapaxes(P_xS, -1, -2))
