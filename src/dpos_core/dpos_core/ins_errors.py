@@ -72,11 +72,14 @@ class IntervalIntegrals:
 
     def add(self, prev: NavState, chunk: NavSeries, f_b_mps2: FloatArray, dt_s: FloatArray) -> None:
         """A chunk integrated from ``prev`` with specific forces f_b (m, 3) over steps dt (m,)."""
-        C = np.concatenate([prev.C_nb[None], chunk.C_nb])
-        C_mid = 0.5 * (C[1:] + C[:-1])
-        dt = np.asarray(dt_s, dtype=float).reshape(-1)
-        self.F_n = self.F_n + np.einsum("kij,kj->i", C_mid, f_b_mps2 * dt[:, None])
-        self.C_int = self.C_int + np.einsum("kij,k->ij", C_mid, dt)
+        # sum_k C_mid_k f_k dt_k and sum_k C_mid_k dt_k, C_mid_k the mean of the DCMs at the step's
+        # ends (the midpoint rule; numba kernel)
+        dt = np.ascontiguousarray(dt_s, dtype=float).reshape(-1)
+        F_n, C_int = np.empty(3), np.empty((3, 3))
+        _error_kernel.interval_sums(np.ascontiguousarray(prev.q_nb, dtype=float), np.ascontiguousarray(chunk.q_nb, dtype=float),
+                                    np.ascontiguousarray(f_b_mps2, dtype=float), dt, F_n, C_int)
+        self.F_n = self.F_n + F_n
+        self.C_int = self.C_int + C_int
         self.T += float(np.sum(dt))
         self._last = chunk
 
