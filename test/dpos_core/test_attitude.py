@@ -141,3 +141,17 @@ def test_compose_rotvec_with_one_right_factor_is_the_broadcast() -> None:
     _ak.rows_compose_rotvec(rows, np.ascontiguousarray(np.broadcast_to(b, rows.shape)), out)
     np.testing.assert_array_equal(compose_rotvec(a, b), out.reshape(a.shape))
     np.testing.assert_array_equal(compose_rotvec(a[0, 0], b), out[0])
+
+
+def test_rotate_normalize_kernel_is_the_numpy_formula() -> None:
+    """_attitude_kernel.rotate_normalize (Strapdown.correct's attitude) = quat_normalize(rotvec_to_quat(phi) * q), bit for bit."""
+    from dpos_core import _attitude_kernel as _ak
+
+    rng = np.random.default_rng(13)
+    for _ in range(50):
+        q = att.quat_normalize(rng.normal(size=4))
+        phi = rng.normal(size=3) * rng.choice([1e-9, 1e-4, 0.3, 2.0])
+        ref = att.quat_normalize(np.array(_ak.quat_mul(*_ak.rotvec_quat(*phi), *q)))
+        out = q.copy()
+        _ak.rotate_normalize(out, phi)
+        np.testing.assert_array_equal(out, ref)

@@ -206,11 +206,8 @@ class Strapdown:
             dllh: position error (3,) ``[dlat_rad, dlon_rad, dh_m]``, est - true.
         """
         if phi_n_rad is not None:
-            # attitude's kernels on scalars (one quaternion: array calls would cost more than the formulas)
-            x, y, z = (float(v) for v in np.asarray(phi_n_rad, dtype=float).reshape(3))
-            q = self._state
-            w, qx, qy, qz = _ak.quat_mul(*_ak.rotvec_quat(x, y, z), float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-            self._state[0:4] = quat_normalize(np.array([w, qx, qy, qz]))
+            # expm(-[phi x]) removed: q <- normalized rotvec_quat(phi) * q (attitude's kernels on scalars, one call)
+            _ak.rotate_normalize(self._state[0:4], np.ascontiguousarray(phi_n_rad, dtype=float).reshape(3))
         if dvel_n_mps is not None:
             dv = np.asarray(dvel_n_mps, dtype=float).reshape(3)
             self._state[4:7] -= dv
