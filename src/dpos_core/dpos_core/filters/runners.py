@@ -32,6 +32,7 @@ the variants tried and the measurements.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -342,7 +343,8 @@ class SharedLinearizationUKF:
         return P
 
 
-def _with_means(fn, m: FloatArray, m_bar: FloatArray):
+def _with_means(fn: Callable[[FloatArray], FloatArray], m: FloatArray,
+                m_bar: FloatArray) -> tuple[Callable[[], FloatArray], Callable[[FloatArray], FloatArray]]:
     """``fn`` (a model's f or h at one epoch, rows (..., n) -> (..., q)) wrapped to evaluate, in the
     same call as the points it is given, the particles' means m (N, n) and their mean m_bar (n,)
     too (one model call instead of three: a row's value does not depend on the others').
