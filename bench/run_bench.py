@@ -67,7 +67,10 @@ Keys (in order):
                                long_flight_peak_rss_mb / long_flight_time_ratio: those of the longest flight;
                                long_flight_<d>_worker_task_peak_rss_mb / _worker_task_s: one worker task alone
                                (bench/worker_memory.py: sub-IMU imu01's read, alignment and rows in a fresh
-                               spawned, warmed-up process; its ru_maxrss and wall time), run after dpos-process
+                               spawned, warmed-up process; its ru_maxrss and wall time), run after dpos-process;
+                               --long-flight-bags DIR keeps each simulated recording in DIR/long_wing_<d>s (with
+                               its scenario) and reuses it when the scenario there is the same file (no _sim_*
+                               figures then, long_flight_<d>_bag_reused true): delete DIR after changing dpos-sim
   soak_processing_time_ratio   finalize processing time (status.json timing.processing_s: the smoothers
                                of the 6 sub-IMUs) / data duration; soak_data_wall_s: wall time of the
                                data flow
@@ -774,8 +777,9 @@ def _flight_label(d_s: float) -> str:
 
 
 def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...] = (3600.0, 7200.0, 14400.0),
-                      rss_cap_mb: float = 6000.0, tmp_root: str | None = None) -> None:
-    """Issue #17 part 2 (module docstring, ``long_flight_*``): a run per duration, not repeated."""
+                      rss_cap_mb: float = 6000.0, tmp_root: str | None = None, bags_dir: Path | None = None) -> None:
+    """Issue #17 part 2 (module docstring, ``long_flight_*``): a run per duration, not repeated.
+    ``bags_dir``: where the simulated recordings are kept and reused (module docstring)."""
     import shutil
     import tempfile
 
@@ -791,15 +795,25 @@ def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...
                 results[f"{key}_status"] = f"not run: the bag (~{need / 1e9:.1f} GB) does not fit {tmp} ({free / 1e9:.1f} GB free)"
                 print(f"{key}: {results[f'{key}_status']}")
                 continue
-            bag = tmp / "bag"
             scen = _long_scenario(tmp / "long_wing.yaml", d)
-            rc, wall, peak, status = _run_watched([str(bindir / "dpos-sim"), "--scenario", str(scen),
-                                                   "--window", "60", "--no-truth", "--out", str(bag)], rss_cap_mb, tmp / "sim.log")
-            results[f"{key}_sim_peak_rss_mb"], results[f"{key}_sim_time_ratio"] = round(peak, 1), round(wall / d, 5)
-            if rc != 0:
-                results[f"{key}_status"] = f"simulation failed: {status if rc is None else (tmp / 'sim.log').read_text()[-500:]}"
-                print(f"{key}: {results[f'{key}_status']}")
-                continue
+            keep = None if bags_dir is None else Path(bags_dir) / f"long_wing_{d:g}s"
+            reuse = (keep is not None and (keep / "bag" / "metadata.yaml").is_file() and (keep / "long_wing.yaml").is_file()
+                     and (keep / "long_wing.yaml").read_text() == scen.read_text())
+            bag = keep / "bag" if keep is not None else tmp / "bag"
+            results[f"{key}_bag_reused"] = reuse
+            if not reuse:
+                if keep is not None:
+                    shutil.rmtree(keep, ignore_errors=True)
+                    keep.mkdir(parents=True)
+                rc, wall, peak, status = _run_watched([str(bindir / "dpos-sim"), "--scenario", str(scen),
+                                                       "--window", "60", "--no-truth", "--out", str(bag)], rss_cap_mb, tmp / "sim.log")
+                results[f"{key}_sim_peak_rss_mb"], results[f"{key}_sim_time_ratio"] = round(peak, 1), round(wall / d, 5)
+                if rc != 0:
+                    results[f"{key}_status"] = f"simulation failed: {status if rc is None else (tmp / 'sim.log').read_text()[-500:]}"
+                    print(f"{key}: {results[f'{key}_status']}")
+                    continue
+                if keep is not None:  # (written last: a recording cut short by a failure is not reused)
+                    shutil.copyfile(scen, keep / "long_wing.yaml")
             results[f"{key}_bag_mb"] = round(sum(f.stat().st_size for f in bag.iterdir()) / 1e6, 1)
             one: dict[str, float] = {}
             load0 = os.getloadavg()[0]
@@ -819,8 +833,9 @@ def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...
             results[f"{key}_peak_rss_mb"] = round(peak, 1) if rc in (0, 1) else None
             results[f"{key}_time_ratio"] = round(wall / d, 5) if rc in (0, 1) else None
             print(f"{key}: dpos-process peak {peak:.0f} MB, {wall:.0f} s (ratio {wall / d:.4f}, load {load0:.1f} -> "
-                  f"{os.getloadavg()[0]:.1f}), {status}; simulation peak "
-                  f"{results[f'{key}_sim_peak_rss_mb']:.0f} MB, ratio {results[f'{key}_sim_time_ratio']:.4f}; bag {results[f'{key}_bag_mb']} MB")
+                  f"{os.getloadavg()[0]:.1f}), {status}; "
+                  + (f"recording reused from {bag}" if reuse else f"simulation peak {results[f'{key}_sim_peak_rss_mb']:.0f} MB, "
+                     f"ratio {results[f'{key}_sim_time_ratio']:.4f}") + f"; bag {results[f'{key}_bag_mb']} MB")
             last = key
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -855,12 +870,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="seconds of data of the soak benchmark (600; 0 skips it)")
     ap.add_argument("--long-flight-s", default="3600,7200,14400", metavar="S,S,...",
                     help="flight durations [s] of the long_flight benchmark (default 1 h, 2 h, 4 h)")
+    ap.add_argument("--long-flight-bags", type=Path, default=None, metavar="DIR",
+                    help="keep the long_flight recordings in DIR and reuse them (the same scenario); default: simulated and deleted each run")
     ap.add_argument("--long-flight-rss-cap-mb", type=float, default=6000.0, metavar="MB",
                     help="kill a long_flight run whose summed RSS exceeds this (the machine is shared)")
     args = ap.parse_args(argv)
     options: dict[str, dict[str, Any]] = {
         "soak": {"soak_s": args.soak_s},
-        "long_flight": {"durations_s": tuple(float(x) for x in args.long_flight_s.split(",")), "rss_cap_mb": args.long_flight_rss_cap_mb}}
+        "long_flight": {"durations_s": tuple(float(x) for x in args.long_flight_s.split(",")), "rss_cap_mb": args.long_flight_rss_cap_mb,
+                        "bags_dir": args.long_flight_bags}}
     results: dict = {}
     for name, fn in BENCHES.items():
         if args.only and name not in args.only:

@@ -150,3 +150,31 @@ def test_hpr_from_C_nb_is_the_products_angles_bit_for_bit() -> None:
         for C in (quat_to_dcm(q), C_nb_from_hpr(*right), signed, quat_to_dcm(q)[0], signed[:4]):
             a, b = by_products(C), hpr_from_C_nb(C)
             assert a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
+
+
+def test_compose_rotvec_with_one_right_factor_is_the_broadcast() -> None:
+    """compose_rotvec(a (..., 3), b (3,)) (kernel rows_compose_rotvec_one) = b repeated for every row, bit for bit."""
+    from dpos_core import _attitude_kernel as _ak
+    from dpos_core.attitude import compose_rotvec
+
+    rng = np.random.default_rng(7)
+    a, b = rng.normal(size=(4, 5, 3)), rng.normal(size=3) * 0.1
+    rows = a.reshape(-1, 3)
+    out = np.empty_like(rows)
+    _ak.rows_compose_rotvec(rows, np.ascontiguousarray(np.broadcast_to(b, rows.shape)), out)
+    np.testing.assert_array_equal(compose_rotvec(a, b), out.reshape(a.shape))
+    np.testing.assert_array_equal(compose_rotvec(a[0, 0], b), out[0])
+
+
+def test_rotate_normalize_kernel_is_the_numpy_formula() -> None:
+    """_attitude_kernel.rotate_normalize (Strapdown.correct's attitude) = quat_normalize(rotvec_to_quat(phi) * q), bit for bit."""
+    from dpos_core import _attitude_kernel as _ak
+
+    rng = np.random.default_rng(13)
+    for _ in range(50):
+        q = att.quat_normalize(rng.normal(size=4))
+        phi = rng.normal(size=3) * rng.choice([1e-9, 1e-4, 0.3, 2.0])
+        ref = att.quat_normalize(np.array(_ak.quat_mul(*_ak.rotvec_quat(*phi), *q)))
+        out = q.copy()
+        _ak.rotate_normalize(out, phi)
+        np.testing.assert_array_equal(out, ref)

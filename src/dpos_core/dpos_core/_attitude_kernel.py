@@ -143,3 +143,26 @@ def rows_compose_rotvec(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
         bw, bx, by, bz = rotvec_quat(b[m, 0], b[m, 1], b[m, 2])
         w, x, y, z = quat_mul(aw, ax, ay, az, bw, bx, by, bz)
         out[m, 0], out[m, 1], out[m, 2] = quat_rotvec(w, x, y, z)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_compose_rotvec_one(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Rows ``log(expm([a x]) expm([b x]))`` of a, out (M, 3) with one b (3,) (:func:`rows_compose_rotvec`
+    of b repeated)."""
+    bw, bx, by, bz = rotvec_quat(b[0], b[1], b[2])
+    for m in range(a.shape[0]):
+        aw, ax, ay, az = rotvec_quat(a[m, 0], a[m, 1], a[m, 2])
+        w, x, y, z = quat_mul(aw, ax, ay, az, bw, bx, by, bz)
+        out[m, 0], out[m, 1], out[m, 2] = quat_rotvec(w, x, y, z)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rotate_normalize(q: np.ndarray, phi: np.ndarray) -> None:
+    """``q`` (4,) in place: ``quat_normalize(rotvec_quat(phi) * q)`` (a strapdown's attitude
+    correction, :meth:`dpos_core.strapdown.Strapdown.correct`; the norm summed in numpy's order)."""
+    w, x, y, z = quat_mul(*rotvec_quat(phi[0], phi[1], phi[2]), q[0], q[1], q[2], q[3])
+    s = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / s, x / s, y / s, z / s
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    q[0], q[1], q[2], q[3] = w, x, y, z

@@ -159,3 +159,29 @@ def ta_measurement(x: np.ndarray, A: np.ndarray, C_m: np.ndarray, w_m: np.ndarra
             o[3 + i] = r[3 + i] + (C_m[i, 0] * s0 + C_m[i, 1] * s1 + C_m[i, 2] * s2)
             if use_pos:
                 o[6 + i] = r[6 + i] + (C_m[i, 0] * f0 + C_m[i, 1] * f1 + C_m[i, 2] * f2)
+
+
+@nb.njit(cache=True, nogil=True)
+def interval_sums(q0: np.ndarray, q: np.ndarray, f: np.ndarray, dt: np.ndarray, F_n: np.ndarray, C_int: np.ndarray) -> None:
+    """The midpoint-rule integrals of :meth:`dpos_core.ins_errors.IntervalIntegrals.add` over the
+    steps dt (m,): ``F_n = sum_k C_mid_k f_k dt_k`` (3,) and ``C_int = sum_k C_mid_k dt_k`` (3, 3)
+    written to F_n, C_int, with ``C_mid_k = (C_k + C_{k-1}) / 2`` the mean of the DCMs of the
+    quaternions q (m, 4) at the step's end and start (``C_{-1}`` that of q0 (4,)); f (m, 3)."""
+    Ca = np.empty((3, 3))
+    Cb = np.empty((3, 3))
+    quat_dcm((q0[0], q0[1], q0[2], q0[3]), Ca)
+    for i in range(3):
+        F_n[i] = 0.0
+        for j in range(3):
+            C_int[i, j] = 0.0
+    for k in range(q.shape[0]):
+        quat_dcm((q[k, 0], q[k, 1], q[k, 2], q[k, 3]), Cb)
+        t = dt[k]
+        for i in range(3):
+            for j in range(3):
+                c = 0.5 * (Cb[i, j] + Ca[i, j])
+                F_n[i] += c * (f[k, j] * t)
+                C_int[i, j] += c * t
+        for i in range(3):
+            for j in range(3):
+                Ca[i, j] = Cb[i, j]

@@ -179,7 +179,13 @@ def mount_dcm(mount_rpy_deg: ArrayLike, rho_deg: ArrayLike) -> FloatArray:
 
 def compose_rotvec(a: FloatArray, b: FloatArray) -> FloatArray:
     """``log(expm([a x]) expm([b x]))`` (..., 3), a and b broadcast together."""
-    a_, b_ = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    a_, b_ = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if b_.shape == (3,) and a_.ndim >= 1 and a_.shape[-1] == 3:  # one b for every a (a filter's correction)
+        fa = np.ascontiguousarray(a_).reshape(-1, 3)
+        out = np.empty_like(fa)
+        _ak.rows_compose_rotvec_one(fa, np.ascontiguousarray(b_), out)
+        return out.reshape(a_.shape)
+    a_, b_ = np.broadcast_arrays(a_, b_)
     fa = np.ascontiguousarray(a_).reshape(-1, 3)
     out = np.empty_like(fa)
     _ak.rows_compose_rotvec(fa, np.ascontiguousarray(b_).reshape(-1, 3), out)

@@ -154,6 +154,8 @@ def gravity_n(lat_rad: ArrayLike, h_m: ArrayLike) -> FloatArray:
 def earth_rate_n(lat_rad: ArrayLike) -> FloatArray:
     """Earth rotation rate ``omega_ie^n`` in the local ENU frame, shape ``(..., 3)`` [rad/s]."""
     lat = np.asarray(lat_rad, dtype=float)
+    if lat.ndim == 0:  # one place (a filter interval's): the same values without the stack
+        return np.array([0.0, OMEGA_IE_RADPS * np.cos(lat), OMEGA_IE_RADPS * np.sin(lat)])
     z = np.zeros_like(lat)
     return np.stack([z, OMEGA_IE_RADPS * np.cos(lat), OMEGA_IE_RADPS * np.sin(lat)], axis=-1)
 
@@ -168,12 +170,16 @@ def transport_rate_n(lat_rad: ArrayLike, h_m: ArrayLike, vel_n_mps: ArrayLike) -
     v = np.asarray(vel_n_mps, dtype=float)
     r_m, r_n = radii_of_curvature(lat)
     ve, vn = v[..., 0], v[..., 1]
+    if lat.ndim == 0 and h.ndim == 0 and v.ndim == 1:  # one place: the same values without the stack
+        return np.array([-vn / (r_m + h), ve / (r_n + h), ve * np.tan(lat) / (r_n + h)])
     return np.stack([-vn / (r_m + h), ve / (r_n + h), ve * np.tan(lat) / (r_n + h)], axis=-1)
 
 
 def _enu_to_dllh(d_enu: FloatArray, lat: FloatArray, h: FloatArray) -> FloatArray:
     """``[d_N / (R_M + h), d_E / ((R_N + h) cos L), d_U]`` (the body of :func:`enu_to_dllh`)."""
     r_m, r_n = radii_of_curvature(lat)
+    if d_enu.ndim == 1 and np.ndim(lat) == 0 and np.ndim(h) == 0:  # one displacement: the same values without the stack
+        return np.array([d_enu[1] / (r_m + h), d_enu[0] / ((r_n + h) * np.cos(lat)), d_enu[2]])
     return np.stack([d_enu[..., 1] / (r_m + h), d_enu[..., 0] / ((r_n + h) * np.cos(lat)), d_enu[..., 2]], axis=-1)
 
 

@@ -65,29 +65,37 @@ class IntervalIntegrals:
 
     def __init__(self, start: NavState) -> None:
         self.start = start
-        self.end: NavState | None = None
+        self._last: NavSeries | None = None  # the last chunk added (its last epoch is the end)
         self.T = 0.0
         self.F_n = np.zeros(3)
         self.C_int = np.zeros((3, 3))
 
     def add(self, prev: NavState, chunk: NavSeries, f_b_mps2: FloatArray, dt_s: FloatArray) -> None:
         """A chunk integrated from ``prev`` with specific forces f_b (m, 3) over steps dt (m,)."""
-        C = np.concatenate([prev.C_nb[None], chunk.C_nb])
-        C_mid = 0.5 * (C[1:] + C[:-1])
-        dt = np.asarray(dt_s, dtype=float).reshape(-1)
-        self.F_n = self.F_n + np.einsum("kij,kj->i", C_mid, f_b_mps2 * dt[:, None])
-        self.C_int = self.C_int + np.einsum("kij,k->ij", C_mid, dt)
+        # sum_k C_mid_k f_k dt_k and sum_k C_mid_k dt_k, C_mid_k the mean of the DCMs at the step's
+        # ends (the midpoint rule; numba kernel)
+        dt = np.ascontiguousarray(dt_s, dtype=float).reshape(-1)
+        F_n, C_int = np.empty(3), np.empty((3, 3))
+        _error_kernel.interval_sums(np.ascontiguousarray(prev.q_nb, dtype=float), np.ascontiguousarray(chunk.q_nb, dtype=float),
+                                    np.ascontiguousarray(f_b_mps2, dtype=float), dt, F_n, C_int)
+        self.F_n = self.F_n + F_n
+        self.C_int = self.C_int + C_int
         self.T += float(np.sum(dt))
-        self.end = chunk.state(-1)
+        self._last = chunk
+
+    @property
+    def end(self) -> NavState | None:
+        """The nominal at the end of the chunks added (None before the first)."""
+        return None if self._last is None else self._last.state(-1)
 
     def close(self) -> Interval | None:
         """The interval's constants (None when no time passed)."""
-        if self.end is None or self.T <= 0.0:
+        if self._last is None or self.T <= 0.0:
             return None
-        a, b = self.start, self.end
-        v = 0.5 * (a.vel_n_mps + b.vel_n_mps)
-        lat = 0.5 * (a.llh[0] + b.llh[0])
-        h = 0.5 * (a.llh[2] + b.llh[2])
+        a, b_vel, b_llh = self.start, self._last.vel_n_mps[-1], self._last.llh[-1]
+        v = 0.5 * (a.vel_n_mps + b_vel)
+        lat = 0.5 * (a.llh[0] + b_llh[0])
+        h = 0.5 * (a.llh[2] + b_llh[2])
         return Interval(self.T, self.F_n.copy(), self.C_int.copy(), earth.earth_rate_n(lat), earth.transport_rate_n(lat, h, v),
                         v, float(lat), float(h), float(earth.normal_gravity(lat, h)))
 

@@ -179,6 +179,11 @@ class Strapdown:
         """Current navigation state (a copy)."""
         return NavState._from_state_vector(self._t_s, self._state)
 
+    @property
+    def llh(self) -> FloatArray:
+        """The current position (3,) ``[lat_rad, lon_rad, h_m]`` (a copy; ``state.llh`` without the rest)."""
+        return self._state[7:10].copy()
+
     def set_state(self, state: NavState) -> None:
         """Replace the navigation state at the current time, keeping the IMU-sample memory."""
         if abs(state.t_s - self._t_s) > 1e-9:
@@ -201,11 +206,8 @@ class Strapdown:
             dllh: position error (3,) ``[dlat_rad, dlon_rad, dh_m]``, est - true.
         """
         if phi_n_rad is not None:
-            # attitude's kernels on scalars (one quaternion: array calls would cost more than the formulas)
-            x, y, z = (float(v) for v in np.asarray(phi_n_rad, dtype=float).reshape(3))
-            q = self._state
-            w, qx, qy, qz = _ak.quat_mul(*_ak.rotvec_quat(x, y, z), float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-            self._state[0:4] = quat_normalize(np.array([w, qx, qy, qz]))
+            # expm(-[phi x]) removed: q <- normalized rotvec_quat(phi) * q (attitude's kernels on scalars, one call)
+            _ak.rotate_normalize(self._state[0:4], np.ascontiguousarray(phi_n_rad, dtype=float).reshape(3))
         if dvel_n_mps is not None:
             dv = np.asarray(dvel_n_mps, dtype=float).reshape(3)
             self._state[4:7] -= dv
@@ -261,6 +263,20 @@ class Strapdown:
         dt = self._steps(t)
         self._mode = _k.MODE_INCREMENTS
         return self._run(_k.MODE_INCREMENTS, t, dt, a, b)
+
+    def run_valid_increments(self, t_s: FloatArray, dt_s: FloatArray, dtheta_rad: FloatArray, dvel_mps: FloatArray) -> NavSeries:
+        """:meth:`run_increments` of input its caller has validated (the same numbers, without the
+        checks: a filter's model integrating, epoch after epoch, samples it checked once).
+
+        Args:
+            t_s: end times (N,), strictly increasing and after the current state time.
+            dt_s: their steps (N,) from the current state time (``np.diff(t_s, prepend=t0)``).
+            dtheta_rad, dvel_mps: finite increments (N, 3), as :meth:`run_increments`.
+        """
+        self._check_mode(_k.MODE_INCREMENTS)
+        self._mode = _k.MODE_INCREMENTS
+        return self._run(_k.MODE_INCREMENTS, np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(dt_s, dtype=float),
+                         np.ascontiguousarray(dtheta_rad, dtype=float), np.ascontiguousarray(dvel_mps, dtype=float))
 
     def run_rates(self, t_s: ArrayLike, omega_ib_b_radps: ArrayLike, f_ib_b_mps2: ArrayLike) -> NavSeries:
         """Integrate angular rate / specific force samples.

@@ -157,3 +157,26 @@ def test_ups_resample_move_keeps_the_kalman_filter() -> None:
     same = np.all(out == m_pred, axis=1)
     np.testing.assert_array_equal(same, children_mask(idx) == 0)
     assert len({round(v, 12) for v in out[[1, 2], 0]}) == 2
+
+
+def test_condition_kernel_is_the_numpy_formula() -> None:
+    """runners._condition with the factor of the sampled block given (numba kernel
+    filters._condition_kernel) = the numpy path (gain, conditional mean, symmetrized covariance with
+    the sampled rows and columns zeroed), for one shared covariance and one per particle."""
+    from dpos_core.filters.linalg import chol
+    from dpos_core.filters.runners import _condition
+
+    rng = np.random.default_rng(8)
+    N, n = 6, 7
+    for S in (np.array([4, 5, 6]), np.array([0, 3])):
+        for shared in (True, False):
+            A = rng.normal(size=(n, n)) if shared else rng.normal(size=(N, n, n))
+            P = A @ np.swapaxes(A, -1, -2) + np.eye(n)
+            m, xs = rng.normal(size=(N, n)), rng.normal(size=(N, S.size))
+            L = chol(P[..., S[:, None], S[None, :]])
+            m_k, P_k = _condition(m, P, S, xs, L)
+            m_n, P_n = _condition(m, P, S, xs)
+            np.testing.assert_allclose(m_k, m_n, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(P_k, P_n, rtol=1e-12, atol=1e-12)
+            np.testing.assert_array_equal(P_k, np.swapaxes(P_k, -1, -2))
+            np.testing.assert_allclose(m_k[:, S], xs, rtol=1e-12, atol=1e-12)

@@ -38,6 +38,7 @@ import numpy as np
 
 from dpos_core.units import FloatArray
 
+from . import _ut_kernel as _utk
 from .dd2 import divided_differences
 from .linalg import chol, gain, symmetrize
 from .points import CENTRAL_DIFFERENCE_POINTS, CentralDifferencePoints, UnscentedPoints
@@ -91,10 +92,21 @@ def ut_predict(x: FloatArray, P: FloatArray, f: Fn, Q: FloatArray, points=Unscen
     xp = wm @ Y
     dY = Y - xp[..., None, :]
     dX = X - x[..., None, :]
-    dYw = np.swapaxes(dY * wc[:, None], -1, -2)  # weighted outer products as batched matmuls
-    Pp = dYw @ dY + Q
-    C = np.swapaxes(dX * wc[:, None], -1, -2) @ dY
-    return Prediction(xp, symmetrize(Pp), C)
+    Pp, C = _ut_moments(dX, dY, wc, Q)
+    return Prediction(xp, Pp, C)
+
+
+def _ut_moments(dX: FloatArray, dY: FloatArray, wc: FloatArray, noise: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``sym(sum_l wc_l dY_l dY_l^T + noise)`` (..., q, q) and ``sum_l wc_l dX_l dY_l^T`` (..., a, q) of
+    the deviations dX (..., L, a), dY (..., L, q) of L points from their means, covariance weights
+    wc (L,), an additive noise (q, q) ([Gong2018] eq. 4-5's covariances; numba kernel)."""
+    lead = dY.shape[:-2]
+    L, q, a = dY.shape[-2], dY.shape[-1], dX.shape[-1]
+    fX = np.ascontiguousarray(dX, dtype=float).reshape(-1, L, a)
+    fY = np.ascontiguousarray(dY, dtype=float).reshape(-1, L, q)
+    cov, cross = np.empty((fY.shape[0], q, q)), np.empty((fY.shape[0], a, q))
+    _utk.moments(fX, fY, np.ascontiguousarray(wc, dtype=float), np.ascontiguousarray(noise, dtype=float), cov, cross)
+    return cov.reshape(lead + (q, q)), cross.reshape(lead + (a, q))
 
 
 def ut_update(
@@ -117,14 +129,27 @@ def ut_update(
     res = residual or (lambda a, b: a - b)
     dZ = res(Z, zp[..., None, :])
     dX = X - x[..., None, :]
-    dZw = np.swapaxes(dZ * wc[:, None], -1, -2)
-    S = symmetrize(dZw @ dZ + R)
-    Pxz = np.swapaxes(dX * wc[:, None], -1, -2) @ dZ
-    K = gain(Pxz, S)
+    S, Pxz = _ut_moments(dX, dZ, wc, R)
     nu = res(y, zp)
+    return _correct(x, P, Pxz, S, nu)
+
+
+def _correct(x: FloatArray, P: FloatArray, Pxz: FloatArray, S: FloatArray, nu: FloatArray) -> Update:
+    """The Kalman correction with gain ``K = Pxz S^-1`` (..., n, p) ([Gong2018] eq. 5): ``x + K nu``,
+    ``sym(P - K S K^T)``; x (..., n), P (..., n, n), S (..., p, p), nu (..., p), batched together
+    (numba kernel; an S not positive definite to rounding goes through :func:`~.linalg.gain`, which
+    repairs or raises)."""
+    n, p = Pxz.shape[-2], Pxz.shape[-1]
+    lead = x.shape[:-1]
+    if P.shape[:-2] == lead and Pxz.shape[:-2] == lead and S.shape[:-2] == lead and nu.shape[:-1] == lead:  # (else broadcast below)
+        args = [np.ascontiguousarray(a, dtype=float).reshape((-1,) + a.shape[a.ndim - k:]) for a, k in ((x, 1), (P, 2), (Pxz, 2), (S, 2), (nu, 1))]
+        B = args[0].shape[0]
+        xn, Pn, K = np.empty((B, n)), np.empty((B, n, n)), np.empty((B, n, p))
+        if _utk.correct(*args, xn, Pn, K):
+            return Update(xn.reshape(lead + (n,)), Pn.reshape(lead + (n, n)), nu, S, K.reshape(lead + (n, p)))
+    K = gain(Pxz, S)
     xn = x + np.einsum("...ij,...j->...i", K, nu)
-    Pn = P - K @ S @ np.swapaxes(K, -1, -2)
-    return Update(xn, symmetrize(Pn), nu, S, K)
+    return Update(xn, symmetrize(P - K @ S @ np.swapaxes(K, -1, -2)), nu, S, K)
 
 
 def _outer(A: FloatArray) -> FloatArray:

@@ -24,6 +24,7 @@ from dpos_core.errors import NumericalFailure, NumericalRepairWarning
 from dpos_core.units import FloatArray
 
 from . import _linalg_kernel as _k
+from . import _logpdf_kernel as _lk
 
 #: the largest relative diagonal jitter :func:`chol` tries (of the matrix's largest diagonal element)
 MAX_RELATIVE_JITTER = 1e-6
@@ -203,7 +204,12 @@ def gauss_logpdf(r: FloatArray, S: FloatArray) -> FloatArray:
     """log N(r; 0, S) for residuals r (..., p) and covariances S (..., p, p), broadcast together."""
     L = chol(S)
     p = r.shape[-1]
-    z = _lower_solve(L, np.asarray(r, dtype=float)[..., None])[..., 0]
+    r = np.asarray(r, dtype=float)
+    if L.ndim == 2 and r.ndim == 2:  # one covariance for every residual (N, p): one pass (numba kernel)
+        out = np.empty(r.shape[0])
+        _lk.gauss_logpdf_rows(L, np.ascontiguousarray(r), out)
+        return out
+    z = _lower_solve(L, r[..., None])[..., 0]
     half_logdet = np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     return -0.5 * np.sum(z * z, axis=-1) - half_logdet - 0.5 * p * np.log(2.0 * np.pi)
 

@@ -32,7 +32,9 @@ the variants tried and the measurements.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +42,9 @@ from numpy.typing import NDArray
 
 from dpos_core.units import FloatArray
 
+from . import _condition_kernel as _ck
 from . import _particle_kernel as _pk
-from .gaussian import Prediction, Update, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
+from .gaussian import Prediction, Update, _ut_moments, cd_predict, cd_update, rts_smooth, ut_predict, ut_update
 from .linalg import chol, chol_unrepaired, gain, gauss_logpdf, solve_lower, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
@@ -254,14 +257,29 @@ def sampled_indices(model: StateSpaceModel, n: int, sampled=None) -> NDArray[np.
     return idx
 
 
-def _condition(m: FloatArray, P: FloatArray, S: NDArray[np.intp], xs: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _sampled_block(P: FloatArray, S: NDArray[np.intp]) -> FloatArray:
+    """``P[..., S, S]`` (..., s, s) of covariances P (..., n, n): a view when S is contiguous."""
+    Si = _index_of(tuple(S.tolist()))
+    return P[..., Si, Si] if isinstance(Si, slice) else P[..., S[:, None], S[None, :]]
+
+
+def _condition(m: FloatArray, P: FloatArray, S: NDArray[np.intp], xs: FloatArray,
+               L_SS: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Condition Gaussians N(m_i, P) (m (N, n); P (N, n, n) or one shared (n, n)) on their
-    components S taking the values xs (N, s): conditional means and covariances (exact)."""
+    components S taking the values xs (N, s): conditional means and covariances (exact).
+    ``L_SS``: the Cholesky factor of ``P[..., S, S]`` when the caller has it (:func:`~.linalg.chol`)."""
     shared = P.ndim == 2
     Pb = P[None] if shared else P
-    P_xS = Pb[:, :, S]  # (., n, s)
-    G = gain(P_xS, Pb[:, S[:, None], S[None, :]])  # P_xS P_SS^-1
-    m_c = m + np.einsum("nij,nj->ni", np.broadcast_to(G, (m.shape[0],) + G.shape[1:]), xs - m[:, S])
+    if L_SS is not None:  # G = P_xS P_SS^-1 by the factor's two solves, m + G (xs - m_S), sym(P - G P_xS^T), S zeroed (numba kernel)
+        m_c, P_c = np.empty(m.shape), np.empty(Pb.shape)
+        _ck.condition(np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(Pb, dtype=float), np.ascontiguousarray(S, dtype=np.intp),
+                      np.ascontiguousarray(L_SS[None] if shared else L_SS, dtype=float), np.ascontiguousarray(xs, dtype=float), m_c, P_c)
+        return m_c, (P_c[0] if shared else P_c)
+    Si = _index_of(tuple(S.tolist()))
+    P_xS = Pb[:, :, Si]  # (., n, s)
+    G = gain(P_xS, _sampled_block(Pb, S))  # P_xS P_SS^-1
+    d = xs - m[:, Si]
+    m_c = m + (np.einsum("ij,nj->ni", G[0], d) if shared else np.einsum("nij,nj->ni", G, d))
     P_c = symmetrize(Pb - G @ np.swapaxes(P_xS, -1, -2))
     P_c[:, S, :] = 0.0
     P_c[:, :, S] = 0.0
@@ -308,17 +326,44 @@ class SharedLinearizationUKF:
 
     def update(self, model: StateSpaceModel, k: int, m, P, w, y, points):
         m_bar = w @ m
-        up = ut_update(m_bar, P, y, lambda X: model.h(k, X), model.R(k), points, model.residual)
-        nu = up.nu[None, :] - model.residual(model.h(k, m), model.h(k, m_bar)[None, :])
+        h_m, h = _with_means(lambda X: model.h(k, X), m, m_bar)
+        up = ut_update(m_bar, P, y, h, model.R(k), points, model.residual)
+        Zm = h_m()  # h(m^i) (N, p) and h(m_bar) (1, p), from the sigma points' call
+        nu = up.nu[None, :] - model.residual(Zm[:-1], Zm[-1:])
         return m + nu @ up.K.T, up.P, nu, up.S
 
     def predict(self, model: StateSpaceModel, k: int, m, P, w, S, points):
         m_bar = w @ m
-        x_bar, Pp, C = _predict_given_sampled(m_bar[None], P[None], S, lambda X: model.f(k, X), model.Q(k), points)
-        return x_bar + model.f(k, m) - model.f(k, m_bar)[None, :], Pp[0], C[0]
+        f_m, f = _with_means(lambda X: model.f(k, X), m, m_bar)
+        x_bar, Pp, C = _predict_given_sampled(m_bar[None], P[None], S, f, model.Q(k), points)
+        Ym = f_m()  # f(m^i) (N, n) and f(m_bar) (1, n)
+        return x_bar + Ym[:-1] - Ym[-1:], Pp[0], C[0]
 
     def take(self, P: FloatArray, idx: NDArray[np.intp]) -> FloatArray:
         return P
+
+
+def _with_means(fn: Callable[[FloatArray], FloatArray], m: FloatArray,
+                m_bar: FloatArray) -> tuple[Callable[[], FloatArray], Callable[[FloatArray], FloatArray]]:
+    """``fn`` (a model's f or h at one epoch, rows (..., n) -> (..., q)) wrapped to evaluate, in the
+    same call as the points it is given, the particles' means m (N, n) and their mean m_bar (n,)
+    too (one model call instead of three: a row's value does not depend on the others').
+    Returns ``(at_means, wrapped)``: ``at_means()`` gives ``fn`` of ``[m; m_bar]`` (N + 1, q) after
+    ``wrapped`` has been called once."""
+    n = m.shape[-1]
+    means = np.concatenate([m, m_bar[None]])
+    out: list[FloatArray] = []
+
+    def wrapped(X: FloatArray) -> FloatArray:
+        rows = X.reshape(-1, n)
+        Y = fn(np.concatenate([rows, means]))
+        out.append(Y[rows.shape[0]:])
+        return Y[: rows.shape[0]].reshape(X.shape[:-1] + Y.shape[-1:])
+
+    def at_means() -> FloatArray:
+        return out[-1] if out else fn(means)
+
+    return at_means, wrapped
 
 
 def _index(idx: NDArray[np.intp]) -> slice | NDArray[np.intp]:
@@ -328,17 +373,32 @@ def _index(idx: NDArray[np.intp]) -> slice | NDArray[np.intp]:
     return idx
 
 
+@lru_cache(maxsize=64)
+def _index_of(idx: tuple[int, ...]) -> slice | NDArray[np.intp]:
+    """:func:`_index` of the indices idx, computed once per idx (read-only)."""
+    a = np.asarray(idx, dtype=np.intp)
+    a.flags.writeable = False
+    return _index(a)
+
+
+@lru_cache(maxsize=64)
+def _carried(n: int, S: tuple[int, ...]) -> tuple[NDArray[np.intp], slice | NDArray[np.intp]]:
+    """The components (r,) of n that are not in S and their :func:`_index` (computed once per (n, S))."""
+    keep = np.ones(n, dtype=bool)
+    keep[list(S)] = False
+    rest_idx = np.flatnonzero(keep)
+    rest_idx.flags.writeable = False
+    return rest_idx, _index(rest_idx)
+
+
 def _predict_given_sampled(m: FloatArray, P: FloatArray, S: NDArray[np.intp], f, Q: FloatArray, points) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Unscented time update (eq. 4) of Gaussians N(m, P) (N, n), (N, n, n) whose components S
     are known exactly (zero rows/columns of P): sigma points span only the other components.
     Returns the predicted means (N, n), covariances and cross-covariances Cov(x_k, x_k+1) (N, n, n)."""
     N, n = m.shape
-    keep = np.ones(n, dtype=bool)
-    keep[S] = False
-    rest_idx = np.flatnonzero(keep)
+    rest_idx, r = _carried(n, tuple(S.tolist()))
     if rest_idx.size == 0:
         return f(m), np.broadcast_to(Q, (N, n, n)).copy(), np.zeros((N, n, n))
-    r = _index(rest_idx)
     wm, wc = points.weights(rest_idx.size)
     P_rr = P[:, r, :][:, :, r] if isinstance(r, np.ndarray) else P[:, r, r]
     Xr = points.points(m[:, r], P_rr)  # (N, 2r + 1, r)
@@ -347,10 +407,10 @@ def _predict_given_sampled(m: FloatArray, P: FloatArray, S: NDArray[np.intp], f,
     Y = f(X)
     xp = wm @ Y
     dY = Y - xp[:, None, :]
-    Pp = np.swapaxes(dY * wc[:, None], -1, -2) @ dY + Q
+    Pp, C_r = _ut_moments(Xr - m[:, None, r], dY, wc, Q)
     C = np.zeros((N, n, n))
-    C[:, r, :] = np.swapaxes((Xr - m[:, None, r]) * wc[:, None], -1, -2) @ dY
-    return xp, symmetrize(Pp), C
+    C[:, r, :] = C_r
+    return xp, Pp, C
 
 
 def run_upf(
@@ -406,6 +466,7 @@ def run_upf(
         raise ValueError(f"unknown resampling scheme {resample!r}; choose one of {RESAMPLING}")
     S = sampled_indices(model, n, sampled)
     s = S.size
+    Si = _index_of(tuple(S.tolist()))  # a slice when contiguous (views)
     st = store if isinstance(store, EpochStore) else EpochStore(None if store is None else Path(store))
     K1 = max(K - 1, 0)
     parts = st.array("particles", K, (N, n)) if full_track else None
@@ -433,15 +494,15 @@ def run_upf(
             inn.put(k, *_mixture(w_pred, nu, S_y))
             logw = log_normalize(logw + gauss_logpdf(nu, S_y))
         # sample the components S from each particle's UKF posterior (eq. 6), condition the rest
-        L_SS = chol(P[..., S[:, None], S[None, :]])
+        L_SS = chol(_sampled_block(P, S))
         z = rng.standard_normal((N, s))
-        xs = m[:, S] + (z @ L_SS.T if L_SS.ndim == 2 else np.einsum("nij,nj->ni", L_SS, z))
+        xs = m[:, Si] + (z @ L_SS.T if L_SS.ndim == 2 else np.einsum("nij,nj->ni", L_SS, z))
         m_u, P_u = m, P  # the UKF posterior before the draw (the resample-move's target)
-        m, P = _condition(m, P, S, xs)
+        m, P = _condition(m, P, S, xs, L_SS)
         if proposed is not None:
             proposed[k] = m
         if proposed_s is not None:
-            proposed_s[k] = m[:, S]
+            proposed_s[k] = m[:, Si]
         w = np.exp(logw)
         mean = w @ m
         c = model.feedback(k, mean)
@@ -463,8 +524,8 @@ def run_upf(
             break
         m_k = m
         m, P, C = engine.predict(model, k, m, P, w, S, points)
-        pred_mean[k] = m[:, S]
-        pred_cov[k] = P[..., S[:, None], S[None, :]]
+        pred_mean[k] = m[:, Si]
+        pred_cov[k] = _sampled_block(P, S)
         xp_k, Pp_k = _mixture(w, m, P)
         mix_P_p[k] = Pp_k
         dm, dp = m_k - xf_k, m - xp_k

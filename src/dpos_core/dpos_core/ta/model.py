@@ -430,18 +430,30 @@ class TransferAlignmentModel:
         C_est = nom.C_nb
         z_att = dcm_to_rotvec(A @ C_est.T)
         z_vel = nom.vel_n_mps - v_m - C_m @ (cross(w_m, r_b) + r_dot_b)
+        # R: the main POS's covariances (its position and velocity errors are states, not noise, with
+        # master_error), plus on the diagonal the noise floors, then the vibration's variance
         R = np.zeros((p, p))
-        R[:3, :3] = cov_att + np.eye(3) * (self.cfg.att_noise_floor_deg * DEG) ** 2
-        gm = "master_error" in self.extra  # its position and velocity errors are states, not noise
-        R[3:6, 3:6] = (0.0 if gm else cov_v) + np.eye(3) * self.cfg.vel_noise_floor_mps**2
+        gm = "master_error" in self.extra
+        R[:3, :3] = cov_att
+        if not gm:
+            R[3:6, 3:6] = cov_v
         vib = self.cfg.vibration_noise and ins.known_wing is None
         vib_v, vib_p = self.vibration_variance(k) if vib else (np.zeros(3), np.zeros(3))
-        R[3:6, 3:6] += np.diag(vib_v)
+        floor = np.empty(p)
+        floor[:3] = (self.cfg.att_noise_floor_deg * DEG) ** 2
+        floor[3:6] = self.cfg.vel_noise_floor_mps**2
+        extra = np.zeros(p)
+        extra[3:6] = vib_v
         z = [z_att, z_vel]
         if self.cfg.use_position:
             # p_est - p_m - C_m r0 in local ENU metres at the sub-IMU
             z.append(earth.enu_between(nom.llh, llh_m) - C_m @ r_b)
-            R[6:, 6:] = (0.0 if gm else cov_p) + np.eye(3) * self._pos_floor_m**2 + np.diag(vib_p)
+            if not gm:
+                R[6:, 6:] = cov_p
+            floor[6:] = self._pos_floor_m**2
+            extra[6:] = vib_p
+        d = np.arange(p)
+        R[d, d] = (R[d, d] + floor) + extra
         self._epochs[k] = _Epoch(np.concatenate(z), R, A, C_m, w_m, self._installation_rows(k, p, C_m, w_m, nom.vel_n_mps))
 
     def _installation_rows(self, k: int, p: int, C_m: FloatArray, w_m: FloatArray, v_n: FloatArray) -> FloatArray:
@@ -545,7 +557,7 @@ class TransferAlignmentModel:
         om, f = self.imu.omega_radps[i0:i1], self.imu.f_mps2[i0:i1]
         start = self.strapdown.state
         self._starts.append(self.strapdown.snapshot())
-        chunk = self.strapdown.run_increments(t, om * dt, f * dt)
+        chunk = self.strapdown.run_valid_increments(t, dt[:, 0], om * dt, f * dt)  # (checked in __post_init__)
         self._last_chunk = chunk
         if self.keep_nominal:
             self._chunks.append(chunk)
@@ -734,7 +746,7 @@ class TransferAlignmentModel:
     def feedback(self, k: int, mean: FloatArray) -> FloatArray:
         c = np.zeros(self.n)
         c[NAV] = mean[..., NAV]
-        dllh = earth.enu_to_dllh(c[DP], self.strapdown.state.llh)
+        dllh = earth.enu_to_dllh(c[DP], self.strapdown.llh)
         self.strapdown.correct(phi_n_rad=c[PHI], dvel_n_mps=c[DV], dllh=dllh)
         if k + 1 < self.n_epochs:
             self._propagate(k)
@@ -802,7 +814,7 @@ class TransferAlignmentModel:
         dt = np.diff(np.concatenate([[self.epochs_s[k]], t]))[:, None]
         sd = Strapdown(self.initial)
         sd.restore(self._starts[k])
-        return sd.run_increments(t, self.imu.omega_radps[i0:i1] * dt, self.imu.f_mps2[i0:i1] * dt)
+        return sd.run_valid_increments(t, dt[:, 0], self.imu.omega_radps[i0:i1] * dt, self.imu.f_mps2[i0:i1] * dt)
 
     def interval_sizes(self) -> NDArray[np.intp]:
         """The rows (sub-IMU samples) of each interval integrated so far (those of :meth:`nominal_chunk`)."""

@@ -46,10 +46,13 @@ OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX 
 OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
 #: a chunk is closed after the record that takes its uncompressed size over this (rosbags' MCAP writer)
 CHUNK_SIZE = 2**20
-#: zstd level of the chunks.  rosbags' ``zstd.compress`` takes 3; level 1 compresses these
-#: messages 1.5x faster for 3.5 % more bytes (paper_wing's antenna poses: 345 against 234 MB/s of
-#: CPU, ratio 2.82 against 2.92; issue #17), and any level decodes the same
-ZSTD_LEVEL = 1
+#: zstd level of the chunks.  rosbags' ``zstd.compress`` takes 3; the fast level -1 compresses
+#: these messages 1.4-1.6x faster than level 1 and 2x faster than 3, for 1.5 % and 3.5 % more
+#: bytes (issue #17; CPU of one process on paper_wing's
+#: chunks: antenna poses 495-565 MB/s at -1, 333-353 at 1, 234-271 at 3, ratio 2.85 / 2.89 / 2.95;
+#: the recording's IMU messages 918-1182 MB/s at -1, 646-879 at 1, ratio 6.28 / 6.38), and any
+#: level decodes the same
+ZSTD_LEVEL = -1
 #: threads compressing chunks while the next ones are built (at most twice as many chunks in flight)
 COMPRESS_THREADS = 2
 _FOOTER = 1 + 8 + 20
@@ -368,12 +371,17 @@ def _rec(op: int, body: bytes) -> bytes:
     return bytes([op]) + _u64(len(body)) + body
 
 
+def _buffer(data: bytes | NDArray[np.uint8]) -> bytes | memoryview:
+    """``data`` as zstd takes it, without a copy."""
+    return data.data if isinstance(data, np.ndarray) else data
+
+
 @dataclass(frozen=True)
 class _Chunk:
     """A chunk to write: its records ``data``, log time range [ns], the index of the message after
     its last, and its message indexes ``[(channel id, (log time, offset) pairs as u64 bytes)]``."""
 
-    data: bytes
+    data: bytes | NDArray[np.uint8]  # (a built chunk's buffer is compressed as it is: no copy to bytes)
     t0: int
     t1: int
     end: int
@@ -453,7 +461,7 @@ def _chunks(topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArray[np.
             pairs[:, 1] = rec_off[j]
             index.append((int(k) + 1, pairs.tobytes()))
         t0, t1 = (int(t_c.min()), int(t_c.max())) if b > a else (2**63 - 1, 0)
-        return _Chunk(buf.tobytes(), t0, t1, b, index)
+        return _Chunk(buf, t0, t1, b, index)
 
     a = 0
     while a < n or prefix:
@@ -497,7 +505,7 @@ def encode_batch(topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArra
     cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
     chunks = []
     for ch in _chunks(topics, order, prefix):
-        chunks.append((_Chunk(b"", ch.t0, ch.t1, ch.end, ch.index), len(ch.data), cctx.compress(ch.data)))
+        chunks.append((_Chunk(b"", ch.t0, ch.t1, ch.end, ch.index), len(ch.data), cctx.compress(_buffer(ch.data))))
     return EncodedBatch([(tp.topic, tp.msgtype) for tp in topics], chunks, _batch_stats(len(topics), order), bool(prefix))
 
 
@@ -560,10 +568,10 @@ class Writer:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.f.close()
 
-    def _compress(self, data: bytes) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
+    def _compress(self, data: bytes | NDArray[np.uint8]) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
         if not hasattr(self._local, "cctx"):
             self._local.cctx = self._zstd.ZstdCompressor(level=ZSTD_LEVEL)
-        out: bytes = self._local.cctx.compress(data)
+        out: bytes = self._local.cctx.compress(_buffer(data))
         return out
 
     def _write_chunk(self, ch: _Chunk, usize: int, comp: bytes) -> None:

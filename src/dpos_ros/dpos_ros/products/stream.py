@@ -27,6 +27,7 @@ The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.p
 from __future__ import annotations
 
 import concurrent.futures as cf
+import functools
 import json
 import shutil
 import tempfile
@@ -166,16 +167,26 @@ class StampCursor:
         return float(self.rows.read("t_s", 0, 1)[0]), float(self.rows.read("t_s", self.rows.n - 1)[0])
 
 
-def release_memory() -> None:
-    """Give the C heap's free pages back to the system (glibc ``malloc_trim``; nothing elsewhere): a
-    worker's heap otherwise keeps what a task grew it to while it idles or runs a smaller task."""
+@functools.cache
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim`` (None elsewhere), looked up once: ``ctypes.util.find_library`` runs
+    ``ldconfig`` in a subprocess, ~10 ms a call (issue #17: a call per bag batch)."""
     import ctypes
     import ctypes.util
 
     try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+        fn: Callable[[int], int] = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        return fn
     except (OSError, AttributeError):
-        pass
+        return None
+
+
+def release_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc ``malloc_trim``; nothing elsewhere): a
+    worker's heap otherwise keeps what a task grew it to while it idles or runs a smaller task."""
+    fn = _malloc_trim()
+    if fn is not None:
+        fn(0)
 
 
 @contextmanager
