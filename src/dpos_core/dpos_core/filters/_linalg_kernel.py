@@ -12,33 +12,40 @@ import numba as nb
 import numpy as np
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def chol_one(A: np.ndarray, F: np.ndarray) -> bool:
+    """Lower Cholesky factor ``F`` (n, n) of the symmetrized ``(A + A^T) / 2`` (A (n, n)); False
+    (``F`` partly written) when a pivot is not positive or not finite or an entry not finite."""
+    n = A.shape[0]
+    for j in range(n):
+        d = 0.5 * (A[j, j] + A[j, j])
+        for k in range(j):
+            d -= F[j, k] * F[j, k]
+        if not (d > 0.0 and d < np.inf):
+            return False
+        ljj = math.sqrt(d)
+        F[j, j] = ljj
+        for i in range(j):
+            F[i, j] = 0.0
+        for i in range(j + 1, n):
+            e = 0.5 * (A[i, j] + A[j, i])
+            for k in range(j):
+                e -= F[i, k] * F[j, k]
+            F[i, j] = e / ljj
+        # an off-diagonal NaN leaves the pivots finite: check the column
+        for i in range(j + 1, n):
+            if not math.isfinite(F[i, j]):
+                return False
+    return True
+
+
 @nb.njit(cache=True, nogil=True)
 def chol(P: np.ndarray, L: np.ndarray) -> bool:
     """Lower Cholesky factors ``L`` (M, n, n) of the symmetrized ``(P + P^T) / 2`` (P (M, n, n));
-    False (``L`` partly written) when a pivot is not positive or not finite."""
-    M, n = P.shape[0], P.shape[1]
-    for m in range(M):
-        A = P[m]
-        F = L[m]
-        for j in range(n):
-            d = 0.5 * (A[j, j] + A[j, j])
-            for k in range(j):
-                d -= F[j, k] * F[j, k]
-            if not (d > 0.0 and d < np.inf):
-                return False
-            ljj = math.sqrt(d)
-            F[j, j] = ljj
-            for i in range(j):
-                F[i, j] = 0.0
-            for i in range(j + 1, n):
-                e = 0.5 * (A[i, j] + A[j, i])
-                for k in range(j):
-                    e -= F[i, k] * F[j, k]
-                F[i, j] = e / ljj
-            # an off-diagonal NaN leaves the pivots finite: check the column
-            for i in range(j + 1, n):
-                if not math.isfinite(F[i, j]):
-                    return False
+    False (``L`` partly written) when a pivot is not positive or not finite (:func:`chol_one`)."""
+    for m in range(P.shape[0]):
+        if not chol_one(P[m], L[m]):
+            return False
     return True
 
 

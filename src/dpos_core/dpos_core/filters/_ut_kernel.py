@@ -9,6 +9,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ._linalg_kernel import chol_one
+
 
 @nb.njit(cache=True, nogil=True)
 def moments(dX: np.ndarray, dY: np.ndarray, wc: np.ndarray, noise: np.ndarray, cov: np.ndarray, cross: np.ndarray) -> None:
@@ -60,23 +62,8 @@ def correct(x: np.ndarray, P: np.ndarray, Pxz: np.ndarray, S: np.ndarray, nu: np
     KS = np.empty((n, p))
     A = np.empty((n, n))
     for b in range(B):
-        for j in range(p):  # Cholesky factor of S[b] (as _linalg_kernel.chol)
-            d = 0.5 * (S[b, j, j] + S[b, j, j])
-            for k in range(j):
-                d -= L[j, k] * L[j, k]
-            if not (d > 0.0 and d < np.inf):
-                return False
-            ljj = np.sqrt(d)
-            L[j, j] = ljj
-            for i in range(j):
-                L[i, j] = 0.0
-            for i in range(j + 1, p):
-                e = 0.5 * (S[b, i, j] + S[b, j, i])
-                for k in range(j):
-                    e -= L[i, k] * L[j, k]
-                L[i, j] = e / ljj
-                if not np.isfinite(L[i, j]):
-                    return False
+        if not chol_one(S[b], L):  # the Cholesky factor of S[b]
+            return False
         for c in range(n):  # Y = L^-1 Pxz^T (as _linalg_kernel.forward)
             for i in range(p):
                 e = Pxz[b, c, i]
