@@ -178,3 +178,14 @@ def test_rotate_normalize_kernel_is_the_numpy_formula() -> None:
         out = q.copy()
         _ak.rotate_normalize(out, phi)
         np.testing.assert_array_equal(out, ref)
+
+
+def test_hpr_of_a_corrupted_matrix_is_nan_and_of_large_finite_ones_finite() -> None:
+    """An infinite element makes the three angles NaN (not a pitch of 90 deg from a clipped
+    infinity); huge finite elements are not taken for non-finite ones (no sum that overflows)."""
+    C = np.stack([np.eye(3)] * 3)
+    C[0, 2, 0] = np.inf
+    C[1, 0, :] = 1e308
+    hpr = frames.hpr_from_C_nb(C)
+    assert np.all(np.isnan(hpr[0])) and np.all(np.isfinite(hpr[1]))
+    np.testing.assert_array_equal(hpr[2], frames.hpr_from_C_nb(np.eye(3)))

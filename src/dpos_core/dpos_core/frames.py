@@ -59,16 +59,17 @@ def C_nb_from_hpr(heading_rad: ArrayLike, pitch_rad: ArrayLike, roll_rad: ArrayL
 def _ned_frd_from_enu_flu(C_nb: FloatArray) -> FloatArray:
     """The elements ``[0|1|2, 0]`` and ``[2, 1|2]`` of ``C_ENU_NED @ C_nb @ C_FLU_FRD`` (..., 3, 3)
     (the others unset) without the products (a stack of 3 x 3 matmuls costs ~0.1 us a matrix):
-    rows 0 and 1 swapped, row 2 and columns 1, 2 negated.  The same values as the products: their
-    zero terms make a zero ``+0`` (the ``+ 0.0``) and a matrix with a non-finite element non-finite
-    throughout (here: NaN).  (A stack of matrices, as the product's: the ufuncs after see the same
-    strides, and so take the same loops.)"""
+    rows 0 and 1 swapped, row 2 and columns 1, 2 negated.  The same values as the products for
+    finite matrices: their zero terms make a zero ``+0`` (the ``+ 0.0``).  A matrix with a NaN or an
+    infinite element is NaN throughout (the products' zero terms made NaN of some elements, and an
+    infinity of others: an angle from a corrupted matrix).  (A stack of matrices, as the
+    product's: the ufuncs after see the same strides, and so take the same loops.)"""
     C = np.empty(np.broadcast_shapes(C_nb.shape, (3, 3)))
     np.add(C_nb[..., 1, 0], 0.0, out=C[..., 0, 0])
     np.add(C_nb[..., 0, 0], 0.0, out=C[..., 1, 0])
     np.subtract(0.0, C_nb[..., 2, 0], out=C[..., 2, 0])  # 0 - x: -x, and +0 for a zero
     np.add(C_nb[..., 2, 1:], 0.0, out=C[..., 2, 1:])
-    bad = ~np.isfinite(C_nb.reshape(*C_nb.shape[:-2], 9) @ np.ones(9))
+    bad = ~np.isfinite(C_nb).all(axis=(-2, -1))  # (a sum of the elements could overflow)
     if np.any(bad):
         C[bad] = np.nan
     return C

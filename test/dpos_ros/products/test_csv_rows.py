@@ -123,3 +123,17 @@ def test_the_buffer_is_kept_between_blocks() -> None:
     w = CsvRows(FORMATS)
     parts = [w.text(t_ns[a:a + 700], cols[a:a + 700]).tobytes() for a in range(0, 3000, 700)]
     assert b"".join(parts) == csv_rows(t_ns, cols, FORMATS)
+
+
+def test_numbers_beyond_int64_are_written_as_exponents() -> None:
+    """A %f or %d value whose digits do not fit an int64 (a diverged solution: 1e15 m/s at 5
+    decimals) is written as %e with the column's decimals: still ASCII, still that number."""
+    from dpos_ros.products.ta import csv_rows
+
+    formats = (("f", 5), ("f", 4), ("d", 0), ("f", 5))
+    cols = np.array([[1e15, -2.5e15, 1e19, 3.0], [-1e300, 9.1e14, 12.0, -0.5]])
+    text = csv_rows(np.array([0, 5], dtype=np.int64), cols, formats)
+    assert all(b < 128 for b in text)
+    lines = text.decode("ascii").splitlines()
+    assert lines[0].split(",")[1:] == ["1.00000e+15", "-2.5000e+15", "1e+19", "3.00000"]
+    assert lines[1].split(",")[1:] == ["-1.00000e+300", "910000000000000.0000", "12", "-0.50000"]

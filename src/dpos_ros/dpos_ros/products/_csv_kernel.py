@@ -197,6 +197,8 @@ def rows_into(buf, t_ns, cols, kinds, decs, nan, inf, pow10, starts, e_prev):  #
                 continue
             a = -v if neg else v
             kind = kinds[j]
+            if kind != EXP and a * fscales[j] >= 9.2e18:  # beyond int64 (a diverged solution): as %e, a number still
+                kind = EXP  # (np.savetxt would print every digit of a %f, up to 300 and more)
             if kind == INT:
                 q = np.int64(np.floor(a + 0.5))
                 if neg and q != 0:

@@ -570,11 +570,6 @@ def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray
     write_csv_rows(path, CSV_HEADER, np.asarray(t_ns, dtype=np.int64), _csv_columns(tr, s, flags), _CSV_FORMATS)
 
 
-def csv_text(t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> bytes:
-    """The rows of :func:`_write_csv` without the header (a block of a file written in parts)."""
-    return csv_rows(np.asarray(t_ns, dtype=np.int64), _csv_columns(tr, s, flags), _CSV_FORMATS)
-
-
 def _csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None) -> FloatArray:
     """The antenna CSV's columns after the stamp (N, 19), as :data:`_CSV_FORMATS` formats them."""
     hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
