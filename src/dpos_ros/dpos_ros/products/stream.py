@@ -231,9 +231,9 @@ class StreamedAntenna:
             # at most ROW_BLOCK rows read at a time (a multiple of step: every step-th row from i0), the kept rows
             # copied out (a strided view would hold its whole block: a 4 h antenna's rows for its QC figure)
             span = step * max(1, ROW_BLOCK // step)
-            parts = [{k: v[::step].copy() for k, v in self.rows.rows(a, min(a + span, i1)).items()}
+            parts = [{k: (v[::step].copy() if step > 1 else v) for k, v in self.rows.rows(a, min(a + span, i1)).items()}
                      for a in range(i0, max(i1, i0 + 1), span)]
-            c = {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
+            c = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
             traj, sigma, flags = _nav(c), c["sigma"], c["flags"]
         return P.AntennaSolution(self.name, self.sub_imu, self.status, traj, sigma, self.chol_jitter_repairs, flags,
                                  list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit, installation=self.installation)
