@@ -173,3 +173,18 @@ def test_pipeline_carries_the_epoch_qc(short_flight, method: str) -> None:
         assert np.all(np.isfinite(q.sep_norm)) and np.nanmax(q.sep / np.maximum(q.sep_dof, 1)) < 20.0
     else:
         assert np.all(np.isnan(q.sep))
+
+
+def test_chi2_ppf_once_per_distinct_dof_is_the_elementwise_value() -> None:
+    """chi2_ppf computes each distinct dof once: the same bits as gammaincinv element by element,
+    any shape, NaN kept."""
+    from scipy.special import gammaincinv
+
+    rng = np.random.default_rng(3)
+    d = rng.integers(1, 40, size=(50, 7)).astype(float)
+    d[3, 2] = np.nan
+    for q in (0.005, 0.5, 0.995):
+        got = qc.chi2_ppf(q, d)
+        assert got.shape == d.shape
+        np.testing.assert_array_equal(got, 2.0 * gammaincinv(d / 2.0, q))
+    assert qc.chi2_ppf(0.99, 3).shape == () and float(qc.chi2_ppf(0.99, 3)) == 2.0 * gammaincinv(1.5, 0.99)

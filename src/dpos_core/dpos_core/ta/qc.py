@@ -196,8 +196,13 @@ def _epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArr
 
 def chi2_ppf(q: float, dof) -> FloatArray:
     """The ``q`` quantile of chi^2(dof) (``scipy.stats.chi2.ppf``'s value, from
-    ``scipy.special.gammaincinv``: no scipy.stats import in the sub-IMU workers)."""
-    return np.asarray(2.0 * gammaincinv(np.asarray(dof, dtype=float) / 2.0, q), dtype=float)
+    ``scipy.special.gammaincinv``: no scipy.stats import in the sub-IMU workers), once per distinct
+    dof: the windowed bounds ask it for every epoch of the flight at every block of rows, with a few
+    dozen distinct window sums (issue #17: 5 of a 4 h worker task's 54 CPU s, quadratic in the
+    flight's length, before)."""
+    d = np.asarray(dof, dtype=float)
+    u, inv = np.unique(d, return_inverse=True)
+    return np.asarray(2.0 * gammaincinv(u / 2.0, q), dtype=float)[inv].reshape(d.shape)
 
 
 def chi2_bounds(dof, prob: float = PROB) -> tuple[FloatArray, FloatArray]:
