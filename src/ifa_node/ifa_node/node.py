@@ -190,6 +190,12 @@ class IfaNode(Node):
             raise ParameterError("window", cfg.window, str(e)) from None
         self.aircraft = aircraft
         self.lever_arm_m = np.asarray(aircraft.gnss_lever_arm_m, dtype=float)
+        try:  # the filter's numba kernels compiled or loaded now, not in the data flow (dpos_core.ifa.warmup)
+            from dpos_core.ifa.warmup import warm_up
+
+            self.get_logger().info(f"filter warmed up in {warm_up(self.core_config, cfg.method):.1f} s")
+        except Exception as e:  # (a warm-up is never a reason not to start)
+            self.get_logger().warning(f"the filter's warm-up failed ({type(e).__name__}: {e}); its first epochs may be slow")
         datum = datum_llh_rad(cfg.datum)
         self.datum_llh: FloatArray | None = None if datum is None else np.asarray(datum, dtype=float)
         self.al: InFlightAligner | None = None  # once the initial state is known (_maybe_start)
