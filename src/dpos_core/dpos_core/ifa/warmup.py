@@ -11,7 +11,7 @@ import numpy as np
 
 from ..series import GnssSeries
 from ..strapdown import NavState
-from ..ta.warmup import _LLH, resting_session
+from ..ta.warmup import resting_session
 from .pipeline import IfaFilterConfig, run
 
 
@@ -21,8 +21,8 @@ def warm_up(cfg: IfaFilterConfig, method: str = "add2") -> float:
     returns the seconds it took.  The result is discarded."""
     t0 = time.perf_counter()
     imu, master, _ = resting_session()
-    t = np.array([1.0, 2.0])
-    gnss = GnssSeries(t, np.broadcast_to(_LLH, (2, 3)).copy(), np.full((2, 3), 0.02), np.zeros((2, 3)), np.full((2, 3), 0.01))
-    initial = NavState(0.0, np.asarray(master.q_nb[0], dtype=float), np.zeros(3), _LLH.copy())
+    t, llh = np.array([1.0, 2.0]), np.asarray(master.llh[0], dtype=float)
+    gnss = GnssSeries(t, np.broadcast_to(llh, (2, 3)).copy(), np.full((2, 3), 0.02), np.zeros((2, 3)), np.full((2, 3), 0.01))
+    initial = NavState(0.0, np.asarray(master.q_nb[0], dtype=float), np.zeros(3), llh.copy())
     run(imu, gnss, np.zeros(3), cfg, method, initial)
     return time.perf_counter() - t0
