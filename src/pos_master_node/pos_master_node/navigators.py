@@ -296,8 +296,16 @@ class Mechanizer(ABC):
 
     # ------------------------------------------------------------------ wiring
     def attach(self) -> None:
-        """Subscribe to /ifa/correction, /ifa/imu_bias and /ifa/status; publish /pos_master/status."""
+        """Warm the mechanization up (:func:`dpos_core.ifa.warmup.warm_up_mechanization`: its numba
+        kernels compiled or loaded now, not on the first IMU batch); subscribe to /ifa/correction,
+        /ifa/imu_bias and /ifa/status; publish /pos_master/status."""
         node = self.node
+        try:
+            from dpos_core.ifa.warmup import warm_up_mechanization
+
+            node.get_logger().info(f"mechanization warmed up in {warm_up_mechanization():.1f} s")
+        except Exception as e:  # (a warm-up is never a reason not to start)
+            node.get_logger().warning(f"the mechanization's warm-up failed ({type(e).__name__}: {e}); its first IMU batch may be slow")
         # draining subscriptions: the relay serves its inputs in batches (dpos_ros.io.flow.subscribe_draining)
         subscribe_draining(node, T.message_class(T.ODOMETRY), T.IFA_CORRECTION, self.on_correction, keep_all(NAV_QOS), raw=True)
         subscribe_draining(node, T.message_class(T.IMU), T.IFA_IMU_BIAS, self.on_bias, keep_all(NAV_QOS), raw=True)
