@@ -80,6 +80,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -107,7 +108,7 @@ from dpos_ros.products.master_reference import master_error_tau
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
-from dpos_ros.runtime.pool import process_pool, worker_count
+from dpos_ros.runtime.pool import WarmPool, process_pool, worker_count
 from transfer_align_node.params import TransferAlignConfig
 
 NODE_NAME = "transfer_align_node"
@@ -607,10 +608,7 @@ class TransferAlignNode(Node):
 
     def _new_pool(self) -> cf.Executor:
         """The smoothers' workers, started now, each loading the filters (:func:`_warm_worker`)."""
-        ex = _pool(self._n_workers)
-        for _ in range(self._n_workers):
-            ex.submit(_warm_worker, self.config.method)
-        return ex
+        return WarmPool(self._n_workers, partial(_warm_worker, self.config.method), make=_pool)
 
     def _process(self, spill_dir: Path, counts: dict, mechanized: bool = False, span_s: float = 0.0) -> None:
         cfg = self.config

@@ -84,7 +84,7 @@ def test_a_warm_pool_gives_the_serial_results_and_stays_up_for_the_next_session(
     pool, warming = warm_pool(2, partial(warm_up, "urtss"))
     try:
         done, _ = cf.wait(warming, timeout=120)
-        assert len(done) == 2 and all(f.result() > 0.0 for f in done)  # both warm-ups ran without error
+        assert len(done) == 2 and all(f.result()["result"] > 0.0 for f in done)  # both warm-ups ran without error
         for _ in range(2):  # two sessions on the same pool
             s = replace(sess, warnings=list(sess.warnings))
             ants, _ = solve(s, aircraft, "urtss", particles=10, seed=3, initial_attitude_error_deg=1.0, workers=1, pool=pool)

@@ -54,7 +54,6 @@ from dpos_ros.cli.campaign_tasks import (
     eval_tasks,
     failed_record,
     mean_rmse,
-    numba_stats,
     process_tasks,
     result_line,
     run_eval_task,
@@ -64,7 +63,7 @@ from dpos_ros.cli.campaign_tasks import (
     write_summary,
 )
 from dpos_ros.io.outdir import OutputError, probe_writable
-from dpos_ros.runtime.pool import WORKER_ENV
+from dpos_ros.runtime.pool import WORKER_ENV, numba_stats
 
 EXIT_OK = 0
 EXIT_FAILED = 1

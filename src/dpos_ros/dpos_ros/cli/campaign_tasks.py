@@ -307,30 +307,6 @@ def write_summary(out: Path, data: dict) -> Path:
     return path
 
 
-def numba_stats() -> dict:
-    """This process's numba kernels of dpos_core: where their cache is, whether it can be
-    written, how many were loaded from it and how many compiled (run on each worker after a
-    campaign: a worker that compiles every time has no usable cache)."""
-    try:
-        from numba.core.registry import CPUDispatcher
-    except ImportError:  # pragma: no cover - numba is a requirement
-        return {"numba": False}
-    hits = misses = 0
-    paths: set[str] = set()
-    for name, mod in list(sys.modules.items()):
-        if not name.startswith("dpos_core") or mod is None:
-            continue
-        for obj in list(vars(mod).values()):
-            if isinstance(obj, CPUDispatcher):
-                st = obj.stats
-                hits += sum(st.cache_hits.values())
-                misses += sum(st.cache_misses.values())
-                if st.cache_path:
-                    paths.add(st.cache_path)
-    return {"numba": True, "loaded_from_cache": hits, "compiled": misses, "cache_dirs": sorted(paths),
-            "cache_writable": all(os.access(p, os.W_OK) for p in paths) if paths else None}
-
-
 def worker_info() -> dict:
     """What a worker needs to run the tasks well: its BLAS / OpenMP thread settings (1 each:
     one task per core) and whether the dpos packages import (from where)."""
