@@ -39,11 +39,12 @@ BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 SECONDS = 25.0
 TOPICS = [T.DATUM, T.MASTER_NAV, T.sub_imu("sub_r"), T.sub_imu("sub_l")]
 ANTENNAS = ("ant_r", "ant_l")
+TRUTH = [T.TRUTH_MASTER, *(T.truth_antenna(a) for a in ANTENNAS)]
 
 
 @pytest.fixture(scope="module")
 def msgs() -> dict[str, tuple[str, list[bytes]]]:
-    raw = bag.read_raw(BAG, TOPICS)
+    raw = bag.read_raw(BAG, TOPICS + TRUTH)
     t_first = raw[T.MASTER_NAV][1][0]
     return {topic: (mt, [bytes(d) for t, d in zip(t_log, data) if topic == T.DATUM or t - t_first <= SECONDS * 1e9])
             for topic, (mt, t_log, data) in raw.items()}
@@ -75,7 +76,8 @@ def graph(ros_context, monkeypatch):
                 "output_rate_hz": 10.0, "workers": 2} | params
         ta = tan.TransferAlignNode(context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in over.items()])
         ta.cbs = {t: ta._make_cb(t, mt) for t, (mt, _) in {T.DATUM: (T.NAVSATFIX, 0), T.MASTER_NAV: (T.ODOMETRY, 0),
-                                                            T.sub_imu("sub_r"): (T.IMU, 0), T.sub_imu("sub_l"): (T.IMU, 0)}.items()}
+                                                            T.sub_imu("sub_r"): (T.IMU, 0), T.sub_imu("sub_l"): (T.IMU, 0),
+                                                            **{t: (T.ODOMETRY, 0) for t in TRUTH}}.items()}
         ex.add_node(ta)
         nodes.append(ta)
         return ta
@@ -89,9 +91,10 @@ def graph(ros_context, monkeypatch):
     ex.shutdown(timeout_sec=5.0)
 
 
-def _session(ta, ex, msgs, sid: str) -> None:
-    """Feed the messages, finalize as session ``sid`` and spin until the finalize is done (bounded)."""
-    for topic in TOPICS:
+def _session(ta, ex, msgs, sid: str, truth: bool = False) -> None:
+    """Feed the messages (``truth``: the truth topics too), finalize as session ``sid`` and spin
+    until the finalize is done (bounded)."""
+    for topic in TOPICS + (TRUTH if truth else []):
         for d in msgs[topic][1]:
             ta.cbs[topic](d)
     end = max(_stamp(d) for d in msgs[T.MASTER_NAV][1])
@@ -181,3 +184,41 @@ def test_a_broken_pool_costs_the_sub_imus_tasks_only() -> None:
     assert tasks.submit(sum, [1, 2, 3]).result(timeout=5) == 6
     with pytest.raises(ZeroDivisionError):
         tasks.submit(divmod, 1, 0).result(timeout=5)
+
+
+def test_streaming_finalize_evaluates_against_the_truth_as_the_in_memory_one(graph, msgs, tmp_path: Path) -> None:
+    """With the truth in the spill, the streaming finalize evaluates it a part at a time (each truth
+    log a block at a time, dpos_ros.products.evaluate_stream): the metrics of the in-memory
+    finalize to rounding, report.md and the error figures, and no warning that it did not."""
+    make, ex, _ = graph
+    metrics = {}
+    for mode, limit in (("memory", 3600.0), ("stream", 0.0)):
+        ta = make(tmp_path / mode, stream_above_s=limit)
+        _session(ta, ex, msgs, "s", truth=True)
+        products = tmp_path / mode / "s"
+        assert (products / "status.json").is_file(), ta._progress
+        assert (products / "report.md").is_file() and all((products / f"errors_{a}.png").is_file() for a in ANTENNAS), mode
+        metrics[mode] = json.loads((products / "metrics.json").read_text())
+        warnings = json.loads((products / "status.json").read_text())["warnings"]
+        assert not any("not evaluated" in w for w in warnings), warnings
+    m, s = metrics["memory"], metrics["stream"]
+    assert s["evaluation"]["path"] == "streaming" and "evaluation" not in m
+
+    def numbers(x, path=""):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                yield from numbers(v, f"{path}/{k}")
+        elif isinstance(x, list):
+            for i, v in enumerate(x):
+                yield from numbers(v, f"{path}/{i}")
+        elif isinstance(x, (int, float)) and not isinstance(x, bool):
+            yield path, float(x)
+
+    common = {k for k in m if k not in ("timing", "evaluation")} & set(s)
+    got = dict(numbers({k: s[k] for k in common}))
+    ref = dict(numbers({k: m[k] for k in common}))
+    assert got.keys() == ref.keys() and any("rmse" in k for k in ref)
+    for k, v in ref.items():
+        if "timing" in k or "processing" in k:
+            continue
+        assert got[k] == pytest.approx(v, rel=1e-9, abs=1e-15), k

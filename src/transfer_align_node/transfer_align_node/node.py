@@ -55,7 +55,9 @@ Long sessions (issue #17)
     :data:`~dpos_ros.products.stream.BAG_BATCH_S` at a time (:class:`~dpos_ros.devices.sim_device.StreamBatches`:
     the same writers, order and flow control), and the products are written a block at a time.
     The same poses and products as in memory, except the ``fit`` antennas' wing fit over 5-minute
-    windows and no evaluation against the truth.
+    windows and the evaluation against the truth a part at a time
+    (:mod:`dpos_ros.products.evaluate_stream`: the same metrics to rounding, the error figures from
+    every n-th row).
 
 Errors
     A sub-IMU whose smoother fails - bad data (:class:`~dpos_core.errors.RejectedInput`), a
@@ -104,6 +106,7 @@ from dpos_ros.devices.sim_device import SimDevice, StreamBatches, StreamInfo
 from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, read_session_streaming, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter, spill_meta
 from dpos_ros.products import stream
+from dpos_ros.products.evaluate_stream import evaluate_streaming
 from dpos_ros.products.master_reference import master_error_tau
 from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
 from dpos_ros.runtime.node_main import run_node
@@ -731,9 +734,6 @@ class TransferAlignNode(Node):
         sess.master_error_model = {"tau_s": tau, "why": why}
         topics = spill_meta(spill_dir)[0]
         subs = [n for n in self.sub_names if T.sub_imu(n) in topics]
-        if any(t.startswith("/truth/") for t in topics):
-            sess.warnings.append(f"stream_above_s: the session ({span_s:.0f} s) was finalized by streaming; its truth topics are "
-                                 "not evaluated (no metrics.json, report.md, error figures)")
         ex = self._executor if self._executor is not None else self._new_pool()
         try:
             ex.submit(int).result()  # (a pool broken since the last session - a worker died - refuses work)
@@ -777,8 +777,10 @@ class TransferAlignNode(Node):
             self._publish_poses(StreamBatches(info, lambda: _pose_batches(sess, est)), sum(i.count for i in info))
             self._unique_session_id(sess)
             timing["processing_s"] = time.perf_counter() - t0
-            try:
-                out = stream.write_streaming(self.output_dir, sess, antennas, cfg.method, timing, pool=self._executor)
+            try:  # against the truth when the session has it, a part at a time (dpos_ros.products.evaluate_stream)
+                ev = evaluate_streaming(sess, antennas, list(topics))
+                out = stream.write_streaming(self.output_dir, sess, antennas, cfg.method, timing, pool=self._executor,
+                                             evaluation=ev or None)
             except OSError as e:
                 self._products_failed(sess, e, spill_dir)
                 return

@@ -75,6 +75,6 @@ class TransferAlignConfig:
     stream_above_s: float = param(
         3600.0, "sessions longer than this [s] are finalized with memory that does not grow with them (the spill read and the "
         "products written a part at a time, as dpos-process --stream on: the wing fit over 5 min windows; the truth, if any, "
-        "not evaluated here: dpos-process --stream on of the spill does); 0 = every session", minimum=0.0)
+        "evaluated a part at a time); 0 = every session", minimum=0.0)
     initial_attitude_error_deg: float = param(
         0.0, "simulation experiment: initial sub-IMU attitude offset per axis [deg] (also its prior sigma, >= 1 deg); 0 for real data", minimum=0.0)

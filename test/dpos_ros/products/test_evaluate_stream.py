@@ -95,6 +95,27 @@ def test_streamed_evaluation_is_the_in_memory_one(solved, monkeypatch, batch_byt
         assert metrics["methods"]["urtss"]["mean"]["rmse"][k] == pytest.approx(ref["methods"]["urtss"]["mean"]["rmse"][k], rel=1e-12)
 
 
+def test_parts_of_one_topic_each_the_main_truth_first(solved, monkeypatch) -> None:
+    """A spill's truth comes a topic's block at a time (evaluate_stream._spill_blocks): parts of one
+    topic each, here the main POS's truth before the antennas' - the baseline of the rows then
+    needs the main truth read before any antenna started (it was cut to its last sample: metres)."""
+    sess, ants, streamed, topics = solved
+    monkeypatch.setattr(S, "STREAM_BATCH_BYTES", 2**15)
+    real = E.truth_parts
+
+    def one_topic_each(*a, **k):
+        for p in real(*a, **k):
+            for topic in sorted(p, key=lambda t: t != "/truth/master"):
+                yield {topic: p[topic]}
+
+    monkeypatch.setattr(E, "truth_parts", one_topic_each)
+    want = P.evaluate(sess, ants)
+    s2 = _streamed_session()
+    got = E.evaluate_streaming(s2, streamed, topics)
+    _assert_same(got, want)
+    assert 0 < got["ant_r"]["rmse"]["baseline_m"] < 0.01
+
+
 def test_a_gap_in_the_truth(solved, monkeypatch) -> None:
     """Rows without a truth sample are left out (counted in a warning), the others evaluated as in memory."""
     sess, ants, streamed, topics = solved

@@ -3,7 +3,8 @@ flights"): :func:`dpos_ros.products.ta.evaluate` with memory that does not grow 
 
 The truth topics (``/truth/master`` and ``/truth/antenna/<name>`` of the estimated antennas) are
 read once, a part of the file at a time in time order (:func:`dpos_ros.io._mcap.read_batches`,
-:data:`dpos_ros.io.session.STREAM_BATCH_BYTES` of messages a part), and each antenna's rows from
+:data:`dpos_ros.io.session.STREAM_BATCH_BYTES` of messages a part; a spill of transfer_align_node,
+each topic's log a block at a time, the topics advancing together), and each antenna's rows from
 its :class:`~dpos_ros.products.stream.RowStore` a block at a time; each row is matched to the
 truth sample at its stamp as :func:`~dpos_ros.products.ta.evaluate` matches it (the first truth
 sample at or after the row's stamp, within 1 us), and the errors of each block accumulated:
@@ -121,16 +122,28 @@ class _TruthCleaner:
 def truth_parts(sess: RecordedSession, topics: list[str], warnings: list[str]) -> Iterator[dict[str, FloatArray]]:
     """The truth ``topics`` of ``sess``'s recording a part at a time, in time order: per part
     ``{topic: (n, 11)}`` rows ``[t_s, lat, lon, h, vel E N U, q_nb (4)]`` (times as ``sess``'s),
-    cleaned (:class:`_TruthCleaner`; its warnings added to ``warnings`` at the end).  A recording
-    the part reader does not read (a spill, several files) is read whole (one part)."""
+    cleaned (:class:`_TruthCleaner`; its warnings added to ``warnings`` at the end).  An MCAP
+    recording is read a part of the file at a time; a spill (transfer_align_node's) a block of
+    each topic's log at a time, the topic read least far first (:func:`_spill_blocks`; its late
+    messages are not read, as the node's streaming finalize does not read them); a recording
+    neither reads (several files) is read whole (one part)."""
     from dpos_ros.io import _mcap, bag
-    from dpos_ros.io.session import STREAM_BATCH_BYTES, SessionError, _compact, _decode_rows, read_session
+    from dpos_ros.io.session import STREAM_BATCH_BYTES, read_session
+    from dpos_ros.io.spill import is_spill
 
     wanted = set(topics)
-    file = bag._single_mcap(Path(sess.path)) if (Path(sess.path) / "metadata.yaml").is_file() else None
-    parts = None if file is None else _mcap.read_batches(file, lambda t: t in wanted, STREAM_BATCH_BYTES)
-    if parts is None:
-        whole = read_session(Path(sess.path), keep=lambda t: t in wanted)
+    path = Path(sess.path)
+    cleaners = {t: _TruthCleaner(t) for t in topics}
+    failed: set[str] = set()
+    source: Iterator[list[tuple[str, str, object]]] | None  # per part: (topic, msgtype, messages)
+    if is_spill(path):
+        source = ([b] for b in _spill_blocks(path, topics, STREAM_BATCH_BYTES // max(1, len(topics)), warnings))
+    else:
+        file = bag._single_mcap(path) if (path / "metadata.yaml").is_file() else None
+        parts = None if file is None else _mcap.read_batches(file, lambda t: t in wanted, STREAM_BATCH_BYTES)
+        source = None if parts is None else ([(topic, msgtype, blobs) for topic, (msgtype, _, blobs) in part.items()] for part in parts)
+    if source is None:
+        whole = read_session(path, keep=lambda t: t in wanted)
         warnings.extend(w for w in whole.warnings if any(w.startswith(t) for t in topics))
         out = {}
         for topic in topics:
@@ -139,26 +152,60 @@ def truth_parts(sess: RecordedSession, topics: list[str], warnings: list[str]) -
                 out[topic] = np.hstack([tr.t_s[:, None], tr.llh, tr.vel_n_mps, tr.q_nb])
         yield out
         return
-    cleaners = {t: _TruthCleaner(t) for t in topics}
-    failed: set[str] = set()
     try:
-        for part in parts:
+        for items in source:
             out = {}
-            for topic, (msgtype, _, blobs) in part.items():
-                if topic in failed or not len(blobs) or msgtype != T.ODOMETRY:
-                    continue
-                try:
-                    t, v = _decode_rows(topic, msgtype, blobs, "odometry", warnings)
-                except SessionError as e:
-                    warnings.append(f"{e}; the topic is ignored")
-                    failed.add(topic)
-                    continue
-                t, v = cleaners[topic](t, _compact("truth", t, v, sess.datum_llh))
-                out[topic] = np.hstack([((t - sess.t0_ns) * 1e-9)[:, None], v[:, 0:10]])
+            for topic, msgtype, blobs in items:
+                rows = _truth_rows(sess, topic, msgtype, blobs, cleaners[topic], failed, warnings)
+                if rows is not None:
+                    out[topic] = rows
             yield out
     finally:
         for c in cleaners.values():
             warnings.extend(c.warnings())
+
+
+def _truth_rows(sess: RecordedSession, topic: str, msgtype: str, blobs, cleaner: _TruthCleaner, failed: set[str],
+                warnings: list[str]) -> FloatArray | None:
+    """One truth topic's messages ``blobs`` decoded and cleaned: rows (n, 11) as :func:`truth_parts`
+    gives them, or None (none, not Odometry, or a topic that cannot be decoded: warned once, then ignored)."""
+    from dpos_ros.io.session import SessionError, _compact, _decode_rows
+
+    if topic in failed or not len(blobs) or msgtype != T.ODOMETRY:
+        return None
+    try:
+        t, v = _decode_rows(topic, msgtype, blobs, "odometry", warnings)
+    except SessionError as e:
+        warnings.append(f"{e}; the topic is ignored")
+        failed.add(topic)
+        return None
+    t, v = cleaner(t, _compact("truth", t, v, sess.datum_llh))
+    return np.hstack([((t - sess.t0_ns) * 1e-9)[:, None], v[:, 0:10]])
+
+
+def _spill_blocks(path: Path, topics: list[str], block_bytes: int, warnings: list[str]) -> Iterator[tuple[str, str, object]]:
+    """``(topic, msgtype, messages)`` of the spill ``path``'s ``topics`` (those it has), a block of
+    each log at a time (:class:`dpos_ros.io.spill.LogBlocks`), always from the topic whose last
+    block ends earliest: every topic's truth advances together, so that memory holds about a
+    block per topic.  A last record cut short (a crash while writing) is warned about."""
+    import heapq
+
+    from dpos_ros.io import spill as S
+
+    logs = S.spill_meta(path)[0]
+    readers = {t: S.LogBlocks(logs[t][1], block_bytes) for t in topics if t in logs}
+    its = {t: iter(r) for t, r in readers.items()}
+    heap = [(-math.inf, i, t) for i, t in enumerate(readers)]
+    while heap:
+        _, i, topic = heapq.heappop(heap)
+        block = next(its[topic], None)
+        if block is None:
+            if readers[topic].cut_short:
+                warnings.append(S.cut_short_warning(topic, readers[topic].file, readers[topic].cut_short))
+            continue
+        t_ns, msgs = block
+        yield topic, logs[topic][0], msgs
+        heapq.heappush(heap, (float(t_ns.max()) if t_ns.size else -math.inf, i, topic))
 
 
 def _nav(rows: FloatArray) -> NavSeries:
@@ -350,7 +397,10 @@ def evaluate_streaming(sess: RecordedSession, antennas: dict[str, StreamedAntenn
             ev.truth = ev.truth[np.searchsorted(ev.truth[:, 0], ev.t_done, side="right"):]
         if tm is not None and tm.shape[0]:  # keep the sample before the first row still to evaluate
             t_min = min((ev.t_done for ev in evs.values() if not ev.done()), default=math.inf)
-            tm = tm[max(int(np.searchsorted(tm[:, 0], t_min, side="right")) - 1, 0):] if math.isfinite(t_min) else tm[-1:]
+            if t_min == math.inf:  # every antenna done
+                tm = tm[-1:]
+            elif t_min > -math.inf:  # (-inf: an antenna not started yet - its truth not read - needs it all)
+                tm = tm[max(int(np.searchsorted(tm[:, 0], t_min, side="right")) - 1, 0):]
 
     for part in truth_parts(sess, wanted, warnings):
         for topic, rows in part.items():
