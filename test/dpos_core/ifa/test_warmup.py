@@ -6,30 +6,18 @@ are simulated here and handed over in a file (the simulator's own kernels would 
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from numba_probe import new_after_warm_up  # test/support/numba_probe.py
 
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 
-#: prints, as JSON, every numba dispatcher's signatures after the warm-up and after the real use
+#: the warm-up, then the real use, in a fresh interpreter (numba_probe's ``mark``)
 _PROBE = r"""
-import json, sys
 import numpy as np
-from numba.core.registry import CPUDispatcher
-
-def compiled():
-    out = {}
-    for name, mod in list(sys.modules.items()):
-        for attr, d in list(vars(mod).items()) if mod is not None else []:
-            if isinstance(d, CPUDispatcher):
-                out[f"{name}.{attr}"] = sorted(str(s) for s in d.signatures)
-    return out
 
 WHAT = sys.argv[1]
 from dpos_core.ifa import warmup
@@ -39,7 +27,7 @@ if WHAT == "mechanization":
     warmup.warm_up_mechanization()
 else:
     warmup.warm_up(IfaFilterConfig(), WHAT)
-after_warm_up = compiled()
+mark("warm_up")
 
 from dpos_core.series import GnssSeries, ImuSeries
 z = np.load(sys.argv[2])
@@ -61,7 +49,7 @@ else:
     from dpos_core.ifa.pipeline import run
     gnss = GnssSeries(*(z[f"gnss_{k}"] for k in ("t_s", "llh", "pos_sigma_m", "vel_n_mps", "vel_sigma_mps")))
     run(imu, gnss, z["lever_arm_m"], IfaFilterConfig(), WHAT, initial)
-print(json.dumps({"warm_up": after_warm_up, "use": compiled()}))
+mark("use")
 """
 
 
@@ -83,10 +71,6 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize("what", ["mechanization", "add2", "dd2", "aekf"])
 def test_real_use_compiles_nothing_the_warm_up_did_not(what: str, flight: Path) -> None:
-    r = subprocess.run([sys.executable, "-c", _PROBE, what, str(flight)], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    d = json.loads(r.stdout.strip().splitlines()[-1])
-    assert any(d["warm_up"].values()), "the warm-up compiled or loaded no numba kernel"
-    new = {k: sorted(set(v) - set(d["warm_up"].get(k, []))) for k, v in d["use"].items()}
-    new = {k: v for k, v in new.items() if v}
+    new, warmed = new_after_warm_up(_PROBE, what, str(flight))
+    assert warmed, "the warm-up compiled or loaded no numba kernel"
     assert not new, f"compiled in real use, not by the warm-up: {new}"

@@ -1,0 +1,48 @@
+"""The warm-up of the transfer-alignment workers (dpos_core.ta.warmup, run by dpos-process's and
+transfer_align_node's WarmPool): after it, a worker's real task compiles no numba kernel of the
+alignment that the warm-up did not - the in-memory solve and the streaming ``align_to_store`` on
+the sample bag, UPS (the default).  Checked in a fresh interpreter (test/support/numba_probe.py);
+reading the recording is set aside (dpos_ros's reader kernels, which the core's warm-up cannot
+reach: a few small kernels compiled in the worker's first read on a fresh install)."""
+
+from __future__ import annotations
+
+import pytest
+from numba_probe import new_after_warm_up  # test/support/numba_probe.py
+from repo_paths import REPO
+
+_PROBE = r"""
+import tempfile
+from pathlib import Path
+import numpy as np
+from dpos_core.config import load_aircraft
+from dpos_core.ta.model import Installation, TAConfig
+from dpos_core.ta.warmup import warm_up
+from dpos_ros.io.session import read_session, read_session_streaming
+from dpos_ros.products import stream
+from dpos_ros.products import ta as P
+
+warm_up("ups")
+mark("warm_up")
+bag = Path(sys.argv[2])
+sess = read_session(bag)
+read_session_streaming(bag, keep=lambda t: t.startswith("/sub_imu/"))
+aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
+mark("data")
+if sys.argv[1] == "solve":
+    P.solve(sess, aircraft, "ups", workers=1)
+else:
+    s = aircraft.sub_imus[0]
+    stream.align_to_store(str(bag), s.name, None, Installation.from_aircraft(aircraft, s.name), TAConfig(attitude_sigma_deg=1.0),
+                          "ups", 100, 0, (0.0, 0.0, 0.0),
+                          [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
+                          0.0, True, 0.1, tempfile.mkdtemp())
+mark("use")
+"""
+
+
+@pytest.mark.parametrize("task", ["solve", "stream"])
+def test_a_worker_task_compiles_nothing_the_warm_up_did_not(task: str) -> None:
+    new, warmed = new_after_warm_up(_PROBE, task, str(REPO / "bags" / "paper_su_pair_seed1_45s"))
+    assert warmed, "the warm-up compiled or loaded no numba kernel"
+    assert not new, f"compiled in the worker's task, not by the warm-up: {new}"
