@@ -28,6 +28,8 @@ HISTORY_RE = re.compile(r"\b[Ii]ssue #?\d+|\(#\d+\)|\bbefore this (?:session|iss
 
 #: backtick spans that are repository paths / importable names of the workspace
 PATH_RE = re.compile(r"^(?:src|test|tools|docs|bags|bench|\.ci)/[^\s<>*{}|]*$")
+#: ... and paths inside a package, e.g. `dpos_ros/io/flow.py` for src/dpos_ros/dpos_ros/io/flow.py
+PKG_PATH_RE = re.compile(r"^(dpos_core|dpos_ros)/[^\s<>*{}|:]+\.py$")
 MODULE_RE = re.compile(r"^(?:dpos_core|dpos_ros|pos_master_node|pos_sub_node|ifa_node|transfer_align_node|sar_nav_node)(?:\.\w+)+$")
 #: citation keys: [Gong2018], [vanderMerwe2000], [LSFit]
 KEY_RE = re.compile(r"\[((?:[A-Z][A-Za-z]*|van[A-Za-z]+)\d{4}|LSFit)\]")
@@ -96,6 +98,9 @@ def test_relative_links_exist(doc):
 def _path_exists(span: str) -> bool:
     """A repository path, or a pytest node id ``path::test_name[params]`` whose test is defined."""
     path, _, test = span.partition("::")
+    pkg = PKG_PATH_RE.match(path)
+    if pkg:
+        path = f"src/{pkg.group(1)}/{path}"
     if not (ROOT / path).exists():
         return False
     name = test.split("::")[-1].partition("[")[0]
@@ -104,7 +109,7 @@ def _path_exists(span: str) -> bool:
 
 @pytest.mark.parametrize("doc", CHECKED, ids=_rel)
 def test_cited_paths_exist(doc):
-    spans = [s for s in _code_spans(doc.read_text(encoding="utf-8")) if PATH_RE.match(s)]
+    spans = [s for s in _code_spans(doc.read_text(encoding="utf-8")) if PATH_RE.match(s) or PKG_PATH_RE.match(s)]
     if doc is DESIGN:
         assert spans  # the regex does find the design's paths
     missing = [s for s in spans if not _path_exists(s)]
