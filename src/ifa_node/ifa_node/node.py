@@ -27,7 +27,7 @@ Inputs
     applied (those beyond the last sample + ``max_fix_bridge_s`` rejected, ``stale``), as run() ends.
 
 Epochs (at the GNSS rate, driven by the IMU), exactly as :func:`dpos_core.ifa.pipeline.run` on the
-same samples (issue #11): a fix stamped ``t`` is at ``t - gnss_time_offset_s`` on the IMU's clock;
+same samples: a fix stamped ``t`` is at ``t - gnss_time_offset_s`` on the IMU's clock;
 once an IMU sample newer than that has arrived (so every sample up to the fix is here, whatever
 the jitter of the stamps or the order of arrival), the buffered samples up to the last one at or
 before the fix (+ ``STAMP_TOL_S``) are propagated, with the aligner's time updates alone on the

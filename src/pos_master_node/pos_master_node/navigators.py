@@ -15,7 +15,7 @@
     ``/ifa/correction`` for epoch ``t_k`` resets the state at the sample ``t_k``;
     ``/ifa/imu_bias`` stamped ``t_k`` is removed from the samples after ``t_k``; both as the
     ifa_node's closed loop does, so the navigation equals its strapdown (dpos_core.ifa.pipeline)
-    to rounding, whatever the order of arrival (dpos_core.ifa.mechanization, issue #11): feedback
+    to rounding, whatever the order of arrival (dpos_core.ifa.mechanization): feedback
     for a sample not integrated yet is kept pending and applied when that sample is integrated
     (the batch is split there); feedback for an integrated sample resets it in the ring of the
     last ``ring_s`` seconds and re-integrates the samples after it. Already published messages are

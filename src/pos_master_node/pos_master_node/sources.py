@@ -12,7 +12,7 @@
     an ifa_node publishing /ifa/correction the device thread waits while the mechanization is more
     than ``max_lead_s`` ahead of the last correction (at most ``LEAD_WAIT_S`` per wait).
 
-``device: ros`` (:class:`RelaySource`; real drivers; issue #5)
+``device: ros`` (:class:`RelaySource`; real drivers)
     A dpos_ros.devices.relay.DeviceRelay relays the drivers' standard topics, relative names to remap:
     ``imu_in`` (sensor_msgs/Imu) -> /master/imu (frame ``master_imu``, rotated into our FLU body
     axes by ``input_rotation_rpy_deg``), ``fix_in`` (NavSatFix) -> /gnss/fix and ``vel_in``
@@ -27,7 +27,7 @@
     (pos_master_node.navigators, which also says how the initial state is found). No flow
     control of the device (``max_lead_s``): a real device runs in real time.
 
-    Hold for the IFA loop (issue #11): the correction of a GNSS epoch applies to the IMU samples
+    Hold for the IFA loop: the correction of a GNSS epoch applies to the IMU samples
     after it, so /master/nav of a sample is the aligner's only if every correction before it was
     here when it was integrated. While an ifa_node is in the graph (a publisher of
     /ifa/correction, from its start on):

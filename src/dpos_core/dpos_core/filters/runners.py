@@ -64,7 +64,7 @@ class GaussianTrack:
     predictions (shifted like the filtered state of their epoch) and cross-covariances; corrections (K, n) applied (zeros when none);
     nu (K, p) innovations and S (K, p, p) their covariances (NaN where no measurement).  Each is a
     numpy array, or an :class:`~.store.EpochArray` file when the runner was given an on-disk
-    :class:`~.store.EpochStore` (issue #17: then read a block of epochs at a time).
+    :class:`~.store.EpochStore` (then read a block of epochs at a time).
     """
 
     x_f: PerEpoch
@@ -454,7 +454,7 @@ def run_upf(
             removed by :meth:`ParticleTrack.close`); default in memory.  The same numbers either way.
         full_track: keep every particle's state (``particles``, ``proposed``: 2 N n numbers an
             epoch); False keeps only the proposed particles' sampled components FFBSm reads
-            (``proposed_sampled``, N s; issue #17: a third of the bytes of the UPS's track on the
+            (``proposed_sampled``, N s: a third of the bytes of the UPS's track on the
             transfer-alignment model), the smoother's numbers unchanged.
     """
     rng = np.random.default_rng() if rng is None else rng

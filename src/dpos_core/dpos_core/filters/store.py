@@ -1,5 +1,5 @@
 """Per-epoch arrays of a filter's forward pass kept for its backward pass: in memory, or in a file
-when they are large (issue #17: the UPF's particle track is ~50 kB an epoch; four hours at 1 Hz
+when they are large (the UPF's particle track is ~50 kB an epoch; four hours at 1 Hz
 are 0.7 GB per sub-IMU).
 
 A file-backed :class:`EpochArray` is written and read with ``pwrite`` / ``pread`` (no memory
@@ -132,7 +132,7 @@ PerEpoch = FloatArray | EpochArray
 
 
 class EpochStore:
-    """Where a filter or smoother keeps its per-epoch arrays (issue #17): ``directory`` None keeps
+    """Where a filter or smoother keeps its per-epoch arrays: ``directory`` None keeps
     them in memory (``numpy`` arrays, the default of every runner), else each array is an
     :class:`EpochArray` file in ``directory`` (the same numbers; memory then holds the records being
     read or written).  :meth:`close` removes the files of the arrays it made."""

@@ -11,7 +11,7 @@ its navigation is *exactly* the closed-loop strapdown of :class:`dpos_core.ifa.p
 * a bias compensation (``/ifa/imu_bias`` stamped ``t_k``) is removed from the IMU samples after
   ``t_k``, as :meth:`dpos_core.ifa.model.IfaModel.propagate` does from the alignment epoch on.
 
-Whatever the order in which samples and feedback arrive, the result is the same (issue #11: the
+Whatever the order in which samples and feedback arrive, the result is the same (the
 ifa_node may publish the correction of ``t_k`` before or after the master integrated ``t_k``):
 
 * **pending**: feedback stamped after the last integrated sample is kept and applied exactly when

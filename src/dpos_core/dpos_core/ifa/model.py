@@ -131,7 +131,7 @@ class IfaFilterConfig:
             debiased innovations since the last detected noise change, at most ``r_window_max``
             epochs, used from the first epoch on, through the fine-phase restart) or ``window``
             (eq. 22's window of ``window`` epochs, adapting only in the fine phase).  paper_ifa,
-            seeds 11-16 (docs: README, in-flight alignment): final level errors 1.12-1.16x and
+            seeds 11-16 (docs/ifa.md): final level errors 1.12-1.16x and
             heading 1.25x those of DD2 with the true GNSS sigmas (``window``: 1.6-6.7x).
         r_window_max, r_min_epochs, r_change_quantile: the change-point window's longest window,
             the epochs before its estimate is used (also the change-test length) and the

@@ -1,4 +1,4 @@
-"""The constant GNSS-IMU time offset, estimated where the data make it observable (issue #11).
+"""The constant GNSS-IMU time offset, estimated where the data make it observable.
 
 A fix stamped ``t`` on the receiver's clock is the antenna at ``t - offset`` on the IMU's clock
 (:func:`~dpos_core.ifa.pipeline.fix_at`). A wrong offset ``e`` moves every fix along the track by

@@ -1,4 +1,4 @@
-"""The mismatch suite (issue #15): simulated sessions whose world differs from what the transfer
+"""The mismatch suite (docs/mismatch.md): simulated sessions whose world differs from what the transfer
 alignment's configuration says.
 
 Every other evaluation simulates exactly the filter's model.  Here each named case of

@@ -101,7 +101,7 @@ def lever_velocity_var(C_nb: FloatArray, omega_var: FloatArray, lever_arm_b_m: A
 
 class ImuRates:
     """:func:`rate_at` and :func:`rate_interpolation_var` of one IMU's samples, ``t_imu_s`` (M,) and
-    ``omega_radps`` (M, 3), for times given a block at a time in increasing order (issue #17): each
+    ``omega_radps`` (M, 3), for times given a block at a time in increasing order: each
     block computes the samples' middles and roughness over the samples around it only (no array of
     the flight's length; the running sum of :func:`step_roughness` is carried from block to block),
     the same numbers as the functions on every time at once.  Blocks out of order are right too,

@@ -330,12 +330,12 @@ class TransferAlignmentModel:
     #: the installation states after the 24 (module docstring): name -> slice of the state
     extra: dict[str, slice] = field(init=False)
     #: keep the nominal at the IMU rate (:meth:`nominal_chunks`); False: only the integrator's state at
-    #: each epoch, the interval re-integrated from it by :meth:`nominal_chunk` (the same numbers; issue #17)
+    #: each epoch, the interval re-integrated from it by :meth:`nominal_chunk` (the same numbers)
     keep_nominal: bool = True
     #: keep every epoch's measurement data and every interval's transition data (False: each is dropped
     #: once the forward filter has passed it - ``feedback(k)`` drops those of epoch k - 1 and interval
     #: k - 1 -, and ``y``, ``h``, ``R``, ``f``, ``Q`` of them raise: a model for one forward pass,
-    #: its memory flat with the session's length; issue #17)
+    #: its memory flat with the session's length)
     keep_epoch_data: bool = True
 
     def __post_init__(self) -> None:

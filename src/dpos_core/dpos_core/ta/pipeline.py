@@ -19,7 +19,7 @@ nominal trajectory, linearly interpolated between epochs.  Within the interval a
 the nominal was integrated from the state corrected at k, so its start error is the estimate at
 k and its end error is the estimate at k + 1 before that epoch's correction.
 
-Sub-IMU gaps (:func:`run_segments`; issue #14): a step longer than
+Sub-IMU gaps (:func:`run_segments`): a step longer than
 :func:`.model.gap_limit_s` (``TAConfig.max_imu_gap_s``, 0.05 s by default) splits the data into
 segments, each aligned on its own from the main POS at its first sample (master interpolated
 there, the configured prior): the strapdown cannot know how the wing moved while it was not
@@ -258,7 +258,7 @@ def run(
     repair raises :class:`~dpos_core.errors.NumericalFailure`.  The Cholesky jitter repairs made
     on the way are counted in ``TAResult.chol_jitter_repairs``.
 
-    ``sink`` (issue #17): the output rows are handed to it a block at a time (:data:`RowSink`, in
+    ``sink``: the output rows are handed to it a block at a time (:data:`RowSink`, in
     time order, across the segments of :func:`run_segments` too) instead of being kept; the
     result then holds their stamps ``t_s`` and ``flags`` only (``llh``, ``vel_n_mps``, ``q_nb``
     and ``sigma`` are empty)."""
@@ -346,7 +346,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
             corr = tr.corrections
             out = _apply(model, xs, Ps, corr) if sink is None else _to_sink(model, xs, Ps, corr, sink)
             installation = _installation(model, np.asarray(xs[-1]), np.asarray(Ps[-1]))
-            # the estimates at the epochs: kept in memory, or (the rows handed to a sink) not kept (issue #17)
+            # the estimates at the epochs: kept in memory, or (the rows handed to a sink) not kept
             x, P = (in_memory(xs), in_memory(Ps)) if sink is None else (np.zeros((0, model.n)), np.zeros((0, model.n, model.n)))
         finally:
             store.close()
@@ -407,7 +407,7 @@ def shift_in_time(model: TransferAlignmentModel, x: FloatArray, P: FloatArray, t
 
 
 #: keep the nominal at the IMU rate through the filter (True), or re-integrate it interval by interval
-#: in the output pass (False, the default: the same numbers without the trajectory in memory; issue #17)
+#: in the output pass (False, the default: the same numbers without the trajectory in memory)
 KEEP_NOMINAL = False
 #: per-epoch arrays of a filter and its smoother (:func:`per_epoch_bytes`) larger than this go to files in a
 #: temporary directory for the backward pass, the quality measures and the output pass, which read them a
@@ -433,7 +433,7 @@ RowSink = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray],
 def _to_sink(model: TransferAlignmentModel, x: PerEpoch, P: PerEpoch, corr: PerEpoch,
              sink: RowSink) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """The rows of :func:`_apply` handed to ``sink`` block by block; returns their stamps and
-    empty (0, m) arrays in place of the other columns (issue #17: the trajectory is not kept)."""
+    empty (0, m) arrays in place of the other columns (the trajectory is not kept)."""
     t = np.empty(int(np.sum(model.interval_sizes())))  # (the stamps filled in place: no list of blocks concatenated)
     i = 0
     for blk in iter_rows(model, x, P, corr):

@@ -1,4 +1,4 @@
-"""Quality control of a transfer alignment without truth (issue #15; docs/qc.md).
+"""Quality control of a transfer alignment without truth (docs/qc.md).
 
 What a user can check about a session's poses before handing them on, from the solution itself:
 
@@ -198,8 +198,8 @@ def chi2_ppf(q: float, dof) -> FloatArray:
     """The ``q`` quantile of chi^2(dof) (``scipy.stats.chi2.ppf``'s value, from
     ``scipy.special.gammaincinv``: no scipy.stats import in the sub-IMU workers), once per distinct
     dof: the windowed bounds ask it for every epoch of the flight at every block of rows, with a few
-    dozen distinct window sums (issue #17: 5 of a 4 h worker task's 54 CPU s, quadratic in the
-    flight's length, before)."""
+    dozen distinct window sums (a call per epoch took 5 of a 4 h worker task's 54 CPU s, quadratic
+    in the flight's length)."""
     d = np.asarray(dof, dtype=float)
     u, inv = np.unique(d, return_inverse=True)
     return np.asarray(2.0 * gammaincinv(u / 2.0, q), dtype=float)[inv].reshape(d.shape)
@@ -316,7 +316,7 @@ def group_variance_factors(qc: EpochQC, window_s: float = WINDOW_S, prob: float 
 def sigma_scale(qc: EpochQC | None, t_rows: FloatArray, window_s: float = WINDOW_S, prob: float = PROB) -> FloatArray:
     """The multipliers (N, 9) of a sub-IMU's output 1-sigma (:class:`.pipeline.TAResult` ``sigma``
     columns: attitude, velocity, position, each E, N, U) that make it honest where the innovations
-    say the filter is optimistic (issue #15 item 3; docs/qc.md "Sigma inflation").
+    say the filter is optimistic (docs/qc.md "Sigma inflation").
 
     The rule is the a posteriori variance factor of least squares, per match group: a linear
     filter whose process and measurement noises are all too small by a factor c has innovation

@@ -1,4 +1,4 @@
-"""``dpos-eval --mismatch``: the mismatch suite (issue #15; docs/mismatch.md).
+"""``dpos-eval --mismatch``: the mismatch suite (docs/mismatch.md).
 
 For each case of :data:`dpos_core.sim.mismatch.CASES` and each run, the case's truth is simulated
 (:func:`dpos_core.sim.mismatch.simulate`) and recorded in memory with the *nominal* aircraft file
@@ -30,7 +30,7 @@ from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products.ta import ROWS, combine_runs, evaluate, metrics_json, solve
 
-#: issue #15's goal for every case
+#: the goal for every case (docs/mismatch.md, "The table")
 GOAL_HEADING_DEG = 0.01
 GOAL_BASELINE_M = 0.005
 GOAL_RATIO = 2.0
@@ -121,7 +121,7 @@ def _with_installation_states(truth: AircraftConfig, filters: AircraftConfig | N
 
 
 def goal(entry: dict, m: str) -> dict:
-    """Issue #15's goal for method ``m`` of a case: heading and baseline RMSE and their ratios to the oracle."""
+    """The goal for method ``m`` of a case: heading and baseline RMSE and their ratios to the oracle."""
     r = entry["methods"][m]["mean"]["rmse"]
     ratio = entry.get("ratio_to_oracle", {}).get(m, {})
     ok_h = r["heading_deg"] <= GOAL_HEADING_DEG

@@ -1,6 +1,6 @@
 """Private numba kernel of :func:`dpos_ros.contract.conversions.antenna_odometry_values`: an
 antenna pose's ``nav_msgs/Odometry`` doubles, one loop over the rows instead of ~30 numpy passes
-over (N, 3, 3) stacks (issue #17: 8.6 M antenna poses an hour of paper_wing)."""
+over (N, 3, 3) stacks (8.6 M antenna poses an hour of paper_wing)."""
 
 from __future__ import annotations
 

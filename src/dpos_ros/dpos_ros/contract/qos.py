@@ -62,8 +62,8 @@ def keep_all(qos: QoSProfile) -> QoSProfile:
     them (a JIT compile, a long epoch, a replay as fast as possible): KEEP_ALL history with the
     stream's reliability and durability. A KEEP_LAST reader overwrites what its node has not taken
     yet once ``depth`` messages wait, although they were delivered and acknowledged, so the
-    publisher's flow control cannot see it (issue #11: ``dpos-play --rate 0`` through the relay
-    lost 1800 IMU samples while the mechanization compiled). Latched profiles are returned as they are."""
+    publisher's flow control cannot see it (a KEEP_LAST relay lost 1800 IMU samples of
+    ``dpos-play --rate 0`` while the mechanization compiled). Latched profiles are returned as they are."""
     if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
         return qos
     return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=qos.reliability, durability=qos.durability)

@@ -94,7 +94,7 @@ Taps (derived streams)
 
 Batches
     :class:`StreamBatches` publishes streams too long to hold (transfer_align_node's antenna
-    poses of a long session, issue #17) a batch at a time: the writers and their depths come from
+    poses of a long session) a batch at a time: the writers and their depths come from
     the streams' descriptions (topic, type, QoS, total count), the batches are generated in the
     thread as they are published, each in its merged order, the flow control across them as for
     whole streams: the same messages in the same order as the whole streams would be (the

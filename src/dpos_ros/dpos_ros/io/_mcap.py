@@ -48,7 +48,7 @@ OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
 CHUNK_SIZE = 2**20
 #: zstd level of the chunks.  rosbags' ``zstd.compress`` takes 3; the fast level -1 compresses
 #: these messages 1.4-1.6x faster than level 1 and 2x faster than 3, for 1.5 % and 3.5 % more
-#: bytes (issue #17; CPU of one process on paper_wing's
+#: bytes (CPU of one process on paper_wing's
 #: chunks: antenna poses 495-565 MB/s at -1, 333-353 at 1, 234-271 at 3, ratio 2.85 / 2.89 / 2.95;
 #: the recording's IMU messages 918-1182 MB/s at -1, 646-879 at 1, ratio 6.28 / 6.38), and any
 #: level decodes the same
@@ -253,7 +253,7 @@ def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: 
     """:func:`read` a part at a time: ``{topic: RawTopic}`` of the wanted messages of consecutive
     chunks (in file order, each part sorted by log time), a part once it holds about
     ``batch_bytes`` of messages; every wanted topic in each part.  None when :func:`read` would
-    return None.  Memory holds one part (issue #17)."""
+    return None.  Memory holds one part."""
     size = file.stat().st_size
     with file.open("rb") as f:
         found = _summary(f, size, wanted)

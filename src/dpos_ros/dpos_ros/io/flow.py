@@ -134,8 +134,8 @@ def take_waiting(subscription: Any, msg_class: Any, raw: bool, limit: int = TAKE
     called from the subscription's callback, it serves a backlog in one executor dispatch instead
     of one per message (rclpy's ~100 us dispatch otherwise limits a Python node to ~10k msg/s), so
     that a KEEP_ALL reader rarely reaches its DDS resource limits; there, measured with Fast DDS,
-    a reader stopped acknowledging for 10-20 s at a time although its node took every message
-    (issue #11). Raises RuntimeError (rclpy's InvalidHandle / RCLError) while the subscription is
+    a reader stopped acknowledging for 10-20 s at a time although its node took every message.
+    Raises RuntimeError (rclpy's InvalidHandle / RCLError) while the subscription is
     being destroyed: the executor delivers the rest."""
     handle = getattr(subscription, "handle", None)
     out: list[tuple[Any, Any]] = []
@@ -180,7 +180,7 @@ class ArrivalAge:
     that arrived at least ``age_s`` ago. A node that must not act on a stamp before the messages of
     its other streams with earlier stamps are here waits both in stamps and in wall time: in a
     replay as fast as possible one stream is served in batches seconds of data ahead of another,
-    but never long ahead in wall time (issue #11)."""
+    but never long ahead in wall time."""
 
     def __init__(self) -> None:
         self._marks: deque[tuple[float, int]] = deque()

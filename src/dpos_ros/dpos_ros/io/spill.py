@@ -203,7 +203,7 @@ def cut_short_warning(topic: str, file: Path, n_bytes: int) -> str:
 
 class LogBlocks:
     """The records of one topic's ``<n>.log`` read a block of about ``block_bytes`` at a time
-    (issue #17: a long session's log is never held whole): iterating gives ``(t_ns (N,), Messages)``
+    (a long session's log is never held whole): iterating gives ``(t_ns (N,), Messages)``
     per block, the records in file order, exactly those :func:`read_spill` reads.  A record longer
     than a block is read whole (the block grows).  After the iteration :attr:`cut_short` is the
     size of a last record cut short (a crash while writing: dropped, 0 when none) and
