@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
+from dpos_core.errors import CampaignError, TaskFailed
 from dpos_core.ta import metrics as M
 from dpos_ros.cli import process as process_cli
 from dpos_ros.cli.evaluate import TAPlan, TARun, ta_run
@@ -44,23 +45,6 @@ TASK_FILE = "task.json"
 LOG_FILE = "process.log"
 #: the campaign summary in OUT/
 SUMMARY_FILE = "campaign.json"
-
-
-class CampaignError(Exception):
-    """Unusable campaign input (the message names what): exit status 2 before anything runs."""
-
-
-class TaskFailed(Exception):
-    """A task that failed: ``message`` (dpos-process's error, one line) and the ``attempt`` it
-    failed at (1 = the first).  Raised in the worker, so that the engine retries the task."""
-
-    def __init__(self, message: str, attempt: int) -> None:
-        super().__init__(message, attempt)
-        self.message = message
-        self.attempt = attempt
-
-    def __str__(self) -> str:
-        return self.message
 
 
 @dataclass(frozen=True)

@@ -10,16 +10,13 @@ from typing import Any
 import numpy as np
 import yaml
 
+from dpos_core.errors import InputError
 from dpos_core.series import GnssSeries, ImuSeries
 from dpos_core.units import DEG
 
 #: the product's topics (a recorded live graph) and real drivers' (``dpos-import``)
 PRODUCT_TOPICS = ("/master/imu", "/gnss/fix", "/gnss/vel")
 DRIVER_TOPICS = ("/imu/data", "/fix", "/vel")
-
-
-class InputError(ValueError):
-    """A recording or an option cannot be used (the message says which and why)."""
 
 
 def deserialize(raws: Sequence[bytes], msgtype: str) -> list[Any]:

@@ -58,6 +58,7 @@ from typing import Any
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from dpos_core.errors import BagError
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import qos_profile
 from dpos_ros.contract.topics import message_class
@@ -74,10 +75,6 @@ PLAY_FLOW_WINDOW = 1000
 CLOCK_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE
 )
-
-
-class BagError(Exception):
-    """A bag that cannot be read (the message names the path)."""
 
 
 @dataclass

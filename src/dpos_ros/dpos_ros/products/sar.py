@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core.errors import SarInputError
 from dpos_core.sar.navigate import BaroSeries, SarFixes, SarNavResult, SarNavSettings, navigate
 from dpos_core.series import ImuSeries
 from dpos_core.strapdown import NavState
@@ -26,10 +27,6 @@ from dpos_ros.contract import topics as T
 
 #: the topics a SINS/SAR run needs (the datum: /dpos/datum or the datum parameter)
 INPUT_TOPICS = (T.MASTER_IMU, T.MASTER_NAV, T.SAR_FIX, T.BARO_PRESSURE)
-
-
-class SarInputError(ValueError):
-    """The session's data cannot be navigated (the message says what is missing or wrong)."""
 
 
 @dataclass

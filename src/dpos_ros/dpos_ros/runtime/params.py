@@ -33,6 +33,8 @@ import typing
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
+from dpos_core.errors import ParameterError
+
 __all__ = [
     "ParameterError",
     "param",
@@ -59,16 +61,6 @@ DEVICES = ("sim", "ros")
 
 
 _META_KEY = "dpos_param"
-
-
-class ParameterError(ValueError):
-    """An invalid parameter value; the message names the parameter and the value."""
-
-    def __init__(self, name: str, value: Any, reason: str) -> None:
-        self.name = name
-        self.value = value
-        self.reason = reason
-        super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
 
 
 @dataclasses.dataclass(frozen=True)
