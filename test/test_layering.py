@@ -1,8 +1,10 @@
-"""Import direction: who may import whom (issue "the house", docs/design.md "Workspace layout").
+"""Import direction: who may import whom (docs/design.md "Workspace layout").
 
 - ``dpos_core`` imports no ROS (test_workspace.py) and its simulator ``dpos_core.sim`` is imported
-  only by the simulator itself and its callers (evaluation, simulated devices, the sim CLIs):
-  estimation, configuration and real devices never depend on it.
+  only by the simulator itself and its callers (the evaluation room ``dpos_core.evaluation``,
+  simulated devices, the sim CLIs): estimation, configuration and real devices never depend on it.
+- The estimation packages (``dpos_core.ta``, ``.ifa``, ``.sar``, ``.filters``) import neither the
+  evaluation room nor each other's warm-ups; the simulator imports no estimation package.
 - ``dpos_ros`` is built in rooms, each importing only the rooms below it:
   contract < runtime < io < devices, products < cli.
 - Node packages import ``dpos_ros`` and ``dpos_core``, never each other.
@@ -53,8 +55,12 @@ def import_graph() -> dict[str, set[str]]:
 GRAPH = import_graph()
 
 
+def _within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
 def _importers(prefix: str) -> set[str]:
-    return {m for m, deps in GRAPH.items() if any(d == prefix or d.startswith(prefix + ".") for d in deps)}
+    return {m for m, deps in GRAPH.items() if any(_within(d, prefix) for d in deps)}
 
 
 def test_graph_is_read() -> None:
@@ -62,12 +68,10 @@ def test_graph_is_read() -> None:
     assert "dpos_core.config" in GRAPH["dpos_core.sim.scenario"] or "dpos_core.config.aircraft" in GRAPH["dpos_core.sim.scenario"]
 
 
-# The simulator's callers: the evaluation (Monte Carlo on simulated sessions), the simulated
-# devices and the commands that simulate.  Nothing else.
+# The simulator's callers: the evaluation room (Monte Carlo on simulated sessions, every module of
+# dpos_core.evaluation), the simulated devices and the commands that simulate.  Nothing else.
+EVALUATION = "dpos_core.evaluation"
 SIM_CALLERS = {
-    "dpos_core.ta.from_sim",
-    "dpos_core.ifa.evaluate",
-    "dpos_core.sar.evaluate",
     "dpos_ros.devices.sim_device",
     "dpos_ros.devices.sim_streams",
     "dpos_ros.products.ifa",
@@ -81,7 +85,8 @@ SIM_CALLERS = {
 
 
 def test_simulator_is_imported_only_by_its_callers() -> None:
-    importers = {m for m in _importers("dpos_core.sim") if not m.startswith("dpos_core.sim")}
+    importers = {m for m in _importers("dpos_core.sim") if not _within(m, "dpos_core.sim") and not _within(m, EVALUATION)}
+    assert {m for m in _importers("dpos_core.sim") if _within(m, EVALUATION)}, "the evaluation room simulates"
     assert importers <= SIM_CALLERS, f"modules that must not depend on the simulator: {sorted(importers - SIM_CALLERS)}"
 
 
@@ -142,4 +147,30 @@ def test_node_packages_do_not_import_each_other() -> None:
 
 def test_core_imports_no_dpos_ros_or_node() -> None:
     bad = [f"{m} imports {d}" for m, deps in GRAPH.items() if m.startswith("dpos_core") for d in deps if not d.startswith("dpos_core")]
+    assert not bad, bad
+
+
+# ----------------------------------------------------------------------------- the evaluation room
+
+ESTIMATION = ("dpos_core.ta", "dpos_core.ifa", "dpos_core.sar", "dpos_core.filters")
+
+
+def test_estimation_packages_import_no_evaluation_and_no_other_warm_up() -> None:
+    bad = []
+    for m, deps in GRAPH.items():
+        own = next((p for p in ESTIMATION if _within(m, p)), None)
+        if own is None:
+            continue
+        for d in deps:
+            if _within(d, EVALUATION) or _within(d, "dpos_core.sim"):
+                bad.append(f"{m} imports {d} (evaluation / simulator)")
+            other = next((p for p in ESTIMATION if _within(d, p)), None)
+            if other is not None and other != own and _within(d, other + ".warmup"):
+                bad.append(f"{m} imports {d} (another estimation package's warm-up)")
+    assert not bad, "\n".join(bad)
+
+
+def test_simulator_imports_no_estimation_and_no_evaluation() -> None:
+    bad = [f"{m} imports {d}" for m, deps in GRAPH.items() if _within(m, "dpos_core.sim")
+           for d in deps if any(_within(d, p) for p in (*ESTIMATION, EVALUATION))]
     assert not bad, bad

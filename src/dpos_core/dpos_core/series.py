@@ -1,5 +1,6 @@
-"""Time series of the navigation core: IMU samples, navigation solutions and GNSS fixes, and the
-navigation state at one epoch (:class:`NavState`, also exported by :mod:`dpos_core.strapdown`).
+"""Time series of the navigation core: IMU samples, navigation solutions, GNSS fixes, SAR fixes and
+barometric heights, and the navigation state at one epoch (:class:`NavState`, also exported by
+:mod:`dpos_core.strapdown`).
 
 One type per kind of data, used by the simulator (:mod:`dpos_core.sim.session`), the strapdown
 (:mod:`dpos_core.strapdown`), the alignments (:mod:`dpos_core.ifa`, :mod:`dpos_core.ta`), the
@@ -234,3 +235,26 @@ class GnssSeries:
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
+
+
+@dataclass(frozen=True)
+class SarFixes:
+    """SAR fixes: t_s (M,), llh (M, 3) (latitude and longitude of the matched position; the height
+    is not measured: it only scales their differences into metres, any height near the flight's
+    will do), heading_rad (M,), and their 1 sigmas: pos_sigma_m (north and east, one value or (M,)),
+    heading_sigma_rad (one value or (M,))."""
+
+    t_s: FloatArray
+    llh: FloatArray
+    heading_rad: FloatArray
+    pos_sigma_m: float | FloatArray
+    heading_sigma_rad: float | FloatArray
+
+
+@dataclass(frozen=True)
+class BaroSeries:
+    """Barometric heights h_m (M,) at t_s (M,), 1 sigma sigma_m (one value or (M,))."""
+
+    t_s: FloatArray
+    h_m: FloatArray
+    sigma_m: float | FloatArray

@@ -36,13 +36,13 @@ from dataclasses import replace as dc_replace
 from pathlib import Path
 
 from dpos_core.config import ConfigError, config_text
-from dpos_core.ifa.evaluate import is_ifa_scenario
+from dpos_core.evaluation import ta as from_sim
+from dpos_core.evaluation.ifa import is_ifa_scenario
+from dpos_core.evaluation.mismatch import CASES as MISMATCH_CASES
+from dpos_core.evaluation.mismatch import case_names as mismatch_cases
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
-from dpos_core.sim.mismatch import CASES as MISMATCH_CASES
-from dpos_core.sim.mismatch import case_names as mismatch_cases
 from dpos_core.sim.scenario import Scenario, load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
