@@ -7,7 +7,8 @@
   evaluation room nor each other's warm-ups; the simulator imports no estimation package.
 - ``dpos_ros`` is built in rooms, each importing only the rooms below it:
   contract < runtime < io < devices, products < cli.
-- Node packages import ``dpos_ros`` and ``dpos_core``, never each other.
+- Node packages import ``dpos_ros`` and ``dpos_core``, never each other; the shared library
+  (``dpos_core``, ``dpos_ros``) imports no node package.
 
 Imports are read from the sources (module level and inside functions), relative ones resolved.
 """
@@ -147,6 +148,14 @@ def test_node_packages_do_not_import_each_other() -> None:
 
 def test_core_imports_no_dpos_ros_or_node() -> None:
     bad = [f"{m} imports {d}" for m, deps in GRAPH.items() if m.startswith("dpos_core") for d in deps if not d.startswith("dpos_core")]
+    assert not bad, bad
+
+
+def test_shared_library_imports_no_node_package() -> None:
+    """dpos_core and dpos_ros sit below the node packages: a shared module that needs a node's
+    configuration is given it by the node package (e.g. ``dpos-ifa``: ifa_node.offline)."""
+    bad = [f"{m} imports {d}" for m, deps in GRAPH.items() if m.split(".")[0] in ("dpos_core", "dpos_ros")
+           for d in deps if d.split(".")[0] in NODE_PACKAGES]
     assert not bad, bad
 
 
