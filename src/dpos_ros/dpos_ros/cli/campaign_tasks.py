@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
+import dpos_core  # (this function itself comes from dpos_ros: a worker without the packages fails to run it)
 from dpos_core.errors import CampaignError, TaskFailed
 from dpos_core.ta import metrics as M
 from dpos_ros.cli import process as process_cli
@@ -296,7 +297,6 @@ def worker_info() -> dict:
     one task per core) and whether the dpos packages import (from where)."""
     info: dict = {"worker": worker_id(), "python": sys.executable,
                   "threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
-    import dpos_core  # (this function itself comes from dpos_ros: a worker without the packages fails to run it)
 
     info["dpos_core"] = str(Path(dpos_core.__file__).parent)
     return info

@@ -33,6 +33,9 @@ import typing
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
+import yaml
+
+from dpos_core.config import builtin_names
 from dpos_core.errors import ParameterError
 
 __all__ = [
@@ -279,8 +282,6 @@ def packaged_params_file(package: str, filename: str | None = None) -> pathlib.P
 
 def read_params_file(path: str | pathlib.Path, node_name: str) -> dict[str, Any]:
     """The ``ros__parameters`` of ``node_name`` (or ``/**``) in a ROS 2 params YAML file."""
-    import yaml
-
     data = yaml.safe_load(pathlib.Path(path).read_text()) or {}
     out: dict[str, Any] = {}
     for key in ("/**", node_name, "/" + node_name):
@@ -385,8 +386,6 @@ def _override_value(exc: Exception) -> Any:
 
 
 def _check_scenario(value: str) -> str | None:
-    from dpos_core.config import builtin_names
-
     known = builtin_names("scenarios")
     if value in known:
         return None
