@@ -177,9 +177,10 @@ def bench_sim(results: dict, repeats: int) -> None:
 
 
 def bench_transfer_alignment(results: dict, repeats: int) -> None:
+    from dpos_core.evaluation import ta as from_sim
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
-    from dpos_core.ta import from_sim, pipeline
+    from dpos_core.ta import pipeline
     from dpos_core.ta.model import TAConfig
 
     ss = SimulatedSession(load_scenario("paper_su"), 1)
@@ -196,9 +197,10 @@ def bench_transfer_alignment(results: dict, repeats: int) -> None:
 def bench_cdvf(results: dict, repeats: int) -> None:
     """[Ye2024]'s CDKF and CDVF (with their RTS-type smoothers) on urtss_paper_su_time_ratio's data
     (paper_su, sub_r, 40 deg initial errors), the URTSS timed in the same run beside them."""
+    from dpos_core.evaluation import ta as from_sim
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
-    from dpos_core.ta import from_sim, pipeline
+    from dpos_core.ta import pipeline
     from dpos_core.ta.model import TAConfig
 
     ss = SimulatedSession(load_scenario("paper_su"), 1)
@@ -285,7 +287,7 @@ def bench_wing(results: dict, repeats: int) -> None:
 
 def bench_sar(results: dict, repeats: int) -> None:
     """[Yan2016]'s filters on one paper_sar run (dpos_core.sar): processing time / data duration."""
-    from dpos_core.sar.evaluate import problem
+    from dpos_core.evaluation.sar import problem
     from dpos_core.sar.pipeline import METHODS, run
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
@@ -300,7 +302,7 @@ def bench_sar(results: dict, repeats: int) -> None:
 
 
 def bench_ifa(results: dict, repeats: int) -> None:
-    from dpos_core.ifa.evaluate import initial_state
+    from dpos_core.evaluation.ifa import initial_state
     from dpos_core.ifa.pipeline import run as ifa_run
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
@@ -314,7 +316,7 @@ def bench_ifa(results: dict, repeats: int) -> None:
     print(f"in-flight alignment add2: paper_ifa {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
     # a MEMS unit (24 states: gyro scale / misalignment), real-device timing, started from the data
-    from dpos_core.ifa.evaluate import filter_config
+    from dpos_core.evaluation.ifa import filter_config
     from dpos_core.ifa.reference import initial_state as data_initial_state
     from dpos_core.series import GnssSeries
 

@@ -18,9 +18,10 @@ import argparse
 
 import numpy as np
 
+from dpos_core.evaluation import ta as from_sim
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.ta import from_sim, pipeline
+from dpos_core.ta import pipeline
 from dpos_core.ta.model import TAConfig
 
 

@@ -28,8 +28,8 @@ import numpy as np
 
 from dpos_core.attitude import quat_to_dcm
 from dpos_core.earth import dllh_to_enu
+from dpos_core.evaluation.ifa import filter_config, initial_state
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_core.ifa.evaluate import filter_config, initial_state
 from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.smoother import smooth
 from dpos_core.series import NavSeries

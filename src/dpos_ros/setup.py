@@ -28,7 +28,6 @@ setup(
             'dpos-eval = dpos_ros.cli.evaluate:main',
             'dpos-record = dpos_ros.cli.record:main',
             'dpos-import = dpos_ros.cli.import_:main',
-            'dpos-ifa = dpos_ros.cli.ifa:main',
             'dpos-sar = dpos_ros.cli.sar:main',
             'dpos-play = dpos_ros.cli.play:main',
             'dpos-graph = dpos_ros.cli.graph:main',

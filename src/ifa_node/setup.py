@@ -27,6 +27,7 @@ setup(
     entry_points={
         'console_scripts': [
             'ifa_node = ifa_node.node:main',
+            'dpos-ifa = ifa_node.offline:main',
         ],
     },
 )

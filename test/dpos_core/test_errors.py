@@ -4,6 +4,8 @@ in-flight aligner's bank of heading hypotheses dropping a failing one with an ev
 
 from __future__ import annotations
 
+import ast
+import builtins
 import pickle
 import threading
 import warnings
@@ -11,9 +13,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from repo_paths import REPO
 
+from dpos_core import errors
 from dpos_core.config import ConfigError, load_aircraft
-from dpos_core.errors import DposError, NumericalFailure, NumericalRepairWarning, RejectedInput
+from dpos_core.errors import DposError, NumericalFailure, NumericalRepairWarning, ParameterError, RejectedInput, TaskFailed
 from dpos_core.filters import linalg
 from dpos_core.filters.linalg import JitterRepairs, chol, solve_spd, total_jitter_repairs
 from dpos_core.ifa.mechanization import initial_state_from_truth
@@ -32,6 +36,65 @@ def test_hierarchy() -> None:
     assert issubclass(ConfigError, DposError) and issubclass(ConfigError, ValueError)
     with pytest.raises(DposError, match="unknown aircraft"):
         load_aircraft("no_such_aircraft")
+
+
+def _exception_classes_in_src() -> dict[str, list[str]]:
+    """Every exception class (not a warning) defined in src: class name -> the files defining it.
+
+    Read from the sources: a class is an exception when one of its bases is a builtin exception
+    or an exception class of src (by name), so that no module has to be imported."""
+    defs: dict[str, tuple[list[str], list[str]]] = {}  # name -> (base names, files)
+    for path in sorted((REPO / "src").glob("*/*/**/*.py")):
+        if "build" in path.parts:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ClassDef):
+                bases = [b.id if isinstance(b, ast.Name) else b.attr for b in node.bases if isinstance(b, ast.Name | ast.Attribute)]
+                defs.setdefault(node.name, ([], []))[0].extend(bases)
+                defs[node.name][1].append(str(path.relative_to(REPO)))
+
+    def builtin_kind(name: str) -> type | None:
+        obj = getattr(builtins, name, None)
+        return obj if isinstance(obj, type) and issubclass(obj, BaseException) else None
+
+    exc: dict[str, bool] = {}  # name -> is a warning
+    changed = True
+    while changed:
+        changed = False
+        for name, (bases, _) in defs.items():
+            if name in exc:
+                continue
+            kinds = [builtin_kind(b) for b in bases]
+            if any(k is not None for k in kinds) or any(b in exc for b in bases):
+                exc[name] = any(k is not None and issubclass(k, Warning) for k in kinds) or any(exc.get(b, False) for b in bases)
+                changed = True
+    return {name: defs[name][1] for name, warning in exc.items() if not warning}
+
+
+def test_every_exception_class_of_the_workspace_is_in_the_hierarchy() -> None:
+    found = _exception_classes_in_src()
+    assert {"DposError", "ParameterError", "BagError", "ProductsExistError", "TaskFailed"} <= set(found)  # the scan sees them
+    outside = {name: files for name, files in found.items() if files != ["src/dpos_core/dpos_core/errors.py"]}
+    assert not outside, f"exception classes defined outside dpos_core/errors.py: {outside}"
+    for name in found:
+        assert issubclass(getattr(errors, name), DposError), name
+        assert name in errors.__all__, name
+
+
+@pytest.mark.parametrize(("name", "builtin"), [("ConfigError", ValueError), ("ParameterError", ValueError), ("InputError", ValueError),
+                                               ("SarInputError", ValueError), ("SessionError", ValueError),
+                                               ("LogFormatError", ValueError), ("ProductsExistError", FileExistsError),
+                                               ("GraphError", RuntimeError)])
+def test_errors_keep_their_builtin_base(name: str, builtin: type[Exception]) -> None:
+    """``except ValueError`` (FileExistsError, RuntimeError) written before the hierarchy still catches them."""
+    assert issubclass(getattr(errors, name), builtin)
+
+
+def test_errors_with_arguments_survive_pickling() -> None:
+    p = pickle.loads(pickle.dumps(ParameterError("rate_hz", -1, "must be > 0")))
+    assert (str(p), p.name, p.value, p.reason) == ("invalid parameter 'rate_hz' = -1: must be > 0", "rate_hz", -1, "must be > 0")
+    t = pickle.loads(pickle.dumps(TaskFailed("no /master/nav", 2)))
+    assert (str(t), t.attempt) == ("no /master/nav", 2)
 
 
 def test_errors_carry_what_went_wrong_through_pickling() -> None:

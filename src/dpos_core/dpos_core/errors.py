@@ -1,14 +1,30 @@
 """What went wrong, in terms a caller can act on: the errors the core raises on purpose.
 
-Hierarchy::
+Hierarchy (every exception class of the workspace is defined here, test/dpos_core/test_errors.py)::
 
-    DposError                                      base of every error below
-    +-- RejectedInput(DposError, ValueError)       bad data the caller may skip
+    DposError                                         base of every error below
+    +-- RejectedInput(DposError, ValueError)          bad data the caller may skip
     +-- NumericalFailure(DposError, ArithmeticError)  a filter that cannot go on from here
-    +-- ConfigError(DposError, ValueError)         a scenario / aircraft file is invalid
-                                                   (:mod:`dpos_core.config.files`)
+    +-- ConfigError(DposError, ValueError)            a scenario / aircraft file is invalid
+    +-- ParameterError(DposError, ValueError)         a node's or a command's parameter is invalid
+    +-- InputError(DposError, ValueError)             a recording or an option cannot be used
+    +-- SarInputError(DposError, ValueError)          a session cannot be SAR-navigated
+    +-- SessionError(DposError, ValueError)           a recording cannot be made into a session
+    +-- LogFormatError(DposError, ValueError)         a flight log cannot be read at all
+    +-- BagError(DposError)                           a bag cannot be read
+    +-- OutputError(DposError)                        an output location cannot be used
+    +-- ProductsExistError(DposError, FileExistsError)  products of an earlier run are in the way
+    +-- GraphError(DposError, RuntimeError)           a node graph did not start or become ready
+    +-- ImportFailure(DposError)                      a log import cannot go on
+    +-- CampaignError(DposError)                      unusable campaign input
+    +-- TaskFailed(DposError)                         a campaign task failed (the engine retries it)
 
-    NumericalRepairWarning(RuntimeWarning)         a silent numerical repair was made (counted)
+    NumericalRepairWarning(RuntimeWarning)            a silent numerical repair was made (counted)
+
+Each error keeps the builtin base it had before it joined the hierarchy, so an ``except
+ValueError`` / ``except FileExistsError`` that caught it keeps catching it.  The classes carry
+no ROS type: the ROS-side modules that raise them (``dpos_ros.runtime.params``,
+``dpos_ros.io.play``, ...) import them from here and still export them under their old names.
 
 :class:`RejectedInput` is a datum that fails its checks: a GNSS fix with non-finite values or a
 zero covariance, a duplicate or out-of-order stamp, NaN IMU samples.  Nothing was changed by the
@@ -29,7 +45,11 @@ to skip bad data therefore never hides a bug (a shape ``ValueError`` is not a ``
 
 from __future__ import annotations
 
-__all__ = ["DposError", "RejectedInput", "NumericalFailure", "NumericalRepairWarning"]
+from typing import Any
+
+__all__ = ["DposError", "RejectedInput", "NumericalFailure", "NumericalRepairWarning", "ConfigError", "ParameterError",
+           "InputError", "SarInputError", "SessionError", "LogFormatError", "BagError", "OutputError", "ProductsExistError",
+           "GraphError", "ImportFailure", "CampaignError", "TaskFailed"]
 
 
 class DposError(Exception):
@@ -78,3 +98,88 @@ class NumericalRepairWarning(RuntimeWarning):
     """A numerical repair was made silently (e.g. a Cholesky factor with diagonal jitter); the
     first one per call site is warned, every one is counted
     (:class:`dpos_core.filters.linalg.JitterRepairs`)."""
+
+
+# ----------------------------------------------------------------------------- inputs and settings
+
+
+class ConfigError(DposError, ValueError):
+    """A scenario or aircraft file is invalid (the message names the file and the key)."""
+
+
+class ParameterError(DposError, ValueError):
+    """An invalid parameter value of a node or a command; the message names the parameter and the value.
+
+    Args:
+        name: the parameter's name.
+        value: the value that was given.
+        reason: why it is invalid, for people.
+    """
+
+    def __init__(self, name: str, value: Any, reason: str) -> None:
+        self.name = name
+        self.value = value
+        self.reason = reason
+        super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
+
+    def __reduce__(self) -> tuple[type[ParameterError], tuple[str, Any, str]]:
+        return type(self), (self.name, self.value, self.reason)  # survives pickling (worker processes)
+
+
+class InputError(DposError, ValueError):
+    """A recording or an option cannot be used (the message says which and why)."""
+
+
+class SarInputError(DposError, ValueError):
+    """A session's data cannot be navigated with SAR fixes (the message says what is missing or wrong)."""
+
+
+class SessionError(DposError, ValueError):
+    """A recording cannot be processed into a session (the message says why)."""
+
+
+class LogFormatError(DposError, ValueError):
+    """A log cannot be read at all (wrong format, no usable line); the message names the file and what is wrong."""
+
+
+class BagError(DposError):
+    """A bag that cannot be read (the message names the path)."""
+
+
+# ----------------------------------------------------------------------------- outputs
+
+
+class OutputError(DposError):
+    """An output location that cannot be used (the message names the path and why)."""
+
+
+class ProductsExistError(DposError, FileExistsError):
+    """A session's product directory exists (from an earlier run) and ``overwrite`` is False."""
+
+
+# ----------------------------------------------------------------------------- running
+
+
+class GraphError(DposError, RuntimeError):
+    """A node graph could not be started or did not become ready (the message names the nodes)."""
+
+
+class ImportFailure(DposError):
+    """A problem that ends a log import with ``dpos-import: error: <message>`` and status 2."""
+
+
+class CampaignError(DposError):
+    """Unusable campaign input (the message names what): exit status 2 before anything runs."""
+
+
+class TaskFailed(DposError):
+    """A campaign task that failed: ``message`` (dpos-process's error, one line) and the ``attempt``
+    it failed at (1 = the first).  Raised in the worker, so that the engine retries the task."""
+
+    def __init__(self, message: str, attempt: int) -> None:
+        super().__init__(message, attempt)
+        self.message = message
+        self.attempt = attempt
+
+    def __str__(self) -> str:
+        return self.message

@@ -1,4 +1,6 @@
-"""Time series of the navigation core: IMU samples, navigation solutions and GNSS fixes.
+"""Time series of the navigation core: IMU samples, navigation solutions, GNSS fixes, SAR fixes and
+barometric heights, and the navigation state at one epoch (:class:`NavState`, also exported by
+:mod:`dpos_core.strapdown`).
 
 One type per kind of data, used by the simulator (:mod:`dpos_core.sim.session`), the strapdown
 (:mod:`dpos_core.strapdown`), the alignments (:mod:`dpos_core.ifa`, :mod:`dpos_core.ta`), the
@@ -15,20 +17,19 @@ as in the error-state models).  The series are frozen; their arrays are not modi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from dpos_core.errors import RejectedInput
 from dpos_core.units import FloatArray
 
-from .attitude import dcm_to_quat, quat_to_dcm
-from .frames import hpr_from_C_nb
-
-if TYPE_CHECKING:
-    from .strapdown import NavState
+from .attitude import dcm_to_quat, quat_normalize, quat_to_dcm
+from .frames import C_nb_from_hpr, hpr_from_C_nb
 
 #: which samples to take: a boolean mask (N,), an index array or a slice
 Selection = NDArray[Any] | slice
@@ -38,6 +39,73 @@ Selection = NDArray[Any] | slice
 #: real stamps jitter (a 100 Hz sensor read by a ~150 Hz logger gives 6 and 9 ms steps: 1.5x), one
 #: lost sample at a steady rate makes 2x
 GAP_FACTOR = 1.75
+
+
+
+@dataclass
+class NavState:
+    """Navigation state at time ``t_s``.
+
+    Attributes:
+        t_s: time [s] (session time; any origin).
+        q_nb: attitude quaternion body -> local ENU, shape (4,), scalar first.
+        vel_n_mps: velocity over the Earth in local ENU, shape (3,).
+        llh: ``[lat_rad, lon_rad, h_m]``, shape (3,).
+    """
+
+    t_s: float
+    q_nb: FloatArray
+    vel_n_mps: FloatArray
+    llh: FloatArray
+
+    def __post_init__(self) -> None:
+        self.t_s = float(self.t_s)
+        self.q_nb = quat_normalize(np.asarray(self.q_nb, dtype=float).reshape(4))
+        self.vel_n_mps = np.asarray(self.vel_n_mps, dtype=float).reshape(3).copy()
+        self.llh = np.asarray(self.llh, dtype=float).reshape(3).copy()
+        for name in ("q_nb", "vel_n_mps", "llh"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise RejectedInput(f"NavState.{name} is not finite: {getattr(self, name)}", what="navigation state", reason="nan",
+                                    t_s=self.t_s)
+
+    @classmethod
+    def from_hpr(
+        cls, t_s: float, hpr_rad: ArrayLike, vel_n_mps: ArrayLike, llh: ArrayLike
+    ) -> NavState:
+        """Build from aviation heading/pitch/roll [rad] of an FLU body."""
+        h, p, r = np.asarray(hpr_rad, dtype=float)
+        vel = np.asarray(vel_n_mps, dtype=float)
+        llh_arr = np.asarray(llh, dtype=float)
+        return cls(t_s, dcm_to_quat(C_nb_from_hpr(h, p, r)), vel, llh_arr)
+
+    @property
+    def C_nb(self) -> FloatArray:
+        """DCM body -> local ENU, shape (3, 3)."""
+        return quat_to_dcm(self.q_nb)
+
+    @property
+    def hpr_rad(self) -> FloatArray:
+        """Aviation heading, pitch, roll [rad], shape (3,)."""
+        return hpr_from_C_nb(self.C_nb)
+
+    def copy(self) -> NavState:
+        return NavState(self.t_s, self.q_nb.copy(), self.vel_n_mps.copy(), self.llh.copy())
+
+    @classmethod
+    def _from_state_vector(cls, t_s: float, x: FloatArray) -> NavState:
+        """The state of an integrator's vector ``x`` (>= 10,) ``[q_nb (4), vel_n_mps (3), llh (3)]``
+        (fresh arrays): what the constructor makes of it (the quaternion normalized with a
+        non-negative scalar part, the values checked finite), without its general conversions."""
+        v = x[:10]
+        if not np.isfinite(v).all():
+            return cls(t_s, v[0:4], v[4:7], v[7:10])  # the constructor names what is not finite
+        q = v[0:4]
+        q = q / math.sqrt(float(q @ q))
+        if q[0] < 0.0:
+            q = -q
+        st = cls.__new__(cls)
+        st.t_s, st.q_nb, st.vel_n_mps, st.llh = float(t_s), q, v[4:7].copy(), v[7:10].copy()
+        return st
 
 
 @dataclass(frozen=True)
@@ -132,9 +200,7 @@ class NavSeries:
                          pos_cov=take(self.pos_cov))
 
     def state(self, i: int) -> NavState:
-        """Epoch ``i`` as a :class:`~dpos_core.strapdown.NavState`."""
-        from .strapdown import NavState
-
+        """Epoch ``i`` as a :class:`NavState`."""
         return NavState(self.t_s[i], self.q_nb[i], self.vel_n_mps[i], self.llh[i])
 
     @staticmethod
@@ -169,3 +235,26 @@ class GnssSeries:
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
+
+
+@dataclass(frozen=True)
+class SarFixes:
+    """SAR fixes: t_s (M,), llh (M, 3) (latitude and longitude of the matched position; the height
+    is not measured: it only scales their differences into metres, any height near the flight's
+    will do), heading_rad (M,), and their 1 sigmas: pos_sigma_m (north and east, one value or (M,)),
+    heading_sigma_rad (one value or (M,))."""
+
+    t_s: FloatArray
+    llh: FloatArray
+    heading_rad: FloatArray
+    pos_sigma_m: float | FloatArray
+    heading_sigma_rad: float | FloatArray
+
+
+@dataclass(frozen=True)
+class BaroSeries:
+    """Barometric heights h_m (M,) at t_s (M,), 1 sigma sigma_m (one value or (M,))."""
+
+    t_s: FloatArray
+    h_m: FloatArray
+    sigma_m: float | FloatArray

@@ -28,7 +28,6 @@ attitude error ``phi`` with ``C_nb_est = expm(-[phi x]) C_nb_true``).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,75 +38,7 @@ from dpos_core.units import FloatArray
 
 from . import _attitude_kernel as _ak
 from . import _strapdown_kernel as _k
-from .attitude import dcm_to_quat, quat_normalize, quat_to_dcm
-from .frames import C_nb_from_hpr, hpr_from_C_nb
-from .series import NavSeries
-
-
-@dataclass
-class NavState:
-    """Navigation state at time ``t_s``.
-
-    Attributes:
-        t_s: time [s] (session time; any origin).
-        q_nb: attitude quaternion body -> local ENU, shape (4,), scalar first.
-        vel_n_mps: velocity over the Earth in local ENU, shape (3,).
-        llh: ``[lat_rad, lon_rad, h_m]``, shape (3,).
-    """
-
-    t_s: float
-    q_nb: FloatArray
-    vel_n_mps: FloatArray
-    llh: FloatArray
-
-    def __post_init__(self) -> None:
-        self.t_s = float(self.t_s)
-        self.q_nb = quat_normalize(np.asarray(self.q_nb, dtype=float).reshape(4))
-        self.vel_n_mps = np.asarray(self.vel_n_mps, dtype=float).reshape(3).copy()
-        self.llh = np.asarray(self.llh, dtype=float).reshape(3).copy()
-        for name in ("q_nb", "vel_n_mps", "llh"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise RejectedInput(f"NavState.{name} is not finite: {getattr(self, name)}", what="navigation state", reason="nan",
-                                    t_s=self.t_s)
-
-    @classmethod
-    def from_hpr(
-        cls, t_s: float, hpr_rad: ArrayLike, vel_n_mps: ArrayLike, llh: ArrayLike
-    ) -> NavState:
-        """Build from aviation heading/pitch/roll [rad] of an FLU body."""
-        h, p, r = np.asarray(hpr_rad, dtype=float)
-        vel = np.asarray(vel_n_mps, dtype=float)
-        llh_arr = np.asarray(llh, dtype=float)
-        return cls(t_s, dcm_to_quat(C_nb_from_hpr(h, p, r)), vel, llh_arr)
-
-    @property
-    def C_nb(self) -> FloatArray:
-        """DCM body -> local ENU, shape (3, 3)."""
-        return quat_to_dcm(self.q_nb)
-
-    @property
-    def hpr_rad(self) -> FloatArray:
-        """Aviation heading, pitch, roll [rad], shape (3,)."""
-        return hpr_from_C_nb(self.C_nb)
-
-    def copy(self) -> NavState:
-        return NavState(self.t_s, self.q_nb.copy(), self.vel_n_mps.copy(), self.llh.copy())
-
-    @classmethod
-    def _from_state_vector(cls, t_s: float, x: FloatArray) -> NavState:
-        """The state of an integrator's vector ``x`` (>= 10,) ``[q_nb (4), vel_n_mps (3), llh (3)]``
-        (fresh arrays): what the constructor makes of it (the quaternion normalized with a
-        non-negative scalar part, the values checked finite), without its general conversions."""
-        v = x[:10]
-        if not np.isfinite(v).all():
-            return cls(t_s, v[0:4], v[4:7], v[7:10])  # the constructor names what is not finite
-        q = v[0:4]
-        q = q / math.sqrt(float(q @ q))
-        if q[0] < 0.0:
-            q = -q
-        st = cls.__new__(cls)
-        st.t_s, st.q_nb, st.vel_n_mps, st.llh = float(t_s), q, v[4:7].copy(), v[7:10].copy()
-        return st
+from .series import NavSeries, NavState  # NavState: imported from here by many callers
 
 
 def _check_input(name: str, arr: ArrayLike, n: int | None = None) -> FloatArray:

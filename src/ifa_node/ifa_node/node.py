@@ -117,6 +117,7 @@ from dpos_core.ifa.model import GnssFix, check_fix
 from dpos_core.ifa.pipeline import IMU_DT_SAMPLES, EpochRecord, InFlightAligner, nominal_imu_dt_s
 from dpos_core.ifa.pipeline import advance as advance_imu  # run()'s own loop: live == offline by construction
 from dpos_core.ifa.states import AlignmentState
+from dpos_core.ifa.warmup import warm_up
 from dpos_core.series import GAP_FACTOR, NavSeries
 from dpos_core.strapdown import NavState
 from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
@@ -191,8 +192,6 @@ class IfaNode(Node):
         self.aircraft = aircraft
         self.lever_arm_m = np.asarray(aircraft.gnss_lever_arm_m, dtype=float)
         try:  # the filter's numba kernels compiled or loaded now, not in the data flow (dpos_core.ifa.warmup)
-            from dpos_core.ifa.warmup import warm_up
-
             self.get_logger().info(f"filter warmed up in {warm_up(self.core_config, cfg.method):.1f} s")
         except Exception as e:  # (a warm-up is never a reason not to start)
             self.get_logger().warning(f"the filter's warm-up failed ({type(e).__name__}: {e}); its first epochs may be slow")

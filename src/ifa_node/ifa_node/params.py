@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from dpos_core.config.sensors import IMU_PRESETS
-from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS, R_ESTIMATORS
+from dpos_core.config.sensors import IMU_PRESETS, imu_model
+from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS, PAPER_IFA_IMU, R_ESTIMATORS, IfaFilterConfig
 from dpos_core.ifa.pipeline import METHODS
 from dpos_ros.runtime.params import ParameterError, aircraft_config_param, datum_param, param, scenario_param
 
@@ -108,9 +108,6 @@ class IfaConfig:
     def core_config(self, master_imu: ImuErrorModel | None = None) -> IfaFilterConfig:
         """The :class:`dpos_core.ifa.model.IfaFilterConfig` of these parameters; the IMU model is
         ``imu_preset`` when set, else ``master_imu`` (the aircraft file's), else [Fang2012]'s."""
-        from dpos_core.config.sensors import imu_model
-        from dpos_core.ifa.model import PAPER_IFA_IMU, IfaFilterConfig
-
         if self.r_min_epochs > self.r_window_max:
             raise ParameterError("r_min_epochs", self.r_min_epochs, f"must be <= r_window_max ({self.r_window_max})")
         if self.imu_preset:

@@ -101,6 +101,7 @@ from dpos_core.ifa.mechanization import (
     stamp_s,
 )
 from dpos_core.ifa.states import AlignmentState
+from dpos_core.ifa.warmup import warm_up_mechanization
 from dpos_core.strapdown import NavState
 from dpos_core.units import DEG, FloatArray
 from dpos_ros.contract import conversions as cv
@@ -301,8 +302,6 @@ class Mechanizer(ABC):
         /ifa/imu_bias and /ifa/status; publish /pos_master/status."""
         node = self.node
         try:
-            from dpos_core.ifa.warmup import warm_up_mechanization
-
             node.get_logger().info(f"mechanization warmed up in {warm_up_mechanization():.1f} s")
         except Exception as e:  # (a warm-up is never a reason not to start)
             node.get_logger().warning(f"the mechanization's warm-up failed ({type(e).__name__}: {e}); its first IMU batch may be slow")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dpos_core.ifa import evaluate as E
+from dpos_core.evaluation import ifa as E
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 

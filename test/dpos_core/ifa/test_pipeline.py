@@ -225,7 +225,7 @@ def test_13_state_model_runs_and_aligns_roughly() -> None:
 def test_outage_during_the_manoeuvre_coasts_and_reconverges() -> None:
     """A 30 s GNSS outage in the 180 deg turn (100-130 s): no epochs in it, the heading error
     stays bounded while coasting and is back below 0.05 deg at the end."""
-    from dpos_core.ifa.evaluate import Evaluator, NoiseInterval, with_gnss_interval
+    from dpos_core.evaluation.ifa import Evaluator, NoiseInterval, with_gnss_interval
 
     ev = Evaluator(load_scenario("paper_ifa"))
     sc = with_gnss_interval(ev.scenario, NoiseInterval(100.0, 130.0, outage=True))
@@ -241,7 +241,7 @@ def test_outage_during_the_manoeuvre_coasts_and_reconverges() -> None:
 def test_noise_jump_add2_bounded_where_dd2_degrades() -> None:
     """GNSS noise x10 from 240 s to the end (seed 1, measured: final heading ADD2 0.0016 deg, DD2
     -0.0215 deg): ADD2 adapts R and keeps the error small, fixed-R DD2 follows the noise."""
-    from dpos_core.ifa.evaluate import Evaluator, NoiseInterval, with_gnss_interval
+    from dpos_core.evaluation.ifa import Evaluator, NoiseInterval, with_gnss_interval
 
     ev = Evaluator(load_scenario("paper_ifa"))
     sc = with_gnss_interval(ev.scenario, NoiseInterval(240.0, 401.0, scale=10.0))

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from dpos_core.attitude import quat_to_dcm
+from dpos_core.evaluation.ifa import filter_config, initial_state
 from dpos_core.filters.dd2 import dd2_predict, dd2_update
 from dpos_core.filters.gaussian import kf_predict, kf_update, rts_smooth
 from dpos_core.filters.linalg import chol
 from dpos_core.filters.runners import smooth_gaussian
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_core.ifa.evaluate import filter_config, initial_state
 from dpos_core.ifa.pipeline import SmootherStep, _Engine, run
 from dpos_core.ifa.smoother import segments, smooth, track_of
 from dpos_core.sim.scenario import load_scenario

@@ -8,8 +8,8 @@ import pytest
 
 from dpos_core.attitude import quat_mul, rotvec_to_quat
 from dpos_core.earth import enu_to_dllh
+from dpos_core.evaluation.sar import ARCMIN, errors, noise_model, problem, run_methods
 from dpos_core.sar import navigate as nav_mod
-from dpos_core.sar.evaluate import ARCMIN, errors, noise_model, problem, run_methods
 from dpos_core.sar.navigate import BaroSeries, SarNavSettings, navigate
 from dpos_core.sar.pipeline import METHODS
 from dpos_core.sim.sar import baro_heights, sar_fixes

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dpos_core.sar.evaluate import problem, run_methods, truth_errors
+from dpos_core.evaluation.sar import problem, run_methods, truth_errors
 from dpos_core.sar.pipeline import METHODS, ORACLE, run
 from dpos_core.sim.sar import baro_heights, sar_fixes
 from dpos_core.sim.scenario import load_scenario

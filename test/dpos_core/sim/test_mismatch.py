@@ -1,4 +1,4 @@
-"""The mismatch suite's truth-side perturbations (dpos_core.sim.mismatch): each case reaches the
+"""The mismatch suite's truth-side perturbations (dpos_core.evaluation.mismatch): each case reaches the
 simulated streams, the nominal scenario stays as it was; and the consistency metric of
 dpos_core.ta.metrics on errors whose sigma is known."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from dpos_core import earth
+from dpos_core.evaluation import mismatch as MM
 from dpos_core.frames import hpr_error, hpr_from_C_nb
-from dpos_core.sim import mismatch as MM
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import metrics as M

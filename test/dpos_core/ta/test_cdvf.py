@@ -13,11 +13,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dpos_core.evaluation import ta as from_sim
 from dpos_core.frames import hpr_error, hpr_from_C_nb
 from dpos_core.sim.flight import Segment
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.ta import from_sim, pipeline
+from dpos_core.ta import pipeline
 from dpos_core.ta.model import TAConfig
 
 ERR0_DEG = 3.0

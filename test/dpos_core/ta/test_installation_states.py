@@ -1,6 +1,6 @@
 """The transfer alignment's installation states (lever arm, time offset, sensor axis errors):
 estimated from a simulated world that has what the nominal configuration does not know, and
-checked against that world's truth (dpos_core.sim.mismatch), not against the filter's own model."""
+checked against that world's truth (dpos_core.evaluation.mismatch), not against the filter's own model."""
 
 from __future__ import annotations
 
@@ -11,11 +11,12 @@ import pytest
 
 from dpos_core.config import ConfigError
 from dpos_core.config.aircraft import load_aircraft
+from dpos_core.evaluation import mismatch as MM
+from dpos_core.evaluation import ta as from_sim
 from dpos_core.filters.points import UnscentedPoints
 from dpos_core.filters.runners import run_sigma_point_filter
-from dpos_core.sim import mismatch as MM
 from dpos_core.sim.scenario import load_scenario
-from dpos_core.ta import from_sim, pipeline
+from dpos_core.ta import pipeline
 from dpos_core.ta.antenna import step_roughness
 from dpos_core.ta.model import Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var
 from dpos_core.ta.oracle import LinearizedAboutTruth

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from dpos_core.attitude import compose_rotvec, right_jacobian
+from dpos_core.evaluation import ta as from_sim
 from dpos_core.frames import hpr_error, hpr_from_C_nb
 from dpos_core.ins_errors import right_jacobian_inv
 from dpos_core.series import ImuSeries
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.ta import from_sim, pipeline
+from dpos_core.ta import pipeline
 from dpos_core.ta.model import TAConfig, TransferAlignmentModel
 
 

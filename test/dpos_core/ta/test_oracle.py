@@ -13,7 +13,7 @@ What it promises, and what is checked here:
   consistent with its own errors (NEES), also from [Gong2018]'s 40 deg initial errors;
 * on the same data its errors are no larger than the URTSS's.
 
-The truth functions are dpos-eval's own (:func:`dpos_core.ta.from_sim.oracle_truth`).
+The truth functions are dpos-eval's own (:func:`dpos_core.evaluation.ta.oracle_truth`).
 """
 
 from __future__ import annotations
@@ -23,15 +23,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dpos_core.evaluation import ta as from_sim
+from dpos_core.evaluation.ta import oracle_truth
 from dpos_core.filters.jacobian import central_difference_jacobian
 from dpos_core.filters.points import UnscentedPoints
 from dpos_core.filters.runners import run_sigma_point_filter, smooth_gaussian
 from dpos_core.series import NavSeries
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.ta import from_sim, pipeline
 from dpos_core.ta import metrics as M
-from dpos_core.ta.from_sim import oracle_truth
+from dpos_core.ta import pipeline
 from dpos_core.ta.model import DP, DV, EPS, NAB, PHI, RHO, TAConfig, TransferAlignmentModel
 from dpos_core.ta.oracle import LinearizedAboutTruth
 

@@ -139,10 +139,10 @@ def test_fit_antenna_summary_reports_the_fit(vf: float, verdict: str) -> None:
 def short_flight():
     from dataclasses import replace
 
+    from dpos_core.evaluation import ta as from_sim
     from dpos_core.sim.flight import Segment
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
-    from dpos_core.ta import from_sim
 
     sc = load_scenario("paper_su")
     sc = replace(sc, segments=(Segment(20.0, name="lead_in"), Segment(25.0, heading_change_deg=30.0, name="turn")))

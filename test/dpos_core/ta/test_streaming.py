@@ -10,13 +10,14 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
+from dpos_core.evaluation import ta as from_sim
 from dpos_core.filters import gaussian, runners
 from dpos_core.filters.store import EpochArray
 from dpos_core.sim.flight import Segment
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.strapdown import NavState, Strapdown
-from dpos_core.ta import from_sim, pipeline, qc
+from dpos_core.ta import pipeline, qc
 from dpos_core.ta.model import TAConfig, TransferAlignmentModel
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dpos_core.ifa.evaluate import RunResult
+from dpos_core.evaluation.ifa import RunResult
 
 EXE = Path(sys.executable).parent / "dpos-eval"
 

@@ -13,7 +13,7 @@ import pytest
 from dpos_core import earth
 from dpos_core.config import config_text
 from dpos_core.config.aircraft import load_aircraft
-from dpos_core.sim import mismatch as MM
+from dpos_core.evaluation import mismatch as MM
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.cli import evaluate as cli

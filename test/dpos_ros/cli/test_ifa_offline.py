@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from dpos_ros.cli import ifa, import_
+from dpos_ros.cli import import_
+from ifa_node import offline as ifa
 
 WALK = REPO / "data" / "real" / "walk_0827"
 

@@ -15,16 +15,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from dpos_core.errors import DposError
+from dpos_core.errors import ConfigError
 
 #: the kinds of built-in configuration file (folders of this package).
 KINDS = ("aircraft", "scenarios")
-
-
-class ConfigError(DposError, ValueError):
-    """A scenario or aircraft file is invalid (the message names the file and the key).
-
-    A :class:`~dpos_core.errors.DposError`, and a ``ValueError`` as before."""
 
 
 def builtin_names(kind: str) -> list[str]:

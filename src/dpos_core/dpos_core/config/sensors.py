@@ -10,10 +10,13 @@ them (:mod:`dpos_core.sim.sensors`); the estimators take their statistics from h
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from importlib import resources
 
 import numpy as np
+import yaml
 
 from ..units import DEG, DEG_PER_H, UG_MPS2, FloatArray
+from .files import ConfigError, build
 
 
 @dataclass(frozen=True)
@@ -87,10 +90,6 @@ class ImuErrorModel:
 
 
 def _presets() -> dict[str, dict[str, float]]:
-    from importlib import resources
-
-    import yaml
-
     text = resources.files(__package__).joinpath("imu_presets.yaml").read_text(encoding="utf-8")
     data = yaml.safe_load(text)
     return {str(k): dict(v) for k, v in data.items()}
@@ -103,8 +102,6 @@ IMU_PRESETS: dict[str, dict[str, float]] = _presets()
 def imu_model(data: dict | None, where: str) -> ImuErrorModel:
     """An :class:`ImuErrorModel` from a config mapping, with an optional ``preset`` (class
     docstring); unknown keys, unknown presets and bad values raise ConfigError naming ``where``."""
-    from .files import ConfigError, build
-
     d = dict(data or {})
     name = d.pop("preset", None)
     if name is not None:

@@ -56,6 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
+from dpos_core.frames import C_nb_from_hpr, hpr_from_C_nb
 from dpos_core.series import GAP_FACTOR, NavSeries
 from dpos_core.strapdown import NavState, Strapdown
 from dpos_core.units import DEG, FloatArray
@@ -100,8 +101,6 @@ def initial_state_from_truth(truth_q_nb: FloatArray, vel_n_mps: FloatArray, llh:
                              heading_error_deg: float = 0.0) -> NavState:
     """A truth state with a heading error (level errors 0): ``C_nb_est = R_U(-dpsi) C_nb`` so that the
     aviation heading grows by ``heading_error_deg``."""
-    from dpos_core.frames import C_nb_from_hpr, hpr_from_C_nb
-
     hpr = hpr_from_C_nb(quat_to_dcm(np.asarray(truth_q_nb, dtype=float)))
     hpr = hpr + np.array([heading_error_deg * DEG, 0.0, 0.0])
     return NavState(t_s, dcm_to_quat(C_nb_from_hpr(*hpr)), vel_n_mps, llh)

@@ -59,8 +59,9 @@ from ..filters.dd2 import (
     dd2_update,
     divided_differences,
 )
+from ..filters.jacobian import central_difference_jacobian, steps_from_cov
 from ..filters.linalg import JitterRepairs, chol, householder_tria, solve_spd, symmetrize
-from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..frames import C_nb_from_hpr, hpr_error, hpr_from_C_nb
 from ..series import GnssSeries, ImuSeries, NavSeries
 from ..strapdown import NavState
 from .model import GnssFix, IfaFilterConfig, IfaModel, check_fix
@@ -619,8 +620,6 @@ def _rotate_heading(s: NavState, dpsi_rad: float) -> NavState:
 
 
 def _jac(fn, x: FloatArray, P: FloatArray) -> FloatArray:
-    from ..filters.jacobian import central_difference_jacobian, steps_from_cov
-
     return central_difference_jacobian(fn, x, steps_from_cov(P))
 
 
@@ -832,8 +831,6 @@ def fix_at(t_stamp_s: float, gnss: GnssSeries, j: int, cfg: IfaFilterConfig) -> 
 def attitude_errors_deg(result: IfaResult, truth_q_nb: FloatArray) -> FloatArray:
     """Heading, pitch, roll errors (est - true, wrapped) [deg] (N, 3) of the result's navigation
     against truth attitudes (N, 4) at the same stamps."""
-    from ..frames import hpr_error, hpr_from_C_nb
-
     return hpr_error(hpr_from_C_nb(result.C_nb), hpr_from_C_nb(quat_to_dcm(truth_q_nb))) / DEG
 
 

@@ -10,11 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import chi2
 
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..attitude import quat_to_dcm
+from ..attitude import attitude_error, quat_to_dcm
 from ..frames import hpr_from_C_nb
 from ..series import GnssSeries, ImuSeries
 from ..strapdown import NavState
@@ -83,8 +84,6 @@ class Consistency:
     def summary(self) -> dict[str, float]:
         """Mean NEES per block (3 when consistent), the fraction inside the two-sided 95 %
         chi-square(3) bounds per epoch (0.95 when consistent), the same for the NIS."""
-        from scipy.stats import chi2
-
         lo, hi = chi2.ppf([0.025, 0.975], 3)
         out: dict[str, float] = {}
         for k in ("pos", "vel", "att"):
@@ -107,8 +106,6 @@ def consistency(result: IfaResult, truth_at, since_s: float) -> Consistency:
         truth_at: ``t_s (K,) -> NavSeries`` of the truth at the IMU.
         since_s: only epochs from this time on (e.g. the alignment time).
     """
-    from ..attitude import attitude_error
-
     tt = np.array([x[0] for x in result.track])
     P = np.array([x[1] for x in result.track]).reshape(-1, 9, 9)
     keep = tt >= since_s

@@ -13,17 +13,17 @@ import numpy as np
 
 from ..series import GnssSeries
 from ..strapdown import NavState
-from ..ta.warmup import resting_session
+from ..warmup_data import resting_imu_and_master
 from .mechanization import MasterMechanization
 from .pipeline import IfaFilterConfig, run
 
 
 def warm_up(cfg: IfaFilterConfig, method: str = "add2") -> float:
-    """Align a main POS at rest (:func:`dpos_core.ta.warmup.resting_session`'s 4 s at 100 Hz) with
+    """Align a main POS at rest (:func:`dpos_core.warmup_data.resting_imu_and_master`: 4 s at 100 Hz) with
     GNSS fixes for 2 s then none (the measurement update and the outage's time updates run);
     returns the seconds it took.  The result is discarded."""
     t0 = time.perf_counter()
-    imu, master, _ = resting_session()
+    imu, master = resting_imu_and_master()
     t, llh = np.array([1.0, 2.0]), np.asarray(master.llh[0], dtype=float)
     gnss = GnssSeries(t, np.broadcast_to(llh, (2, 3)).copy(), np.full((2, 3), 0.02), np.zeros((2, 3)), np.full((2, 3), 0.01))
     initial = NavState(0.0, np.asarray(master.q_nb[0], dtype=float), np.zeros(3), llh.copy())
@@ -36,7 +36,7 @@ def warm_up_mechanization() -> float:
     (100 Hz, two batches) with a correction at an integrated sample (the ring re-integrated) and a
     bias compensation; returns the seconds it took.  The result is discarded."""
     t0 = time.perf_counter()
-    imu, master, _ = resting_session()
+    imu, master = resting_imu_and_master()
     llh = np.asarray(master.llh[0], dtype=float)
     q = np.asarray(master.q_nb[0], dtype=float)
     n = min(40, imu.t_s.size)

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core.errors import LogFormatError
+
 from ..series import GnssSeries, ImuSeries
 from ..units import DEG, G0_MPS2, FloatArray
 
@@ -40,10 +42,6 @@ _TAG_RECORDS = 76  # (uint32 tick_ms, uint32 file_pos) records
 
 ACCEL_UNITS = {"g": G0_MPS2, "mps2": 1.0}
 GYRO_UNITS = {"deg_s": DEG, "rad_s": 1.0}
-
-
-class LogFormatError(ValueError):
-    """A log cannot be read at all (wrong format, no usable line); the message names the file and what is wrong."""
 
 
 def _first_reasons(skipped: list[tuple[int, str]]) -> str:

@@ -42,7 +42,7 @@ import numpy as np
 from dpos_core.units import FloatArray
 
 from .. import earth
-from ..attitude import cross, quat_conj, quat_mul, quat_normalize, quat_to_dcm, rotvec_to_quat, wrap_angle
+from ..attitude import cross, dcm_to_quat, quat_conj, quat_mul, quat_normalize, quat_to_dcm, rotvec_to_quat, wrap_angle
 from ..frames import hpr_from_C_nb
 from ..series import NavSeries
 
@@ -276,8 +276,6 @@ def error_state(track: SinsTrack, truth: NavSeries, gyro_bias_radps: FloatArray,
 
 def track_quat(track: SinsTrack) -> FloatArray:
     """The SINS's attitude quaternions q_nb (K, 4)."""
-    from ..attitude import dcm_to_quat
-
     return dcm_to_quat(track.C_nb)
 
 

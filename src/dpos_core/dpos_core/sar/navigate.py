@@ -1,15 +1,15 @@
 """SINS/SAR/baro navigation of one session from its data ([Yan2016]): the product path of
-sar_nav_node and ``dpos-sar``, the same model and filters as the evaluation (:mod:`.evaluate`).
+sar_nav_node and ``dpos-sar``, the same model and filters as the evaluation (:mod:`dpos_core.evaluation.sar`).
 
 Inputs, in session time ``t_s`` (seconds after the initial state's stamp):
 
 * the main IMU samples (:class:`~dpos_core.series.ImuSeries`, each the mean over the interval
   ending at its stamp) and the initial state (:class:`~dpos_core.strapdown.NavState` at t = 0): the
   free SINS is their strapdown mechanization (open loop, as [Yan2016]);
-* :class:`SarFixes`: scene-matching fixes of latitude, longitude and heading with their 1 sigmas;
+* :class:`~dpos_core.series.SarFixes`: scene-matching fixes of latitude, longitude and heading with their 1 sigmas;
   a fix is used at the filter epoch within ``FIX_TOL_S`` of its stamp (the SINS is compared at the
   fix's instant), others are counted as off the filter grid and not used;
-* :class:`BaroSeries`: barometric heights; the filter uses the mean of the samples within half a
+* :class:`~dpos_core.series.BaroSeries`: barometric heights; the filter uses the mean of the samples within half a
   filter step of each epoch (with the SINS's height at the same instants), and needs at least one
   per epoch.
 
@@ -28,7 +28,7 @@ from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
 from .. import earth
 from ..attitude import dcm_to_quat
-from ..series import ImuSeries, NavSeries
+from ..series import BaroSeries, ImuSeries, NavSeries, SarFixes  # (SarFixes, BaroSeries: exported here too)
 from ..strapdown import NavState, Strapdown
 from .model import DP, DV, N_STATES, SarMeasurements, SarModel, SarNoise, SinsTrack, corrected, heading_of
 from .pipeline import METHODS, SarEstimate, run
@@ -36,29 +36,6 @@ from .pipeline import METHODS, SarEstimate, run
 ARCMIN = DEG / 60.0
 #: a SAR fix is used at a filter epoch within this of its stamp [s]
 FIX_TOL_S = 1e-6
-
-
-@dataclass(frozen=True)
-class SarFixes:
-    """SAR fixes: t_s (M,), llh (M, 3) (latitude and longitude of the matched position; the height
-    is not measured: it only scales their differences into metres, any height near the flight's
-    will do), heading_rad (M,), and their 1 sigmas: pos_sigma_m (north and east, one value or (M,)),
-    heading_sigma_rad (one value or (M,))."""
-
-    t_s: FloatArray
-    llh: FloatArray
-    heading_rad: FloatArray
-    pos_sigma_m: float | FloatArray
-    heading_sigma_rad: float | FloatArray
-
-
-@dataclass(frozen=True)
-class BaroSeries:
-    """Barometric heights h_m (M,) at t_s (M,), 1 sigma sigma_m (one value or (M,))."""
-
-    t_s: FloatArray
-    h_m: FloatArray
-    sigma_m: float | FloatArray
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ from scipy.interpolate import CubicSpline
 
 from dpos_core.units import FloatArray
 
+from .. import earth
 from .._strapdown_kernel import linear_recursion
 from ..config.flexure import FlexureModel, ModalWing, WingMode
 
@@ -132,8 +133,6 @@ def load_factor(flight, grid_hz: float = 20.0) -> Callable[[FloatArray], tuple[F
     1.5e-3 at 100 m/s) are left out: they are no aerodynamic load.  Sampled at ``grid_hz`` and
     interpolated by a cubic spline, so the rate is the exact derivative of the interpolant.
     """
-    from .. import earth
-
     t = np.linspace(0.0, flight.duration_s, int(np.ceil(flight.duration_s * grid_hz)) + 1)
     p = flight.profiles(t)
     cg, sg, sp, cp = np.cos(p.gamma), np.sin(p.gamma), np.sin(p.heading), np.cos(p.heading)

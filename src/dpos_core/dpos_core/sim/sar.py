@@ -11,7 +11,7 @@ The fix model (the scenario's ``sar:`` block, :class:`~.scenario.SarAidingConfig
   of ``baro_sigma_m``.
 
 Each stream draws from its own random stream of the session (``sar``, ``baro``).  The series types
-(:class:`~dpos_core.sar.navigate.SarFixes`, :class:`~dpos_core.sar.navigate.BaroSeries`) are the
+(:class:`~dpos_core.series.SarFixes`, :class:`~dpos_core.series.BaroSeries`) are the
 navigation's inputs, whatever their source.
 """
 
@@ -22,7 +22,7 @@ import numpy as np
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
-from ..sar.navigate import BaroSeries, SarFixes
+from ..series import BaroSeries, SarFixes
 from .scenario import SarAidingConfig
 from .session import SimulatedSession
 

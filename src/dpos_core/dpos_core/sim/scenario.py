@@ -8,7 +8,7 @@ name; any other argument is a path.  The aircraft and sensor models are those of
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -115,7 +115,6 @@ class Scenario:
             return self
         if not duration_s > 0:
             raise ConfigError(f"duration must be > 0, got {duration_s}")
-        from dataclasses import replace
 
         return replace(self, segments=tuple(_cut(self.segments, duration_s)))
 
@@ -124,7 +123,6 @@ def _cut(segments: tuple[Segment, ...], duration_s: float | None) -> list[Segmen
     """Segments truncated to ``duration_s``; a cut turn keeps its turn rate (heading change scaled)."""
     if duration_s is None:
         return list(segments)
-    from dataclasses import replace
 
     out, t = [], 0.0
     for s in segments:

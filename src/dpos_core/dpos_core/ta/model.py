@@ -103,20 +103,21 @@ with the rates and accelerations while the rigid misalignment's does not.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import gammaincinv
 
-from dpos_core.units import DEG, FloatArray
+from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
 from .. import _error_kernel, earth
 from ..attitude import compose_rotvec, cross, dcm_to_rotvec, mount_dcm, rotvec_to_dcm, skew
 from ..config.flexure import K_BEND, FlexureModel
 from ..config.sensors import ImuErrorModel
 from ..errors import RejectedInput
+from ..ifa.model import gyro_axis_matrix
 from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise
 from ..series import GAP_FACTOR, ImuSeries, NavSeries
 from ..strapdown import NavState, Strapdown
@@ -148,8 +149,6 @@ def axis_matrix(u: FloatArray) -> FloatArray:
     ``gamma = (s_x, s_y, s_z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy)``: ``Gamma = diag(s) + offdiag(m)``,
     ``m_ij`` the input along axis j seen by sensor i, the measured ``(I + Gamma) u``
     (dpos_core.sim.sensors; the in-flight alignment's gyro axis errors use the same order)."""
-    from ..ifa.model import gyro_axis_matrix
-
     return gyro_axis_matrix(u)
 
 
@@ -221,8 +220,6 @@ class Installation:
         """Sub-IMU ``name`` as the aircraft configuration describes it: the flexure scaled to its
         span; the rigid misalignment rho is what the filter estimates, so only the nominal mount
         enters."""
-        from dataclasses import replace
-
 
         s = aircraft.sub_imu(name)
         scale = aircraft.flexure.span_scale(s.span_m)
@@ -764,8 +761,6 @@ class TransferAlignmentModel:
     # ------------------------------------------------------------------ priors and output
     def prior(self) -> tuple[FloatArray, FloatArray]:
         """Prior mean (zeros) and covariance (n, n) from the configuration."""
-        from dpos_core.units import DEG_PER_H, UG_MPS2
-
         cfg, ins = self.cfg, self.install
         d = np.zeros(self.n)
         d[PHI] = (cfg.attitude_sigma_deg * DEG) ** 2

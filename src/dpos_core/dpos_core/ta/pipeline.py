@@ -57,6 +57,7 @@ from ..strapdown import NavState
 from . import flags as F
 from .antenna import step_roughness
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
+from .oracle import LinearizedAboutTruth
 from .qc import EpochQC, epoch_qc
 
 METHODS = ("ukf", "urtss", "upf", "ups", "ups_mcmc", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
@@ -302,8 +303,6 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
     x0, P0 = model.prior()
     ess: FloatArray | None = None
     if method in (ORACLE, ORACLE_FILTER):
-        from .oracle import LinearizedAboutTruth
-
         if oracle_truth is None:
             raise ValueError("the oracle needs the truth (evaluation of simulations only)")
         lin = LinearizedAboutTruth(model, *oracle_truth)

@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from dpos_core.config import ConfigError
-from dpos_core.ifa.evaluate import is_ifa_scenario
+from dpos_core.evaluation.ifa import is_ifa_scenario
 from dpos_core.sim.scenario import load_scenario
 from dpos_ros.cli import evaluate as eval_cli
 from dpos_ros.cli import process as process_cli

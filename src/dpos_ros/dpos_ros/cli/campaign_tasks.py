@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
+import dpos_core  # (this function itself comes from dpos_ros: a worker without the packages fails to run it)
+from dpos_core.errors import CampaignError, TaskFailed
 from dpos_core.ta import metrics as M
 from dpos_ros.cli import process as process_cli
 from dpos_ros.cli.evaluate import TAPlan, TARun, ta_run
@@ -44,23 +46,6 @@ TASK_FILE = "task.json"
 LOG_FILE = "process.log"
 #: the campaign summary in OUT/
 SUMMARY_FILE = "campaign.json"
-
-
-class CampaignError(Exception):
-    """Unusable campaign input (the message names what): exit status 2 before anything runs."""
-
-
-class TaskFailed(Exception):
-    """A task that failed: ``message`` (dpos-process's error, one line) and the ``attempt`` it
-    failed at (1 = the first).  Raised in the worker, so that the engine retries the task."""
-
-    def __init__(self, message: str, attempt: int) -> None:
-        super().__init__(message, attempt)
-        self.message = message
-        self.attempt = attempt
-
-    def __str__(self) -> str:
-        return self.message
 
 
 @dataclass(frozen=True)
@@ -312,7 +297,6 @@ def worker_info() -> dict:
     one task per core) and whether the dpos packages import (from where)."""
     info: dict = {"worker": worker_id(), "python": sys.executable,
                   "threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
-    import dpos_core  # (this function itself comes from dpos_ros: a worker without the packages fails to run it)
 
     info["dpos_core"] = str(Path(dpos_core.__file__).parent)
     return info

@@ -36,19 +36,24 @@ from dataclasses import replace as dc_replace
 from pathlib import Path
 
 from dpos_core.config import ConfigError, config_text
-from dpos_core.ifa.evaluate import is_ifa_scenario
+from dpos_core.evaluation import ta as from_sim
+from dpos_core.evaluation.ifa import is_ifa_scenario
+from dpos_core.evaluation.mismatch import CASES as MISMATCH_CASES
+from dpos_core.evaluation.mismatch import case_names as mismatch_cases
 from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
-from dpos_core.sim.mismatch import CASES as MISMATCH_CASES
-from dpos_core.sim.mismatch import case_names as mismatch_cases
 from dpos_core.sim.scenario import Scenario, load_scenario
 from dpos_core.sim.session import SimulatedSession
-from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING
-from dpos_ros.devices.sim_streams import session_custom_data, session_streams
-from dpos_ros.io.session import session_from_streams
+from dpos_ros.cli.mismatch import main_mismatch
+from dpos_ros.cli.sar_eval import main_sar
+from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_streams
+from dpos_ros.io.bag import topics_and_duration, write_stream_batches
+from dpos_ros.io.session import read_session_streaming, session_from_streams
 from dpos_ros.products import lsfit_tables
-from dpos_ros.products.evaluate_stream import series_free
+from dpos_ros.products.evaluate_stream import evaluate_streaming, series_free
+from dpos_ros.products.ifa import main_ifa
+from dpos_ros.products.stream import solve_streaming
 from dpos_ros.products.ta import combine_runs, evaluate, metrics_json, report_md, solve
 
 #: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
@@ -141,7 +146,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dpos-eval: {e}", file=sys.stderr)
         return 2
     if scenario.sar is not None:  # SINS/SAR ([Yan2016]): its own methods and report
-        from dpos_ros.cli.sar_eval import main_sar
 
         return main_sar(ap, args, scenario)
     methods = scenario_methods(ap, args, scenario)
@@ -156,12 +160,9 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(str(e))
         if args.duration is not None and args.duration < 1.0 / TA_FILTER_RATE_HZ:
             ap.error(f"--duration must be >= {1.0 / TA_FILTER_RATE_HZ:g} s for transfer alignment, got {args.duration:g}")
-        from dpos_ros.cli.mismatch import main_mismatch
 
         return main_mismatch(args, scenario, methods, cases)
     if is_ifa_scenario(scenario):
-        from dpos_ros.products.ifa import main_ifa
-
         return main_ifa(ap, args, scenario, methods)
     plan = ta_plan(ap, args, scenario, methods)
     runs = [ta_run(plan, args.seed + r, label=f"run {r + 1}/{args.runs}", scratch=args.out) for r in range(args.runs)]
@@ -274,12 +275,6 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
     path (:func:`dpos_ros.products.stream.solve_streaming`, serially in this process) and evaluated
     by :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`; the directory is deleted
     afterwards, whatever happens.  The oracle methods are not available (they read the simulation)."""
-    from dpos_ros.devices.sim_streams import chunked_session_streams
-    from dpos_ros.io.bag import topics_and_duration, write_stream_batches
-    from dpos_ros.io.session import read_session_streaming
-    from dpos_ros.products.evaluate_stream import evaluate_streaming
-    from dpos_ros.products.stream import solve_streaming
-
     scenario, methods = plan.scenario, plan.methods
     oracles = [m for m in methods if m in (ORACLE, ORACLE_FILTER, ORACLE_WING)]
     if oracles:

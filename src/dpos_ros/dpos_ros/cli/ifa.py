@@ -18,17 +18,25 @@ import argparse
 import json
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace as dc_replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from dpos_core.config import ConfigError, load_aircraft
+from dpos_core import earth
+from dpos_core.attitude import quat_to_dcm
+from dpos_core.config.aircraft import AircraftConfig
+from dpos_core.frames import hpr_from_C_nb
+from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import IfaResult, run
 from dpos_core.ifa.reference import Reference, compare, initial_state, track_sigmas
+from dpos_core.ifa.time_offset import estimate_time_offset
 from dpos_core.imports.logs import LogFormatError, read_pos
-from dpos_core.units import DEG
+from dpos_core.units import DEG, FloatArray
+from dpos_ros.contract import conversions as cv
+from dpos_ros.devices.relay import rotation_from_rpy_deg
+from dpos_ros.io.bag import read_raw
 from dpos_ros.io.gnss_ins import DRIVER_TOPICS, PRODUCT_TOPICS, InputError, _topics, deserialize, read_recording
 
 
@@ -57,30 +65,7 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _config(params_file: Path, method: str | None) -> tuple[Any, Any, str, np.ndarray]:
-    from ifa_node.params import IfaConfig
-
-    try:
-        node_cfg = IfaConfig.from_params_file(params_file)
-    except ValueError as e:
-        raise InputError(str(e)) from None
-    if not node_cfg.aircraft_config:
-        raise InputError(f"{params_file}: aircraft_config is required (the vehicle file: IMU model and GNSS lever arm)")
-    ac_path = Path(node_cfg.aircraft_config)
-    if not ac_path.is_absolute() and not ac_path.exists():
-        beside = params_file.parent / ac_path.name
-        ac_path = beside if beside.exists() else ac_path
-    try:
-        aircraft = load_aircraft(ac_path if ac_path.exists() else node_cfg.aircraft_config)
-    except ConfigError as e:
-        raise InputError(str(e)) from None
-    return node_cfg.core_config(aircraft.master_imu), aircraft, method or node_cfg.method, np.asarray(aircraft.gnss_lever_arm_m, dtype=float)
-
-
 def _write_nav(path: Path, res: IfaResult, origin_ns: int) -> None:
-    from dpos_core.attitude import quat_to_dcm
-    from dpos_core.frames import hpr_from_C_nb
-
     tt, sig = track_sigmas(res)
     j = np.clip(np.searchsorted(tt, res.t_s, side="right") - 1, 0, max(tt.size - 1, 0))
     s = sig[j] if tt.size else np.full((res.t_s.size, 9), np.nan)
@@ -97,8 +82,6 @@ def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from dpos_core import earth
 
     inside = (ref.t_s > res.t_s[0]) & (ref.t_s < res.t_s[-1])
     tr = ref.t_s[inside]
@@ -127,7 +110,15 @@ def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
+#: ``(params_file, method override) -> (filter configuration, aircraft, method, GNSS lever arm [m] (3,))``:
+#: how the node's parameter file becomes the core's settings (``ifa_node.offline``, which owns the
+#: node's configuration class); raises :class:`~dpos_core.errors.InputError` naming the file
+ConfigLoader = Callable[[Path, str | None], tuple[IfaFilterConfig, AircraftConfig, str, FloatArray]]
+
+
+def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
+    """Run ``dpos-ifa`` with ``argv`` (None: the command line), the parameter file read by
+    ``load_config``; the exit status (2: unusable input).  The console script is ``ifa_node.offline:main``."""
     ap = parser()
     args = ap.parse_args(argv)
     try:
@@ -154,10 +145,9 @@ def main(argv: list[str] | None = None) -> int:
         if not (step > 0 and hi >= lo + 2 * step):
             ap.error(f"--estimate-time-offset needs STEP > 0 and at least 3 candidates, got {args.estimate_time_offset!r}")
         offsets = np.arange(lo, hi + 0.5 * step, step) * 1e-3
-    from dpos_ros.devices.relay import rotation_from_rpy_deg
 
     try:
-        cfg, aircraft, method, lever = _config(args.params_file, args.method)
+        cfg, aircraft, method, lever = load_config(args.params_file, args.method)
         avail = _topics(args.bag)
         default = PRODUCT_TOPICS if PRODUCT_TOPICS[0] in avail else DRIVER_TOPICS
         topics = (args.imu_topic or default[0], args.fix_topic or default[1], args.vel_topic or default[2])
@@ -189,8 +179,6 @@ def main(argv: list[str] | None = None) -> int:
     lines += [f"- {x}" for x in rep.lines()]
     offset_json = None
     if offsets is not None:
-        from dpos_core.ifa.time_offset import estimate_time_offset
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # each run's skipped fixes are the main run's, reported above
             est = estimate_time_offset(imu, gnss, lever, cfg, init, offsets)
@@ -234,12 +222,6 @@ def live_report(rec: Path, origin_ns: int, offline: IfaResult, ref: Reference, o
     :func:`~dpos_core.ifa.reference.compare` with the covariance /master/nav carried, and the
     counters of /ifa/status and /pos_master/status (rejected fixes, lost corrections, the largest
     ``nav_discrepancy_m``)."""
-    from dataclasses import replace as dc_replace
-
-    from dpos_core import earth
-    from dpos_ros.contract import conversions as cv
-    from dpos_ros.io.bag import read_raw
-
     raw = read_raw(rec, ["/master/nav", "/dpos/datum", "/ifa/status", "/pos_master/status"])
     if "/master/nav" not in raw or "/dpos/datum" not in raw:
         raise InputError(f"{rec}: needs /master/nav and /dpos/datum (has {sorted(raw)})")
@@ -291,6 +273,3 @@ def live_report(rec: Path, origin_ns: int, offline: IfaResult, ref: Reference, o
     lines += ["live " + x for x in rep.lines() if not x.startswith("DIVERGED")]
     return counters, lines
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -43,6 +43,7 @@ from typing import Any, NoReturn
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core.errors import ImportFailure
 from dpos_core.imports.logs import (
     ACCEL_UNITS,
     GPS_EPOCH_UNIX_S,
@@ -72,10 +73,6 @@ _NS = 1_000_000_000
 _WEEK_S = 604_800
 #: RTKLIB Q (the .pos file's quality flag) -> name
 Q_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "ppp"}
-
-
-class ImportFailure(Exception):
-    """A problem that ends the import with ``dpos-import: error: <message>`` and status 2."""
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,7 +1,7 @@
 """``dpos-eval --mismatch``: the mismatch suite (docs/mismatch.md).
 
-For each case of :data:`dpos_core.sim.mismatch.CASES` and each run, the case's truth is simulated
-(:func:`dpos_core.sim.mismatch.simulate`) and recorded in memory with the *nominal* aircraft file
+For each case of :data:`dpos_core.evaluation.mismatch.CASES` and each run, the case's truth is simulated
+(:func:`dpos_core.evaluation.mismatch.simulate`) and recorded in memory with the *nominal* aircraft file
 in its metadata; the transfer alignment gets the nominal aircraft, the oracle the true one (what
 its model can express of the case).  Per case: [Gong2018] Table 1 rows (RMSE of UPS, URTSS,
 oracle), each method's ratio to the oracle, the goal (heading <= 0.01 deg, baseline <= 5 mm,
@@ -21,9 +21,9 @@ import numpy as np
 
 from dpos_core.config import AircraftConfig, config_text
 from dpos_core.config.aircraft import scenario_aircraft_ref
-from dpos_core.sim import mismatch as MM
+from dpos_core.evaluation import mismatch as MM
+from dpos_core.evaluation import ta as from_sim
 from dpos_core.sim.scenario import Scenario
-from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import ORACLE
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams

@@ -18,6 +18,13 @@ import sys
 import time
 from pathlib import Path
 
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from dpos_ros.io.flow import use_device_fastdds_profile
+from dpos_ros.io.play import BagError, BagPlayer
 from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
@@ -49,14 +56,6 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.signals import SignalHandlerOptions
-    from rclpy.utilities import remove_ros_args
-
-    from dpos_ros.io.flow import use_device_fastdds_profile
-    from dpos_ros.io.play import BagError, BagPlayer
-
     full = list(sys.argv if argv is None else ["dpos-play", *argv])
     args = _parse(remove_ros_args(full)[1:])
     if not args.bag.exists():

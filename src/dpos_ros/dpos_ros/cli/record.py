@@ -20,6 +20,12 @@ import threading
 import time
 from pathlib import Path
 
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from dpos_ros.io.record import BagRecorder
 from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
@@ -66,15 +72,8 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
-    from rclpy.utilities import remove_ros_args
-
     full = list(sys.argv if argv is None else ["dpos-record", *argv])
     args = _parse(remove_ros_args(full)[1:])
-
-    from dpos_ros.io.record import BagRecorder
 
     stop = threading.Event()
     reason = ["interrupted"]

@@ -25,10 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
+from dpos_core.attitude import quat_to_dcm
+from dpos_core.frames import hpr_from_C_nb
 from dpos_core.sar.navigate import SarNavSettings
 from dpos_core.sar.pipeline import METHODS
+from dpos_core.units import DEG
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
+from dpos_ros.io.bag import read_raw
+from dpos_ros.io.gnss_ins import deserialize
 from dpos_ros.products.sar import INPUT_TOPICS, SarInputError, errors_vs_truth, run, session_inputs, summary
 
 
@@ -57,8 +62,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(f"--particles must be >= 2 for {args.method}, got {args.particles}")
     if args.seed < 0 or not args.bandwidth_scale > 0 or not args.filter_rate > 0:
         return _fail("--seed must be >= 0, --bandwidth-scale and --filter-rate > 0")
-    from dpos_ros.io.bag import read_raw
-    from dpos_ros.io.gnss_ins import deserialize
 
     wanted = (*INPUT_TOPICS, T.DATUM, T.TRUTH_MASTER)
     try:
@@ -106,10 +109,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _write_csv(path: Path, res) -> None:
-    from dpos_core.attitude import quat_to_dcm
-    from dpos_core.frames import hpr_from_C_nb
-    from dpos_core.units import DEG
-
     hpr = hpr_from_C_nb(quat_to_dcm(res.q_nb)) / DEG
     sp = np.sqrt(np.maximum(np.diagonal(res.pos_cov, axis1=1, axis2=2), 0.0))
     sv = np.sqrt(np.maximum(np.diagonal(res.vel_cov, axis1=1, axis2=2), 0.0))

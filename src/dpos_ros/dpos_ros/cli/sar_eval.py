@@ -3,7 +3,7 @@
     dpos-eval --scenario paper_sar --methods ekf,ukf,oracle,pf,rpf,mcmc_rpf --particles 1000 \\
         --runs 10 --seed 1 --particle-sweep 100,300,1000,3000 --out out/sar
 
-Each run simulates the scenario with seed S + r (dpos_core.sar.evaluate: free SINS, SAR and
+Each run simulates the scenario with seed S + r (dpos_core.evaluation.sar: free SINS, SAR and
 barometer measurements) and runs every method on the same data.  Writes ``metrics.json``,
 ``report.md`` (Table 2's MAE and STD of the attitude and position errors over 100-1000 s per
 method, the oracle beside them, the paper's error ranges beside ours), ``ess.csv`` / ``ess.png``
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dpos_core.evaluation.sar import COMPONENTS, PAPER_RANGES, WINDOW_S, problem, run_methods
 from dpos_core.filters.pf import PF_METHODS
-from dpos_core.sar.evaluate import COMPONENTS, PAPER_RANGES, WINDOW_S, problem, run_methods
 from dpos_core.sar.pipeline import METHODS, ORACLE
 from dpos_core.sim.scenario import Scenario
 from dpos_core.sim.session import SimulatedSession

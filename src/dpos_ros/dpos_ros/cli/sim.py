@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from dpos_core.config import ConfigError, config_text
 from dpos_core.sim.scenario import builtin_scenarios, load_scenario
@@ -116,8 +117,6 @@ def _windowed(args: argparse.Namespace, session: SimulatedSession, datum, target
 
 
 def _scenario_aircraft(scenario: str) -> str:
-    import yaml
-
     d = yaml.safe_load(config_text("scenarios", scenario))
     ref = str(d.get("aircraft", d.get("name")))
     p = Path(scenario)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from rosbags.typesys import Stores, get_typestore
 
 from dpos_core.units import FloatArray
 
@@ -141,8 +142,6 @@ def canonical(raw: bytes, msgtype: str) -> bytes:
     uninitialized) are reproducible byte for byte."""
     global _TYPESTORE
     if _TYPESTORE is None:
-        from rosbags.typesys import Stores, get_typestore
-
         _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
     out = bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.deserialize_cdr(raw, msgtype), msgtype))
     # Fast DDS pads serialized payloads to a multiple of 4 bytes on the wire: do the same, so a

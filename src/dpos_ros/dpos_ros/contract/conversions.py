@@ -24,8 +24,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
+from dpos_core.frames import C_nb_from_hpr, hpr_from_C_nb
 from dpos_core.units import FloatArray
 from dpos_ros.contract import cdr
+
+from . import _odometry_kernel as K
 
 WORLD_FRAME = "enu"
 MASTER_FRAME = "master_imu"
@@ -129,8 +132,6 @@ def antenna_odometry_values(llh: FloatArray, vel_n_mps: FloatArray, C_nb: FloatA
     the twist's linear block ``C_bn diag(s_v^2) C_nb``, the angular rate unknown (-1 on its
     diagonal); llh (N, 3), vel_n_mps (N, 3) local ENU, C_nb (N, 3, 3) body -> local ENU.  The same
     numbers as :func:`odometry_values` and those products (to rounding), one numba loop."""
-    from . import _odometry_kernel as K
-
     llh = np.ascontiguousarray(llh, dtype=float)
     n = llh.shape[0]
     lat0, lon0, h0 = (float(v) for v in np.asarray(datum_llh, dtype=float))
@@ -443,8 +444,6 @@ def sar_fix_msg(t_ns: int, llh: FloatArray, heading_rad: float, pos_sigma_m: flo
     """
     from geometry_msgs.msg import PoseWithCovarianceStamped
 
-    from dpos_core.frames import C_nb_from_hpr
-
     llh = np.asarray(llh, dtype=float)
     datum = np.asarray(datum_llh, dtype=float)
     p, _, C_wb = earth.nav_to_datum(np.array([llh[0], llh[1], datum[2]])[None], np.zeros((1, 3)),
@@ -474,8 +473,6 @@ class SarFix:
 
 def sar_fix_from_msg(msg, datum_llh: FloatArray) -> SarFix:
     """Inverse of :func:`sar_fix_msg` (``datum_llh``: the session's ``enu`` datum)."""
-    from dpos_core.frames import hpr_from_C_nb
-
     p = msg.pose.pose.position
     o = msg.pose.pose.orientation
     C_wb = quat_to_dcm(quat_wxyz(np.array([o.x, o.y, o.z, o.w], dtype=float)))

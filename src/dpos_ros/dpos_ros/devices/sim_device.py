@@ -116,6 +116,9 @@ from numpy.typing import NDArray
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile
 
+from dpos_core.config import ConfigError, load_aircraft
+from dpos_core.sim.scenario import load_scenario
+from dpos_core.sim.session import SimulatedSession
 from dpos_ros.contract.qos import qos_profile
 from dpos_ros.contract.topics import SESSION_END, message_class
 from dpos_ros.io.flow import (
@@ -127,6 +130,7 @@ from dpos_ros.io.flow import (
     writer_qos,
 )
 from dpos_ros.io.streams import TopicStream, merged_order
+from dpos_ros.runtime.params import ParameterError
 
 __all__ = ["SimDevice", "StreamBatches", "StreamInfo", "Tap", "load_sim_session", "use_device_fastdds_profile"]
 
@@ -183,11 +187,6 @@ def load_sim_session(scenario: str, aircraft_config: str, seed: int, duration_s:
     Cheap: samples are generated lazily. Raises :class:`~dpos_ros.runtime.params.ParameterError` naming
     the parameter (``scenario``, ``aircraft_config``, ``duration`` or ``seed``).
     """
-    from dpos_core.config import ConfigError, load_aircraft
-    from dpos_core.sim.scenario import load_scenario
-    from dpos_core.sim.session import SimulatedSession
-    from dpos_ros.runtime.params import ParameterError
-
     if aircraft_config:
         try:
             load_aircraft(aircraft_config)

@@ -14,6 +14,7 @@ Devices:
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 
 import numpy as np
@@ -22,6 +23,7 @@ from rclpy.serialization import serialize_message
 
 from dpos_core.series import ImuSeries, NavSeries
 from dpos_core.sim.chunked import ChunkedSession, Window
+from dpos_core.sim.sar import baro_heights, sar_fixes
 from dpos_core.sim.session import SimulatedSession
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
@@ -59,8 +61,6 @@ def _imu_stream(topic: str, frame: str, session: SimulatedSession, name: str, im
 def sar_streams(session: SimulatedSession, datum_llh: NDArray[np.float64]) -> list[TopicStream]:
     """/sar/fix and /baro/pressure of a SINS/SAR scenario (its ``sar:`` block; dpos_core.sim.sar):
     the fixes only while the radar images, the barometer all the flight (sensor QoS)."""
-    from dpos_core.sim.sar import baro_heights, sar_fixes
-
     t0 = session.scenario.start_time_s
     fx, baro = sar_fixes(session), baro_heights(session)
     f_ns = cv.stamps_ns(t0, fx.t_s)
@@ -195,8 +195,6 @@ def chunked_session_streams(session: SimulatedSession, window_s: float, *, truth
 
 def session_custom_data(session: SimulatedSession, aircraft_text: str) -> dict[str, str]:
     """``dpos.*`` metadata of a simulated recording: what dpos-process needs besides the topics."""
-    import json
-
     sc = session.scenario
     fl = session.flight
     return {

@@ -35,7 +35,12 @@ from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
+import zstandard
+from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
 from numpy.typing import NDArray
+from rosbags.rosbag2.metadata import dump_qos_v9
+from rosbags.typesys import Stores, get_typestore
+from ruamel.yaml import YAML
 
 from dpos_ros.io import _bag_kernel as K
 from dpos_ros.io.messages import Messages, RawTopic
@@ -138,12 +143,9 @@ class _Buffers:
         if compression == "":
             return data
         if compression == "lz4":
-            from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
-
             return memoryview(lz4_decompress(data))
         if compression != "zstd":
             raise ValueError(f"unsupported chunk compression {compression!r}")
-        import zstandard
 
         if self._dctx is None:
             self._dctx = zstandard.ZstdDecompressor()
@@ -399,8 +401,6 @@ class Topic:
 
 
 def _yaml(obj: object) -> str:
-    from ruamel.yaml import YAML
-
     yaml = YAML(typ="safe")
     yaml.default_flow_style = False
     s = StringIO()
@@ -500,8 +500,6 @@ def encode_batch(topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArra
     """:meth:`Writer.add`'s chunks of one batch, compressed in this thread (a pool's task: the
     writing process then only appends them, :meth:`Writer.add_encoded`); ``prefix``: the writer's
     :attr:`Writer.prefix` for the file's first batch, else empty."""
-    import zstandard
-
     cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
     chunks = []
     for ch in _chunks(topics, order, prefix):
@@ -517,10 +515,6 @@ class Writer:
 
     def __init__(self, path: Path, channels: Sequence[tuple[str, str]], custom_data: dict[str, str], version: int,
                  library: str, progress: Callable[[int], None] | None = None) -> None:
-        import zstandard
-        from rosbags.rosbag2.metadata import dump_qos_v9
-        from rosbags.typesys import Stores, get_typestore
-
         ts = get_typestore(Stores.ROS2_JAZZY)
         self.path, self.channels, self.custom_data = path, list(channels), dict(custom_data)
         self.version, self.progress = version, progress
@@ -633,8 +627,6 @@ class Writer:
 
     def close(self) -> None:
         """The summary, the footer and ``metadata.yaml``."""
-        from rosbags.rosbag2.metadata import dump_qos_v9
-
         if self.prefix:  # no batch: the schemas and channels still open a chunk
             self.add([Topic(t, m, np.zeros(0, dtype=np.int64), Messages.from_list(())) for t, m in self.channels],
                      (np.zeros(0, dtype=np.int64),) * 3)

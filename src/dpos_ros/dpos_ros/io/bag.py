@@ -12,14 +12,20 @@ is read by rosbags' ``AnyReader``.
 
 from __future__ import annotations
 
+import warnings
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Sequence
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
+import yaml
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from dpos_ros.io import _mcap
 from dpos_ros.io.messages import Messages, RawTopic
@@ -46,7 +52,6 @@ def write_streams(
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
-    from importlib.metadata import version
 
     n = _mcap.write(path, _topics(streams), merged_order(streams) if streams else (np.zeros(0, dtype=np.int64),) * 3,
                     dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}", progress)
@@ -68,7 +73,6 @@ def new_writer(path: Path, channels: Sequence[tuple[str, str]], custom_data: dic
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
-    from importlib.metadata import version
 
     return _mcap.Writer(path, list(channels), dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}")
 
@@ -180,10 +184,6 @@ def readable_bag(path: Path) -> tuple[Path, str | None]:
 def _recover_mcap(src: Path, out: Path) -> tuple[int, int, str]:
     """Copy the complete messages of the MCAP ``src`` into a new rosbag2 ``out`` (:func:`readable_bag`):
     (messages, topics, where the reading stopped)."""
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
-    from rosbags.typesys import get_types_from_msg
-
     ts = typestore()
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
@@ -233,8 +233,6 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
     path, note = readable_bag(Path(path))
     if note is not None:
         if notes is None:
-            import warnings
-
             warnings.warn(note, stacklevel=2)
         else:
             notes.append(note)
@@ -255,8 +253,6 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
 def _single_mcap(path: Path) -> Path | None:
     """The one MCAP file of a rosbag2 directory (``metadata.yaml`` with storage ``mcap`` and one
     file), else None."""
-    import yaml
-
     meta = path / "metadata.yaml"
     if not meta.is_file():
         return None
@@ -274,8 +270,6 @@ def _single_mcap(path: Path) -> Path | None:
 def read_raw_rosbags(path: Path, wanted: Callable[[str], bool] | None = None) -> dict[str, RawTopic]:
     """:func:`read_raw` of a readable bag through rosbags' ``AnyReader``, message by message (any
     storage rosbags reads; the reference the fast path is tested against)."""
-    from rosbags.highlevel import AnyReader
-
     times: dict[str, list[int]] = defaultdict(list)
     data: dict[str, list[bytes]] = defaultdict(list)
     types: dict[str, str] = {}
@@ -298,8 +292,6 @@ def rows(blobs: Sequence[bytes]) -> np.ndarray:
 
 def custom_data(path: Path) -> dict[str, str]:
     """The rosbag2 metadata's ``custom_data`` (empty for bags without it)."""
-    import yaml
-
     meta = Path(path) / "metadata.yaml"
     if not meta.is_file():
         return {}
@@ -309,8 +301,6 @@ def custom_data(path: Path) -> dict[str, str]:
 
 def topics_and_duration(path: Path) -> tuple[list[str], float] | None:
     """The topics and the duration [s] the rosbag2 metadata lists, or None without readable metadata."""
-    import yaml
-
     meta = Path(path) / "metadata.yaml"
     if not meta.is_file():
         return None

@@ -10,21 +10,17 @@ from typing import Any
 import numpy as np
 import yaml
 
+from dpos_core.errors import InputError
 from dpos_core.series import GnssSeries, ImuSeries
 from dpos_core.units import DEG
+from dpos_ros.io.bag import read_raw, typestore
 
 #: the product's topics (a recorded live graph) and real drivers' (``dpos-import``)
 PRODUCT_TOPICS = ("/master/imu", "/gnss/fix", "/gnss/vel")
 DRIVER_TOPICS = ("/imu/data", "/fix", "/vel")
 
 
-class InputError(ValueError):
-    """A recording or an option cannot be used (the message says which and why)."""
-
-
 def deserialize(raws: Sequence[bytes], msgtype: str) -> list[Any]:
-    from dpos_ros.io.bag import typestore
-
     ts = typestore()
     return [ts.deserialize_cdr(r, msgtype) for r in raws]
 
@@ -37,8 +33,6 @@ def read_recording(bag: Path, topics: tuple[str, str, str], rotation: np.ndarray
     """``(origin_ns, imu, gnss, notes)`` of a bag: IMU in body axes (``rotation`` applied), fixes
     paired with their velocity (same stamp within 1 ms), times in s after the first IMU sample.
     Samples and fixes that are not finite or not after the previous one are dropped and noted."""
-    from dpos_ros.io.bag import read_raw
-
     notes: list[str] = []
     try:
         raw = read_raw(bag, topics, notes)  # a bag without metadata is recovered (noted)

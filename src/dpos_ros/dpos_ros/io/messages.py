@@ -16,6 +16,8 @@ from typing import NamedTuple, overload
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_ros.io import _bag_kernel
+
 
 class Messages(Sequence[bytes]):
     """N messages: ``data`` (M,) uint8 holding them back to back, ``offsets`` (N + 1,) int64 where
@@ -151,8 +153,6 @@ class Messages(Sequence[bytes]):
 
 def _gather(data: NDArray[np.uint8], start: NDArray[np.int64], sizes: NDArray[np.int64], off: NDArray[np.int64]) -> NDArray[np.uint8]:
     """``data[start[i]:start[i] + sizes[i]]`` for i = 0..K-1 back to back (message i at ``off[i]``)."""
-    from dpos_ros.io import _bag_kernel
-
     out = np.empty(int(off[-1]), dtype=np.uint8)
     _bag_kernel.gather(data, start, sizes, out, off)
     return out

@@ -20,11 +20,9 @@ import os
 import shutil
 from pathlib import Path
 
+from dpos_core.errors import OutputError
+
 __all__ = ["OutputError", "OutputTarget", "os_error_text", "probe_writable"]
-
-
-class OutputError(Exception):
-    """An output location that cannot be used (the message names the path and why)."""
 
 
 def os_error_text(exc: OSError, path: Path | str | None = None) -> str:

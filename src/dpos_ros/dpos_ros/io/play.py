@@ -57,11 +57,13 @@ from typing import Any
 
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.highlevel import AnyReader
 
+from dpos_core.errors import BagError
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import qos_profile
 from dpos_ros.contract.topics import message_class
-from dpos_ros.io.bag import typestore
+from dpos_ros.io.bag import readable_bag, typestore
 from dpos_ros.io.flow import ACK_WARN_S, POLL_S, writer_depths
 from dpos_ros.io.record import topic_qos_kind
 
@@ -74,10 +76,6 @@ PLAY_FLOW_WINDOW = 1000
 CLOCK_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE
 )
-
-
-class BagError(Exception):
-    """A bag that cannot be read (the message names the path)."""
 
 
 @dataclass
@@ -113,10 +111,6 @@ def open_bag(path: Path, log: Callable[[str], None] | None = None) -> Any:
     metadata.yaml stand for its directory); :class:`BagError` naming the path when unreadable. A bag
     without metadata (a recorder that was killed) is recovered first and ``log`` told so
     (:func:`dpos_ros.io.bag.readable_bag`)."""
-    from rosbags.highlevel import AnyReader
-
-    from dpos_ros.io.bag import readable_bag
-
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag (a rosbag2 directory)")

@@ -63,6 +63,9 @@ from pathlib import Path
 from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
 from dpos_ros.contract import qos as dpos_qos
 from dpos_ros.contract import topics as T
@@ -107,8 +110,6 @@ def subscription_qos(topic: str, offered: Sequence[QoSProfile] = (), keep_all: b
 
 def _rosbags_qos(p: QoSProfile) -> Any:
     """An rclpy QoS profile as rosbags' ``Qos`` (for the metadata's offered_qos_profiles)."""
-    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-
     def t(d: Any) -> QosTime:
         ns = int(getattr(d, "nanoseconds", 0) or 0)
         if ns <= 0 or ns >= _INFINITE_NS:
@@ -160,9 +161,6 @@ class BagRecorder:
         custom_data: Mapping[str, str] | None = None,
         watch_session_end: bool = False,
     ) -> None:
-        from rosbags.rosbag2 import Writer
-        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
-
         self.node = node
         self.out = Path(out)
         self.requested = list(dict.fromkeys(topics))

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core.errors import SessionError
 from dpos_core.series import GAP_FACTOR, ImuSeries, NavSeries
 from dpos_core.units import FloatArray
 from dpos_ros.contract import cdr
@@ -37,10 +38,6 @@ def master_is_mechanized(custom: dict[str, str], raw: dict) -> bool:
     white noise; dpos-sim, pos_master_node ``alignment: reference``) publishes no status."""
     status = raw.get(T.POS_MASTER_STATUS)
     return (status is not None and len(status[1]) > 0) or custom.get(MASTER_SOURCE_KEY) == "mechanized"
-
-
-class SessionError(ValueError):
-    """The recording cannot be processed (the message says why)."""
 
 
 @dataclass

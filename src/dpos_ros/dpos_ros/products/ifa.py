@@ -1,5 +1,5 @@
 """``dpos-eval`` for in-flight-alignment scenarios (paper_ifa): argument handling and output of
-:mod:`dpos_core.ifa.evaluate`.
+:mod:`dpos_core.evaluation.ifa`.
 
     dpos-eval --scenario paper_ifa --methods add2,dd2,aekf --runs 5 --seed 1 --out /tmp/ifa
     dpos-eval --scenario paper_ifa --runs 3 --heading-sweep 10,45,90,135,180 --no-table --out /tmp/sweep
@@ -13,7 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from dpos_core.ifa import evaluate as E
+from dpos_core.evaluation import ifa as E
 from dpos_core.sim.scenario import Scenario
 
 

@@ -21,13 +21,17 @@ from typing import Any
 
 import numpy as np
 
+from dpos_core.attitude import quat_to_dcm
 from dpos_core.config.aircraft import AircraftConfig
+from dpos_core.earth import dllh_to_enu
+from dpos_core.frames import hpr_error, hpr_from_C_nb
 from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.reference import initial_state
 from dpos_core.ifa.smoother import smooth
 from dpos_core.series import NavSeries
 from dpos_core.units import DEG
+from dpos_ros.io.gnss_ins import InputError, _topics, read_recording
 from dpos_ros.io.session import RecordedSession, SessionError
 
 REFERENCES = ("recorded", "forward", "smoothed")
@@ -72,8 +76,6 @@ def ifa_references(sess: RecordedSession, aircraft: AircraftConfig, which: str =
                    min_course_speed_mps: float = 5.0) -> dict[str, MasterReference]:
     """``{"forward": ..., "smoothed": ...}`` from one in-flight alignment of the recording (``which``
     names the option in the error messages; :func:`master_reference`)."""
-    from dpos_ros.io.gnss_ins import InputError, _topics, read_recording
-
     avail = _topics(sess.path)
     missing = [t for t in IFA_TOPICS if avail and t not in avail]
     if missing:
@@ -151,10 +153,6 @@ def accuracy(nav: NavSeries, truth: NavSeries, since_s: float, until_s: float = 
     """RMSE of a main-POS navigation against ``/truth/master`` over ``[since_s, until_s]``: heading /
     pitch / roll [deg], velocity E, N, U [m/s], position E, N, U [m], at the rows whose stamp the
     truth has (within 1 ms; the simulated truth is at the main IMU's stamps)."""
-    from dpos_core.attitude import quat_to_dcm
-    from dpos_core.earth import dllh_to_enu
-    from dpos_core.frames import hpr_error, hpr_from_C_nb
-
     j = np.clip(np.searchsorted(truth.t_s, nav.t_s), 1, truth.t_s.size - 1)
     j = np.where(np.abs(truth.t_s[j - 1] - nav.t_s) < np.abs(truth.t_s[j] - nav.t_s), j - 1, j)
     keep = (np.abs(truth.t_s[j] - nav.t_s) < 1e-3) & (nav.t_s >= since_s) & (nav.t_s <= until_s)

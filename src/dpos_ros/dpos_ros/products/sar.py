@@ -11,25 +11,25 @@ altitude + ``baro_height_offset_m`` = ellipsoidal height) and the ``enu`` datum.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core import earth
+from dpos_core.attitude import quat_to_dcm
+from dpos_core.errors import SarInputError
+from dpos_core.frames import hpr_from_C_nb
 from dpos_core.sar.navigate import BaroSeries, SarFixes, SarNavResult, SarNavSettings, navigate
 from dpos_core.series import ImuSeries
 from dpos_core.strapdown import NavState
-from dpos_core.units import FloatArray
+from dpos_core.units import DEG, FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 
 #: the topics a SINS/SAR run needs (the datum: /dpos/datum or the datum parameter)
 INPUT_TOPICS = (T.MASTER_IMU, T.MASTER_NAV, T.SAR_FIX, T.BARO_PRESSURE)
-
-
-class SarInputError(ValueError):
-    """The session's data cannot be navigated (the message says what is missing or wrong)."""
 
 
 @dataclass
@@ -116,8 +116,6 @@ def session_inputs(imu: cv.ImuBlock, nav0: tuple[int, FloatArray], fixes: Sequen
 def run(inputs: SarInputs, settings: SarNavSettings) -> SarNavResult:
     """:func:`dpos_core.sar.navigate.navigate` on the inputs (the densities of the IMU's messages);
     :class:`SarInputError` for data the core refuses (e.g. a barometer that misses a filter step)."""
-    from dataclasses import replace
-
     try:
         return navigate(inputs.imu, inputs.init, inputs.fixes, inputs.baro,
                         replace(settings, gyro_psd=inputs.gyro_psd, accel_psd=inputs.accel_psd))
@@ -135,8 +133,6 @@ def odometry(result: SarNavResult, origin_ns: int, datum_llh: FloatArray) -> tup
 
 def summary(result: SarNavResult, settings: SarNavSettings, inputs: SarInputs) -> dict[str, Any]:
     """The numbers of a run for the status / report.json."""
-    from dpos_core.units import DEG
-
     last_pos = np.sqrt(np.diag(result.pos_cov[-1]))
     out: dict[str, Any] = {
         "method": settings.method, "particles": settings.n_particles if settings.method not in ("ekf", "ukf") else 0,
@@ -155,11 +151,6 @@ def errors_vs_truth(result: SarNavResult, truth: cv.OdometryBlock, origin_ns: in
     """Errors of the result against a ``/truth/master`` at the same stamps: per epoch attitude
     (pitch, roll, yaw [arcmin]) and position (east, north, up [m]); ``mae`` per component and the
     epochs compared."""
-    from dpos_core import earth
-    from dpos_core.attitude import quat_to_dcm
-    from dpos_core.frames import hpr_from_C_nb
-    from dpos_core.units import DEG
-
     t_ns = origin_ns + np.round(result.t_s * 1e9).astype(np.int64)
     k = np.searchsorted(truth.t_ns, t_ns)
     k = np.minimum(k, truth.t_ns.size - 1)

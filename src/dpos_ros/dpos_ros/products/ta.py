@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from dpos_core.attitude import mount_dcm
 from dpos_core.config import AircraftConfig, AntennaConfig
-from dpos_core.errors import RejectedInput
+from dpos_core.errors import ProductsExistError, RejectedInput
 from dpos_core.filters.variational import CGStats, pool_summaries
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.series import ImuSeries, NavSeries
@@ -419,10 +419,6 @@ def write(
     if out != final:
         _swap_in(out, final)
     return final
-
-
-class ProductsExistError(FileExistsError):
-    """The session's product directory exists (from an earlier run) and ``overwrite`` is False."""
 
 
 def _new_products_dir(final: Path, overwrite: bool) -> Path:

@@ -45,9 +45,7 @@ from typing import Any
 
 import yaml
 
-
-class GraphError(RuntimeError):
-    """The graph could not be started or did not become ready (the message names the nodes)."""
+from dpos_core.errors import GraphError
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,11 @@ import typing
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
+import yaml
+
+from dpos_core.config import builtin_names
+from dpos_core.errors import ParameterError
+
 __all__ = [
     "ParameterError",
     "param",
@@ -59,16 +64,6 @@ DEVICES = ("sim", "ros")
 
 
 _META_KEY = "dpos_param"
-
-
-class ParameterError(ValueError):
-    """An invalid parameter value; the message names the parameter and the value."""
-
-    def __init__(self, name: str, value: Any, reason: str) -> None:
-        self.name = name
-        self.value = value
-        self.reason = reason
-        super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -287,8 +282,6 @@ def packaged_params_file(package: str, filename: str | None = None) -> pathlib.P
 
 def read_params_file(path: str | pathlib.Path, node_name: str) -> dict[str, Any]:
     """The ``ros__parameters`` of ``node_name`` (or ``/**``) in a ROS 2 params YAML file."""
-    import yaml
-
     data = yaml.safe_load(pathlib.Path(path).read_text()) or {}
     out: dict[str, Any] = {}
     for key in ("/**", node_name, "/" + node_name):
@@ -393,8 +386,6 @@ def _override_value(exc: Exception) -> Any:
 
 
 def _check_scenario(value: str) -> str | None:
-    from dpos_core.config import builtin_names
-
     known = builtin_names("scenarios")
     if value in known:
         return None

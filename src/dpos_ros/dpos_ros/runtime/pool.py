@@ -11,6 +11,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from numba.core.registry import CPUDispatcher
+
 #: the BLAS / OpenMP thread counts of a worker: one (its matrices are small, one worker per core;
 #: BLAS threads would contend with the other workers: ~5 % of a paper_wing sub-IMU's CPU)
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -64,10 +66,6 @@ def worker_count(workers: int, tasks: int) -> int:
 def numba_stats() -> dict:
     """This process's numba kernels of dpos_core and dpos_ros: where their cache is, whether it can
     be written, how many were loaded from it and how many compiled (cache misses)."""
-    try:
-        from numba.core.registry import CPUDispatcher
-    except ImportError:  # pragma: no cover - numba is a requirement
-        return {"numba": False}
     hits = misses = 0
     paths: set[str] = set()
     for name, mod in list(sys.modules.items()):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, replace
+from dataclasses import fields as dc_fields
 from typing import Any
 
 import numpy as np
@@ -28,11 +29,15 @@ from dpos_core.units import DEG, FloatArray
 from ..attitude import dcm_to_quat
 from ..config.sensors import NoiseInterval
 from ..frames import C_nb_from_hpr, hpr_from_C_nb
+from ..ifa.model import IfaFilterConfig
+from ..ifa.pipeline import METHODS, attitude_errors_deg, run
+from ..ifa.reference import Reference, compare
+from ..ifa.reference import consistency as nees
+from ..ifa.reference import initial_state as data_initial_state
+from ..series import GnssSeries
 from ..sim.scenario import Scenario
 from ..sim.session import SimulatedSession
 from ..strapdown import NavState
-from .model import IfaFilterConfig
-from .pipeline import METHODS, attitude_errors_deg, run
 
 KEYS = ("heading_deg", "pitch_deg", "roll_deg")
 #: [Fang2012] Table 3 (its "DD2" row is the paper's ADD2)
@@ -132,8 +137,6 @@ def filter_config(scenario: Scenario, oracle: bool = False) -> IfaFilterConfig:
     the sensors); the nominal GNSS sigmas of the scenario; the ``ifa`` block's keys that are
     :class:`~dpos_core.ifa.model.IfaFilterConfig` fields.  ``oracle``: the simulated unit's own
     model instead of the datasheet (the filter that knows what the truth did)."""
-    from dataclasses import fields as dc_fields
-
     names = {f.name for f in dc_fields(IfaFilterConfig)} - {"imu"}
     kw: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in scenario.ifa.items() if k in names}
     imu = scenario.master_imu if (oracle or scenario.aircraft.master_imu is None) else scenario.aircraft.master_imu
@@ -150,11 +153,6 @@ def consistency(scenario: Scenario, seeds: list[int], method: str = "add2", dura
     (:func:`filter_config`) and the oracle (the simulated unit's model), NEES / NIS figures
     (:func:`dpos_core.ifa.reference.consistency`) after the alignment, and the horizontal error
     against the truth before / during / after ``outage_s`` with its 3-sigma coverage."""
-    from ..series import GnssSeries
-    from .reference import Reference, compare
-    from .reference import consistency as nees
-    from .reference import initial_state as data_initial_state
-
     out: dict[str, list] = {"datasheet": [], "oracle": []}
     for seed in seeds:
         ss = SimulatedSession(scenario, seed, duration_s)

@@ -7,10 +7,11 @@ from collections.abc import Callable
 import numpy as np
 
 from .. import earth
+from ..attitude import dcm_to_rotvec, mount_dcm
 from ..series import ImuSeries, NavSeries
 from ..sim.session import SimulatedSession
+from ..ta.model import Installation
 from ..units import DEG, FloatArray
-from .model import Installation
 
 
 def installation(session: SimulatedSession, name: str) -> Installation:
@@ -86,8 +87,6 @@ def known_wing(session: SimulatedSession, name: str) -> Callable[[float], tuple[
     wing): ``t -> (theta_b (3,) [rad], r_b (3,) [m], r_dot_b (3,) [m/s])``, the flexure rotation of its
     section and its true lever arm and lever-arm rate from the main IMU, master axes (from the
     simulated truth of both bodies, so any wing model: Gauss-Markov or modal)."""
-    from ..attitude import dcm_to_rotvec, mount_dcm
-
     s = session.scenario.aircraft.sub_imu(name)
     C_s0 = mount_dcm(s.mount_rpy_deg, s.rho_deg)  # sub-IMU axes -> master axes, no flexure
 

@@ -34,12 +34,19 @@ from scipy.signal import lfilter
 from .. import earth
 from ..attitude import dcm_to_quat, quat_to_dcm
 from ..config.aircraft import AircraftConfig, load_aircraft
+from ..config.flexure import FlexureModel
 from ..config.sensors import ImuErrorModel, imu_model
 from ..frames import C_nb_from_hpr, hpr_from_C_nb, hpr_sigma_to_rotation_cov
+from ..ifa import pipeline as ifa_pipeline
+from ..ifa import reference as ifa_reference
+from ..ifa.mechanization import body_rate_eb
+from ..ifa.smoother import smooth
 from ..series import ImuSeries, NavSeries
+from ..sim.flexure import FlexureRealization
+from ..sim.scenario import Scenario
+from ..sim.session import SimulatedSession
 from ..units import DEG, FloatArray
-from .scenario import Scenario
-from .session import SimulatedSession
+from .ifa import filter_config
 
 
 @dataclass(frozen=True)
@@ -69,9 +76,6 @@ class CorrelatedNavErrors:
     def draw(self, t_s: FloatArray, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Errors at the (uniform) times ``t_s`` (N,): heading/pitch/roll [rad] (N, 3), velocity
         ENU [m/s] (N, 3), position ENU [m] (N, 3)."""
-        from ..config.flexure import FlexureModel
-        from .flexure import FlexureRealization
-
         dt = float(np.median(np.diff(t_s))) if t_s.size > 1 else 1.0
         att = _gauss_markov(np.array([self.heading_deg, self.pitch_deg, self.roll_deg]) * DEG, self.att_tau_s, dt, t_s.size, rng)
         # the flexure's process in other units: its "angle" [rad] is the position error [m]
@@ -319,7 +323,7 @@ class MismatchedSession(SimulatedSession):
     def ifa_reference(self, smoothed: bool = False) -> NavSeries:
         """The main-system navigation as the graph makes it (pos_master_node with ``alignment: ifa``):
         the simulated main IMU and GNSS through :func:`dpos_core.ifa.pipeline.run` (method
-        ``master_ifa``, the scenario's filter configuration :func:`dpos_core.ifa.evaluate.filter_config`),
+        ``master_ifa``, the scenario's filter configuration :func:`dpos_core.evaluation.ifa.filter_config`),
         started by the real-recording rule (:func:`dpos_core.ifa.reference.initial_state`: course over
         ground, levelled from the specific force); at every IMU sample the closed-loop state, the body
         rate from the bias-compensated gyro, and the covariances of the latest filter epoch before it
@@ -328,11 +332,6 @@ class MismatchedSession(SimulatedSession):
         what ``dpos-process --master-reference smoothed`` uses), with the smoother's covariances."""
         if self._ifa_nav is not None and (not smoothed or self._ifa_smoothed is not None):
             return self._ifa_smoothed if smoothed and self._ifa_smoothed is not None else self._ifa_nav
-        from ..ifa import pipeline as ifa_pipeline
-        from ..ifa import reference as ifa_reference
-        from ..ifa.evaluate import filter_config
-        from ..ifa.mechanization import body_rate_eb
-        from ..ifa.smoother import smooth
 
         imu, gnss = self.master_imu(), self.gnss()
         lever = np.asarray(self.scenario.aircraft.gnss_lever_arm_m, dtype=float)

@@ -14,14 +14,15 @@ import numpy as np
 
 from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
+from .. import earth
 from ..attitude import dcm_to_quat, quat_mul, rotvec_to_quat
+from ..sar.model import N_STATES, Q_ATT, SarMeasurements, SarModel, SarNoise, SinsTrack, error_state, navigation_errors
+from ..sar.navigate import free_sins
+from ..sar.navigate import measurements as sar_measurements
+from ..sar.pipeline import ORACLE, run
 from ..sim.sar import baro_heights, sar_config, sar_fixes
 from ..sim.session import SimulatedSession
 from ..strapdown import NavState
-from .model import N_STATES, Q_ATT, SarMeasurements, SarModel, SarNoise, SinsTrack, error_state, navigation_errors
-from .navigate import free_sins
-from .navigate import measurements as sar_measurements
-from .pipeline import ORACLE, run
 
 #: [Yan2016]'s evaluation window [s]
 WINDOW_S = (100.0, 1000.0)
@@ -76,7 +77,6 @@ def problem(ss: SimulatedSession, filter_rate_hz: float = 1.0) -> SarProblem:
     """Simulate the run of a session (module docstring): SINS, measurements, model, prior, truth."""
     cfg = sar_config(ss)
     pos0, vel0, att0 = _initial_errors(ss)
-    from .. import earth
 
     tr0 = ss.truth("master", np.array([0.0]))
     q0 = quat_mul(rotvec_to_quat(att0), tr0.q_nb[0])
