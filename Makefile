@@ -1,10 +1,11 @@
 # dpos workspace.
-#   make demo    bootstrap .venv if needed, run the end-to-end demo (.venv/bin/dpos-demo)
-#   make test    bootstrap .venv if needed, run the linters (make lint) and the test suite (pytest)
+#   make demo    bootstrap .venv if needed (runtime: requirements.txt), run the end-to-end demo (.venv/bin/dpos-demo)
+#   make test    bootstrap .venv if needed (runtime + dev tools), run the linters (make lint) and the test suite (pytest)
 #   make lint    ruff (ruff.toml) and mypy (mypy.ini) on the sources; part of make test
+#   make venv    bootstrap .venv for development (runtime + requirements-dev.txt), as make test does
 #   make bench   bootstrap .venv if needed, run the benchmarks (writes bench/results.json)
 #   make clean   remove build artefacts;  make distclean  also remove .venv
-#   make lock    re-resolve requirements*.txt from requirements*.in
+#   make lock    re-resolve requirements*.txt from requirements*.in (tools/lock_requirements.py)
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -12,6 +13,8 @@ VENV := .venv
 VPY := $(VENV)/bin/python
 # The venv is (re)installed when this stamp is older than the lock or any package's metadata.
 STAMP := $(VENV)/.dpos-installed
+# The dev tools (pytest, ruff, mypy, ...) and the campaign extra (dask, distributed), on top.
+DEV_STAMP := $(VENV)/.dpos-dev-installed
 PACKAGES := dpos_core dpos_ros pos_master_node pos_sub_node ifa_node transfer_align_node sar_nav_node
 PACKAGE_META := $(foreach p,$(PACKAGES),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml)
 PYTEST_ARGS ?=
@@ -37,7 +40,7 @@ test: lint
 
 MYPY_PACKAGES := $(foreach p,$(PACKAGES),-p $(p))
 
-lint: $(STAMP)
+lint: $(DEV_STAMP)
 	$(VENV)/bin/ruff check --no-cache src tools bench test
 	$(VENV)/bin/mypy --cache-dir .venv/.mypy_cache $(MYPY_PACKAGES)
 
@@ -50,7 +53,7 @@ $(BENCH_STAMP): $(STAMP) requirements-bench.txt
 	$(VPY) -m pip install -qq -c requirements.txt -r requirements-bench.txt
 	@touch $@
 
-venv: $(STAMP)
+venv: $(DEV_STAMP)
 
 # --use-pep517: install the editable packages through a PEP 660 wheel, so that the console
 # scripts land in .venv/bin (see the comment in src/*/setup.cfg).
@@ -61,6 +64,11 @@ $(STAMP): requirements.txt $(PACKAGE_META)
 	$(VPY) -m pip install -q --no-deps --no-build-isolation --use-pep517 $(foreach p,$(PACKAGES),-e src/$(p))
 	@touch $@
 
+$(DEV_STAMP): $(STAMP) requirements-dev.txt
+	@echo "installing requirements-dev.txt into $(VENV) (test and lint tools, dpos_ros[campaign])"
+	$(VPY) -m pip install -qq -c requirements.txt -r requirements-dev.txt
+	@touch $@
+
 clean:
 	rm -rf build install log .pytest_cache
 	rm -rf $(foreach p,$(PACKAGES),src/$(p)/build src/$(p)/$(p).egg-info)
@@ -69,6 +77,8 @@ clean:
 distclean: clean
 	rm -rf $(VENV)
 
+# requirements.txt first: the other two are resolved with it as constraints (their `-c requirements.txt`).
 lock:
 	$(PYTHON) tools/lock_requirements.py requirements.in requirements.txt
+	$(PYTHON) tools/lock_requirements.py requirements-dev.in requirements-dev.txt --on-top-of requirements.txt
 	$(PYTHON) tools/lock_requirements.py requirements-noros.in requirements-noros.txt

@@ -14,7 +14,11 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ],
-    install_requires=['numpy', 'scipy', 'numba', 'pyyaml'],
+    # The PyPI names of the libraries the sources import (the ROS packages and the workspace's own
+    # come from package.xml: rosdep / the ros-jazzy wheels); test/test_dependencies.py checks both.
+    install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'pyyaml'],
+    # dpos-strapdown-demo plots its errors when matplotlib is installed
+    extras_require={'plot': ['matplotlib']},
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='dpos developers',

@@ -13,7 +13,11 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ],
-    install_requires=['setuptools'],
+    # The PyPI names of the libraries the sources import (the ROS packages and the workspace's own
+    # come from package.xml: rosdep / the ros-jazzy wheels); test/test_dependencies.py checks both.
+    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'matplotlib', 'ruamel.yaml', 'rosbags', 'mcap', 'zstandard', 'lz4'],
+    # dpos-campaign's Dask engine: pip install 'dpos_ros[campaign]' (requirements-dev.txt has it)
+    extras_require={'campaign': ['dask', 'distributed']},
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='dpos developers',

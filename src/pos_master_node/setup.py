@@ -17,7 +17,9 @@ setup(
         # Default params file: share/ for colcon users, package data for importlib.resources.
         ('share/' + package_name + '/config', glob(package_name + '/config/*.yaml')),
     ],
-    install_requires=['setuptools'],
+    # The PyPI names of the libraries the sources import (the ROS packages and the workspace's own
+    # come from package.xml: rosdep / the ros-jazzy wheels); test/test_dependencies.py checks both.
+    install_requires=['setuptools', 'numpy'],
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='dpos developers',

@@ -26,7 +26,11 @@ A task that fails is retried ``--retries`` times (default 1), then reported, not
 
 Exit status: 0 every task ok; 1 some task failed (or a recording is partial); 2 unusable input
 (a bad option, a missing recording, an unwritable OUT, an unreachable scheduler or one without
-workers) - nothing has run then.
+workers, the engine not installed) - nothing has run then.
+
+The Dask engine (dask, distributed) is the optional extra ``dpos_ros[campaign]``
+(``pip install 'dpos_ros[campaign]'``; the workspace's requirements-dev.txt has it): it is
+imported only when a campaign runs, and without it dpos-campaign says so in one line (exit 2).
 """
 
 from __future__ import annotations
@@ -69,6 +73,8 @@ EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_ERROR = 2
 PROG = "dpos-campaign"
+#: how to install the Dask engine (src/dpos_ros/setup.py extras_require["campaign"])
+CAMPAIGN_EXTRA = "pip install 'dpos_ros[campaign]'"
 
 #: dpos-process's options the campaign does not pass on (its own --out and --workers)
 _PROCESS_OWN = {"help", "bag", "out", "workers"}
@@ -137,6 +143,19 @@ def forwarded_argv(args: argparse.Namespace, actions: Sequence[argparse.Action])
     return argv
 
 
+def distributed_module() -> Any:
+    """The Dask engine: the ``distributed`` package (with ``distributed.comm.addressing``) of the
+    optional extra ``dpos_ros[campaign]``, imported here and nowhere else, when a campaign runs.
+    Raises :class:`CampaignError` naming the extra when it (or dask) is not installed."""
+    try:
+        import distributed
+        import distributed.comm.addressing
+    except ImportError as e:
+        raise CampaignError(f"the Dask engine is not installed (no module {e.name or 'distributed'!r}): "
+                            f"{CAMPAIGN_EXTRA}") from None
+    return distributed
+
+
 def _check_engine(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.workers < 0:
         ap.error(f"--workers must be >= 0 (0 = one per core), got {args.workers}")
@@ -147,10 +166,9 @@ def _check_engine(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None
     if args.scheduler is not None:
         if args.workers:
             ap.error("--workers is for the local cluster; with --scheduler the cluster's own workers run the tasks")
-        from distributed.comm.addressing import parse_address, parse_host_port
-
+        addressing = distributed_module().comm.addressing
         try:
-            parse_host_port(parse_address(args.scheduler)[1])
+            addressing.parse_host_port(addressing.parse_address(args.scheduler)[1])
         except ValueError as e:
             ap.error(f"--scheduler {args.scheduler!r} is not a scheduler address like tcp://HOST:8786 ({e})")
 
@@ -169,8 +187,8 @@ def dask_engine(scheduler: str | None, workers: int, connect_timeout_s: float) -
     reached or has no worker within ``connect_timeout_s``), else to a new LocalCluster of
     ``workers`` processes (0 = one per core) with one thread and one BLAS thread each, no
     dashboard, on dynamic ports of 127.0.0.1; closed (and the local cluster stopped) on exit."""
-    from distributed import Client, LocalCluster
-
+    dist = distributed_module()
+    Client, LocalCluster = dist.Client, dist.LocalCluster  # noqa: N806 - the classes' own names
     with contextlib.ExitStack() as stack:
         if scheduler is not None:
             try:
@@ -219,8 +237,7 @@ def run_tasks(engine: Engine, fn: Callable[[Any], Any], tasks: Sequence[Any], ke
     """Submit ``fn(task)`` for every task (Dask retries a task that raises ``retries`` times) and
     call ``on_done(index, result, error)`` as each finishes; returns (result, error) per task in
     the order given.  A task that fails every attempt is an ``error``, not an exception here."""
-    from distributed import as_completed
-
+    as_completed = distributed_module().as_completed
     futs = [engine.client.submit(fn, t, key=k, retries=retries, pure=False) for t, k in zip(tasks, keys, strict=True)]
     index = {f.key: i for i, f in enumerate(futs)}
     out: list[tuple[Any, BaseException | None]] = [(None, None)] * len(futs)
@@ -377,6 +394,11 @@ def main_eval(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap, subs, forwarded = _parsers()
     args = ap.parse_args(argv)
+    try:
+        distributed_module()
+    except CampaignError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
     sub = subs[args.command]
     _check_engine(sub, args)
     try:
