@@ -61,10 +61,6 @@ OPTIONAL_FALLBACK = {
 DEV_TOOLS = {"pytest", "pytest-timeout", "pytest-xdist", "ruff", "mypy", "types-pyyaml"}
 #: the optional extras' distributions
 EXTRAS = {"campaign": {"dask", "distributed"}, "plot": {"matplotlib"}}
-#: imports to be removed, not declared: (package, import) -> why; an entry no longer imported fails
-PENDING_REMOVAL = {
-    ("dpos_ros", "ifa_node"): "an upward arrow (dpos_ros/cli/ifa.py -> ifa_node.params) that issue #32 part 3 removes",
-}
 
 
 def canonical(name: str) -> str:
@@ -162,11 +158,6 @@ def lock_pins(path: Path) -> dict[str, str]:
 @pytest.mark.parametrize("package", PACKAGES)
 def test_package_xml_declares_what_the_package_imports(package):
     imports = package_imports(package)
-    for pkg, name in PENDING_REMOVAL:
-        if pkg == package:
-            assert name in imports.required | imports.optional, f"{package} no longer imports {name}: drop it from PENDING_REMOVAL"
-            imports.required.discard(name)
-            imports.optional.discard(name)
     declared = exec_depends(package)
     assert len(declared) == len(set(declared)), f"{package}/package.xml: an exec_depend twice: {declared}"
     needed = {rosdep_key(n, package): n for n in imports.required}
