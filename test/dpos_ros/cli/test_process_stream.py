@@ -15,7 +15,7 @@ from repo_paths import REPO
 from dpos_ros.cli import process as process_cli
 from dpos_ros.cli import sim as sim_cli
 from dpos_ros.io import bag
-from dpos_ros.products import stream
+from dpos_ros.products import rows, stream
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 
@@ -80,7 +80,7 @@ def test_stream_in_row_blocks_with_the_per_epoch_arrays_in_files(tmp_path: Path,
     the rows nor the decimation's steps) and the filter's per-epoch arrays in files: the same products."""
     from dpos_core.ta import pipeline
 
-    monkeypatch.setattr(stream, "ROW_BLOCK", 997)
+    monkeypatch.setattr(rows, "ROW_BLOCK", 997)
     monkeypatch.setattr(pipeline, "TRACK_IN_MEMORY_BYTES", 0)
     args = [str(SAMPLE), "--method", "ups", "--particles", "20", "--workers", "1", "--output-rate", "30"]
     assert process_cli.main([*args, "--stream", "on", "--out", str(tmp_path / "on")]) == 0
