@@ -45,12 +45,14 @@ from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import from_sim
 from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING, TASettings
-from dpos_ros.devices.sim_streams import session_custom_data, session_streams
-from dpos_ros.io.session import session_from_streams
+from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_streams
+from dpos_ros.io.bag import topics_and_duration, write_stream_batches
+from dpos_ros.io.session import read_session_streaming, session_from_streams
 from dpos_ros.products import lsfit_tables
-from dpos_ros.products.evaluate_stream import series_free
+from dpos_ros.products.evaluate_stream import evaluate_streaming, series_free
 from dpos_ros.products.report import combine_runs, evaluate, metrics_json, report_md
 from dpos_ros.products.solve import solve
+from dpos_ros.products.stream import solve_streaming
 
 #: the filter rate of the transfer-alignment runs (TASettings' default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
@@ -279,12 +281,6 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
     path (:func:`dpos_ros.products.stream.solve_streaming`, serially in this process) and evaluated
     by :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`; the directory is deleted
     afterwards, whatever happens.  The oracle methods are not available (they read the simulation)."""
-    from dpos_ros.devices.sim_streams import chunked_session_streams
-    from dpos_ros.io.bag import topics_and_duration, write_stream_batches
-    from dpos_ros.io.session import read_session_streaming
-    from dpos_ros.products.evaluate_stream import evaluate_streaming
-    from dpos_ros.products.stream import solve_streaming
-
     scenario, methods = plan.scenario, plan.methods
     oracles = [m for m in methods if m in (ORACLE, ORACLE_FILTER, ORACLE_WING)]
     if oracles:

@@ -21,7 +21,8 @@ from dpos_core.units import FloatArray
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.io import bag
+from dpos_ros.io import _mcap, bag
+from dpos_ros.io import spill as S
 from dpos_ros.io.messages import Messages, RawTopic
 
 #: metadata key (rosbag2 ``custom_data``, a spill's ``custom_data``) naming the source of /master/nav:
@@ -245,11 +246,9 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
         only = keep
         keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) or only(t)  # noqa: E731
     path = Path(path)
-    from dpos_ros.io.spill import is_spill, read_spill
-
-    if is_spill(path):  # the crash-safe spill of transfer_align_node
+    if S.is_spill(path):  # the crash-safe spill of transfer_align_node
         try:
-            raw, custom, sid, warns = read_spill(path, include_late, keep)
+            raw, custom, sid, warns = S.read_spill(path, include_late, keep)
         except (ValueError, OSError) as e:
             raise SessionError(f"{path}: cannot read the spill: {e}") from None
         custom.setdefault("dpos.session_id", sid)
@@ -345,12 +344,8 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     told identical by a hash of all their numbers), except that a topic's frame names are chosen
     in its first part (:class:`_TopicDecoder`).  Recordings the fast reader does not read
     (sqlite3, several files) go through :func:`read_session`."""
-    from dpos_ros.io import _mcap
-
     path = Path(path)
-    from dpos_ros.io.spill import is_spill
-
-    if is_spill(path):
+    if S.is_spill(path):
         return _read_spill_streaming(path, keep, batch_bytes, include_late)
     if not (path / "metadata.yaml").is_file():
         return read_session(path, keep=keep)
@@ -459,8 +454,6 @@ def _row_hash(v: FloatArray) -> FloatArray:
 def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_bytes: int, include_late: bool) -> RecordedSession:
     """:func:`read_session_streaming` of a spill (its docstring): each wanted topic's log (and its
     late log) read a block at a time, the topics one after the other."""
-    from dpos_ros.io import spill as S
-
     try:
         topics, custom, sid = S.spill_meta(path)
         late_dir = path / S.LATE_DIR
