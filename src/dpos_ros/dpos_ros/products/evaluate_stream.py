@@ -47,8 +47,9 @@ from dpos_core.ta import metrics as M
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
 from dpos_ros.io import _mcap, bag
+from dpos_ros.io import session as io_session
 from dpos_ros.io import spill as S
-from dpos_ros.io.session import STREAM_BATCH_BYTES, RecordedSession, SessionError, _compact, _decode_rows, read_session
+from dpos_ros.io.session import RecordedSession, SessionError, _compact, _decode_rows, read_session
 
 from . import rows as R
 from .report import interp_llh, metrics_json, plot_antenna_errors, report_md
@@ -137,10 +138,10 @@ def truth_parts(sess: RecordedSession, topics: list[str], warnings: list[str]) -
     failed: set[str] = set()
     source: Iterator[list[tuple[str, str, object]]] | None  # per part: (topic, msgtype, messages)
     if S.is_spill(path):
-        source = ([b] for b in _spill_blocks(path, topics, STREAM_BATCH_BYTES // max(1, len(topics)), warnings))
+        source = ([b] for b in _spill_blocks(path, topics, io_session.STREAM_BATCH_BYTES // max(1, len(topics)), warnings))
     else:
         file = bag._single_mcap(path) if (path / "metadata.yaml").is_file() else None
-        parts = None if file is None else _mcap.read_batches(file, lambda t: t in wanted, STREAM_BATCH_BYTES)
+        parts = None if file is None else _mcap.read_batches(file, lambda t: t in wanted, io_session.STREAM_BATCH_BYTES)
         source = None if parts is None else ([(topic, msgtype, blobs) for topic, (msgtype, _, blobs) in part.items()] for part in parts)
     if source is None:
         whole = read_session(path, keep=lambda t: t in wanted)
