@@ -60,7 +60,7 @@ def solve(
 
     ``workers``: the sub-IMUs are aligned in that many spawned worker processes (0 = one per
     core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
-    the main POS, its installation and the configuration; every sub-IMU uses ``settings.seed`` either way,
+    the main POS, its installation and the settings; every sub-IMU uses ``settings.seed`` either way,
     so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it.
     ``pool``: an executor already started (:func:`dpos_ros.runtime.pool.warm_pool`: its workers
     have imported and run the filters while the recording was read), used instead of starting
