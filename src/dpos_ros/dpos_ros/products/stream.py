@@ -27,6 +27,8 @@ The same products as :func:`dpos_ros.products.write.write` after :func:`~dpos_ro
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
+import ctypes.util
 import functools
 import json
 import shutil
@@ -84,9 +86,6 @@ FIT_IN_FLIGHT = 4
 def _malloc_trim() -> Callable[[int], int] | None:
     """glibc's ``malloc_trim`` (None elsewhere), looked up once: ``ctypes.util.find_library`` runs
     ``ldconfig`` in a subprocess, ~10 ms a call (issue #17: a call per bag batch)."""
-    import ctypes
-    import ctypes.util
-
     try:
         fn: Callable[[int], int] = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
         return fn
