@@ -245,10 +245,11 @@ def bench_wing(results: dict, repeats: int) -> None:
     from dpos_core.config import config_text
     from dpos_core.sim.scenario import load_scenario
     from dpos_core.sim.session import SimulatedSession
+    from dpos_core.ta.pipeline import TASettings
     from dpos_core.ta.warmup import warm_up
     from dpos_ros.devices.sim_streams import session_custom_data, session_streams
     from dpos_ros.io.session import session_from_streams
-    from dpos_ros.products.ta import solve
+    from dpos_ros.products.solve import solve
     from dpos_ros.runtime.pool import warm_pool
 
     scenario = load_scenario("paper_wing")
@@ -267,7 +268,8 @@ def bench_wing(results: dict, repeats: int) -> None:
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         rs0 = _children_cpu_s(pool)
         t0, c0 = time.perf_counter(), time.process_time()
-        ants, timing = solve(sess, scenario.aircraft, "ups", 100, 0, err0, workers=workers, pool=pool)
+        ants, timing = solve(sess, scenario.aircraft, TASettings(method="ups", particles=100, seed=0, initial_attitude_error_deg=err0),
+                             workers=workers, pool=pool)
         el, cpu = time.perf_counter() - t0, time.process_time() - c0
         if pool is not None:  # live workers: their CPU from /proc (getrusage counts joined children only)
             cpu_workers = _children_cpu_s(pool) - rs0

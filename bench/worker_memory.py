@@ -119,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     from dpos_core.config import load_aircraft
-    from dpos_core.ta.model import Installation, TAConfig
+    from dpos_core.ta.model import Installation
+    from dpos_core.ta.pipeline import TASettings
     from dpos_ros.io.session import read_session_streaming
     from dpos_ros.products.master_reference import AUTO_TAU, master_error_tau
 
@@ -128,13 +129,12 @@ def main(argv: list[str] | None = None) -> int:
     tau, _ = master_error_tau(AUTO_TAU, sess.master_mechanized, "recorded")
     ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
     e = float(ta.get("initial_attitude_error_deg", 0.0))
-    cfg = TAConfig(attitude_sigma_deg=max(e, 1.0), master_error_tau_s=tau)
+    settings = TASettings(method=a.method, particles=a.particles, master_error_tau_s=tau, initial_attitude_error_deg=e)
     duration = float(sess.master.t_s[-1] - sess.master.t_s[0])
     del sess
     with tempfile.TemporaryDirectory(prefix="dpos_wmem_") as tmp:
-        args = (str(a.bag), a.sub, None, Installation.from_aircraft(aircraft, a.sub), cfg, a.method, a.particles, 0, (e, e, e),
-                [(x.name, np.asarray(x.lever_arm_m, dtype=float)) for x in aircraft.antennas if x.sub_imu == a.sub],
-                0.0, True, 0.1, tmp)
+        args = (str(a.bag), a.sub, None, Installation.from_aircraft(aircraft, a.sub), settings,
+                [(x.name, np.asarray(x.lever_arm_m, dtype=float)) for x in aircraft.antennas if x.sub_imu == a.sub], tmp)
         with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
             out = pool.submit(_task, args, a.method).result()
     out.update(bag=str(a.bag), sub=a.sub, method=a.method, particles=a.particles, flight_s=round(duration, 1), master_error_tau_s=tau)

@@ -201,15 +201,6 @@ def test_no_history_in_the_docs():
     assert not found, "history in the docs (git has it; state the current behaviour):\n" + "\n".join(found)
 
 
-#: source files that still cite issues, left to the helpers who rewrite them: each must still have a
-#: hit (remove it from here once it is clean, and the list shrinks to nothing)
-HISTORY_PENDING = {
-    "src/dpos_ros/dpos_ros/products/qc.py",
-    "src/dpos_ros/dpos_ros/products/stream.py",
-    "src/dpos_ros/dpos_ros/products/evaluate_stream.py",
-    "src/dpos_ros/dpos_ros/io/session.py",
-    "src/transfer_align_node/transfer_align_node/node.py",
-}
 
 
 def test_no_history_in_the_sources():
@@ -219,7 +210,4 @@ def test_no_history_in_the_sources():
         found = _history(path)
         if found:
             hits[_rel(path)] = found
-    new = {k: v for k, v in hits.items() if k not in HISTORY_PENDING}
-    assert not new, "history in docstrings or comments (state the current behaviour):\n" + "\n".join(h for v in new.values() for h in v)
-    clean = sorted(HISTORY_PENDING - hits.keys())
-    assert not clean, f"clean now: remove from HISTORY_PENDING: {clean}"
+    assert not hits, "history in docstrings or comments (state the current behaviour):\n" + "\n".join(h for v in hits.values() for h in v)

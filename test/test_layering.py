@@ -192,17 +192,6 @@ def test_simulator_imports_no_estimation_and_no_evaluation() -> None:
 
 # ----------------------------------------------------------------------------- cycles
 
-# Known violations in modules another branch of the same change rewrites (helper A, issue "the
-# house" part 1: the products path); they are removed there.  Each entry must still be a violation:
-# the test fails when one is fixed, so that the list only shrinks and is deleted after the merge.
-PENDING_CYCLES = [
-    {"dpos_ros.products.qc", "dpos_ros.products.ta"},
-    {"dpos_ros.products.evaluate_stream", "dpos_ros.products.stream"},
-]
-PENDING_FILES = {"dpos_ros/dpos_ros/cli/process.py", "dpos_ros/dpos_ros/io/session.py", "dpos_ros/dpos_ros/products/evaluate_stream.py",
-                 "dpos_ros/dpos_ros/products/stream.py", "dpos_ros/dpos_ros/products/ta.py"}
-
-
 def import_cycles(graph: dict[str, set[str]]) -> list[set[str]]:
     """The strongly connected components of more than one module (Tarjan, iterative)."""
     edges = {m: sorted(d for d in deps if d in graph and d != m) for m, deps in graph.items()}
@@ -251,11 +240,8 @@ def test_cycle_finder_finds_a_cycle() -> None:
 
 
 def test_no_import_cycles() -> None:
-    cycles = import_cycles(GRAPH)
-    unexpected = [sorted(c) for c in cycles if c not in PENDING_CYCLES]
-    assert not unexpected, f"import cycles: {unexpected}"
-    gone = [sorted(c) for c in PENDING_CYCLES if c not in cycles]
-    assert not gone, f"no longer a cycle: remove from PENDING_CYCLES: {gone}"
+    cycles = [sorted(c) for c in import_cycles(GRAPH)]
+    assert not cycles, f"import cycles: {cycles}"
 
 
 # ----------------------------------------------------------------------------- imports at the top
@@ -314,10 +300,7 @@ def test_in_function_import_scan_sees_them() -> None:
 def test_imports_are_at_the_top() -> None:
     bad = {f: [x for x in lines if not _lazy_allowed(x.split(": ")[1])] for f, lines in imports_in_functions().items()}
     bad = {f: lines for f, lines in bad.items() if lines}
-    unexpected = {f: lines for f, lines in bad.items() if f not in PENDING_FILES}
-    assert not unexpected, f"imports inside functions (move them to the top, or add the package to LAZY_IMPORTS with its reason): {unexpected}"
-    gone = sorted(PENDING_FILES - set(bad))
-    assert not gone, f"no import inside a function left: remove from PENDING_FILES: {gone}"
+    assert not bad, f"imports inside functions (move them to the top, or add the package to LAZY_IMPORTS with its reason): {bad}"
 
 
 def test_offline_path_loads_no_ros() -> None:

@@ -45,7 +45,7 @@ Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     replaced for the next session) while the executor keeps serving callbacks and the status reports progress; publishes ``/antenna/<name>/odom`` (flow-controlled, no loss) and writes the
     session products under ``output_dir/<session id>/``; then starts a new session.
 
-Long sessions (issue #17)
+Long sessions
     A session whose streams span more than ``stream_above_s`` is finalized with memory that does
     not grow with it (:meth:`TransferAlignNode._process_streaming`), by ``dpos-process --stream
     on``'s code (:mod:`dpos_ros.products.stream`) on the spill: the workers read their sub-IMU's
@@ -97,6 +97,7 @@ from std_srvs.srv import Trigger
 
 from dpos_core.config import ConfigError, config_text, load_aircraft
 from dpos_core.errors import RejectedInput
+from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
@@ -106,9 +107,13 @@ from dpos_ros.devices.sim_device import SimDevice, StreamBatches, StreamInfo
 from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, read_session_streaming, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter, spill_meta
 from dpos_ros.products import stream
+from dpos_ros.products.antenna import AntennaSolution
 from dpos_ros.products.evaluate_stream import evaluate_streaming
 from dpos_ros.products.master_reference import master_error_tau
-from dpos_ros.products.ta import AntennaSolution, antenna_streams, evaluate, fit_antennas, solve, write
+from dpos_ros.products.report import evaluate
+from dpos_ros.products.rows import StreamedAntenna
+from dpos_ros.products.solve import fit_antennas, solve
+from dpos_ros.products.write import antenna_streams, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
 from dpos_ros.runtime.pool import WarmPool, process_pool, worker_count
@@ -143,16 +148,12 @@ def _check_writable(directory: Path) -> None:
         pass
 
 
-def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, method: str, particles: int, seed: int, err0: float,
-                  filter_rate_hz: float, output_rate_hz: float, position_matching: bool = True, inflate_sigma: bool = True,
-                  master_error_tau_s: float = 0.0):
+def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, settings: TASettings):
     """One sub-IMU in a worker process: read its topics of the spill, align, return the antenna solutions."""
     aircraft = load_aircraft("session", text=aircraft_yaml)
     mine = {T.sub_imu(sub), T.TRUTH_MASTER, T.truth_sub_imu(sub)} | {T.truth_antenna(a.name) for a in aircraft.antennas if a.sub_imu == sub}
     sess = read_session(Path(spill_dir), include_late=False, keep=mine.__contains__)
-    ants, timing = solve(sess, aircraft, method, particles, seed, err0, only=[sub],
-                         filter_rate_hz=filter_rate_hz, output_rate_hz=output_rate_hz, position_matching=position_matching,
-                         inflate_sigma=inflate_sigma, master_error_tau_s=master_error_tau_s)
+    ants, timing = solve(sess, aircraft, settings, only=[sub])
     return ants, timing, sess.warnings
 
 
@@ -173,9 +174,9 @@ def _describe(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
-def _pose_batches(sess: RecordedSession, est: dict[str, stream.StreamedAntenna],
+def _pose_batches(sess: RecordedSession, est: dict[str, StreamedAntenna],
                   batch_s: float | None = None) -> Iterator[list[Any]]:
-    """The ``/antenna/<name>/odom`` streams (:func:`dpos_ros.products.ta.antenna_streams`) of the
+    """The ``/antenna/<name>/odom`` streams (:func:`dpos_ros.products.write.antenna_streams`) of the
     stored rows of ``est`` (every antenna with rows), ``batch_s`` seconds of poses at a time
     (default :data:`dpos_ros.products.stream.BAG_BATCH_S`): each batch a stream per antenna in
     ``est``'s order (empty where it has no row then), the batches in time order."""
@@ -618,8 +619,9 @@ class TransferAlignNode(Node):
         log = self.get_logger()
         tau, why = master_error_tau(cfg.master_error_tau_s, mechanized)
         log.info(f"main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
+        settings = cfg.core_config(tau)
         if span_s > cfg.stream_above_s:
-            self._process_streaming(spill_dir, tau, why, span_s)
+            self._process_streaming(spill_dir, settings, why, span_s)
             return
         t0 = time.perf_counter()
         n_workers = self._n_workers
@@ -636,10 +638,7 @@ class TransferAlignNode(Node):
         broken = False
 
         def submit_all(ex: cf.Executor) -> dict[cf.Future, str]:
-            return {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, cfg.method, cfg.particles, cfg.seed,
-                              cfg.initial_attitude_error_deg, cfg.filter_rate_hz, cfg.output_rate_hz, cfg.position_matching,
-                              cfg.sigma_inflation, tau): n
-                    for n in self.sub_names}
+            return {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, settings): n for n in self.sub_names}
 
         try:
             futs = submit_all(ex)
@@ -718,7 +717,7 @@ class TransferAlignNode(Node):
         device.stop()  # every pose is published: do not hold the session's poses until the next one
         self._device = None
 
-    def _process_streaming(self, spill_dir: Path, tau: float, why: str, span_s: float) -> None:
+    def _process_streaming(self, spill_dir: Path, settings: TASettings, why: str, span_s: float) -> None:
         """:meth:`_process` of a long session with memory that does not grow with it (module docstring,
         "Long sessions"): :func:`dpos_ros.products.stream.solve_streaming` on the spill (each worker
         reads its sub-IMU's log and the main POS's, the rows go to files beside the products), the
@@ -731,7 +730,7 @@ class TransferAlignNode(Node):
                           f"streaming ({span_s:.0f} s of session > stream_above_s {cfg.stream_above_s:g} s)")
         log.info(self._progress)
         sess = read_session_streaming(spill_dir, keep=lambda t: False, include_late=False)  # the main POS alone
-        sess.master_error_model = {"tau_s": tau, "why": why}
+        sess.master_error_model = {"tau_s": settings.master_error_tau_s, "why": why}
         topics = spill_meta(spill_dir)[0]
         subs = [n for n in self.sub_names if T.sub_imu(n) in topics]
         ex = self._executor if self._executor is not None else self._new_pool()
@@ -744,10 +743,8 @@ class TransferAlignNode(Node):
         self._executor = ex
         tasks = _SubImuTasks(ex, cfg.method)
         with stream.scratch_dir(self.output_dir) as tmp:
-            antennas, timing = stream.solve_streaming(
-                spill_dir, sess, self.aircraft, Path(tmp), cfg.method, cfg.particles, cfg.seed, cfg.initial_attitude_error_deg,
-                filter_rate_hz=cfg.filter_rate_hz, position_matching=cfg.position_matching, inflate_sigma=cfg.sigma_inflation,
-                output_rate_hz=cfg.output_rate_hz, pool=tasks, master_error_tau_s=tau, sub_imus=subs, include_late=False)
+            antennas, timing = stream.solve_streaming(spill_dir, sess, self.aircraft, Path(tmp), settings, pool=tasks, sub_imus=subs,
+                                                      include_late=False)
             # the antennas of the sub-IMUs not configured (sub_imus) are not the session's (as _process)
             other = [s.name for s in self.aircraft.sub_imus if s.name not in self.sub_names]
             antennas = {k: a for k, a in antennas.items() if a.sub_imu is None or a.sub_imu in self.sub_names}

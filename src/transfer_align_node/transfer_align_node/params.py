@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from dpos_core.ta.pipeline import METHODS
+from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_ros.runtime.params import aircraft_config_param, datum_param, param
 
 
@@ -78,3 +78,14 @@ class TransferAlignConfig:
         "evaluated a part at a time); 0 = every session", minimum=0.0)
     initial_attitude_error_deg: float = param(
         0.0, "simulation experiment: initial sub-IMU attitude offset per axis [deg] (also its prior sigma, >= 1 deg); 0 for real data", minimum=0.0)
+
+    def core_config(self, master_error_tau_s: float) -> TASettings:
+        """The transfer alignment's settings of these parameters (:class:`dpos_core.ta.pipeline.TASettings`,
+        the core's names: ``position_matching`` is ``use_position``, ``sigma_inflation`` is
+        ``inflate_sigma``), what the session's solve and its workers get; ``master_error_tau_s``:
+        this node's ``master_error_tau_s`` resolved (-1 = auto: :func:`dpos_ros.products.master_reference.master_error_tau`
+        at the session's end)."""
+        return TASettings(method=self.method, particles=self.particles, seed=self.seed, filter_rate_hz=self.filter_rate_hz,
+                          use_position=self.position_matching, master_error_tau_s=master_error_tau_s,
+                          initial_attitude_error_deg=self.initial_attitude_error_deg, inflate_sigma=self.sigma_inflation,
+                          output_rate_hz=self.output_rate_hz)

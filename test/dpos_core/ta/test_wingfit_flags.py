@@ -124,9 +124,10 @@ def test_a_flag_between_two_rows_reaches_the_epochs_between_them() -> None:
 
 
 def test_fit_antennas_flags_every_row_when_a_sub_imu_of_the_wing_is_not_estimated() -> None:
-    """products.ta.fit_antennas: paper_wing's right wing has six sub-IMUs; with imu09 not estimated
+    """products.solve.fit_antennas: paper_wing's right wing has six sub-IMUs; with imu09 not estimated
     at all the fit uses five and every fit row says so; with all six, none does."""
-    from dpos_ros.products.ta import FIT_STATUS, AntennaSolution, fit_antennas
+    from dpos_ros.products.antenna import AntennaSolution
+    from dpos_ros.products.solve import FIT_STATUS, fit_antennas
 
     aircraft = load_aircraft("paper_wing")
     master, subs, _ = _wing(seed=4)

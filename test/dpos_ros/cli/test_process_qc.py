@@ -46,13 +46,16 @@ def test_the_qc_products_do_not_depend_on_the_truth(bags, tmp_path: Path) -> Non
     """solve() + write() in process (what dpos-process and transfer_align_node run) on the same
     recording with and without its /truth topics: the same qc.md, qc block and figure."""
     from dpos_core.config import load_aircraft
+    from dpos_core.ta.pipeline import TASettings
     from dpos_ros.io.session import read_session
-    from dpos_ros.products.ta import evaluate, solve, write
+    from dpos_ros.products.report import evaluate
+    from dpos_ros.products.solve import solve
+    from dpos_ros.products.write import write
 
     dirs = []
     for b, name in zip(bags, ("t", "n"), strict=True):
         sess = read_session(b)
-        ants, timing = solve(sess, load_aircraft("paper_su"), "ukf")
+        ants, timing = solve(sess, load_aircraft("paper_su"), TASettings(method="ukf"))
         dirs.append(write(tmp_path / name, sess, ants, "ukf", timing, evaluate(sess, ants) or None))
     with_truth, without = dirs
     assert (with_truth / "metrics.json").exists() and not (without / "metrics.json").exists()
@@ -79,15 +82,17 @@ def test_a_main_pos_unaligned_mid_session_is_flagged(bags, tmp_path: Path) -> No
     import numpy as np
 
     from dpos_core.config import load_aircraft
+    from dpos_core.ta.pipeline import TASettings
     from dpos_ros.io.session import read_session
-    from dpos_ros.products.ta import solve, write
+    from dpos_ros.products.solve import solve
+    from dpos_ros.products.write import write
 
     sess = read_session(bags[1])
     m = sess.master
     assert m.att_cov is not None
     bad = (m.t_s >= 12.0) & (m.t_s <= 15.0)
     m.att_cov[bad] = np.eye(3) * np.deg2rad(0.5) ** 2
-    ants, timing = solve(sess, load_aircraft("paper_su"), "ukf")
+    ants, timing = solve(sess, load_aircraft("paper_su"), TASettings(method="ukf"))
     out = write(tmp_path, sess, ants, "ukf", timing)
     rows = np.loadtxt(out / "ant_r.csv", delimiter=",", skiprows=1)
     t, fl = rows[:, 0] - sess.t0_ns * 1e-9, rows[:, -1].astype(int)

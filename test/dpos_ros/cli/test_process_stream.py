@@ -1,6 +1,6 @@
 """dpos-process --stream (issue #17, dpos_ros.products.stream): the products of the streaming path
-are those of the in-memory path - the CSV files byte for byte, the antenna bag message for
-message, qc.md and status.json but for the documented differences (the wing fit's window count),
+are those of the in-memory path - the CSV files and the figures byte for byte, the antenna bag
+message for message, qc.md and status.json but for the documented differences (the wing fit's window count),
 metrics.json and report.md of the evaluation against the truth to 1e-12 relative (but the timing) -
 on a session shorter than one wing-fit window."""
 
@@ -15,7 +15,7 @@ from repo_paths import REPO
 from dpos_ros.cli import process as process_cli
 from dpos_ros.cli import sim as sim_cli
 from dpos_ros.io import bag
-from dpos_ros.products import stream
+from dpos_ros.products import rows, stream
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 
@@ -39,10 +39,16 @@ def _compare(on: Path, off: Path) -> None:
     assert ra.keys() == rb.keys()
     for t in ra:
         assert ra[t][1] == rb[t][1] and [bytes(x) for x in ra[t][2]] == [bytes(x) for x in rb[t][2]], t
-    assert sorted(p.name for p in (a / "qc").iterdir()) == sorted(p.name for p in (b / "qc").iterdir())
+    figs = sorted(p.name for p in (a / "qc").iterdir())
+    assert figs == sorted(p.name for p in (b / "qc").iterdir())
+    for name in figs:  # the QC figures byte for byte (matplotlib's Agg PNGs embed nothing variable)
+        assert (a / "qc" / name).read_bytes() == (b / "qc" / name).read_bytes(), name
     # the evaluation against the truth (products.evaluate_stream): the same metrics, the same report
-    # but for the timing line, the same error figures (drawn from every n-th row: n = 1 here)
-    assert sorted(p.name for p in a.glob("errors_*.png")) == sorted(p.name for p in b.glob("errors_*.png"))
+    # but for the timing line, the same error figures (drawn from every n-th row: n = 1 here) byte for byte
+    errs = sorted(p.name for p in a.glob("errors_*.png"))
+    assert errs == sorted(p.name for p in b.glob("errors_*.png"))
+    for name in errs:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
     ma, mb = json.loads((a / "metrics.json").read_text()), json.loads((b / "metrics.json").read_text())
     assert ma.pop("evaluation") == {"path": "streaming", "plot_step": dict.fromkeys(ma["methods"][next(iter(ma["methods"]))]["antennas"], 1)}
     _close(ma, mb, "metrics.json")
@@ -80,7 +86,7 @@ def test_stream_in_row_blocks_with_the_per_epoch_arrays_in_files(tmp_path: Path,
     the rows nor the decimation's steps) and the filter's per-epoch arrays in files: the same products."""
     from dpos_core.ta import pipeline
 
-    monkeypatch.setattr(stream, "ROW_BLOCK", 997)
+    monkeypatch.setattr(rows, "ROW_BLOCK", 997)
     monkeypatch.setattr(pipeline, "TRACK_IN_MEMORY_BYTES", 0)
     args = [str(SAMPLE), "--method", "ups", "--particles", "20", "--workers", "1", "--output-rate", "30"]
     assert process_cli.main([*args, "--stream", "on", "--out", str(tmp_path / "on")]) == 0

@@ -11,7 +11,7 @@ from dpos_ros.contract import conversions as cv
 
 
 def _reference(llh: np.ndarray, vel: np.ndarray, C_nb: np.ndarray, s: np.ndarray, datum: np.ndarray) -> np.ndarray:
-    """The numpy products of the in-memory path before the kernel (products.ta._antenna_stream)."""
+    """The numpy products of the in-memory path before the kernel (products.write.antenna_stream)."""
     n = llh.shape[0]
     vals = cv.odometry_values(llh, vel, dcm_to_quat(C_nb), datum, None)
     Rw = earth.C_datum_n(llh[:, 0], llh[:, 1], datum)

@@ -9,17 +9,19 @@ import numpy as np
 from repo_paths import REPO
 
 from dpos_core.config import load_aircraft
+from dpos_core.ta.pipeline import TASettings
 from dpos_ros.io import bag
 from dpos_ros.io.session import read_session
 from dpos_ros.io.streams import merged_order
-from dpos_ros.products.ta import antenna_stream_batches, antenna_streams, solve
+from dpos_ros.products.solve import solve
+from dpos_ros.products.write import antenna_stream_batches, antenna_streams
 
 BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 
 
 def test_batches_hold_the_whole_streams_messages(tmp_path: Path) -> None:
     sess = read_session(BAG)
-    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "ukf", initial_attitude_error_deg=1.0)
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), TASettings(method="ukf", initial_attitude_error_deg=1.0))
     whole = antenna_streams(sess, ants)
     batches = list(antenna_stream_batches(sess, ants, batch_s=7.3))
     assert len(batches) > 3 and all(len(b) == len(whole) for b in batches)

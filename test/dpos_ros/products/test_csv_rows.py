@@ -1,4 +1,4 @@
-"""The antenna CSV's rows (products.ta.write_csv_rows, a numba kernel): the text of
+"""The antenna CSV's rows (products.write.write_csv_rows, a numba kernel): the text of
 ``np.savetxt`` with the same printf formats, but the stamp exact from the integer nanoseconds."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_ros.products.ta import write_csv_rows
+from dpos_ros.products.write import write_csv_rows
 
 FORMATS = (("f", 10), ("f", 4), ("f", 0), ("e", 4), ("e", 1), ("d", 0))
 PRINTF = ["%.10f", "%.4f", "%.0f", "%.4e", "%.1e", "%d"]
@@ -57,7 +57,7 @@ def _near_tie(v: float, kind: str, dec: int) -> bool:
 def test_numbers_are_pythons_formatting() -> None:
     """Each number as Python's ``%`` formats it (random magnitudes, signs, rounding carries, powers
     of ten, zeros of both signs, NaN, infinities), except at a near-tie."""
-    from dpos_ros.products.ta import csv_rows
+    from dpos_ros.products.write import csv_rows
 
     rng = np.random.default_rng(11)
     formats = (("f", 10), ("f", 4), ("f", 5), ("f", 6), ("f", 0), ("f", 1), ("e", 4), ("e", 1), ("e", 0), ("d", 0))
@@ -114,7 +114,7 @@ def test_log10_floor_starts_are_where_floor_log10_steps() -> None:
 def test_the_buffer_is_kept_between_blocks() -> None:
     """:class:`CsvRows`: blocks of text one after another (the exponent search's state carried over)
     are the text of all the rows at once."""
-    from dpos_ros.products.ta import CsvRows, csv_rows
+    from dpos_ros.products.write import CsvRows, csv_rows
 
     rng = np.random.default_rng(3)
     cols = rng.normal(0.0, 1.0, (3000, 6)) * 10.0 ** rng.uniform(-9, 3, (3000, 6))
@@ -128,7 +128,7 @@ def test_the_buffer_is_kept_between_blocks() -> None:
 def test_numbers_beyond_int64_are_written_as_exponents() -> None:
     """A %f or %d value whose digits do not fit an int64 (a diverged solution: 1e15 m/s at 5
     decimals) is written as %e with the column's decimals: still ASCII, still that number."""
-    from dpos_ros.products.ta import csv_rows
+    from dpos_ros.products.write import csv_rows
 
     formats = (("f", 5), ("f", 4), ("d", 0), ("f", 5))
     cols = np.array([[1e15, -2.5e15, 1e19, 3.0], [-1e300, 9.1e14, 12.0, -0.5]])

@@ -1,5 +1,5 @@
 """The streamed evaluation against the truth (dpos_ros.products.evaluate_stream, issue #17): the
-truth read a part at a time and the rows a block at a time give products.ta.evaluate's metrics,
+truth read a part at a time and the rows a block at a time give products.report.evaluate's metrics,
 also with a gap in the truth or a truth topic missing."""
 
 from __future__ import annotations
@@ -10,11 +10,13 @@ from repo_paths import REPO
 
 from dpos_core.config import load_aircraft
 from dpos_core.ta import metrics as M
+from dpos_core.ta.pipeline import TASettings
 from dpos_ros.io import bag
 from dpos_ros.io import session as S
 from dpos_ros.products import evaluate_stream as E
-from dpos_ros.products import stream
-from dpos_ros.products import ta as P
+from dpos_ros.products import report as P
+from dpos_ros.products import rows
+from dpos_ros.products.solve import solve
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 
@@ -24,17 +26,17 @@ def solved(tmp_path_factory):
     """The sample aligned in memory (URTSS), its antennas' rows also written to RowStores."""
     sess = S.read_session(SAMPLE)
     aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
-    ants, _ = P.solve(sess, aircraft, "urtss", workers=1)
+    ants, _ = solve(sess, aircraft, TASettings(method="urtss"), workers=1)
     d = tmp_path_factory.mktemp("rows")
     streamed = {}
     for name, a in ants.items():
         assert a.traj is not None and a.sigma is not None and a.flags is not None
-        st = stream.RowStore(d / name)
+        st = rows.RowStore(d / name)
         for i0 in range(0, a.traj.t_s.size, 1000):
             sl = slice(i0, i0 + 1000)
             st.append(t_s=a.traj.t_s[sl], q_nb=a.traj.q_nb[sl], vel_n_mps=a.traj.vel_n_mps[sl], llh=a.traj.llh[sl],
                       sigma=a.sigma[sl], flags=a.flags[sl])
-        streamed[name] = stream.StreamedAntenna(name, a.sub_imu, a.status, st, cg=a.cg)
+        streamed[name] = rows.StreamedAntenna(name, a.sub_imu, a.status, st, cg=a.cg)
     meta = bag.topics_and_duration(SAMPLE)
     assert meta is not None
     return sess, ants, streamed, set(meta[0])
@@ -65,7 +67,7 @@ def _assert_same(got: dict, want: dict) -> None:
 def test_streamed_evaluation_is_the_in_memory_one(solved, monkeypatch, batch_bytes: int, row_block: int) -> None:
     sess, ants, streamed, topics = solved
     monkeypatch.setattr(S, "STREAM_BATCH_BYTES", batch_bytes)  # many parts of the truth
-    monkeypatch.setattr(E, "ROW_BLOCK", row_block)  # the rows in many blocks
+    monkeypatch.setattr(rows, "ROW_BLOCK", row_block)  # the rows in many blocks
     monkeypatch.setattr(E, "PLOT_POINTS", 700)
     seen = []
     real = E.truth_parts

@@ -11,9 +11,11 @@ import pytest
 from dpos_core.config import config_text
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
+from dpos_core.ta.pipeline import TASettings
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import RecordedSession, session_from_streams
-from dpos_ros.products.ta import AntennaSolution, solve
+from dpos_ros.products.antenna import AntennaSolution
+from dpos_ros.products.solve import solve
 
 AIRCRAFT = "paper_su_pair"
 
@@ -29,7 +31,7 @@ def session() -> tuple[RecordedSession, object]:
 
 def _solve(sess: RecordedSession, aircraft, workers: int, method: str = "urtss") -> tuple[dict[str, AntennaSolution], list[str]]:
     s = replace(sess, warnings=list(sess.warnings))
-    ants, _ = solve(s, aircraft, method, particles=10, seed=3, initial_attitude_error_deg=1.0, workers=workers)
+    ants, _ = solve(s, aircraft, TASettings(method=method, particles=10, seed=3, initial_attitude_error_deg=1.0), workers=workers)
     return ants, s.warnings
 
 
@@ -87,7 +89,7 @@ def test_a_warm_pool_gives_the_serial_results_and_stays_up_for_the_next_session(
         assert len(done) == 2 and all(f.result()["result"] > 0.0 for f in done)  # both warm-ups ran without error
         for _ in range(2):  # two sessions on the same pool
             s = replace(sess, warnings=list(sess.warnings))
-            ants, _ = solve(s, aircraft, "urtss", particles=10, seed=3, initial_attitude_error_deg=1.0, workers=1, pool=pool)
+            ants, _ = solve(s, aircraft, TASettings(method="urtss", particles=10, seed=3, initial_attitude_error_deg=1.0), workers=1, pool=pool)
             _same(serial, ants)
             assert s.warnings == w1
     finally:

@@ -1,4 +1,4 @@
-"""solve(position_matching=False): [Gong2018]'s attitude + velocity matching, the main POS's
+"""solve(TASettings(use_position=False)): [Gong2018]'s attitude + velocity matching, the main POS's
 position left out of the measurement (dpos-process / dpos-eval ``--no-position-matching``,
 transfer_align_node ``position_matching``)."""
 
@@ -12,9 +12,11 @@ import pytest
 from dpos_core import earth
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
+from dpos_core.ta.pipeline import TASettings
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
-from dpos_ros.products.ta import evaluate, solve
+from dpos_ros.products.report import evaluate
+from dpos_ros.products.solve import solve
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +42,7 @@ def test_position_matching_follows_or_ignores_the_main_pos_position(walked_maste
     > 1 m at the end, and the fault reaches the attitude through the lever arm); without it the
     antenna keeps the velocity-integrated track (< 0.1 m) and the fault reaches nothing."""
     sc, sess = walked_master
-    ants, _ = solve(sess, sc.aircraft, "urtss", position_matching=matching)
+    ants, _ = solve(sess, sc.aircraft, TASettings(method="urtss", use_position=matching))
     ev = evaluate(sess, ants)["ant_r"]
     lat_err_end = abs(float(ev["errors"]["lat_m"][-1]))
     if matching:

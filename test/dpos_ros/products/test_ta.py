@@ -8,8 +8,9 @@ import numpy as np
 from repo_paths import REPO
 
 from dpos_core.config import load_aircraft
+from dpos_core.ta.pipeline import TASettings
 from dpos_ros.io.session import read_session
-from dpos_ros.products.ta import solve
+from dpos_ros.products.solve import solve
 
 BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 
@@ -25,7 +26,7 @@ def _session_with_unaligned_start(unaligned_s: float):
 
 def test_antenna_poses_start_when_the_main_pos_is_aligned() -> None:
     sess = _session_with_unaligned_start(10.0)
-    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "ukf", initial_attitude_error_deg=1.0)
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), TASettings(method="ukf", initial_attitude_error_deg=1.0))
     t0 = sess.master.t_s[0]
     first_aligned = sess.master.t_s[sess.master.t_s >= t0 + 10.0][0]
     for a in ants.values():
@@ -35,6 +36,6 @@ def test_antenna_poses_start_when_the_main_pos_is_aligned() -> None:
 
 def test_a_never_aligned_main_pos_gives_no_antenna_and_says_why() -> None:
     sess = _session_with_unaligned_start(1e9)
-    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "ukf")
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), TASettings(method="ukf"))
     assert {a.status for a in ants.values()} == {"not estimated: the main POS is never aligned"}
     assert any("never aligned" in w for w in sess.warnings), sess.warnings

@@ -17,10 +17,12 @@ from dpos_core.frames import hpr_error, hpr_from_C_nb
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import flags as F
+from dpos_core.ta.pipeline import TASettings
 from dpos_ros.devices.sim_streams import TopicStream, session_custom_data, session_streams
 from dpos_ros.io import bag
 from dpos_ros.io.session import read_session
-from dpos_ros.products.ta import solve, write
+from dpos_ros.products.solve import solve
+from dpos_ros.products.write import write
 
 SAMPLE_BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 _NAN = np.frombuffer(np.array([np.nan]).tobytes(), dtype=np.uint8)
@@ -57,7 +59,7 @@ def nan_session(tmp_path_factory: pytest.TempPathFactory):
 def test_nan_samples_give_a_reported_gap_and_an_unusable_sub_imu_is_not_estimated(nan_session) -> None:
     sess, d = nan_session
     assert sess.sub_imus["sub_l"].t_s.size == 0 and np.sum(np.diff(sess.sub_imus["sub_r"].t_s) > 0.5) == 1
-    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "urtss")
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), TASettings(method="urtss"))
     # the all-NaN sub-IMU: not estimated, with a warning, instead of a traceback
     assert ants["ant_l"].status.startswith("not estimated: sub-IMU sub_l:") and ants["ant_l"].traj is None
     assert any(w.startswith("sub-IMU sub_l:") and "not estimated" in w for w in sess.warnings), sess.warnings
@@ -96,7 +98,7 @@ def test_an_empty_or_too_short_sub_imu_is_not_estimated_and_the_other_is(keep: i
     sess = read_session(SAMPLE_BAG)
     imu = sess.sub_imus["sub_l"]
     sess = replace(sess, sub_imus={**sess.sub_imus, "sub_l": imu.select(slice(0, keep))}, warnings=[])
-    ants, _ = solve(sess, load_aircraft("paper_su_pair"), "ukf")
+    ants, _ = solve(sess, load_aircraft("paper_su_pair"), TASettings(method="ukf"))
     assert ants["ant_l"].status.startswith("not estimated: sub-IMU sub_l:") and ("sample" in ants["ant_l"].status or "too short" in ants["ant_l"].status)
     assert ants["ant_r"].status == "estimated" and ants["ant_r"].traj is not None
     assert not np.any(ants["ant_r"].flags)

@@ -16,11 +16,12 @@ import tempfile
 from pathlib import Path
 import numpy as np
 from dpos_core.config import load_aircraft
-from dpos_core.ta.model import Installation, TAConfig
+from dpos_core.ta.model import Installation
+from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.session import read_session, read_session_streaming
 from dpos_ros.products import stream
-from dpos_ros.products import ta as P
+from dpos_ros.products.solve import solve
 
 warm_up("ups")
 mark("warm_up")
@@ -30,13 +31,12 @@ read_session_streaming(bag, keep=lambda t: t.startswith("/sub_imu/"))
 aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
 mark("data")
 if sys.argv[1] == "solve":
-    P.solve(sess, aircraft, "ups", workers=1)
+    solve(sess, aircraft, TASettings(method="ups"), workers=1)
 else:
     s = aircraft.sub_imus[0]
-    stream.align_to_store(str(bag), s.name, None, Installation.from_aircraft(aircraft, s.name), TAConfig(attitude_sigma_deg=1.0),
-                          "ups", 100, 0, (0.0, 0.0, 0.0),
+    stream.align_to_store(str(bag), s.name, None, Installation.from_aircraft(aircraft, s.name), TASettings(method="ups"),
                           [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
-                          0.0, True, 0.1, tempfile.mkdtemp())
+                          tempfile.mkdtemp())
 mark("use")
 """
 

@@ -9,9 +9,9 @@ Bits 0-1 are set by :func:`dpos_core.ta.pipeline.run_segments` / :func:`~dpos_co
 on a sub-IMU's rows (and on its antennas'); a ``fit`` antenna's row carries them when any sub-IMU
 that entered the least-squares wing fit at that epoch has them.  Bits 2-4 are set on the rows of
 the ``fit`` antennas by :func:`dpos_core.ta.wingfit.fit_wing` (and
-``dpos_ros.products.ta.fit_antennas``: :data:`FEWER_SUB_IMUS` on every row when a sub-IMU of the
+``dpos_ros.products.solve.fit_antennas``: :data:`FEWER_SUB_IMUS` on every row when a sub-IMU of the
 wing is not estimated at all).  Bits 5-6 are the quality control's (:mod:`.qc`, set by
-``dpos_ros.products.ta.solve`` on a sub-IMU's rows and carried into the wing fit's like bits
+``dpos_ros.products.solve.solve`` on a sub-IMU's rows and carried into the wing fit's like bits
 0-1).  Bits from 7 on are reserved.
 """
 

@@ -72,6 +72,68 @@ ORACLE_FILTER = "oracle_filter"
 ORACLE_WING = "oracle_wing"
 
 
+@dataclass(frozen=True)
+class TASettings:
+    """One transfer-alignment run's settings, the same object from transfer_align_node's parameters
+    (``TransferAlignConfig.core_config()``) or dpos-process's options to the session's solve and
+    its workers (:func:`align`), with the core's names.
+
+    Attributes:
+        method: one of :data:`METHODS` (or an evaluation-only oracle method).
+        particles: number of particles of the particle methods (>= 1).
+        seed: random seed of the particle methods (every sub-IMU uses it).
+        filter_rate_hz: the filter's measurement update rate (``TAConfig.filter_rate_hz``).
+        use_position: match the lever-arm-compensated main-POS position too (``TAConfig.use_position``).
+        master_error_tau_s: correlation time of the main POS's position and velocity errors
+            (``TAConfig.master_error_tau_s``; 0 = white).
+        initial_attitude_error_deg: every sub-IMU starts from the main POS's attitude x mount rotated
+            by this in heading, pitch and roll ([Gong2018]: 40 deg), its prior 1-sigma this (>= 1 deg).
+        inflate_sigma: scale the output 1-sigma by the innovations' variance factor where they say
+            the filter is optimistic (:func:`dpos_core.ta.qc.sigma_scale`).
+        output_rate_hz: rate of the antenna rows; 0 = the sub-IMU rate.
+        master_aligned_sigma_deg: the main POS counts as aligned from its first epoch with an
+            attitude 1-sigma below this, and rows where it is not carry ``MASTER_UNALIGNED``.
+    """
+
+    method: str = "ups"
+    particles: int = 100
+    seed: int = 0
+    filter_rate_hz: float = 1.0
+    use_position: bool = True
+    master_error_tau_s: float = 0.0
+    initial_attitude_error_deg: float = 0.0
+    inflate_sigma: bool = True
+    output_rate_hz: float = 0.0
+    master_aligned_sigma_deg: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.particles < 1:
+            raise ValueError(f"particles must be >= 1, got {self.particles}")
+        if not (np.isfinite(self.output_rate_hz) and self.output_rate_hz >= 0):
+            raise ValueError(f"output_rate_hz must be >= 0, got {self.output_rate_hz}")
+        self.ta_config()  # (its own checks)
+
+    def ta_config(self) -> TAConfig:
+        """The filter's configuration: the prior attitude 1-sigma the initial error, at least 1 deg."""
+        return TAConfig(filter_rate_hz=self.filter_rate_hz, attitude_sigma_deg=max(self.initial_attitude_error_deg, 1.0),
+                        use_position=self.use_position, master_error_tau_s=self.master_error_tau_s)
+
+    @property
+    def attitude_error_hpr_deg(self) -> tuple[float, float, float]:
+        """The initial attitude error (heading, pitch, roll) [deg] of :func:`run_segments`."""
+        e = self.initial_attitude_error_deg
+        return (e, e, e)
+
+
+def align(imu: ImuSeries, master: NavSeries, install: Installation, settings: TASettings, *, oracle_truth=None,
+          sink: RowSink | None = None) -> TAResult:
+    """:func:`run_segments` of one sub-IMU with ``settings`` (a module function: the products'
+    workers are sent it by name with their sub-IMU's data, the main POS, its installation and the
+    settings, nothing else)."""
+    return run_segments(imu, master, install, settings.ta_config(), settings.method, settings.particles, settings.seed,
+                        settings.attitude_error_hpr_deg, oracle_truth=oracle_truth, sink=sink)
+
+
 @dataclass
 class TAResult:
     """Smoothed (or filtered) sub-IMU trajectory at the IMU rate and the epoch estimates.

@@ -38,7 +38,7 @@ What a user can check about a session's poses before handing them on, from the s
   covariance) is at or above the aligned threshold (:data:`.flags.MASTER_UNALIGNED`).
 
 :func:`summarize` gathers, per antenna, the sigmas' percentiles, the NIS fractions, the
-separation and the flagged time, and a verdict line; ``dpos_ros.products.ta`` writes them as
+separation and the flagged time, and a verdict line; ``dpos_ros.products.write`` writes them as
 ``qc.md``, ``status.json`` ``qc`` and ``qc/<antenna>_qc.png``, for every session, without truth.
 """
 

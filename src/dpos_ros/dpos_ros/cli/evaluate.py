@@ -44,7 +44,7 @@ from dpos_core.ifa.pipeline import METHODS as IFA_METHODS
 from dpos_core.sim.scenario import Scenario, load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import metrics as M
-from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING
+from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING, TASettings
 from dpos_ros.cli.mismatch import main_mismatch
 from dpos_ros.cli.sar_eval import main_sar
 from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_streams
@@ -53,10 +53,11 @@ from dpos_ros.io.session import read_session_streaming, session_from_streams
 from dpos_ros.products import lsfit_tables
 from dpos_ros.products.evaluate_stream import evaluate_streaming, series_free
 from dpos_ros.products.ifa import main_ifa
+from dpos_ros.products.report import combine_runs, evaluate, metrics_json, report_md
+from dpos_ros.products.solve import solve
 from dpos_ros.products.stream import solve_streaming
-from dpos_ros.products.ta import combine_runs, evaluate, metrics_json, report_md, solve
 
-#: the filter rate of the transfer-alignment runs (solve()'s default, [Gong2018])
+#: the filter rate of the transfer-alignment runs (TASettings' default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
 #: --stream auto: the streaming path for runs longer than this [s] (dpos-process's threshold)
 STREAM_AUTO_S = 3600.0
@@ -181,8 +182,13 @@ class TAPlan:
     duration_s: float | None
     initial_attitude_error_deg: float
     aircraft_text: str | None
-    position_matching: bool
+    use_position: bool
     stream: bool = False
+
+    def settings(self, method: str, seed: int) -> TASettings:
+        """The transfer alignment's settings of one run of ``method`` with ``seed``."""
+        return TASettings(method=method, particles=self.particles, seed=seed, filter_rate_hz=TA_FILTER_RATE_HZ,
+                          use_position=self.use_position, initial_attitude_error_deg=self.initial_attitude_error_deg)
 
 
 @dataclass
@@ -246,9 +252,8 @@ def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True, scrat
     run = TARun(seed, {}, {}, list(sess.imaging_segments().keys()) or ["session"])
     for m in methods:
         t0 = time.perf_counter()
-        ants, tm = solve(sess, scenario.aircraft, m, plan.particles, seed, plan.initial_attitude_error_deg,
-                         oracle_truth=truth if m in (ORACLE, ORACLE_FILTER) else None, filter_rate_hz=TA_FILTER_RATE_HZ,
-                         known_wing=wing if m == ORACLE_WING else None, position_matching=plan.position_matching)
+        ants, tm = solve(sess, scenario.aircraft, plan.settings(m, seed), oracle_truth=truth if m in (ORACLE, ORACLE_FILTER) else None,
+                         known_wing=wing if m == ORACLE_WING else None)
         ev = evaluate(sess, ants)
         _record(run, m, ev, tm, label, seed, t0, echo)
     return run
@@ -297,8 +302,7 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
             t0 = time.perf_counter()
             sess = dc_replace(base, warnings=list(base.warnings))
             store = Path(tmp) / f"rows_{m}"
-            ants, tm = solve_streaming(rec, sess, scenario.aircraft, store, m, plan.particles, seed, plan.initial_attitude_error_deg,
-                                       filter_rate_hz=TA_FILTER_RATE_HZ, position_matching=plan.position_matching, sub_imus=subs)
+            ants, tm = solve_streaming(rec, sess, scenario.aircraft, store, plan.settings(m, seed), sub_imus=subs)
             ev = evaluate_streaming(sess, ants, topics)
             shutil.rmtree(store, ignore_errors=True)
             _record(run, m, ev, tm, label, seed, t0, echo)

@@ -25,10 +25,11 @@ from dpos_core.evaluation import mismatch as MM
 from dpos_core.evaluation import ta as from_sim
 from dpos_core.sim.scenario import Scenario
 from dpos_core.ta import metrics as M
-from dpos_core.ta.pipeline import ORACLE
+from dpos_core.ta.pipeline import ORACLE, TASettings
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
-from dpos_ros.products.ta import ROWS, combine_runs, evaluate, metrics_json, solve
+from dpos_ros.products.report import ROWS, combine_runs, evaluate, metrics_json
+from dpos_ros.products.solve import solve
 
 #: the goal for every case (docs/mismatch.md, "The table")
 GOAL_HEADING_DEG = 0.01
@@ -61,8 +62,9 @@ def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seed
             t0 = time.perf_counter()
             # the filters read the nominal aircraft; the oracle the true one (what its model can express)
             ac = _with_installation_states(ss.scenario.aircraft, filter_aircraft) if m == ORACLE else (filter_aircraft or scenario.aircraft)
-            ants, tm = solve(sess, ac, m, particles, seed, initial_attitude_error_deg, oracle_truth=truth if m == ORACLE else None,
-                             filter_rate_hz=filter_rate_hz, master_error_tau_s=case.master_error_tau_s)
+            settings = TASettings(method=m, particles=particles, seed=seed, filter_rate_hz=filter_rate_hz,
+                                  master_error_tau_s=case.master_error_tau_s, initial_attitude_error_deg=initial_attitude_error_deg)
+            ants, tm = solve(sess, ac, settings, oracle_truth=truth if m == ORACLE else None)
             ev = evaluate(sess, ants)
             per_method[m].append(ev)
             timing[m]["processing_s"] += tm["processing_s"]

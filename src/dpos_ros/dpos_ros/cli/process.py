@@ -41,10 +41,13 @@ from functools import partial
 from pathlib import Path
 
 from dpos_core.config import AircraftConfig, ConfigError, load_aircraft
-from dpos_core.ta.pipeline import METHODS
+from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
+from dpos_ros.io.bag import topics_and_duration
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
-from dpos_ros.io.session import RecordedSession, SessionError, read_session
+from dpos_ros.io.session import RecordedSession, SessionError, read_session, read_session_streaming
+from dpos_ros.products.antenna import AntennaSolution
+from dpos_ros.products.evaluate_stream import evaluate_streaming
 from dpos_ros.products.master_reference import (
     AUTO_TAU,
     GNSS_INS_ERROR_TAU_S,
@@ -54,7 +57,10 @@ from dpos_ros.products.master_reference import (
     master_error_tau,
     master_reference,
 )
-from dpos_ros.products.ta import AntennaSolution, ProductsExistError, evaluate, solve, write
+from dpos_ros.products.report import evaluate
+from dpos_ros.products.solve import solve
+from dpos_ros.products.stream import scratch_dir, solve_streaming, write_streaming
+from dpos_ros.products.write import ProductsExistError, write
 from dpos_ros.runtime.pool import warm_pool
 
 #: --stream auto: the streaming path for recordings longer than this [s]
@@ -123,6 +129,22 @@ def _master_error(args: argparse.Namespace, sess: RecordedSession, which: str) -
     sess.master_error_model = {"tau_s": tau, "why": why}
     print(f"dpos-process: main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
     return tau
+
+
+def settings(args: argparse.Namespace, sess: RecordedSession, master_error_tau_s: float) -> TASettings:
+    """The transfer alignment's settings of the command line (the core's names; transfer_align_node
+    makes the same object from its parameters, ``TransferAlignConfig.core_config()``): the initial
+    attitude error ``--initial-attitude-error``, else the recording's transfer_alignment setting,
+    else 0; ``master_error_tau_s`` resolved from ``--master-error-tau`` (:func:`_master_error`)."""
+    return TASettings(method=args.method, particles=args.particles, seed=args.seed, filter_rate_hz=args.filter_rate,
+                      use_position=args.position_matching, master_error_tau_s=master_error_tau_s, initial_attitude_error_deg=_initial_error(args, sess),
+                      inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate)
+
+
+def _initial_error(args: argparse.Namespace, sess: RecordedSession) -> float:
+    """The initial sub-IMU attitude error [deg] (:func:`settings`)."""
+    ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
+    return float(args.initial_attitude_error) if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
 
 
 def _check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -197,8 +219,6 @@ def _streaming(args: argparse.Namespace) -> bool:
     """Whether ``--stream`` (module docstring) takes the streaming path for this recording."""
     if args.stream == "off":
         return False
-    from dpos_ros.io.bag import topics_and_duration
-
     meta = topics_and_duration(args.bag)
     if args.stream == "on":
         return True
@@ -247,8 +267,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
     had_products = final.exists()
     if had_products and not args.overwrite:
         return _refuse_existing(final)
-    ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
-    err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
+    err0 = _initial_error(args, sess)
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     if ref.which != "recorded":
@@ -270,10 +289,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             pass
     print(f"dpos-process: session {sess.session_id}: {len(sess.sub_imus)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg")
-    antennas, timing = solve(sess, aircraft, args.method, args.particles, args.seed, err0,
-                             filter_rate_hz=args.filter_rate, output_rate_hz=args.output_rate, workers=args.workers,
-                             position_matching=args.position_matching, inflate_sigma=args.inflate_sigma,
-                             master_error_tau_s=_master_error(args, sess, ref.which), pool=pool)
+    antennas, timing = solve(sess, aircraft, settings(args, sess, _master_error(args, sess, ref.which)), workers=args.workers, pool=pool)
     ev = evaluate(sess, antennas)
     try:
         out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
@@ -291,11 +307,6 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
 
 def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
     """:func:`_process` by :mod:`dpos_ros.products.stream` (``--stream``)."""
-    from dpos_ros.io.bag import topics_and_duration
-    from dpos_ros.io.session import read_session_streaming
-    from dpos_ros.products.evaluate_stream import evaluate_streaming
-    from dpos_ros.products.stream import scratch_dir, solve_streaming, write_streaming
-
     if args.master_reference != "recorded":
         print("dpos-process: error: --stream on takes the recorded main POS only (--master-reference recorded)", file=sys.stderr)
         return EXIT_ERROR
@@ -313,18 +324,15 @@ def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.
         return _refuse_existing(final)
     topics = meta[0]
     subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
-    ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
-    err0 = args.initial_attitude_error if args.initial_attitude_error is not None else float(ta.get("initial_attitude_error_deg", 0.0))
+    err0 = _initial_error(args, sess)
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     print(f"dpos-process: session {sess.session_id}: {len(subs)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg (streaming)")
     try:
         with scratch_dir(args.out) as tmp:
-            antennas, timing = solve_streaming(args.bag, sess, aircraft, Path(tmp), args.method, args.particles, args.seed, err0,
-                                               filter_rate_hz=args.filter_rate, position_matching=args.position_matching,
-                                               inflate_sigma=args.inflate_sigma, output_rate_hz=args.output_rate, pool=pool,
-                                               sub_imus=subs, master_error_tau_s=_master_error(args, sess, "recorded"))
+            antennas, timing = solve_streaming(args.bag, sess, aircraft, Path(tmp), settings(args, sess, _master_error(args, sess, "recorded")),
+                                               pool=pool, sub_imus=subs)
             ev = evaluate_streaming(sess, antennas, topics)  # against the truth, a part at a time (none without it)
             out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool,
                                   evaluation=ev or None)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 
 from dpos_core.errors import SessionError
@@ -22,7 +23,8 @@ from dpos_core.units import FloatArray
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.io import bag
+from dpos_ros.io import _mcap, bag
+from dpos_ros.io import spill as S
 from dpos_ros.io.messages import Messages, RawTopic
 
 #: metadata key (rosbag2 ``custom_data``, a spill's ``custom_data``) naming the source of /master/nav:
@@ -242,11 +244,9 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
         only = keep
         keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) or only(t)  # noqa: E731
     path = Path(path)
-    from dpos_ros.io.spill import is_spill, read_spill
-
-    if is_spill(path):  # the crash-safe spill of transfer_align_node
+    if S.is_spill(path):  # the crash-safe spill of transfer_align_node
         try:
-            raw, custom, sid, warns = read_spill(path, include_late, keep)
+            raw, custom, sid, warns = S.read_spill(path, include_late, keep)
         except (ValueError, OSError) as e:
             raise SessionError(f"{path}: cannot read the spill: {e}") from None
         custom.setdefault("dpos.session_id", sid)
@@ -330,8 +330,8 @@ STREAM_BATCH_BYTES = 2**24
 
 def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None,
                            batch_bytes: int = STREAM_BATCH_BYTES, include_late: bool = True) -> RecordedSession:
-    """:func:`read_session` of a rosbag2 MCAP recording or a spill with memory for one part of it
-    (issue #17): the file is read ``batch_bytes`` of messages at a time (MCAP:
+    """:func:`read_session` of a rosbag2 MCAP recording or a spill with memory for one part of it:
+    the file is read ``batch_bytes`` of messages at a time (MCAP:
     :func:`dpos_ros.io._mcap.read_batches`; a spill: each wanted topic's log file alone,
     :class:`dpos_ros.io.spill.LogBlocks`), each part's messages decoded and converted at once,
     and only the series kept (the sub-IMU's 7 numbers a sample instead of its ~330 bytes of CDR
@@ -342,12 +342,8 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     told identical by a hash of all their numbers), except that a topic's frame names are chosen
     in its first part (:class:`_TopicDecoder`).  Recordings the fast reader does not read
     (sqlite3, several files) go through :func:`read_session`."""
-    from dpos_ros.io import _mcap
-
     path = Path(path)
-    from dpos_ros.io.spill import is_spill
-
-    if is_spill(path):
+    if S.is_spill(path):
         return _read_spill_streaming(path, keep, batch_bytes, include_late)
     if not (path / "metadata.yaml").is_file():
         return read_session(path, keep=keep)
@@ -456,8 +452,6 @@ def _row_hash(v: FloatArray) -> FloatArray:
 def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_bytes: int, include_late: bool) -> RecordedSession:
     """:func:`read_session_streaming` of a spill (its docstring): each wanted topic's log (and its
     late log) read a block at a time, the topics one after the other."""
-    from dpos_ros.io import spill as S
-
     try:
         topics, custom, sid = S.spill_meta(path)
         late_dir = path / S.LATE_DIR
@@ -581,8 +575,6 @@ class _Rows:
 
 def message_counts(path: Path) -> dict[str, int]:
     """The message count per topic that the rosbag2 metadata of ``path`` lists ({} without one)."""
-    import yaml
-
     meta = Path(path) / "metadata.yaml"
     try:
         info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})

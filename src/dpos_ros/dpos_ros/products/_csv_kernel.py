@@ -1,4 +1,4 @@
-"""Numba kernel of the antenna CSV rows (:func:`dpos_ros.products.ta.write_csv_rows`).
+"""Numba kernel of the antenna CSV rows (:func:`dpos_ros.products.write.write_csv_rows`).
 
 ``np.savetxt`` formats every number through Python's ``%`` (~0.7 us each: 0.9 s for one
 paper_wing antenna, 60 000 rows x 20 columns; a 4-hour flight's twelve antennas would take 9

@@ -1,12 +1,11 @@
-"""The evaluation against the truth of the streamed products (issue #17; docs/campaign.md "Long
-flights"): :func:`dpos_ros.products.ta.evaluate` with memory that does not grow with the flight.
+"""The evaluation against the truth of the streamed products (docs/long_flights.md): :func:`dpos_ros.products.report.evaluate` with memory that does not grow with the flight.
 
 The truth topics (``/truth/master`` and ``/truth/antenna/<name>`` of the estimated antennas) are
 read once, a part of the file at a time in time order (:func:`dpos_ros.io._mcap.read_batches`,
 :data:`dpos_ros.io.session.STREAM_BATCH_BYTES` of messages a part; a spill of transfer_align_node,
 each topic's log a block at a time, the topics advancing together), and each antenna's rows from
-its :class:`~dpos_ros.products.stream.RowStore` a block at a time; each row is matched to the
-truth sample at its stamp as :func:`~dpos_ros.products.ta.evaluate` matches it (the first truth
+its :class:`~dpos_ros.products.rows.RowStore` a block at a time; each row is matched to the
+truth sample at its stamp as :func:`~dpos_ros.products.report.evaluate` matches it (the first truth
 sample at or after the row's stamp, within 1 us), and the errors of each block accumulated:
 
 * per imaging segment and error key (``dpos_core.ta.metrics.KEYS``) the count, the sum of the
@@ -33,6 +32,7 @@ earlier part is dropped with a warning (the in-memory reader would sort it in).
 from __future__ import annotations
 
 import concurrent.futures as cf
+import heapq
 import json
 import math
 from collections.abc import Iterator
@@ -45,10 +45,14 @@ from dpos_core.series import GAP_FACTOR, NavSeries
 from dpos_core.ta import metrics as M
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
-from dpos_ros.io.session import RecordedSession
+from dpos_ros.io import _mcap, bag
+from dpos_ros.io import session as io_session
+from dpos_ros.io import spill as S
+from dpos_ros.io.session import RecordedSession, SessionError, _compact, _decode_rows, read_session
 
-from . import ta as P
-from .stream import ROW_BLOCK, StreamedAntenna
+from . import rows as R
+from .report import interp_llh, metrics_json, plot_antenna_errors, report_md
+from .rows import StreamedAntenna
 
 #: the most points of an error figure (every n-th evaluated row; module docstring)
 PLOT_POINTS = 20_000
@@ -127,20 +131,16 @@ def truth_parts(sess: RecordedSession, topics: list[str], warnings: list[str]) -
     each topic's log at a time, the topic read least far first (:func:`_spill_blocks`; its late
     messages are not read, as the node's streaming finalize does not read them); a recording
     neither reads (several files) is read whole (one part)."""
-    from dpos_ros.io import _mcap, bag
-    from dpos_ros.io.session import STREAM_BATCH_BYTES, read_session
-    from dpos_ros.io.spill import is_spill
-
     wanted = set(topics)
     path = Path(sess.path)
     cleaners = {t: _TruthCleaner(t) for t in topics}
     failed: set[str] = set()
     source: Iterator[list[tuple[str, str, object]]] | None  # per part: (topic, msgtype, messages)
-    if is_spill(path):
-        source = ([b] for b in _spill_blocks(path, topics, STREAM_BATCH_BYTES // max(1, len(topics)), warnings))
+    if S.is_spill(path):
+        source = ([b] for b in _spill_blocks(path, topics, io_session.STREAM_BATCH_BYTES // max(1, len(topics)), warnings))
     else:
         file = bag._single_mcap(path) if (path / "metadata.yaml").is_file() else None
-        parts = None if file is None else _mcap.read_batches(file, lambda t: t in wanted, STREAM_BATCH_BYTES)
+        parts = None if file is None else _mcap.read_batches(file, lambda t: t in wanted, io_session.STREAM_BATCH_BYTES)
         source = None if parts is None else ([(topic, msgtype, blobs) for topic, (msgtype, _, blobs) in part.items()] for part in parts)
     if source is None:
         whole = read_session(path, keep=lambda t: t in wanted)
@@ -169,8 +169,6 @@ def _truth_rows(sess: RecordedSession, topic: str, msgtype: str, blobs, cleaner:
                 warnings: list[str]) -> FloatArray | None:
     """One truth topic's messages ``blobs`` decoded and cleaned: rows (n, 11) as :func:`truth_parts`
     gives them, or None (none, not Odometry, or a topic that cannot be decoded: warned once, then ignored)."""
-    from dpos_ros.io.session import SessionError, _compact, _decode_rows
-
     if topic in failed or not len(blobs) or msgtype != T.ODOMETRY:
         return None
     try:
@@ -188,10 +186,6 @@ def _spill_blocks(path: Path, topics: list[str], block_bytes: int, warnings: lis
     each log at a time (:class:`dpos_ros.io.spill.LogBlocks`), always from the topic whose last
     block ends earliest: every topic's truth advances together, so that memory holds about a
     block per topic.  A last record cut short (a crash while writing) is warned about."""
-    import heapq
-
-    from dpos_ros.io import spill as S
-
     logs = S.spill_meta(path)[0]
     readers = {t: S.LogBlocks(logs[t][1], block_bytes) for t in topics if t in logs}
     its = {t: iter(r) for t, r in readers.items()}
@@ -282,7 +276,7 @@ class _AntennaEval:
     def take(self, t_ready: float) -> dict[str, NDArray] | None:
         """The rows at or before ``t_ready`` not yet taken (read a block at a time)."""
         while self.next_row < self.rows.n and (self.buf is None or self.buf["t_s"].size == 0 or self.buf["t_s"][-1] <= t_ready):
-            c = self.rows.rows(self.next_row, self.next_row + ROW_BLOCK)
+            c = self.rows.rows(self.next_row, self.next_row + R.ROW_BLOCK)
             self.next_row += c["t_s"].size
             self.buf = c if self.buf is None else {k: np.concatenate([self.buf[k], c[k]]) for k in c}
         if self.buf is None:
@@ -308,8 +302,8 @@ class _AntennaEval:
         tru = _nav(tr[idx[ok]])
         m_est = m_true = None
         if tm is not None:
-            m_est = P._interp_llh(master.t_s, master.llh, est.t_s)
-            m_true = P._interp_llh(tm[:, 0], tm[:, 1:4], est.t_s)
+            m_est = interp_llh(master.t_s, master.llh, est.t_s)
+            m_true = interp_llh(tm[:, 0], tm[:, 1:4], est.t_s)
         err = M.errors(est, tru, m_est, m_true)
         e = np.stack([err[k] for k in self.keys], axis=1)
         sel_any = np.zeros(est.t_s.size, dtype=bool)
@@ -329,7 +323,7 @@ class _AntennaEval:
         self.n_eval += est.t_s.size
 
     def result(self) -> dict:
-        """:func:`dpos_ros.products.ta.evaluate`'s entry of the antenna (``errors``, ``t_s``: every
+        """:func:`dpos_ros.products.report.evaluate`'s entry of the antenna (``errors``, ``t_s``: every
         ``step``-th row; no ``nsq``)."""
         per: dict[str, dict[str, dict[str, float]]] = {}
         for name, mom in self.moments.items():
@@ -357,7 +351,7 @@ def truth_topics(topics: list[str] | set[str]) -> bool:
 
 
 def evaluate_streaming(sess: RecordedSession, antennas: dict[str, StreamedAntenna], topics: list[str] | set[str]) -> dict[str, dict]:
-    """:func:`dpos_ros.products.ta.evaluate` of the streamed ``antennas`` (module docstring):
+    """:func:`dpos_ros.products.report.evaluate` of the streamed ``antennas`` (module docstring):
     ``{antenna: {"rmse", "std", "segments", "consistency", "cg", "errors", "t_s", "plot_step"}}``
     for the estimated antennas with a ``/truth/antenna/<name>`` topic among the recording's
     ``topics``; ``sess``: the recording's main POS and metadata.  Warnings (an antenna without its
@@ -428,28 +422,28 @@ def evaluate_streaming(sess: RecordedSession, antennas: dict[str, StreamedAntenn
 def write_evaluation(out: Path, sess: RecordedSession, evaluation: dict[str, dict], method: str, timing: dict[str, float],
                      pool: cf.Executor | None = None) -> None:
     """``metrics.json``, ``report.md`` and ``errors_<antenna>.png`` of :func:`evaluate_streaming`'s
-    result into the products directory ``out``, as :func:`dpos_ros.products.ta.write` writes them;
+    result into the products directory ``out``, as :func:`dpos_ros.products.write.write` writes them;
     metrics.json also says ``"evaluation": {"path": "streaming", "plot_step": {antenna: n}}``."""
-    figs = [pool.submit(P.plot_antenna_errors, out / f"errors_{name}.png", name, ev, method) if pool is not None else
-            P.plot_antenna_errors(out / f"errors_{name}.png", name, ev, method) for name, ev in evaluation.items()]
+    figs = [pool.submit(plot_antenna_errors, out / f"errors_{name}.png", name, ev, method) if pool is not None else
+            plot_antenna_errors(out / f"errors_{name}.png", name, ev, method) for name, ev in evaluation.items()]
     metrics = metrics_streaming(sess, evaluation, method, timing)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    (out / "report.md").write_text(P.report_md(metrics, title=f"Session {sess.session_id}"))
+    (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
     for f in figs:
         if isinstance(f, cf.Future):
             f.result()
 
 
 def metrics_streaming(sess: RecordedSession, evaluation: dict[str, dict], method: str, timing: dict[str, float]) -> dict:
-    """:func:`dpos_ros.products.ta.metrics_json` of a streamed evaluation, with its ``evaluation`` note."""
-    metrics = P.metrics_json(sess, {method: (evaluation, timing)}, runs=1)
+    """:func:`dpos_ros.products.report.metrics_json` of a streamed evaluation, with its ``evaluation`` note."""
+    metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
     metrics["evaluation"] = {"path": "streaming", "plot_step": {name: ev["plot_step"] for name, ev in evaluation.items()}}
     return metrics
 
 
 def series_free(evaluation: dict[str, dict]) -> dict[str, dict]:
     """``evaluation`` without its per-row series (``errors``, ``t_s``, ``plot_step``): what
-    :func:`dpos_ros.products.ta.combine_runs` reads."""
+    :func:`dpos_ros.products.report.combine_runs` reads."""
     return {name: {k: v for k, v in e.items() if k not in ("errors", "t_s", "plot_step", "nsq")} for name, e in evaluation.items()}
 
 

@@ -1,8 +1,8 @@
-"""The quality-control products of a transfer-alignment session, without truth (issue #15;
-docs/qc.md, design.md "Session products"): ``qc.md``, ``qc/<antenna>_qc.png`` and the ``qc``
+"""The quality-control products of a transfer-alignment session, without truth
+(docs/qc.md, design.md "Session products"): ``qc.md``, ``qc/<antenna>_qc.png`` and the ``qc``
 block of ``status.json``, from the antennas' own solutions (sigmas, flags, the filter's
 innovations and the forward/backward separation: :mod:`dpos_core.ta.qc`).  Written by
-:func:`dpos_ros.products.ta.write` for every session (dpos-process and transfer_align_node),
+:func:`dpos_ros.products.write.write` for every session (dpos-process and transfer_align_node),
 whether or not the recording has truth; nothing here reads it."""
 
 from __future__ import annotations
@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,8 +17,7 @@ from dpos_core.ta import flags as F
 from dpos_core.ta import qc as Q
 from dpos_core.units import DEG
 
-if TYPE_CHECKING:
-    from .ta import AntennaSolution
+from .antenna import AntennaSolution
 
 #: the plots show at most this many points per curve (rows decimated by striding)
 MAX_PLOT_POINTS = 4000
@@ -47,17 +45,17 @@ def qc_dir(out: Path) -> Path:
 def write_qc(out: Path, antennas: dict[str, AntennaSolution], session_id: str, method: str) -> dict:
     """``out/qc.md``; returns the ``status.json`` ``qc`` block (JSON-safe: NaN as null).  The
     figures ``out/qc/<antenna>_qc.png`` (:func:`plot_qc`) are written with each antenna's files
-    (:func:`dpos_ros.products.ta.write`)."""
+    (:func:`dpos_ros.products.write.write`)."""
     summ = summaries(antennas)
     (out / "qc.md").write_text(qc_md(summ, session_id, method))
-    return _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
+    return json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
 
 
-def _json_safe(v):
+def json_safe(v):
     if isinstance(v, dict):
-        return {k: _json_safe(x) for k, x in v.items()}
+        return {k: json_safe(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
-        return [_json_safe(x) for x in v]
+        return [json_safe(x) for x in v]
     if isinstance(v, float) and not math.isfinite(v):
         return None
     return v

@@ -1,5 +1,4 @@
-"""The session products of a long flight with memory that does not grow with it (issue #17;
-docs/campaign.md "Long flights"): ``dpos-process --stream``.
+"""The session products of a long flight with memory that does not grow with it (docs/long_flights.md): ``dpos-process --stream``.
 
 Each sub-IMU's worker reads only its own topic and the main POS from the recording
 (:func:`dpos_ros.io.session.read_session_streaming`), aligns it with the output rows handed over a
@@ -12,7 +11,7 @@ every n-th row) by the workers, an antenna each; the antenna bag :data:`BAG_BATC
 batch, each batch's messages made and compressed by a worker and the file written by the main
 process in order; ``status.json``.
 
-The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.products.ta.solve`
+The same products as :func:`dpos_ros.products.write.write` after :func:`~dpos_ros.products.solve.solve`
 (tested on a short session), except:
 
 * the least-squares wing fit of the ``fit`` antennas is made over consecutive windows of
@@ -27,6 +26,8 @@ The same products as :func:`dpos_ros.products.ta.write` after :func:`~dpos_ros.p
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
+import ctypes.util
 import functools
 import json
 import shutil
@@ -35,7 +36,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
 
@@ -45,23 +45,27 @@ from numpy.typing import NDArray
 from dpos_core.attitude import mount_dcm, quat_to_dcm
 from dpos_core.config import AircraftConfig
 from dpos_core.errors import RejectedInput
-from dpos_core.filters.variational import CGStats
 from dpos_core.series import NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import pipeline
 from dpos_core.ta import qc as Q
 from dpos_core.ta.antenna import ImuRates, antenna_motion, lever_velocity_var
-from dpos_core.ta.model import Installation, TAConfig
+from dpos_core.ta.model import Installation
+from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.wingfit import SubImuTrack
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
-from dpos_ros.io.bag import EncodedBatch
+from dpos_ros.io.bag import EncodedBatch, abort_writer, encode_streams, new_writer, write_stream_batches
 from dpos_ros.io.session import RecordedSession, read_session_streaming
 
-from . import ta as P
+from . import rows as R
+from .antenna import AntennaSolution
+from .evaluate_stream import write_evaluation
+from .qc import json_safe, plot_qc, qc_dir, qc_md
+from .rows import ROW_COLUMNS, RowStore, StampCursor, StreamedAntenna, nav_of
+from .solve import aligned_master, decimate, fit_antennas, spans_text
+from .write import CSV_FORMATS, CSV_HEADER, CsvRows, antenna_stream, csv_columns, new_products_dir, status_doc, swap_in
 
-#: rows read or written at a time
-ROW_BLOCK = 2**16
 #: seconds of the wing fit's windows (module docstring)
 FIT_WINDOW_S = 300.0
 #: seconds of antenna poses per batch of the antenna bag (the in-memory path's 60 s: ~0.2 GB of
@@ -71,109 +75,16 @@ BAG_BATCH_S = 20.0
 BAG_IN_FLIGHT = 4
 #: wing-fit windows submitted to the workers ahead of the one being stored (their rows in memory)
 FIT_IN_FLIGHT = 4
-#: the columns of an antenna's (or a sub-IMU's) rows
-ROW_COLUMNS: dict[str, tuple[tuple[int, ...], str]] = {
-    "t_s": ((), "<f8"), "q_nb": ((4,), "<f8"), "vel_n_mps": ((3,), "<f8"), "llh": ((3,), "<f8"), "sigma": ((9,), "<f8"),
-    "flags": ((), "<u4")}
 
 
-@dataclass
-class RowStore:
-    """Rows appended to one file per column under ``path`` (created), read back by row ranges;
-    picklable (the files are opened per call)."""
-
-    path: Path
-    columns: dict[str, tuple[tuple[int, ...], str]] = field(default_factory=lambda: dict(ROW_COLUMNS))
-    n: int = 0
-
-    def __post_init__(self) -> None:
-        self.path = Path(self.path)
-        self.path.mkdir(parents=True, exist_ok=True)
-
-    def _file(self, name: str) -> Path:
-        return self.path / f"{name}.bin"
-
-    def append(self, **cols: NDArray) -> None:
-        """Append rows: every column, the same number of rows."""
-        n = {np.asarray(v).shape[0] for v in cols.values()}
-        if set(cols) != set(self.columns) or len(n) != 1:
-            raise ValueError(f"append needs the columns {sorted(self.columns)} with as many rows each")
-        for name, (shape, dtype) in self.columns.items():
-            a = np.ascontiguousarray(cols[name], dtype=dtype)
-            if a.shape[1:] != shape:
-                raise ValueError(f"column {name}: rows of shape {a.shape[1:]}, not {shape}")
-            with self._file(name).open("ab") as f:
-                f.write(a.tobytes())
-        self.n += n.pop()
-
-    def read(self, name: str, i0: int = 0, i1: int | None = None) -> NDArray:
-        """Rows ``i0:i1`` of column ``name``."""
-        shape, dtype = self.columns[name]
-        i1 = self.n if i1 is None else min(i1, self.n)
-        size = int(np.prod(shape, dtype=np.int64))
-        dt = np.dtype(dtype)
-        if i1 <= i0:
-            return np.zeros((0, *shape), dtype=dt)
-        a = np.fromfile(self._file(name), dtype=dt, count=(i1 - i0) * size, offset=i0 * size * dt.itemsize)
-        return a.reshape((i1 - i0, *shape))
-
-    def column(self, name: str, j: int) -> NDArray:
-        """Column ``j`` (N,) of the rows of the 2-D column ``name``, read a block of rows at a time."""
-        shape, dtype = self.columns[name]
-        out = np.empty(self.n, dtype=dtype)
-        for i0 in range(0, self.n, ROW_BLOCK):
-            out[i0:i0 + ROW_BLOCK] = self.read(name, i0, i0 + ROW_BLOCK)[:, j]
-        return out
-
-    def rows(self, i0: int = 0, i1: int | None = None) -> dict[str, NDArray]:
-        return {name: self.read(name, i0, i1) for name in self.columns}
-
-    def extend(self, other: RowStore) -> None:
-        """Append the rows of ``other`` (the same columns), file to file (not through memory), and remove it."""
-        if other.columns != self.columns:
-            raise ValueError("extend needs a store of the same columns")
-        for name in self.columns:
-            with self._file(name).open("ab") as f, other._file(name).open("rb") as g:
-                shutil.copyfileobj(g, f, 2**20)
-        self.n += other.n
-        other.remove()
-
-    def remove(self) -> None:
-        shutil.rmtree(self.path, ignore_errors=True)
 
 
-class StampCursor:
-    """The rows of a :class:`RowStore` before a time, found from its stamps read a block at a time
-    (issue #17: a long flight's stamps are not held): :meth:`index` is ``np.searchsorted(t_s,
-    t_edge)`` over all its stamps, for ``t_edge`` asked in increasing order."""
-
-    def __init__(self, rows: RowStore, block: int = ROW_BLOCK) -> None:
-        self.rows, self.block = rows, block
-        self.base = 0  # the row of t[0]
-        self.t = rows.read("t_s", 0, block)
-
-    def index(self, t_edge: float) -> int:
-        """The first row at or after ``t_edge`` [s] (not before an earlier call's answer)."""
-        while True:
-            j = int(np.searchsorted(self.t, t_edge))
-            if j < self.t.size or self.base + self.t.size >= self.rows.n:
-                self.base, self.t = self.base + j, self.t[j:]
-                return self.base
-            self.base += self.t.size
-            self.t = self.rows.read("t_s", self.base, self.base + self.block)
-
-    def first_last(self) -> tuple[float, float]:
-        """The first and the last stamp [s] (the store has rows)."""
-        return float(self.rows.read("t_s", 0, 1)[0]), float(self.rows.read("t_s", self.rows.n - 1)[0])
 
 
 @functools.cache
 def _malloc_trim() -> Callable[[int], int] | None:
     """glibc's ``malloc_trim`` (None elsewhere), looked up once: ``ctypes.util.find_library`` runs
-    ``ldconfig`` in a subprocess, ~10 ms a call (issue #17: a call per bag batch)."""
-    import ctypes
-    import ctypes.util
-
+    ``ldconfig`` in a subprocess, ~10 ms a call (and it is called once per bag batch)."""
     try:
         fn: Callable[[int], int] = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
         return fn
@@ -203,71 +114,36 @@ def _drained(futures: Callable[[], Iterable[cf.Future]]) -> Iterator[None]:
         raise
 
 
-def _nav(cols: dict[str, NDArray]) -> NavSeries:
-    return NavSeries(cols["t_s"], cols["q_nb"], cols["vel_n_mps"], cols["llh"])
 
 
-@dataclass
-class StreamedAntenna:
-    """An antenna of the streamed products: :class:`~dpos_ros.products.ta.AntennaSolution`'s fields
-    with its rows in ``rows`` (None when not estimated)."""
-
-    name: str
-    sub_imu: str | None
-    status: str
-    rows: RowStore | None = None
-    chol_jitter_repairs: int = 0
-    not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
-    qc: Q.EpochQC | None = None
-    cg: CGStats | None = None
-    wing_fit: dict | None = None
-    installation: dict = field(default_factory=dict)
-
-    def solution(self, i0: int = 0, i1: int | None = None, step: int = 1) -> P.AntennaSolution:
-        """An :class:`~dpos_ros.products.ta.AntennaSolution` of the rows ``i0:i1`` (every ``step``-th)."""
-        traj = sigma = flags = None
-        if self.rows is not None:
-            i1 = self.rows.n if i1 is None else min(i1, self.rows.n)
-            # at most ROW_BLOCK rows read at a time (a multiple of step: every step-th row from i0), the kept rows
-            # copied out (a strided view would hold its whole block: a 4 h antenna's rows for its QC figure)
-            span = step * max(1, ROW_BLOCK // step)
-            parts = [{k: (v[::step].copy() if step > 1 else v) for k, v in self.rows.rows(a, min(a + span, i1)).items()}
-                     for a in range(i0, max(i1, i0 + 1), span)]
-            c = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
-            traj, sigma, flags = _nav(c), c["sigma"], c["flags"]
-        return P.AntennaSolution(self.name, self.sub_imu, self.status, traj, sigma, self.chol_jitter_repairs, flags,
-                                 list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit, installation=self.installation)
 
 
 # ------------------------------------------------------------------------------------ the workers
 
 
-def align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
-                   seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
-                   inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str, include_late: bool = True) -> dict:
+def align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, settings: TASettings,
+                   antennas: list[tuple[str, FloatArray]], store_dir: str, include_late: bool = True) -> dict:
     """One sub-IMU (a worker's task; module docstring): its topic read alone, aligned, its antennas'
-    rows (``antennas``: name, lever arm) and its own at ``output_rate_hz`` written to RowStores under
-    ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.ta.solve` computes
+    rows (``antennas``: name, lever arm) and its own at ``settings.output_rate_hz`` written to RowStores under
+    ``store_dir`` as the TA hands them over, exactly as :func:`dpos_ros.products.solve.solve` computes
     them (``include_late``: a spill's late messages too, :func:`read_session_streaming`).  ``master``: the aligned main POS, or None for that of the recording as this worker reads
-    it with its topic (:func:`dpos_ros.products.ta.aligned_master`: the same series, not sent to
+    it with its topic (:func:`dpos_ros.products.solve.aligned_master`: the same series, not sent to
     the worker).  Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
     try:
-        return _align_to_store(bag, sub, master, ins, cfg, method, particles, seed, err0_deg, antennas, output_rate_hz, inflate_sigma,
-                               aligned_sigma_deg, store_dir, include_late)
+        return _align_to_store(bag, sub, master, ins, settings, antennas, store_dir, include_late)
     finally:
         release_memory()
 
 
-def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, cfg: TAConfig, method: str, particles: int,
-                    seed: int, err0_deg: tuple[float, float, float], antennas: list[tuple[str, FloatArray]], output_rate_hz: float,
-                    inflate_sigma: bool, aligned_sigma_deg: float, store_dir: str, include_late: bool = True) -> dict:
+def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installation, settings: TASettings,
+                    antennas: list[tuple[str, FloatArray]], store_dir: str, include_late: bool = True) -> dict:
     sess = read_session_streaming(Path(bag), keep=lambda t: t == T.sub_imu(sub), include_late=include_late)
     release_memory()  # (what decoding the recording's parts left in the heap)
     if sub not in sess.sub_imus:
         return {"missing": True, "warnings": sess.warnings}
     imu = sess.sub_imus[sub]
     if master is None:
-        master = P.aligned_master(sess, aligned_sigma_deg)
+        master = aligned_master(sess, settings.master_aligned_sigma_deg)
         if master is None:  # (the caller has found it aligned)
             return {"rejected": "the main POS is never aligned", "warnings": sess.warnings}
     base = Path(store_dir)
@@ -277,26 +153,26 @@ def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installat
         ta_rows.append(t_s=t, llh=llh, vel_n_mps=vel, q_nb=q, sigma=sigma)
 
     try:
-        res = pipeline.run_segments(imu, master, ins, cfg, method, particles, seed, err0_deg, sink=sink)
+        res = pipeline.align(imu, master, ins, settings, sink=sink)
     except RejectedInput as ex:
         ta_rows.remove()
         return {"rejected": str(ex), "warnings": sess.warnings}
     # the rows' quality bits, the decimation, the rate at the rows (with a time offset, at the instant the moved
     # rows stand for) and what the rate between the IMU's samples leaves unknown, as _sub_imu_antenna
-    # (dpos_ros.products.ta), a block of rows at a time (issue #17: no array of them all but their stamps and flags)
+    # (dpos_ros.products.solve), a block of rows at a time (no array of them all but their stamps and flags)
     (att_cov,) = master.required("att_cov")
-    att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))  # (as P._qc_flags)
+    att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))  # (as solve._qc_flags)
     tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
     rates = ImuRates(imu.t_s, imu.omega_radps)
     stores = {name: RowStore(base / f"ant_{name}") for name, _ in antennas}
     own = RowStore(base / f"sub_{sub}")
-    for i0 in range(0, res.t_s.size, ROW_BLOCK):
-        i1 = min(i0 + ROW_BLOCK, res.t_s.size)
+    for i0 in range(0, res.t_s.size, R.ROW_BLOCK):
+        i1 = min(i0 + R.ROW_BLOCK, res.t_s.size)
         c = ta_rows.rows(i0, i1)
         t, sigma = c["t_s"], c["sigma"]
-        flags = res.flags[i0:i1] | Q.row_flags(t, res.qc, master.t_s, att_sig, np.deg2rad(aligned_sigma_deg))
-        k = _kept(res.t_s, i0, i1, output_rate_hz)
-        if inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
+        flags = res.flags[i0:i1] | Q.row_flags(t, res.qc, master.t_s, att_sig, np.deg2rad(settings.master_aligned_sigma_deg))
+        k = _kept(res.t_s, i0, i1, settings.output_rate_hz)
+        if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
             sigma = sigma * Q.sigma_scale(res.qc, t)
         C = quat_to_dcm(c["q_nb"])
         w = rates.rate_at(t + tau) if antennas else np.zeros((0, 3))
@@ -313,39 +189,34 @@ def _align_to_store(bag: str, sub: str, master: NavSeries | None, ins: Installat
 
 
 def _kept(t_s: FloatArray, i0: int, i1: int, rate_hz: float) -> NDArray[np.bool_]:
-    """Which of the rows i0 .. i1 - 1 of the rows stamped ``t_s`` (N,) :func:`dpos_ros.products.ta._decimate`
+    """Which of the rows i0 .. i1 - 1 of the rows stamped ``t_s`` (N,) :func:`dpos_ros.products.solve.decimate`
     keeps at ``rate_hz`` (the same rows, from the block and the row before it)."""
     if rate_hz <= 0.0:
         return np.ones(i1 - i0, dtype=bool)
     j0 = max(i0 - 1, 0)  # (the row before decides whether row i0 starts a new step)
     kept = np.zeros(i1 - j0, dtype=bool)
-    kept[P._decimate(t_s[j0:i1], rate_hz)] = True
+    kept[decimate(t_s[j0:i1], rate_hz)] = True
     return kept[i0 - j0:]
 
 
 # ------------------------------------------------------------------------------------ the session
 
 
-def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, store_dir: Path, method: str = "ups",
-                    particles: int = 100, seed: int = 0, initial_attitude_error_deg: float = 0.0, filter_rate_hz: float = 1.0,
-                    position_matching: bool = True, inflate_sigma: bool = True, output_rate_hz: float = 0.0,
-                    master_aligned_sigma_deg: float = 0.1, pool: cf.Executor | None = None, master_error_tau_s: float = 0.0,
-                    sub_imus: list[str] | None = None, include_late: bool = True) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
-    """:func:`dpos_ros.products.ta.solve` of the recording ``bag`` (``sess``: its main POS, read
+def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, store_dir: Path, settings: TASettings, *,
+                    pool: cf.Executor | None = None, sub_imus: list[str] | None = None,
+                    include_late: bool = True) -> tuple[dict[str, StreamedAntenna], dict[str, float]]:
+    """:func:`dpos_ros.products.solve.solve` of the recording ``bag`` (``sess``: its main POS, read
     without the sub-IMUs; ``sub_imus``: the sub-IMU topics it has), the rows in files under
     ``store_dir`` (module docstring); the same statuses and warnings (in ``sess.warnings``).
     ``include_late``: the workers read a spill's late messages too (transfer_align_node: not)."""
-    cfg = TAConfig(filter_rate_hz=filter_rate_hz, attitude_sigma_deg=max(initial_attitude_error_deg, 1.0), use_position=position_matching,
-                   master_error_tau_s=master_error_tau_s)
     t0 = time.perf_counter()
-    master = P.aligned_master(sess, master_aligned_sigma_deg)
+    master = aligned_master(sess, settings.master_aligned_sigma_deg)
     release_memory()  # (what reading the main POS grew the heap to)
-    e = initial_attitude_error_deg
     present = set(sess.sub_imus if sub_imus is None else sub_imus)
     # the workers read the main POS with their sub-IMU's topic (a long flight's main POS is not pickled to them)
-    tasks = {s.name: (str(bag), s.name, master if pool is None else None, Installation.from_aircraft(aircraft, s.name), cfg, method, particles, seed, (e, e, e),
+    tasks = {s.name: (str(bag), s.name, master if pool is None else None, Installation.from_aircraft(aircraft, s.name), settings,
                       [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
-                      output_rate_hz, inflate_sigma, master_aligned_sigma_deg, str(store_dir), include_late)
+                      str(store_dir), include_late)
              for s in aircraft.sub_imus if s.name in present and master is not None}
     futs = {name: pool.submit(align_to_store, *args) for name, args in tasks.items()} if pool is not None else {}
     out: dict[str, StreamedAntenna] = {}
@@ -369,9 +240,9 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
                 continue
             n_done += 1
             if r["not_estimated"]:
-                sess.warnings.append(f"sub-IMU {s.name}: no pose over {P._spans(r['not_estimated'])}; each part after a gap "
+                sess.warnings.append(f"sub-IMU {s.name}: no pose over {spans_text(r['not_estimated'])}; each part after a gap "
                                      f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
-            status = f"estimated (not estimated over {P._spans(r['not_estimated'])})" if r["not_estimated"] else "estimated"
+            status = f"estimated (not estimated over {spans_text(r['not_estimated'])})" if r["not_estimated"] else "estimated"
             for a in aircraft.antennas:
                 if a.sub_imu == s.name:
                     out[a.name] = StreamedAntenna(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
@@ -394,22 +265,22 @@ def solve_streaming(bag: Path, sess: RecordedSession, aircraft: AircraftConfig, 
 
 def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
                ranges: dict[str, tuple[int, int]], store_dir: Path) -> tuple[dict[str, tuple[str, dict | None, RowStore | None]], list[str]]:
-    """One window of :func:`_fit_windows` (a worker's task): :func:`dpos_ros.products.ta.fit_antennas`
+    """One window of :func:`_fit_windows` (a worker's task): :func:`dpos_ros.products.solve.fit_antennas`
     of the carriers' rows ``ranges`` (name -> ``(i0, i1)``) with ``sess`` (its main POS cut to the
     window); each ``fit`` antenna's rows written to a RowStore under ``store_dir`` (not sent back:
     the main process appends the files).  Returns per fit antenna (status, wing_fit info, its
     rows or None) and the warnings it added."""
-    ants: dict[str, P.AntennaSolution] = {}
+    ants: dict[str, AntennaSolution] = {}
     for name, st in carriers.items():
         c = st.rows(*ranges[name])
         s = aircraft.sub_imu(name)
         tr = SubImuTrack(name, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
                          c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
-        ants[f"carrier:{name}"] = P.AntennaSolution(f"carrier:{name}", name, "estimated", _nav(c), c["sigma"], carrier=tr)
+        ants[f"carrier:{name}"] = AntennaSolution(f"carrier:{name}", name, "estimated", nav_of(c), c["sigma"], carrier=tr)
     warnings: list[str] = []
     out: dict[str, tuple[str, dict | None, RowStore | None]] = {}
     try:
-        sol = P.fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
+        sol = fit_antennas(dc_replace(sess, warnings=warnings), aircraft, ants)
         del ants
         for a in aircraft.antennas:
             fa = sol.get(a.name)
@@ -427,13 +298,13 @@ def fit_window(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[s
 
 def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
                  store_dir: Path, pool: cf.Executor | None = None) -> dict[str, StreamedAntenna]:
-    """The ``fit`` antennas by :func:`dpos_ros.products.ta.fit_antennas` over consecutive windows of
+    """The ``fit`` antennas by :func:`dpos_ros.products.solve.fit_antennas` over consecutive windows of
     :data:`FIT_WINDOW_S` (module docstring), their rows appended window by window; the windows
     fitted on ``pool`` when given (a few at a time, taken in order)."""
     fits = [a for a in aircraft.antennas if a.sub_imu is None]
     cursors = {name: StampCursor(st) for name, st in carriers.items()}
     if not cursors:
-        sol = P.fit_antennas(sess, aircraft, {})
+        sol = fit_antennas(sess, aircraft, {})
         return {a.name: StreamedAntenna(a.name, None, sol[a.name].status) for a in fits if a.name in sol}
     spans = [c.first_last() for c in cursors.values()]
     t_lo = min(lo for lo, _ in spans)
@@ -491,27 +362,25 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
 
 def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
                     *, overwrite: bool = False, pool: cf.Executor | None = None, evaluation: dict[str, dict] | None = None) -> Path:
-    """:func:`dpos_ros.products.ta.write` of streamed antennas (module docstring): complete or absent.
+    """:func:`dpos_ros.products.write.write` of streamed antennas (module docstring): complete or absent.
     ``pool``: each antenna's files (CSV, QC summary and figure) are written by its workers, and the
     antenna bag's batches made and compressed there while this process writes them to the file.
     ``evaluation``: :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`'s result, written
     (metrics.json, report.md, error figures) before status.json."""
     final = Path(out_root) / sess.session_id
-    out = P._new_products_dir(final, overwrite)
+    out = new_products_dir(final, overwrite)
     try:
         _write(out, sess, antennas, method, timing, pool, evaluation)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
     if out != final:
-        P._swap_in(out, final)
+        swap_in(out, final)
     return final
 
 
 def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],
            pool: cf.Executor | None, evaluation: dict[str, dict] | None = None) -> None:
-    from .qc import _json_safe, qc_dir, qc_md
-
     est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
@@ -523,13 +392,11 @@ def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna
         for name, a in antennas.items():
             f = files.get(name)
             summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
-    doc = P.status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.rows is not None})
+    doc = status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.rows is not None})
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))
     if evaluation:  # against the truth (dpos_ros.products.evaluate_stream)
-        from .evaluate_stream import write_evaluation
-
         write_evaluation(out, sess, evaluation, method, timing, pool)
-    doc["qc"] = _json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
+    doc["qc"] = json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
 
@@ -542,8 +409,6 @@ def _antenna_files(out: Path, a: StreamedAntenna, t0_ns: int, method: str) -> di
 
 
 def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) -> dict:
-    from .qc import plot_qc, qc_dir
-
     assert a.rows is not None
     _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows)
     rows = a.rows
@@ -557,13 +422,13 @@ def _antenna_files_in(out: Path, a: StreamedAntenna, t0_ns: int, method: str) ->
 
 
 def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
-    """The antenna CSV of :func:`dpos_ros.products.ta._write_csv`, ROW_BLOCK rows at a time."""
-    text = P.CsvRows(P._CSV_FORMATS)  # one buffer for every block's text
+    """The antenna CSV (as :func:`dpos_ros.products.write.write` writes it), ROW_BLOCK rows at a time."""
+    text = CsvRows(CSV_FORMATS)  # one buffer for every block's text
     with path.open("wb") as f:
-        f.write(P.CSV_HEADER.encode() + b"\n")
-        for i0 in range(0, rows.n, ROW_BLOCK):
-            c = rows.rows(i0, i0 + ROW_BLOCK)
-            text.write(f, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), P._csv_columns(_nav(c), c["sigma"], c["flags"]))
+        f.write(CSV_HEADER.encode() + b"\n")
+        for i0 in range(0, rows.n, R.ROW_BLOCK):
+            c = rows.rows(i0, i0 + R.ROW_BLOCK)
+            text.write(f, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), csv_columns(nav_of(c), c["sigma"], c["flags"]))
 
 
 def bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
@@ -588,22 +453,20 @@ def bag_ranges(est: dict[str, StreamedAntenna], batch_s: float | None = None) ->
 
 
 def _bag_batches(sess: RecordedSession, est: dict[str, StreamedAntenna], batch_s: float | None = None):
-    """:func:`dpos_ros.products.ta.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
+    """:func:`dpos_ros.products.write.antenna_stream_batches` of the stored rows, :data:`BAG_BATCH_S`
     at a time (the same messages in the same order; a batch's last chunk is closed with it)."""
     for ranges in bag_ranges(est, batch_s):
         yield _bag_streams(sess, est, ranges)
 
 
 def _bag_streams(sess: RecordedSession, est: dict[str, StreamedAntenna], ranges: dict[str, tuple[int, int]]) -> list:
-    return [P._antenna_stream(sess, name, a.solution(*ranges[name]), slice(None)) for name, a in est.items()]
+    return [antenna_stream(sess, name, a.solution(*ranges[name]), slice(None)) for name, a in est.items()]
 
 
 def encode_bag_batch(sess: RecordedSession, est: dict[str, StreamedAntenna], ranges: dict[str, tuple[int, int]],
                      prefix: bytes) -> EncodedBatch:
     """One batch of the antenna bag (:func:`_bag_batches`'s) made and compressed (a worker's task;
     ``sess`` and ``est`` as :func:`_light`); ``prefix``: the writer's, for the first batch."""
-    from dpos_ros.io.bag import encode_streams
-
     try:
         return encode_streams(_bag_streams(sess, est, ranges), prefix)
     finally:
@@ -621,8 +484,6 @@ def _write_bag(path: Path, sess: RecordedSession, est: dict[str, StreamedAntenna
                pool: cf.Executor | None) -> None:
     """The antenna bag of ``est``: batches made and compressed on ``pool`` (:data:`BAG_IN_FLIGHT` at
     a time, appended in order: the same file as made here) or in this process."""
-    from dpos_ros.io.bag import abort_writer, new_writer, write_stream_batches
-
     if pool is None:
         write_stream_batches(path, _bag_batches(sess, est), custom_data=custom_data)
         return

@@ -1,4 +1,4 @@
-"""The worker processes of the smoothers (transfer_align_node and :func:`dpos_ros.products.ta.solve`)."""
+"""The worker processes of the smoothers (transfer_align_node and :func:`dpos_ros.products.solve.solve`)."""
 
 from __future__ import annotations
 

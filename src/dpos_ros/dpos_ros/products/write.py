@@ -1,0 +1,311 @@
+"""The session products of a transfer alignment (design.md "Session products"), written complete
+or not at all.  ``output_dir/<session id>/``:
+
+  ``antennas/``            rosbag2 (MCAP) with ``/antenna/<name>/odom`` (pose in ``enu``, twist in the
+                           antenna frame, covariances from the smoother)
+  ``<antenna>.csv``        time, lat, lon, h, vE, vN, vU, heading, pitch, roll and their 1-sigma
+  ``metrics.json``         when truth is in the recording: RMSE/STD ([Gong2018] eq. 21) per antenna
+  ``report.md`` + PNGs     the papers' table layout and error plots (:mod:`dpos_ros.products.report`)
+  ``qc.md``, ``qc/``       quality control without truth, every session (:mod:`dpos_ros.products.qc`)
+  ``status.json``          the antennas' status, warnings, timing; written last
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import errno
+import functools
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dpos_core.errors import ProductsExistError
+from dpos_core.frames import hpr_from_C_nb
+from dpos_core.series import NavSeries
+from dpos_core.ta import flags as ta_flags
+from dpos_core.units import FloatArray
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
+from dpos_ros.io.bag import write_stream_batches
+from dpos_ros.io.session import RecordedSession
+from dpos_ros.io.streams import TopicStream
+
+from . import _csv_kernel as K
+from .antenna import AntennaSolution
+from .qc import plot_qc, qc_dir, write_qc
+from .report import metrics_json, plot_antenna_errors, report_md
+
+
+def write(
+    out_root: Path,
+    sess: RecordedSession,
+    antennas: dict[str, AntennaSolution],
+    method: str,
+    timing: dict[str, float],
+    evaluation: dict[str, dict] | None = None,
+    *,
+    overwrite: bool = False,
+    pool: cf.Executor | None = None,
+) -> Path:
+    """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory.
+
+    The directory is new: when it exists, :class:`ProductsExistError` (a FileExistsError) is raised
+    before anything is written, unless ``overwrite``; then the products are written into a
+    temporary sibling ``.<session id>.new-<pid>`` and swapped in only when complete (the old
+    products are kept when writing fails). On any exception while writing, what this call created
+    (the new directory or the temporary one) is removed and the exception re-raised: the
+    products are complete or absent, never mixed or partial. ``out_root`` is created if needed.
+    ``pool``: each antenna's files (CSV, QC figure, error figure) are written by its workers (the
+    smoothers' pool, idle by then), the rest in this process meanwhile."""
+
+    final = Path(out_root) / sess.session_id
+    out = new_products_dir(final, overwrite)
+    try:
+        _write_products(out, sess, antennas, method, timing, evaluation, pool)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    if out != final:
+        swap_in(out, final)
+    return final
+
+
+def new_products_dir(final: Path, overwrite: bool) -> Path:
+    """The new directory to write the products into: ``final`` itself when it does not exist,
+    else (``overwrite``) a temporary sibling; :class:`ProductsExistError` otherwise."""
+
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if not final.exists():
+        final.mkdir()
+        return final
+    if not overwrite:
+        raise ProductsExistError(errno.EEXIST, "products of an earlier run exist (they are not mixed with new ones; "
+                                 "overwrite replaces them)", str(final))
+    tmp = final.with_name(f".{final.name}.new-{os.getpid()}")
+    if tmp.exists():  # left by a killed run of the same pid
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
+
+
+def swap_in(tmp: Path, final: Path) -> None:
+    """Replace ``final`` by the complete ``tmp`` (two renames in one directory); the old products
+    are restored if the second rename fails, and removed once the new ones are in place."""
+
+    old = final.with_name(f".{final.name}.old-{os.getpid()}")
+    if old.exists():
+        shutil.rmtree(old)
+    os.rename(final, old)
+    try:
+        os.rename(tmp, final)
+    except BaseException:
+        os.rename(old, final)
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[str, float], estimated: set[str]) -> dict:
+    """status.json without its ``qc`` (design.md "Products"): the antennas' status, the warnings,
+    the timing, the jitter repairs of the ``estimated`` antennas, the wing fits and each sub-IMU's
+    installation states (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states)
+    and how the main POS's errors were modelled (``sess.master_error_model``: tau_s, why).
+    ``antennas``: AntennaSolution or the streaming path's antennas (the same fields)."""
+    doc = {"session_id": sess.session_id, "method": method, "antennas": {name: a.status for name, a in antennas.items()},
+           "warnings": sess.warnings, "timing": timing,
+           "chol_jitter_repairs": {name: a.chol_jitter_repairs for name, a in antennas.items() if name in estimated}}
+    fits = {a.wing_fit["wing"]: a.wing_fit for a in antennas.values() if a.wing_fit is not None}
+    if fits:
+        doc["wing_fit"] = fits
+    inst = {a.sub_imu: a.installation for a in antennas.values() if a.sub_imu is not None and a.installation}
+    if inst:
+        doc["installation_states"] = inst
+    if sess.master_error_model:
+        doc["master_error_model"] = sess.master_error_model
+    return doc
+
+
+def _write_products(
+    out: Path,
+    sess: RecordedSession,
+    antennas: dict[str, AntennaSolution],
+    method: str,
+    timing: dict[str, float],
+    evaluation: dict[str, dict] | None,
+    pool: cf.Executor | None = None,
+) -> None:
+    """The products (module docstring) into the new, empty directory ``out``; the antennas' own
+    files by :func:`_antenna_files`, on ``pool`` when given."""
+    est = {name: a for name, a in antennas.items() if a.traj is not None and a.sigma is not None}
+    if est:
+        qc_dir(out).mkdir(exist_ok=True)
+    files = []
+    for name, a in est.items():
+        assert a.traj is not None
+        args = (out, name, antenna_stamps_ns(sess, a.traj.t_s), a, method, (evaluation or {}).get(name))
+        if pool is None:
+            _antenna_files(*args)
+        else:
+            files.append(pool.submit(_antenna_files, *args))
+    bag_dir = out / "antennas"
+    if est:  # (out is a new directory: write() never mixes runs); a batch of poses in memory at a time
+        write_stream_batches(bag_dir, antenna_stream_batches(sess, est),
+                             custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
+    doc = status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.traj is not None})
+    doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth (its figures: _antenna_files)
+    if evaluation:
+        metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+        (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
+    for f in files:  # the workers' part: an exception there is this call's (write() removes the products)
+        f.result()
+    (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
+
+
+def _antenna_files(out: Path, name: str, t_ns: NDArray[np.int64], a: AntennaSolution, method: str, ev: dict | None) -> None:
+    """One estimated antenna's files of the products: ``<name>.csv``, ``qc/<name>_qc.png`` and, with
+    its evaluation against the truth ``ev``, ``errors_<name>.png`` (a module function: it runs in
+    the workers of :func:`write`'s pool)."""
+    assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
+    _write_csv(out / f"{name}.csv", t_ns, a.traj, a.sigma, a.flags)
+    plot_qc(qc_dir(out) / f"{name}_qc.png", a, method)
+    if ev is not None:
+        plot_antenna_errors(out / f"errors_{name}.png", name, ev, method)
+
+
+def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
+    """``/antenna/<name>/odom`` TopicStreams (pose in ``enu`` with the smoother's covariance; twist
+    in the antenna frame with the velocity covariance; angular rate not estimated) of the
+    estimated antennas."""
+    return [antenna_stream(sess, name, a, slice(None)) for name, a in antennas.items() if a.traj is not None and a.sigma is not None]
+
+
+#: seconds of antenna poses per batch of the products' antenna bag (:func:`antenna_stream_batches`)
+BAG_BATCH_S = 60.0
+
+
+def antenna_stream_batches(sess: RecordedSession, antennas: dict[str, AntennaSolution], batch_s: float = BAG_BATCH_S):
+    """:func:`antenna_streams` in consecutive time windows of ``batch_s`` seconds (each window a list
+    with every estimated antenna's stream, empty where it has no row): the same messages, a window's
+    in memory at a time (for :func:`dpos_ros.io.bag.write_stream_batches`)."""
+    est = {name: a for name, a in antennas.items() if a.traj is not None and a.sigma is not None}
+    if not est:
+        return
+    t_lo = min((float(a.traj.t_s[0]) for a in est.values() if a.traj is not None and a.traj.t_s.size), default=0.0)
+    t_hi = max((float(a.traj.t_s[-1]) for a in est.values() if a.traj is not None and a.traj.t_s.size), default=t_lo)
+    n = max(1, int(np.floor((t_hi - t_lo) / batch_s)) + 1)
+    edges = t_lo + batch_s * np.arange(n + 1)
+    edges[-1] = np.inf
+    for k in range(n):
+        out = []
+        for name, a in est.items():
+            assert a.traj is not None
+            i0 = 0 if k == 0 else int(np.searchsorted(a.traj.t_s, edges[k]))
+            i1 = int(np.searchsorted(a.traj.t_s, edges[k + 1]))
+            out.append(antenna_stream(sess, name, a, slice(i0, i1)))
+        yield out
+
+
+def antenna_stamps_ns(sess: RecordedSession, t_s: FloatArray) -> NDArray[np.int64]:
+    """The ROS stamps [ns] of the products' rows at session times ``t_s`` [s]."""
+    return sess.t0_ns + np.round(t_s * 1e9).astype(np.int64)
+
+
+def antenna_stream(sess: RecordedSession, name: str, a: AntennaSolution, rows: slice):
+    """The ``/antenna/<name>/odom`` stream of the rows ``rows`` of an estimated antenna (:func:`antenna_streams`)."""
+    assert a.traj is not None and a.sigma is not None
+    tr, s = a.traj.select(rows), a.sigma[rows]
+    t_ns = antenna_stamps_ns(sess, tr.t_s)
+    vals = cv.antenna_odometry_values(tr.llh, tr.vel_n_mps, tr.C_nb, s, sess.datum_llh)
+    return TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav")
+
+
+def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> None:
+    """The antenna CSV (design.md "Session products"): per row (N) stamp, position, velocity,
+    attitude, their 1-sigma (s (N, 9) as AntennaSolution.sigma) and ``flags`` (N,) (the quality
+    bits of :mod:`dpos_core.ta.flags`; 0 when None)."""
+    write_csv_rows(path, CSV_HEADER, np.asarray(t_ns, dtype=np.int64), csv_columns(tr, s, flags), CSV_FORMATS)
+
+
+def csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None) -> FloatArray:
+    """The antenna CSV's columns after the stamp (N, 19), as :data:`CSV_FORMATS` formats them."""
+    hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
+    fl = ta_flags.none(tr.t_s.size) if flags is None else flags
+    return np.column_stack([
+        np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
+        s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]), fl,
+    ])
+
+
+#: the antenna CSV's header
+CSV_HEADER = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading_deg,pitch_deg,roll_deg,"
+              "sigma_north_m,sigma_east_m,sigma_h_m,sigma_vel_e_mps,sigma_vel_n_mps,sigma_vel_u_mps,"
+              "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg,flags")
+
+
+#: the antenna CSV's columns after the stamp (``%.10f`` = ("f", 10), ``%.4e`` = ("e", 4), ``%d`` = ("d", 0))
+CSV_FORMATS: tuple[tuple[str, int], ...] = (
+    (("f", 10),) * 2 + (("f", 4),) + (("f", 5),) * 3 + (("f", 6),) * 3 + (("e", 4),) * 9 + (("d", 0),))
+
+
+def write_csv_rows(path: Path, header: str, t_ns: NDArray[np.int64], cols: FloatArray, formats: tuple[tuple[str, int], ...]) -> None:
+    """``header``, then per row the stamp ``t_ns`` (N,) in seconds with its 9 decimals (exact: from
+    the integer nanoseconds) and the columns ``cols`` (N, m) formatted as printf's ``%.<d>f``,
+    ``%.<d>e``, ``%d`` (``formats`` (m,): ``("f" | "e" | "d", d)``), comma-separated
+    (:func:`csv_rows`)."""
+    with open(path, "wb") as f:
+        f.write(header.encode() + b"\n")
+        CsvRows(formats).write(f, t_ns, cols)
+
+
+def csv_rows(t_ns: NDArray[np.int64], cols: FloatArray, formats: tuple[tuple[str, int], ...]) -> bytes:
+    """The rows of :func:`write_csv_rows` (no header), by a numba kernel (:mod:`._csv_kernel`):
+    ~0.7 us a number through ``np.savetxt``."""
+    return CsvRows(formats).text(t_ns, cols).tobytes()
+
+
+@functools.cache
+def _csv_tables() -> tuple[FloatArray, FloatArray]:
+    """The kernel's tables of ``10.0**e`` and of the starts of ``floor(log10)`` (each (661,))."""
+    return K.pow10_table(), K.log10_floor_starts()
+
+
+class CsvRows:
+    """The rows of :func:`write_csv_rows` block after block (``formats`` (m,) as there), written
+    into one byte buffer kept between the blocks (grown when a block needs more)."""
+
+    #: rows formatted at a time by :meth:`write` (their text, ~1 MB, stays in the CPU's cache
+    #: until written: 65 536 rows at a time cost ~1.4x the CPU)
+    WRITE_ROWS = 4096
+
+    def __init__(self, formats: tuple[tuple[str, int], ...]) -> None:
+        self._k = K
+        self.m = len(formats)
+        self.kinds = np.array([{"f": K.FIXED, "e": K.EXP, "d": K.INT}[k] for k, _ in formats], dtype=np.int64)
+        self.decs = np.array([d for _, d in formats], dtype=np.int64)
+        self.pow10, self.starts = _csv_tables()
+        self.e_prev = np.zeros(self.m, dtype=np.int64)  # per EXP column its last exponent (the kernel's search start)
+        self.buf = np.empty(0, np.uint8)
+        self._nan, self._inf = np.frombuffer(b"nan", np.uint8), np.frombuffer(b"inf", np.uint8)
+
+    def text(self, t_ns: NDArray[np.int64], cols: FloatArray) -> memoryview:
+        """The text (L bytes) of the rows ``t_ns`` (N,) int64, ``cols`` (N, m): a view of the
+        buffer, valid until the next call."""
+        if cols.ndim != 2 or cols.shape[1] != self.m or cols.shape[0] != t_ns.shape[0]:
+            raise ValueError(f"{self.m} formats for columns of shape {cols.shape} ({t_ns.shape[0]} stamps)")
+        need = t_ns.shape[0] * self._k.max_line_bytes(self.m)
+        if self.buf.size < need:
+            self.buf = np.empty(need, np.uint8)
+        n = self._k.rows_into(self.buf, np.ascontiguousarray(t_ns, dtype=np.int64), np.ascontiguousarray(cols, dtype=float),
+                              self.kinds, self.decs, self._nan, self._inf, self.pow10, self.starts, self.e_prev)
+        return self.buf[:n].data
+
+    def write(self, f: BinaryIO, t_ns: NDArray[np.int64], cols: FloatArray) -> None:
+        """Write the text of the rows ``t_ns`` (N,), ``cols`` (N, m) to ``f``, :attr:`WRITE_ROWS` rows at a time."""
+        for i in range(0, t_ns.shape[0], self.WRITE_ROWS):
+            f.write(self.text(t_ns[i:i + self.WRITE_ROWS], cols[i:i + self.WRITE_ROWS]))
