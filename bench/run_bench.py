@@ -54,7 +54,7 @@ Keys (in order):
                                sample; transfer_align_node/worker_each: the largest VmHWM of one worker
   soak_rss_growth_mb_per_min   {process: MB/min}: least-squares slope of its samples of the data flow
                                (not the finalize); bounded memory is ~0
-  long_flight_<d>_peak_rss_mb  issue #17: a paper_wing flight (6 sub-IMUs at 200 Hz, 12 antennas; a racetrack of 840 s
+  long_flight_<d>_peak_rss_mb  a paper_wing flight (6 sub-IMUs at 200 Hz, 12 antennas; a racetrack of 840 s
                                lines and 60 s turns) of d = 1 h, 2 h, 4 h (--long-flight-s) simulated window by window (dpos-sim --window 60 --no-truth) into a
                                temporary directory (deleted afterwards), then dpos-process (UPS, --workers 2) on it in a
                                subprocess: the largest summed RSS of dpos-process and its workers (/proc, every 0.5 s);
@@ -782,7 +782,7 @@ def _flight_label(d_s: float) -> str:
 
 def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...] = (3600.0, 7200.0, 14400.0),
                       rss_cap_mb: float = 6000.0, tmp_root: str | None = None, bags_dir: Path | None = None) -> None:
-    """Issue #17 part 2 (module docstring, ``long_flight_*``): a run per duration, not repeated.
+    """The long flights (module docstring, ``long_flight_*``): a run per duration, not repeated.
     ``bags_dir``: where the simulated recordings are kept and reused (module docstring)."""
     import shutil
     import tempfile
@@ -828,7 +828,7 @@ def bench_long_flight(results: dict, repeats: int, durations_s: tuple[float, ...
             if rc not in (0, 1):  # 1: some antenna not estimated (products written)
                 status = status if rc is None else f"dpos-process exit {rc}: {(tmp / 'process.log').read_text()[-500:]}"
             results[f"{key}_status"] = status
-            wm = tmp / "worker.json"  # one worker task alone (issue #17: memory flat with the flight)
+            wm = tmp / "worker.json"  # one worker task alone (memory flat with the flight)
             if subprocess.run([sys.executable, str(Path(__file__).with_name("worker_memory.py")), str(bag), "--json", str(wm)],
                               capture_output=True).returncode == 0:
                 w = json.loads(wm.read_text())

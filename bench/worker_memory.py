@@ -1,4 +1,4 @@
-"""One streaming worker task's peak memory and wall time (issue #17: memory flat with the flight).
+"""One streaming worker task's peak memory and wall time (memory flat with the flight).
 
 Runs :func:`dpos_ros.products.stream.align_to_store` for one sub-IMU of a recording, as
 ``dpos-process --stream on`` gives it to a worker (the worker reads its topic and the main POS

@@ -1,4 +1,4 @@
-"""Forward-only vs RTS-smoothed main POS against the truth (issue #15 item 5).
+"""Forward-only vs RTS-smoothed main POS against the truth.
 
     .venv/bin/python tools/ifa_smoother_accuracy.py --scenario paper_ifa --seeds 1,2,3,4,5,6 --window 100:380
 

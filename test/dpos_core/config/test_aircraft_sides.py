@@ -1,4 +1,4 @@
-"""The aircraft file's signed spans agree with the side their lever arm puts them on (issue #14):
+"""The aircraft file's signed spans agree with the side their lever arm puts them on:
 span_m is + on the right wing (FLU y < 0), - on the left (y > 0); a contradiction is a ConfigError
 naming the file, the entry and the field."""
 

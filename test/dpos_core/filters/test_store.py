@@ -1,4 +1,4 @@
-"""The per-epoch arrays of the filters and smoothers in files (issue #17: memory flat with the
+"""The per-epoch arrays of the filters and smoothers in files (memory flat with the
 flight's length): :class:`~dpos_core.filters.store.EpochStore` round trips, and the backward passes
 read and written a block of epochs at a time give the numbers of the arrays in memory at once."""
 

@@ -1,4 +1,4 @@
-"""The master mechanization with IFA feedback (dpos_core.ifa.mechanization, issues #5 and #11).
+"""The master mechanization with IFA feedback (dpos_core.ifa.mechanization).
 
 Its navigation must equal the aligner's closed-loop strapdown (InFlightAligner, pipeline.run)
 whatever the order in which IMU samples, corrections and bias compensations reach it: feedback
@@ -103,7 +103,7 @@ def test_master_mechanization_equals_the_aligner_closed_loop() -> None:
     assert "non-finite" in " ".join(warnings)
 
 
-# ----------------------------------------------------------------------------- any order (issue #11)
+# ----------------------------------------------------------------------------- any order
 
 
 class _Reference:

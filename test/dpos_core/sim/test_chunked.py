@@ -1,4 +1,4 @@
-"""The window-by-window simulator (dpos_core.sim.chunked, issue #17): the same seed gives the same
+"""The window-by-window simulator (dpos_core.sim.chunked): the same seed gives the same
 streams whatever the windows, with the whole-session generator's per-run draws and statistics."""
 
 from __future__ import annotations

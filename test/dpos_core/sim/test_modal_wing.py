@@ -1,4 +1,4 @@
-"""The modal wing (issue #12 item 1): cantilever mode shapes, turbulence statistics, quasi-static
+"""The modal wing: cantilever mode shapes, turbulence statistics, quasi-static
 bending under the load factor, and sub-IMU samples consistent with the deformed truth."""
 
 from __future__ import annotations

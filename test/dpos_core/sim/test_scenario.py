@@ -49,7 +49,7 @@ def test_paper_ifa_gnss_noise_changes_four_times_during_the_manoeuvre() -> None:
 @pytest.mark.parametrize("name", ["paper_su", "paper_ifa", "paper_wing", "paper_cdvf", "paper_sar"])
 def test_truth_imu_integrates_back_to_the_truth(name: str) -> None:
     """The simulator's main test (design.md): ideal IMU outputs through our strapdown reproduce
-    every body's truth over the whole scenario.  Bounds: 0.5 m and 1e-5 rad (issue #3); measured
+    every body's truth over the whole scenario.  Bounds: 0.5 m and 1e-5 rad; measured
     errors are cm and 1e-8 rad (the trapezoidal position error of the mechanization, larger on
     the flexing wing)."""
     aircraft = "paper_su_pair" if name == "paper_su" else None

@@ -1,4 +1,4 @@
-"""The CDKF / CDVF transfer-alignment methods ([Ye2024]; issue #13 part 1) on a short simulated
+"""The CDKF / CDVF transfer-alignment methods ([Ye2024]) on a short simulated
 session: accurate against the truth, the smoothers through the one RTS recursion, and the CDVF's
 conjugate gradient converging by its stopping rule with a cost at or below the CDKF update's.
 

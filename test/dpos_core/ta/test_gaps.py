@@ -1,4 +1,4 @@
-"""Sub-IMU gaps in the transfer alignment (issue #14 item 2): a gap is bridged honestly or the
+"""Sub-IMU gaps in the transfer alignment: a gap is bridged honestly or the
 span reported as not estimated, and the rows are flagged.
 
 A paper_su_pair-like flight, shortened: 30 s straight, then a 60 deg right turn over 60 s and

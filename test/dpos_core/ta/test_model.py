@@ -146,7 +146,7 @@ def test_between_epochs_the_vibration_turned_by_the_attitude_error_is_in_the_out
     error that a linear interpolation of the epoch errors misses (measured before: 2.2 mm/s rms
     between epochs against 1.0 at them, peaking at 2 Hz).  The output applies ``f x phi`` within the
     interval: the velocity error is as small between the epochs as at them (its sigma's coverage
-    under this mismatch is issue #15's: 54-84 % within 2 sigma on the north axis)."""
+    under this mismatch is docs/mismatch.md's subject: 54-84 % within 2 sigma on the north axis)."""
     ss = SimulatedSession(load_scenario("paper_wing"), 2, 60.0)
     imu, master, ins = from_sim.sub_imu(ss, "imu09"), from_sim.master_nav(ss), from_sim.installation(ss, "imu09")
     r = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=1.0), "urtss", initial=pipeline.initial_from_master(master, ins))

@@ -1,4 +1,4 @@
-"""Quality control without truth (dpos_core.ta.qc, issue #15): NIS and its windowed test, the
+"""Quality control without truth (dpos_core.ta.qc): NIS and its windowed test, the
 forward/backward separation, the QC flags and the summary, on linear-Gaussian models."""
 
 from __future__ import annotations

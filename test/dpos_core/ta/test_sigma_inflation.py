@@ -1,4 +1,4 @@
-"""The innovation-based sigma inflation (dpos_core.ta.qc.sigma_scale; issue #15 item 3)."""
+"""The innovation-based sigma inflation (dpos_core.ta.qc.sigma_scale)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The transfer alignment without its nominal trajectory in memory (issue #17): the output pass
+"""The transfer alignment without its nominal trajectory in memory: the output pass
 re-integrates each interval from the integrator's state stored at its start
 (``TransferAlignmentModel.keep_nominal=False``, ``pipeline.KEEP_NOMINAL``) and builds the rows a
 block of intervals at a time; the result is the one of the stored nominal, bit for bit."""
@@ -43,7 +43,7 @@ def test_re_integrated_nominal_gives_the_stored_nominals_result(flight, monkeypa
     imu, master, ins = flight
     cfg = TAConfig(attitude_sigma_deg=1.0)
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", True)
-    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 10**6)  # every row at once, as before issue #17
+    monkeypatch.setattr(pipeline, "APPLY_BLOCK", 10**6)  # every row at once, as one block
     stored = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=3)
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", False)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 3)
@@ -158,7 +158,7 @@ def test_sink_gets_the_rows_in_blocks(flight, monkeypatch) -> None:
     lean = pipeline.run_segments(imu, master, ins, cfg, "urtss", sink=lambda *b: blocks.append(b))
     assert len(blocks) > 1 and lean.llh.shape == (0, 3) and lean.sigma.shape == (0, 9)
     assert np.array_equal(lean.t_s, whole.t_s) and np.array_equal(lean.flags, whole.flags)
-    # the epoch estimates are not kept with a sink (issue #17); what the products need from them is
+    # the epoch estimates are not kept with a sink; what the products need from them is
     assert lean.x.shape == (0, whole.x.shape[1]) and lean.P.shape == (0, *whole.P.shape[1:]) and whole.x.shape[0] > 1
     assert lean.installation == whole.installation and np.array_equal(lean.epochs_s, whole.epochs_s)
     assert lean.qc is not None and whole.qc is not None

@@ -1,4 +1,4 @@
-"""Disk faults and unusable output directories in dpos-sim and dpos-process (issue #14).
+"""Disk faults and unusable output directories in dpos-sim and dpos-process.
 
 An output location that cannot be written is refused before any work (exit 2, one line naming
 it); an OSError while writing (ENOSPC, EACCES, EROFS) is one line naming the path and the errno

@@ -1,4 +1,4 @@
-"""dpos-eval's numeric options (issue #14): a bad value is an argparse error (usage, one
+"""dpos-eval's numeric options: a bad value is an argparse error (usage, one
 ``dpos-eval: error: ...`` line naming the option, exit 2) before anything runs or is written."""
 
 from __future__ import annotations

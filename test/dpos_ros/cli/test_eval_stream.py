@@ -1,4 +1,4 @@
-"""dpos-eval --stream (issue #17): a streamed run is simulated window by window into a temporary
+"""dpos-eval --stream: a streamed run is simulated window by window into a temporary
 recording, processed and evaluated by dpos-process --stream on's path - its metrics are those of
 dpos-process --stream off on the same chunked recording (dpos-sim --window gives it: the same
 seed, the same bag whatever the window) - and the temporary recording is deleted."""

@@ -1,4 +1,4 @@
-"""The main POS's error model chosen from its source (issue #15, honest sigmas of the graph's own
+"""The main POS's error model chosen from its source (honest sigmas of the graph's own
 main POS): ``--master-error-tau auto`` / transfer_align_node ``master_error_tau_s: -1``.
 
 A GNSS/INS main POS (pos_master_node's mechanization, or the in-flight alignment re-run offline)

@@ -43,7 +43,7 @@ def test_node_parameters_take_the_core_lists() -> None:
 
 @pytest.mark.parametrize("method", SAR_METHODS)
 def test_sins_sar_method_is_accepted_everywhere(method: str) -> None:
-    """sar_nav_node's method, dpos-sar's --method and dpos-eval's SINS/SAR --methods (issue #13)."""
+    """sar_nav_node's method, dpos-sar's --method and dpos-eval's SINS/SAR --methods."""
     cfg = config_from_values(SarNavConfig, {"method": method, "particles": 20})
     assert cfg.method == method and cfg.settings() == SarNavSettings(method=method, n_particles=20)
     assert sar.parser().parse_args(["bag", "--method", method, "--out", "x"]).method == method

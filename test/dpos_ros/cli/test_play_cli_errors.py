@@ -1,4 +1,4 @@
-"""dpos-play on something that is not a bag (issue #14): one line naming it, exit 2, no traceback.
+"""dpos-play on something that is not a bag: one line naming it, exit 2, no traceback.
 A bag's .mcap without metadata.yaml is still recovered (dpos_ros.io.bag.readable_bag)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""dpos-process's exit status and output directory (issue #14).
+"""dpos-process's exit status and output directory.
 
 0 when every configured antenna is estimated, 1 when some or all are not (named, with why), 2 for
 unusable input or output. Products go to OUT/<session id>/, which must be new unless --overwrite;

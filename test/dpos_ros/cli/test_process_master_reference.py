@@ -1,4 +1,4 @@
-"""dpos-process --master-reference (issue #15 item 5): the main POS re-aligned in flight from the
+"""dpos-process --master-reference: the main POS re-aligned in flight from the
 recording's /master/imu + /gnss/* (forward, or RTS-smoothed) as the transfer alignment's reference."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""dpos-process's quality-control products (issue #15 item 4): qc.md, qc/<antenna>_qc.png and the
+"""dpos-process's quality-control products: qc.md, qc/<antenna>_qc.png and the
 status.json qc block, made without the truth (the same with the truth removed from the recording)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""dpos-process --stream (issue #17, dpos_ros.products.stream): the products of the streaming path
+"""dpos-process --stream (dpos_ros.products.stream): the products of the streaming path
 are those of the in-memory path - the CSV files and the figures byte for byte, the antenna bag
 message for message, qc.md and status.json but for the documented differences (the wing fit's window count),
 metrics.json and report.md of the evaluation against the truth to 1e-12 relative (but the timing) -

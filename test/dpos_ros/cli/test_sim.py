@@ -120,7 +120,7 @@ def test_dpos_sim_rejects_bad_arguments(tmp_path: Path) -> None:
     (["--duration", "nan"], "--duration must be > 0"),
 ])
 def test_dpos_sim_rejects_bad_datum_and_duration(tmp_path: Path, args: list[str], needle: str) -> None:
-    """Issue #14: an impossible datum or duration is a usage error before anything is simulated."""
+    """An impossible datum or duration is a usage error before anything is simulated."""
     exe = str(Path(sys.executable).parent / "dpos-sim")
     out = tmp_path / "bag"
     r = subprocess.run([exe, "--scenario", "paper_su", *args, "--out", str(out)], capture_output=True, text=True, timeout=60)

@@ -1,4 +1,4 @@
-"""conversions.antenna_odometry_values (the numba kernel of the antenna poses, issue #17) against
+"""conversions.antenna_odometry_values (the numba kernel of the antenna poses) against
 the numpy formulas it replaced, and back through the decoder."""
 
 from __future__ import annotations

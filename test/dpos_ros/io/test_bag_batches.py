@@ -1,4 +1,4 @@
-"""Bags written batch by batch (issue #17): ``dpos-sim --window`` simulates and writes a session
+"""Bags written batch by batch: ``dpos-sim --window`` simulates and writes a session
 window by window; the bag reads as one written at once, and the window size does not change a
 message."""
 

@@ -1,4 +1,4 @@
-"""A recording that was never closed (issue #14: a killed dpos-record leaves an MCAP without
+"""A recording that was never closed (a killed dpos-record leaves an MCAP without
 metadata.yaml and without its summary): every reading tool recovers the complete messages into
 ``<bag>.recovered``, says so, and leaves the original untouched."""
 

@@ -1,4 +1,4 @@
-"""read_session_streaming (issue #17): the recording decoded a part at a time gives the series of
+"""read_session_streaming: the recording decoded a part at a time gives the series of
 read_session, bit for bit; one sub-IMU's topic can be read alone."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""read_session_streaming of a transfer_align_node spill (issue #17): each topic's log read a block of
+"""read_session_streaming of a transfer_align_node spill: each topic's log read a block of
 records at a time gives read_session's session of the same spill - the same series bit for bit, the
 same warnings, metadata and end - with and without its late messages, with a last record cut
 short by a crash, with bad messages (another frame, stamp 0, NaN, duplicates, out of order), and

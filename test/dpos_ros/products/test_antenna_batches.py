@@ -1,4 +1,4 @@
-"""The products' antenna bag is written a time window at a time (issue #17): the batches hold the
+"""The products' antenna bag is written a time window at a time: the batches hold the
 messages of the whole-session streams, in the same order."""
 
 from __future__ import annotations

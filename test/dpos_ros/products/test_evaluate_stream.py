@@ -1,4 +1,4 @@
-"""The streamed evaluation against the truth (dpos_ros.products.evaluate_stream, issue #17): the
+"""The streamed evaluation against the truth (dpos_ros.products.evaluate_stream): the
 truth read a part at a time and the rows a block at a time give products.report.evaluate's metrics,
 also with a gap in the truth or a truth topic missing."""
 

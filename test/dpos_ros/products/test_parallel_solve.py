@@ -1,5 +1,5 @@
 """solve() aligns the sub-IMUs in worker processes (``workers``, dpos-process --workers) with the
-same results, warnings and error handling as one after the other (issue #12 item 3)."""
+same results, warnings and error handling as one after the other."""
 
 from __future__ import annotations
 

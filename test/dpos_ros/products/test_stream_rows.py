@@ -1,4 +1,4 @@
-"""The row files of dpos-process --stream (dpos_ros.products.stream, issue #17): read back by row
+"""The row files of dpos-process --stream (dpos_ros.products.stream): read back by row
 ranges, a column at a time, and the rows before a time found from stamps read a block at a time."""
 
 from __future__ import annotations

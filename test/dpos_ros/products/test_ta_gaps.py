@@ -1,4 +1,4 @@
-"""Sub-IMU gaps and unusable sub-IMU data in the session products (issue #14 item 2): the span
+"""Sub-IMU gaps and unusable sub-IMU data in the session products: the span
 of a gap is reported as not estimated, the rows after it flagged and covered by their sigma; a
 sub-IMU without usable data gives ``not estimated`` for its antennas, the others unaffected."""
 
