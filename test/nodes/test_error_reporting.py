@@ -205,7 +205,7 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile
-    from ros_wait import spin_until  # test/support/ros_wait.py
+    from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
     from std_srvs.srv import Trigger
 
     import transfer_align_node.node as tan
@@ -274,10 +274,7 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
         ta._status_pub = tap
         ta._publish_status()
     finally:
-        for n in (watcher, src, ta):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, (watcher, src, ta))
     st = json.loads(status_files()[0].read_text())
     assert st["antennas"]["ant_r"] == "estimated", st
     assert st["antennas"]["ant_l"].startswith("failed: NumericalFailure: the smoothed covariance lost positive definiteness"), st

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
-from ros_wait import spin_until  # test/support/ros_wait.py
+from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
 from sensor_msgs.msg import FluidPressure
 
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
@@ -133,10 +133,7 @@ def test_simulated_paper_sar_through_the_node(ros_context, start_node, monkeypat
         spin_until(executor, lambda: len(counter.received[T.SAR_NAV]) >= n_epochs, 30.0,
                    lambda: f"{n_epochs} /sar_nav/nav messages (got {len(counter.received[T.SAR_NAV])})")
     finally:
-        for n in reversed(nodes):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, reversed(nodes))
 
     # the node used every simulated message
     assert st["method"] == method and st["epochs"] == str(n_epochs) and st["epochs_with_fix"] == str(n_fix)
@@ -254,7 +251,4 @@ def test_finalize_service_and_a_session_that_cannot_be_navigated(ros_context) ->
         assert st["level"] == str(int.from_bytes(DiagnosticStatus.ERROR, "little")) and st["buffered_baro"] == "0"
         assert sar.state == "FAILED" and sar._worker is None
     finally:
-        for n in (sar, probe):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, (sar, probe))

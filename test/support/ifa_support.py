@@ -29,7 +29,7 @@ def llh_err_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 class Spinner:
     """A MultiThreadedExecutor spinning the nodes in a background thread; :meth:`stop` stops their
-    simulated devices (if any), the executor, and destroys the nodes."""
+    simulated devices (if any), the executor and its callbacks in progress, and destroys the nodes."""
 
     def __init__(self, context: Any, nodes: list[Any]) -> None:
         from rclpy.executors import MultiThreadedExecutor
@@ -50,10 +50,8 @@ class Spinner:
             pass
 
     def stop(self) -> None:
-        for n in self.nodes:
-            if getattr(n, "device", None) is not None:
-                n.device.stop()
-        self.executor.shutdown(timeout_sec=5.0)
-        self.thread.join(10.0)
-        for n in self.nodes:
-            n.destroy_node()
+        """Stop the devices, the executor and its callbacks, then destroy the nodes (that order:
+        ros_wait.stop_and_destroy)."""
+        from ros_wait import stop_and_destroy
+
+        stop_and_destroy(self.executor, self.nodes, self.thread)
