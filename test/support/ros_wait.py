@@ -20,41 +20,39 @@ def spin_until(executor: Any, condition: Callable[[], bool], timeout: float, wha
         executor.spin_once(timeout_sec=step_s)
 
 
-def stop_executor(executor: Any, thread: Any = None, timeout_s: float = 10.0) -> None:
-    """Stop ``executor`` and wait until none of its callbacks runs any more (then its nodes may be destroyed).
+def stop_executor(executor: Any, timeout_s: float = 10.0) -> None:
+    """Shut ``executor`` down once none of its callbacks runs any more; call it when nothing spins the
+    executor (a thread that spun it stopped and joined). Then its nodes may be destroyed.
 
-    ``executor.shutdown()`` alone does not do this in rclpy 7.1 (Jazzy): it returns without waiting for
-    the callbacks in progress, and a MultiThreadedExecutor's ``spin_once`` hands a callback to its thread
-    pool and returns before it ran - so a node destroyed right after may still have a callback running
-    in a pool thread, which then fails on a destroyed handle (``InvalidHandle``; on a busy machine the
-    callbacks run late and this happens). Here: shutdown (spin() returns), join the thread that spun it
-    (``thread``), then wait for the pool's callbacks (those handed over and not started yet run too: a
-    cancelled one leaves a never-awaited coroutine) and for the executor's work in progress. A callback still running after that is a hang the test's timeout ends.
+    rclpy 7.1 (Jazzy): a MultiThreadedExecutor's ``spin_once`` hands a callback to its thread pool and
+    returns before it ran, and ``Executor.shutdown()`` neither waits for the callbacks in progress nor
+    keeps the executor's guard condition for them (it destroys it; a callback triggers it when done):
+    a callback still running then fails on a destroyed handle (``InvalidHandle``), and so does one of a
+    node destroyed under it - on a busy machine the callbacks run late and this happens. So: wait for
+    the pool's callbacks (every one handed over runs: a cancelled one would leave a never-awaited
+    coroutine), then shut the executor down and wait for its work in progress. A callback that never
+    ends is a hang the test's timeout ends.
     """
-    executor.shutdown(timeout_sec=timeout_s)
-    if thread is not None:
-        thread.join(timeout_s)
-        if thread.is_alive():
-            raise AssertionError(f"the executor's spin thread did not end within {timeout_s} s of its shutdown")
     pool = getattr(executor, "_executor", None)  # MultiThreadedExecutor's ThreadPoolExecutor
     if isinstance(pool, ThreadPoolExecutor):
         pool.shutdown(wait=True)
+    executor.shutdown(timeout_sec=timeout_s)
     tracker = getattr(executor, "_work_tracker", None)
     if tracker is not None and not tracker.wait(timeout_s):
         raise AssertionError(f"callbacks of the executor still running {timeout_s} s after its shutdown")
 
 
-def stop_and_destroy(executor: Any, nodes: Iterable[Any], thread: Any = None, timeout_s: float = 10.0) -> None:
-    """The shutdown order of an in-process test: stop the nodes' own threads (a simulated device's
-    ``device.stop()``), stop ``executor`` and wait for its callbacks (:func:`stop_executor`), then
-    destroy ``nodes``. Destroying a node first, while a callback of it runs in an executor thread,
-    raises ``InvalidHandle`` there."""
+def stop_and_destroy(executor: Any, nodes: Iterable[Any], timeout_s: float = 10.0) -> None:
+    """The shutdown order of an in-process test, once nothing spins ``executor`` any more: stop the
+    nodes' own threads (a simulated device's ``device.stop()``), wait for the executor's callbacks and
+    shut it down (:func:`stop_executor`), then destroy ``nodes``. Destroying a node first, while a
+    callback of it runs in an executor thread, raises ``InvalidHandle`` there."""
     nodes = list(nodes)
     try:
         for n in nodes:
             if getattr(n, "device", None) is not None:
                 n.device.stop()
-        stop_executor(executor, thread, timeout_s)
+        stop_executor(executor, timeout_s)
     finally:
         for n in nodes:
             n.destroy_node()
