@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from node_process import START_TIMEOUT_S  # test/support/node_process.py
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -209,7 +210,7 @@ def test_bad_parameters_are_refused(ros_context, overrides: dict, needle: str) -
 @pytest.mark.parametrize(("arg", "needle"), [("method:=kf", "invalid parameter 'method' = 'kf': must be one of"),
                                              ("particles:=0", "invalid parameter 'particles' = 0: must be >= 2")])
 def test_bad_parameters_exit_2(arg: str, needle: str, tmp_path: Path) -> None:
-    r = subprocess.run([str(BIN_DIR / "sar_nav_node"), "--ros-args", "-p", arg], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    r = subprocess.run([str(BIN_DIR / "sar_nav_node"), "--ros-args", "-p", arg], capture_output=True, text=True, timeout=START_TIMEOUT_S, cwd=tmp_path)
     out = r.stdout + r.stderr
     assert r.returncode == 2, out
     assert needle in out and "Traceback" not in out, out

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from node_process import CLI_TIMEOUT_S  # test/support/node_process.py
 
 from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec
 
@@ -108,7 +109,7 @@ nodes:
     assert r.returncode == 0, r.stdout + r.stderr
     assert "[a] " in r.stdout and "[b] " in r.stdout and "2 node(s) ready" in r.stdout
     assert "exit codes a=0, b=0" in r.stdout
-    examples = {name: subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=30)
+    examples = {name: subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
                 for name in ("sim_paper_su", "aircraft_ros")}  # the packaged examples: the whole product graph
     assert all(ex.returncode == 0 for ex in examples.values())
     # the real-device example makes the user state what only they know, and names what is left
@@ -117,9 +118,9 @@ nodes:
     for unset in ("pos_master_node: parameter 'datum'", "pos_master_node: parameter 'input_rotation_rpy_deg'",
                   "pos_master_node: remap 'imu_in'", "ifa_node: parameter 'aircraft_config'", "sub_l: remap 'imu_in'"):
         assert unset in str(e.value), unset
-    r = subprocess.run([str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=30)
+    r = subprocess.run([str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
     (tmp_path / "r.yaml").write_text(r.stdout)
-    r = subprocess.run([str(EXE / "dpos-graph"), str(tmp_path / "r.yaml")], capture_output=True, text=True, timeout=30)
+    r = subprocess.run([str(EXE / "dpos-graph"), str(tmp_path / "r.yaml")], capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
     assert r.returncode == 2 and "'datum' = <[LAT_DEG, LON_DEG, H_M] OR [] FOR THE FIRST FIX>" in r.stderr, r.stderr
     filled = {"<AIRCRAFT FILE>": "/etc/dpos/aircraft.yaml", "<PRODUCTS DIRECTORY>": "/data/dpos",
               "<[LAT_DEG, LON_DEG, H_M] OR [] FOR THE FIRST FIX>": "[]", "<MAIN IMU TOPIC>": "/imu/data",
