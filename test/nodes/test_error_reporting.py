@@ -262,10 +262,10 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
             with ta._lock:
                 return all(t in ta._streams and ta._streams[t].count == len(v) for t, v in msgs.items())
 
-        spin_until(executor, buffered, 60.0, lambda: f"buffering; node has { {t: s.count for t, s in ta._streams.items()} }")
-        spin_until(executor, client.service_is_ready, 10.0, "the finalize service")
+        spin_until(executor, buffered, 120.0, lambda: f"buffering; node has { {t: s.count for t, s in ta._streams.items()} }")
+        spin_until(executor, client.service_is_ready, 30.0, "the finalize service")
         fut = client.call_async(Trigger.Request())
-        spin_until(executor, fut.done, 10.0, "the finalize reply")
+        spin_until(executor, fut.done, 30.0, "the finalize reply")
         assert fut.result().success, fut.result().message
         spin_until(executor, lambda: bool(status_files()) and not ta._finalizing, 120.0, lambda: f"products; {ta._progress}")
         n_r = sum(1 for _ in (status_files()[0].parent / "ant_r.csv").open()) - 1
