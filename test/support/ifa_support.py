@@ -53,6 +53,9 @@ class Spinner:
     def stop(self) -> None:
         from ros_wait import stop_and_destroy
 
+        for n in self.nodes:  # the devices' threads first, while the executor still serves their nodes
+            if getattr(n, "device", None) is not None:
+                n.device.stop()
         self._stop.set()
         self.thread.join(10.0)
         if self.thread.is_alive():
