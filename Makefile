@@ -1,6 +1,7 @@
 # dpos workspace.
 #   make demo    bootstrap .venv if needed (runtime: requirements.txt), run the end-to-end demo (.venv/bin/dpos-demo)
 #   make test    bootstrap .venv if needed (runtime + dev tools), run the linters (make lint) and the test suite (pytest)
+#   make stress  the ROS tests (marker `ros`) with one CPU-bound process beside them (STRESS_BURNERS=1)
 #   make lint    ruff (ruff.toml) and mypy (mypy.ini) on the sources; part of make test
 #   make venv    bootstrap .venv for development (runtime + requirements-dev.txt), as make test does
 #   make bench   bootstrap .venv if needed, run the benchmarks (writes bench/results.json)
@@ -25,7 +26,7 @@ export PIP_DISABLE_PIP_VERSION_CHECK := 1
 export RMW_IMPLEMENTATION := rmw_fastrtps_cpp
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test lint bench venv clean distclean lock
+.PHONY: demo test stress lint bench venv clean distclean lock
 
 demo: $(STAMP)
 	$(VENV)/bin/dpos-demo
@@ -37,6 +38,13 @@ PYTEST_WORKERS ?= 2
 test: lint
 	$(VPY) -m pytest -q -n $(PYTEST_WORKERS) -m "not ros" $(PYTEST_ARGS) || [ $$? -eq 5 ]
 	$(VPY) -m pytest -q -m ros $(PYTEST_ARGS) || [ $$? -eq 5 ]
+
+# The ROS tests on a busy machine: STRESS_BURNERS CPU-bound processes run beside them for the whole
+# session (test/conftest.py --cpu-burner; stopped at its end, and they exit by themselves if pytest dies).
+STRESS_BURNERS ?= 1
+stress: $(DEV_STAMP)
+	@echo "loadavg before: $$(cut -d' ' -f1-3 /proc/loadavg)"
+	$(VPY) -m pytest -q -m ros --cpu-burner $(STRESS_BURNERS) --durations=15 $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
 MYPY_PACKAGES := $(foreach p,$(PACKAGES),-p $(p))
 

@@ -36,6 +36,53 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 _NODES_DIR = Path(__file__).parent / "nodes"
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--cpu-burner", type=int, default=0, metavar="N",
+        help="run N CPU-bound processes beside the tests for the whole session (make stress: 1); "
+             "they are stopped at the end of the session and exit by themselves if pytest dies",
+    )
+
+
+_BURNERS_KEY = pytest.StashKey[list]()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_configure(config: pytest.Config) -> None:
+    n = config.getoption("--cpu-burner", default=0) or 0
+    if n < 0:
+        raise pytest.UsageError("--cpu-burner must be >= 0")
+    # under pytest-xdist only the controller starts burners (the workers would each start their own)
+    if n and not hasattr(config, "workerinput"):
+        from cpu_burner import start_burners
+
+        config.stash[_BURNERS_KEY] = start_burners(n)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    burners = config.stash.get(_BURNERS_KEY, None)
+    if burners:
+        from cpu_burner import stop_burners
+
+        stop_burners(burners)
+
+
+def pytest_report_header(config: pytest.Config) -> str | None:
+    burners = config.stash.get(_BURNERS_KEY, None)
+    if not burners:
+        return None
+    from cpu_burner import read_loadavg
+
+    return f"cpu burners: {len(burners)} (pids {' '.join(str(p.pid) for p in burners)}); loadavg {read_loadavg()}"
+
+
+def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> None:
+    if config.stash.get(_BURNERS_KEY, None):
+        from cpu_burner import read_loadavg
+
+        terminalreporter.write_line(f"cpu burners: {len(config.stash[_BURNERS_KEY])}; loadavg at the end {read_loadavg()}")
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Every test under test/nodes/ starts nodes or uses DDS: marked ``ros`` even where its module

@@ -205,7 +205,7 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile
-    from ros_wait import spin_until  # test/support/ros_wait.py
+    from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
     from std_srvs.srv import Trigger
 
     import transfer_align_node.node as tan
@@ -262,10 +262,10 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
             with ta._lock:
                 return all(t in ta._streams and ta._streams[t].count == len(v) for t, v in msgs.items())
 
-        spin_until(executor, buffered, 60.0, lambda: f"buffering; node has { {t: s.count for t, s in ta._streams.items()} }")
-        spin_until(executor, client.service_is_ready, 10.0, "the finalize service")
+        spin_until(executor, buffered, 120.0, lambda: f"buffering; node has { {t: s.count for t, s in ta._streams.items()} }")
+        spin_until(executor, client.service_is_ready, 30.0, "the finalize service")
         fut = client.call_async(Trigger.Request())
-        spin_until(executor, fut.done, 10.0, "the finalize reply")
+        spin_until(executor, fut.done, 30.0, "the finalize reply")
         assert fut.result().success, fut.result().message
         spin_until(executor, lambda: bool(status_files()) and not ta._finalizing, 120.0, lambda: f"products; {ta._progress}")
         n_r = sum(1 for _ in (status_files()[0].parent / "ant_r.csv").open()) - 1
@@ -274,10 +274,7 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
         ta._status_pub = tap
         ta._publish_status()
     finally:
-        for n in (watcher, src, ta):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, (watcher, src, ta))
     st = json.loads(status_files()[0].read_text())
     assert st["antennas"]["ant_r"] == "estimated", st
     assert st["antennas"]["ant_l"].startswith("failed: NumericalFailure: the smoothed covariance lost positive definiteness"), st

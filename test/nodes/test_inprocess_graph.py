@@ -1,4 +1,4 @@
-"""The graph in one process (issue #6 "an in-process graph test").
+"""The graph in one process (an in-process graph test).
 
 pos_master_node (device sim, alignment reference), two pos_sub_node (sub_r, sub_l) and
 transfer_align_node (urtss) run as nodes of ONE process, in the test's own Context, spun by a
@@ -24,7 +24,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
-from ros_wait import spin_until  # test/support/ros_wait.py
+from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
 
 from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, qos_profile
 from dpos_ros.contract.topics import message_class
@@ -145,10 +145,7 @@ def test_graph_in_one_process(ros_context, tmp_path: Path) -> None:
         for n in nodes[2:]:
             assert n.device.finished.is_set() and n.device.error is None
     finally:
-        for n in reversed(nodes):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, reversed(nodes))
 
     # nothing lost: the counter got every message of the simulator, byte for byte ...
     counts = {t: (len(counter.received[t]), len(s)) for t, s in expected.items()}

@@ -9,14 +9,13 @@ from __future__ import annotations
 import signal
 
 import pytest
+from node_process import START_TIMEOUT_S, STOP_TIMEOUT_S  # test/support/node_process.py
 from rclpy.parameter import Parameter
 
 from dpos_ros.runtime.params import ParameterError, packaged_params_file
 
 pytestmark = pytest.mark.ros
 
-START_TIMEOUT_S = 30.0
-STOP_TIMEOUT_S = 10.0
 
 # console script -> extra arguments it needs to start
 NODES = {

@@ -1,4 +1,4 @@
-"""``device: ros``: pos_master_node relays real IMU / GNSS drivers and mechanizes the relayed IMU (issue #5).
+"""``device: ros``: pos_master_node relays real IMU / GNSS drivers and mechanizes the relayed IMU.
 
 A fake driver publishes paper_ifa's simulated master IMU (sensor_msgs/Imu on /drv/imu), GNSS fix
 (/drv/fix) and velocity (/drv/vel); pos_master_node runs with ``device:=ros`` and the remaps

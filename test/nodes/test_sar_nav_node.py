@@ -1,4 +1,4 @@
-"""sar_nav_node (issue #13): the simulated paper_sar main system (pos_master_node, device sim, alignment
+"""sar_nav_node: the simulated paper_sar main system (pos_master_node, device sim, alignment
 given from an initial state with paper_sar's initial errors) publishes /master/imu, /sar/fix and
 /baro/pressure; sar_nav_node navigates the session when /session/end comes and publishes /sar_nav/nav
 and /sar_nav/status - through real DDS, in the test's own Context (its ROS_DOMAIN_ID), no launch.
@@ -22,12 +22,13 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from node_process import START_TIMEOUT_S  # test/support/node_process.py
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
-from ros_wait import spin_until  # test/support/ros_wait.py
+from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
 from sensor_msgs.msg import FluidPressure
 
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
@@ -133,10 +134,7 @@ def test_simulated_paper_sar_through_the_node(ros_context, start_node, monkeypat
         spin_until(executor, lambda: len(counter.received[T.SAR_NAV]) >= n_epochs, 30.0,
                    lambda: f"{n_epochs} /sar_nav/nav messages (got {len(counter.received[T.SAR_NAV])})")
     finally:
-        for n in reversed(nodes):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, reversed(nodes))
 
     # the node used every simulated message
     assert st["method"] == method and st["epochs"] == str(n_epochs) and st["epochs_with_fix"] == str(n_fix)
@@ -212,7 +210,7 @@ def test_bad_parameters_are_refused(ros_context, overrides: dict, needle: str) -
 @pytest.mark.parametrize(("arg", "needle"), [("method:=kf", "invalid parameter 'method' = 'kf': must be one of"),
                                              ("particles:=0", "invalid parameter 'particles' = 0: must be >= 2")])
 def test_bad_parameters_exit_2(arg: str, needle: str, tmp_path: Path) -> None:
-    r = subprocess.run([str(BIN_DIR / "sar_nav_node"), "--ros-args", "-p", arg], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    r = subprocess.run([str(BIN_DIR / "sar_nav_node"), "--ros-args", "-p", arg], capture_output=True, text=True, timeout=START_TIMEOUT_S, cwd=tmp_path)
     out = r.stdout + r.stderr
     assert r.returncode == 2, out
     assert needle in out and "Traceback" not in out, out
@@ -254,7 +252,4 @@ def test_finalize_service_and_a_session_that_cannot_be_navigated(ros_context) ->
         assert st["level"] == str(int.from_bytes(DiagnosticStatus.ERROR, "little")) and st["buffered_baro"] == "0"
         assert sar.state == "FAILED" and sar._worker is None
     finally:
-        for n in (sar, probe):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, (sar, probe))

@@ -7,6 +7,7 @@ import json
 import signal
 
 import pytest
+from node_process import START_TIMEOUT_S, STOP_TIMEOUT_S  # test/support/node_process.py
 
 from dpos_ros.cli.sar import main as dpos_sar
 from dpos_ros.contract import topics as T
@@ -23,14 +24,14 @@ TOPICS = [T.DATUM, T.MASTER_IMU, T.GNSS_FIX, T.GNSS_VEL, T.SAR_FIX, T.BARO_PRESS
 def test_recording_of_a_live_paper_sar_session(start_node, tmp_path) -> None:
     out = tmp_path / "rec"
     recorder = start_node("dpos-record", "--out", str(out), "--until-session-end", *TOPICS)
-    recorder.wait_for_line("dpos-record: recording", 30.0)
+    recorder.wait_for_line("dpos-record: recording", START_TIMEOUT_S)
     master = start_node("pos_master_node", "--ros-args", "-p", "scenario:=paper_sar", "-p", f"duration:={DURATION_S}",
                         "-p", "rate_factor:=0.0", "-p", "alignment:=reference", "-p", "min_subscribers:=1", "-p", "wait_subscribers_s:=30.0")
     try:
         assert recorder.wait(120.0) == 0, recorder.output
     finally:
         master.send_signal(signal.SIGINT)
-    assert master.wait(30.0) == 0, master.output
+    assert master.wait(STOP_TIMEOUT_S) == 0, master.output
     got = read_raw(out)
     expected = {s.topic: s for s in device_streams(load_sim_session("paper_sar", "", 1, DURATION_S), "master")}
     for topic in (T.SAR_FIX, T.BARO_PRESSURE):

@@ -19,7 +19,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message, serialize_message
 from repo_paths import REPO
-from ros_wait import spin_until  # test/support/ros_wait.py
+from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
 from std_srvs.srv import Trigger
 
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
@@ -95,10 +95,7 @@ def test_never_aligned_main_pos(ros_context, tmp_path: Path) -> None:
         status_files = lambda: list(tmp_path.glob("session_*/status.json"))  # noqa: E731
         spin_until(executor, lambda: bool(status_files()) and not ta._finalizing, 120.0, lambda: f"products; {ta._progress}")
     finally:
-        for n in (watcher, src, ta):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown(timeout_sec=10.0)
+        stop_and_destroy(executor, (watcher, src, ta))
     st = json.loads(status_files()[0].read_text())
     assert st["antennas"] == {"ant_r": "not estimated: the main POS is never aligned",
                               "ant_l": "not estimated: the main POS is never aligned"}, st

@@ -1,4 +1,4 @@
-"""transfer_align_node's streaming finalize (issue #17, parameter ``stream_above_s``), in-process:
+"""transfer_align_node's streaming finalize (parameter ``stream_above_s``), in-process:
 the sample bag's first 25 s (paper_su_pair: two sub-IMUs) fed to the subscription callbacks, the
 smoothers in threads, the antenna poses received through DDS by a subscriber in this process.
 

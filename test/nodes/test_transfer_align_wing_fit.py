@@ -1,4 +1,4 @@
-"""transfer_align_node in a live graph with `fit` antennas (issue #12, the least-squares wing fit).
+"""transfer_align_node in a live graph with `fit` antennas (the least-squares wing fit).
 
 A short paper_wing flight with three of its sub-IMUs (imu03, imu05, imu07, their antennas) and the
 `fit` antennas ant04 and ant06 between them and ant08 beyond the outermost, simulated by dpos-sim

@@ -1,4 +1,4 @@
-"""An unknown node parameter through a real process (issue #14): every node refuses it with one
+"""An unknown node parameter through a real process: every node refuses it with one
 error naming it and the closest known parameter, and exits with status 2 (not 0, not a traceback)."""
 
 from __future__ import annotations
@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from node_process import START_TIMEOUT_S  # test/support/node_process.py
 
 pytestmark = pytest.mark.ros
 
@@ -26,7 +27,7 @@ BIN_DIR = Path(sys.executable).parent
 ])
 def test_unknown_parameter_exits_2_naming_the_closest(node: str, typo: str, hint: str, tmp_path: Path) -> None:
     r = subprocess.run([str(BIN_DIR / node), "--ros-args", "-p", f"{typo}:=10.0"], capture_output=True, text=True,
-                       timeout=60, cwd=tmp_path)
+                       timeout=START_TIMEOUT_S, cwd=tmp_path)
     out = r.stdout + r.stderr
     assert r.returncode == 2, out
     assert "Traceback" not in out, out

@@ -29,31 +29,35 @@ def llh_err_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 class Spinner:
     """A MultiThreadedExecutor spinning the nodes in a background thread; :meth:`stop` stops their
-    simulated devices (if any), the executor, and destroys the nodes."""
+    simulated devices (if any), the spinning, the executor once its callbacks are done, and destroys
+    the nodes (that order: ros_wait.stop_and_destroy)."""
 
     def __init__(self, context: Any, nodes: list[Any]) -> None:
         from rclpy.executors import MultiThreadedExecutor
 
+        self.context = context
         self.executor = MultiThreadedExecutor(num_threads=4, context=context)
         self.nodes = nodes
         for n in nodes:
             self.executor.add_node(n)
+        self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
     def _spin(self) -> None:
-        from rclpy.executors import ExternalShutdownException
-
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
+        # spin_once until stop() (not spin(): only executor.shutdown() ends that, and it must wait
+        # until the callbacks handed to the pool are done)
+        while not self._stop.is_set() and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
 
     def stop(self) -> None:
-        for n in self.nodes:
+        from ros_wait import stop_and_destroy
+
+        for n in self.nodes:  # the devices' threads first, while the executor still serves their nodes
             if getattr(n, "device", None) is not None:
                 n.device.stop()
-        self.executor.shutdown(timeout_sec=5.0)
+        self._stop.set()
         self.thread.join(10.0)
-        for n in self.nodes:
-            n.destroy_node()
+        if self.thread.is_alive():
+            raise AssertionError("the executor's spin thread did not stop within 10 s")
+        stop_and_destroy(self.executor, self.nodes)

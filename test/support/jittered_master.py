@@ -1,4 +1,4 @@
-"""A real master device's data, simulated (issue #11): IMU stamps that jitter, dropped samples, GNSS
+"""A real master device's data, simulated: IMU stamps that jitter, dropped samples, GNSS
 fixes stamped between IMU samples.
 
 The samples are physically consistent (the simulator's motion and master IMU model, integrated

@@ -16,6 +16,17 @@ import pytest
 
 BIN_DIR = Path(sys.executable).parent
 
+#: Hang guards of the tests that run node processes and CLIs [s]: how long a start (to its first log
+#: line, or to its exit on a bad parameter), a stop (after SIGINT / SIGTERM) or a short CLI run may
+#: take before the test fails. Not performance bounds: a node's start alone costs 4-9 s of CPU
+#: (imports, numba kernels loaded; measured: ifa_node 4.2 s, pos_master_node 6.4 s,
+#: transfer_align_node 8.6 s), a graph starts several at once, and on a busy machine (``make
+#: stress``: a CPU-bound neighbour on the 2 cores) each gets a fraction of a core - 30 s was measured
+#: too short there. Every wait ends as soon as its condition holds.
+START_TIMEOUT_S = 120.0
+STOP_TIMEOUT_S = 60.0
+CLI_TIMEOUT_S = 120.0
+
 
 class NodeProcess:
     """A node started from its console script; stdout and stderr are read line by line.

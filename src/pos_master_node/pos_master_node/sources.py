@@ -37,7 +37,8 @@
       answered = its /ifa/status says every fix up to that stamp is finished (``fixes_done_ns``:
       an epoch, a rejection or a skip) and every correction and bias estimate it published
       (``last_correction_ns``, ``last_bias_ns``: the two topics arrive in either order) has arrived
-      here. The fixes waiting in the middleware are relayed first (the node may have been busy).
+      here. The fixes waiting in the middleware are relayed first, with their velocities (the node
+      may have been busy; the ifa_node pairs the two within ``pair_timeout_s`` of wall time).
       The relay itself (/master/imu, which the ifa_node needs to answer) is
       never held; /master/nav waits for the ifa_node's processing only (a few ms per fix). A hold
       unanswered for ``LEAD_WAIT_S`` (an ifa_node stopped or stuck) is released with a warning,
@@ -391,7 +392,9 @@ class RelaySource:
         if not nav.started and not nav.try_start_live(self.input):
             return
         origin_ns = nav.origin_ns
-        self.relay.take_pending(("fix",))  # every fix relayed so far holds (this node may have been busy)
+        # every fix relayed so far holds (this node may have been busy); its velocity goes with it, so that
+        # the ifa_node, which pairs them, does not get the fix seconds before its velocity on a busy machine
+        self.relay.take_pending(("fix", "vel"))
         pending = self.input.imu  # after the start: it replaces the queue
         hold_ns = self._hold_ns(origin_ns)
         delay_s = self.config.nav_delay_s

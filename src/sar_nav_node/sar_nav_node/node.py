@@ -90,6 +90,9 @@ class SarNavNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        # the worker thread publishes too: destroy_node() stops it from publishing before the publishers go
+        self._pub_lock = threading.Lock()
+        self._closing = False
         try:
             self.config: SarNavConfig = declare_config(self, SarNavConfig)
             try:
@@ -240,14 +243,30 @@ class SarNavNode(Node):
     def _publish_flow_controlled(self, rows: Any) -> None:
         """Publish /sar_nav/nav; before a batch would exceed half the stream's KEEP_LAST depth of unacknowledged
         messages, wait (polling: rclpy holds the GIL in the wait) until the reliable subscribers acknowledged
-        the last batch (at most ``ACK_WAIT_S`` per batch: a subscriber that went away is not waited for)."""
+        the last batch (at most ``ACK_WAIT_S`` per batch: a subscriber that went away is not waited for).
+        Stops when the node is being destroyed."""
         for lo in range(0, len(rows), NAV_BATCH):
             if lo:
                 deadline = time.monotonic() + ACK_WAIT_S
-                while not self.pub_nav.wait_for_all_acked(Duration(nanoseconds=0)) and time.monotonic() < deadline:
+                while not self._acked() and time.monotonic() < deadline:
                     time.sleep(0.01)
-            for r in rows[lo:lo + NAV_BATCH]:
-                self.pub_nav.publish(bytes(r))
+            with self._pub_lock:
+                if self._closing:
+                    return
+                for r in rows[lo:lo + NAV_BATCH]:
+                    self.pub_nav.publish(bytes(r))
+
+    def _acked(self) -> bool:
+        """Every /sar_nav/nav message acknowledged by the reliable subscribers (True once the node is being destroyed)."""
+        with self._pub_lock:
+            return self._closing or self.pub_nav.wait_for_all_acked(Duration(nanoseconds=0))
+
+    def destroy_node(self) -> None:
+        """Destroy the node; from now on the worker thread (a navigation may be in progress: its result
+        is lost with the node) publishes nothing, so it never uses a destroyed publisher."""
+        with self._pub_lock:
+            self._closing = True
+        super().destroy_node()
 
     def _navigate(self, s: _Session) -> tuple[Any, dict[str, Any]]:
         missing = [t for t, have in ((T.MASTER_IMU, s.imu), (T.MASTER_NAV, s.nav0), (T.SAR_FIX, s.fixes), (T.BARO_PRESSURE, s.baro)) if not have]
@@ -287,7 +306,10 @@ class SarNavNode(Node):
                 else:
                     values[k] = v
             message, level = self.message, _LEVELS[self.state]
-        self.pub_status.publish(cv.diagnostic_array(self.get_clock().now().to_msg(), STATUS_NAME, cv.MASTER_FRAME, level, message, values))
+        with self._pub_lock:  # (also from the worker thread: not once the node is being destroyed)
+            if not self._closing:
+                self.pub_status.publish(cv.diagnostic_array(self.get_clock().now().to_msg(), STATUS_NAME, cv.MASTER_FRAME, level,
+                                                            message, values))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from node_process import CLI_TIMEOUT_S  # test/support/node_process.py
 
 pytestmark = pytest.mark.ros
 
@@ -15,7 +16,7 @@ PLAY = str(Path(sys.executable).parent / "dpos-play")
 
 
 def _play(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([PLAY, *args, "--rate", "0"], capture_output=True, text=True, timeout=60, cwd=cwd)
+    return subprocess.run([PLAY, *args, "--rate", "0"], capture_output=True, text=True, timeout=CLI_TIMEOUT_S, cwd=cwd)
 
 
 def _one_error_line(r: subprocess.CompletedProcess, *needles: str) -> str:

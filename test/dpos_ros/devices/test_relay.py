@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistWithCovarianceStamped
+from node_process import START_TIMEOUT_S, STOP_TIMEOUT_S  # test/support/node_process.py
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -320,10 +321,10 @@ def test_pos_sub_node_ros_process_logs_plan_and_stops(start_node):
 
     proc = start_node("pos_sub_node", "--ros-args", "-r", "__node:=sub_l", "-p", "name:=sub_l", "-p", "device:=ros",
                       "-p", "seed:=7", "-p", "rate_factor:=0", "-r", "imu_in:=/drv/imu_l")
-    line = proc.wait_for_line("-> relaying", TIMEOUT_S)
+    line = proc.wait_for_line("-> relaying", START_TIMEOUT_S)
     assert "imu_in (/drv/imu_l) -> /sub_imu/sub_l/imu [sub_imu_sub_l]" in line and "status on /sub_l/status" in line, line
     ignored = proc.wait_for_line("ignores the simulator parameters", 1.0)
     assert "seed=7" in ignored and "rate_factor=0.0" in ignored and "scenario" not in ignored, ignored
     proc.send_signal(signal.SIGINT)
-    assert proc.wait(TIMEOUT_S) == 0, proc.output
+    assert proc.wait(STOP_TIMEOUT_S) == 0, proc.output
     assert "Traceback" not in proc.output and "-> publishing" not in proc.output, proc.output

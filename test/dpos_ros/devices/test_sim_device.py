@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from node_process import START_TIMEOUT_S, STOP_TIMEOUT_S  # test/support/node_process.py
 from rclpy.parameter import Parameter
 
 from dpos_core.sim.scenario import load_scenario
@@ -28,8 +29,6 @@ pytestmark = pytest.mark.ros
 
 IN_PROCESS_TIMEOUT_S = 60.0
 GRAPH_TIMEOUT_S = 60.0
-START_TIMEOUT_S = 30.0
-STOP_TIMEOUT_S = 10.0
 
 
 def _session(duration_s: float, aircraft: str | None = None, scenario: str = "paper_su", seed: int = 1):

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from node_process import CLI_TIMEOUT_S, START_TIMEOUT_S  # test/support/node_process.py
 
 from dpos_ros.io.bag import custom_data, read_raw
 
@@ -24,9 +25,7 @@ pytestmark = pytest.mark.ros
 
 BIN_DIR = Path(sys.executable).parent
 
-START_TIMEOUT_S = 30.0
 RUN_TIMEOUT_S = 90.0
-CLI_TIMEOUT_S = 60.0
 
 
 @pytest.fixture(scope="module")

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from node_process import CLI_TIMEOUT_S, START_TIMEOUT_S, STOP_TIMEOUT_S  # test/support/node_process.py
 
 from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec
 
@@ -30,8 +32,8 @@ def _graph_file(tmp_path: Path, domain: int, extra: str = "") -> Path:
     g = tmp_path / "graph.yaml"
     g.write_text(f"""
 ros_domain_id: {domain}
-ready_timeout_s: 60
-stop_timeout_s: 10
+ready_timeout_s: {START_TIMEOUT_S:g}
+stop_timeout_s: {STOP_TIMEOUT_S:g}
 nodes:
   - name: master
     executable: pos_master_node
@@ -68,11 +70,15 @@ nodes:
     parameters: {{scenario: paper_su}}
     ready: {{publishes: [/never/published]}}
 """)
-    graph = Graph.from_yaml(g, log=lambda n, line: None, ready_timeout_s=4.0)
+    lines: list[str] = []
+    graph = Graph.from_yaml(g, log=lambda n, line: lines.append(line), ready_timeout_s=4.0)
     with pytest.raises(GraphError, match=r"not ready after 4 s: \['lonely'\]"):
         with graph:
             pass
-    assert graph.exit_codes == {"lonely": 0}
+    # stopped by the SIGINT: cleanly (0) once it runs (its first log line); on a busy machine the 4 s may
+    # end while it still imports its modules, before any handler of ours: then the SIGINT's own status
+    started = any("[INFO]" in line for line in lines)
+    assert graph.exit_codes == {"lonely": 0} or (not started and graph.exit_codes == {"lonely": -signal.SIGINT}), (graph.exit_codes, lines)
     assert not _alive(graph.procs["lonely"].popen.pid)
 
 
@@ -108,7 +114,7 @@ nodes:
     assert r.returncode == 0, r.stdout + r.stderr
     assert "[a] " in r.stdout and "[b] " in r.stdout and "2 node(s) ready" in r.stdout
     assert "exit codes a=0, b=0" in r.stdout
-    examples = {name: subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=30)
+    examples = {name: subprocess.run([str(EXE / "dpos-graph"), "--example", name], capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
                 for name in ("sim_paper_su", "aircraft_ros")}  # the packaged examples: the whole product graph
     assert all(ex.returncode == 0 for ex in examples.values())
     # the real-device example makes the user state what only they know, and names what is left
@@ -117,9 +123,9 @@ nodes:
     for unset in ("pos_master_node: parameter 'datum'", "pos_master_node: parameter 'input_rotation_rpy_deg'",
                   "pos_master_node: remap 'imu_in'", "ifa_node: parameter 'aircraft_config'", "sub_l: remap 'imu_in'"):
         assert unset in str(e.value), unset
-    r = subprocess.run([str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=30)
+    r = subprocess.run([str(EXE / "dpos-graph"), "--example", "aircraft_ros"], capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
     (tmp_path / "r.yaml").write_text(r.stdout)
-    r = subprocess.run([str(EXE / "dpos-graph"), str(tmp_path / "r.yaml")], capture_output=True, text=True, timeout=30)
+    r = subprocess.run([str(EXE / "dpos-graph"), str(tmp_path / "r.yaml")], capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
     assert r.returncode == 2 and "'datum' = <[LAT_DEG, LON_DEG, H_M] OR [] FOR THE FIRST FIX>" in r.stderr, r.stderr
     filled = {"<AIRCRAFT FILE>": "/etc/dpos/aircraft.yaml", "<PRODUCTS DIRECTORY>": "/data/dpos",
               "<[LAT_DEG, LON_DEG, H_M] OR [] FOR THE FIRST FIX>": "[]", "<MAIN IMU TOPIC>": "/imu/data",
