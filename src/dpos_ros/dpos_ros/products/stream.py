@@ -64,7 +64,7 @@ from .evaluate_stream import write_evaluation
 from .qc import json_safe, plot_qc, qc_dir, qc_md
 from .rows import ROW_COLUMNS, RowStore, StampCursor, StreamedAntenna, nav_of
 from .solve import aligned_master, decimate, fit_antennas, spans_text
-from .write import CSV_FORMATS, CSV_HEADER, CsvRows, antenna_stream, csv_columns, new_products_dir, status_doc, swap_in
+from .write import CSV_FORMATS, CSV_HEADER, CsvRows, antenna_stream, csv_columns, status_doc, write_complete
 
 #: seconds of the wing fit's windows (module docstring)
 FIT_WINDOW_S = 300.0
@@ -367,16 +367,8 @@ def write_streaming(out_root: Path, sess: RecordedSession, antennas: dict[str, S
     antenna bag's batches made and compressed there while this process writes them to the file.
     ``evaluation``: :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`'s result, written
     (metrics.json, report.md, error figures) before status.json."""
-    final = Path(out_root) / sess.session_id
-    out = new_products_dir(final, overwrite)
-    try:
-        _write(out, sess, antennas, method, timing, pool, evaluation)
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True)
-        raise
-    if out != final:
-        swap_in(out, final)
-    return final
+    return write_complete(Path(out_root) / sess.session_id, overwrite,
+                          lambda out: _write(out, sess, antennas, method, timing, pool, evaluation))
 
 
 def _write(out: Path, sess: RecordedSession, antennas: dict[str, StreamedAntenna], method: str, timing: dict[str, float],

@@ -18,6 +18,7 @@ import functools
 import json
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
@@ -63,10 +64,17 @@ def write(
     ``pool``: each antenna's files (CSV, QC figure, error figure) are written by its workers (the
     smoothers' pool, idle by then), the rest in this process meanwhile."""
 
-    final = Path(out_root) / sess.session_id
+    return write_complete(Path(out_root) / sess.session_id, overwrite,
+                          lambda out: _write_products(out, sess, antennas, method, timing, evaluation, pool))
+
+
+def write_complete(final: Path, overwrite: bool, fill: Callable[[Path], None]) -> Path:
+    """The products directory ``final``, complete or absent: ``fill(out)`` writes into a new
+    directory (:func:`new_products_dir`), which is removed on any exception (re-raised) and swapped
+    in for ``final`` (:func:`swap_in`) when it is a temporary sibling. Returns ``final``."""
     out = new_products_dir(final, overwrite)
     try:
-        _write_products(out, sess, antennas, method, timing, evaluation, pool)
+        fill(out)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
