@@ -124,8 +124,10 @@ class SarNavNode(Node):
         self.pub_nav = self.create_publisher(Odometry, T.SAR_NAV, NAV_QOS)
         self.pub_status = self.create_publisher(DiagnosticArray, T.SAR_NAV_STATUS, STATUS_QOS)
         subscribe_draining(self, Imu, T.MASTER_IMU, self._on_imu, INPUT_QOS, raw=True)
-        self._nav_sub: Any = None
-        self._subscribe_nav()
+        # /master/nav stays subscribed: only the first message of a session is kept (the initial state).  The
+        # subscription is never destroyed while spinning - a multi-threaded executor may be adding its QoS event
+        # handlers to a wait set at that moment (rclpy raises InvalidHandle in the executor's thread).
+        self.create_subscription(Odometry, T.MASTER_NAV, self._on_nav, keep_all(NAV_QOS), raw=True)
         subscribe_draining(self, PoseWithCovarianceStamped, T.SAR_FIX, self._on_fix, INPUT_QOS)
         subscribe_draining(self, FluidPressure, T.BARO_PRESSURE, self._on_baro, INPUT_QOS)
         self.create_subscription(Header, T.SESSION_END, self._on_session_end, NAV_QOS)
@@ -154,13 +156,9 @@ class SarNavNode(Node):
         s.last_imu_ns = max(s.last_imu_ns, cv.raw_stamp_ns(raw))
         self._buffering()
 
-    def _subscribe_nav(self) -> None:
-        """/master/nav until its first message (the initial state): the rest of the stream (one message per
-        IMU sample) is not taken; reopened for the next session."""
-        if self._nav_sub is None:
-            self._nav_sub = self.create_subscription(Odometry, T.MASTER_NAV, self._on_nav, keep_all(NAV_QOS), raw=True)
-
     def _on_nav(self, raw: bytes) -> None:
+        """The session's first /master/nav is its initial state; the rest of the stream (one message per IMU
+        sample) is taken and dropped."""
         if self._session.nav0 is None:
             self._session.nav0 = bytes(raw)
             self._buffering()
@@ -188,9 +186,6 @@ class SarNavNode(Node):
         return response
 
     def _on_timer(self) -> None:
-        if self._session.nav0 is not None and self._nav_sub is not None:
-            self.destroy_subscription(self._nav_sub)
-            self._nav_sub = None
         if self._end_ns is not None and self._worker is None:
             s = self._session
             if s.last_imu_ns >= self._end_ns or time.monotonic() - self._end_wall > self.config.finalize_timeout_s:
@@ -206,7 +201,6 @@ class SarNavNode(Node):
         """Take the buffered session and navigate it in a worker thread (the executor stays free)."""
         self._session_taken, self._session = self._session, _Session()
         self._end_ns, self._end_id = None, ""
-        self._subscribe_nav()
         self.state = self.message = "PROCESSING"
         self._publish_status()
         self._worker = threading.Thread(target=self._process, args=(self._session_taken, session_id), name="sar_nav", daemon=True)
