@@ -196,8 +196,11 @@ def test_bad_gnss_is_rejected_and_leaves_the_filter_undisturbed(ros_context, ros
     datum = ss.datum_llh
     origin = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
     init = truth_initial(ss, 30.0)
+    # the test publishes the whole IMU first and the fixes one by one: a fix that comes later than
+    # outage_wait_s of wall time (a busy machine) would be an outage, and the fix after it stale
     ifa = IfaNode(context=ros_context, parameter_overrides=[
-        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
+        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])]),
+        Parameter("outage_wait_s", value=3600.0)])
     node = Node("fake_master", context=ros_context)
     pub = {"nav": node.create_publisher(Odometry, "/master/nav", NAV_QOS), "imu": node.create_publisher(Imu, "/master/imu", SENSOR_QOS),
            "fix": node.create_publisher(NavSatFix, "/gnss/fix", SENSOR_QOS),
@@ -281,8 +284,11 @@ def test_fixes_before_the_start_are_skipped_quietly(ros_context, ros_executor) -
     datum = ss.datum_llh
     start_ns = int(cv.stamps_ns(ss.scenario.start_time_s, np.array([0.0]))[0])
     init = truth_initial(ss, 30.0)
+    # the test publishes the whole IMU first and the fixes one by one: a fix that comes later than
+    # outage_wait_s of wall time (a busy machine) would be an outage, and the fix after it stale
     ifa = IfaNode(context=ros_context, parameter_overrides=[
-        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])])])
+        Parameter("scenario", value="paper_ifa"), Parameter("datum", value=[datum[0] / DEG, datum[1] / DEG, float(datum[2])]),
+        Parameter("outage_wait_s", value=3600.0)])
     node = Node("fake_master_before_start", context=ros_context)
     pub = {"nav": node.create_publisher(Odometry, "/master/nav", NAV_QOS), "imu": node.create_publisher(Imu, "/master/imu", SENSOR_QOS),
            "fix": node.create_publisher(NavSatFix, "/gnss/fix", SENSOR_QOS),
