@@ -160,6 +160,11 @@ def _parabola_peak(xs: FloatArray, ys: FloatArray) -> float:
     return float(xs[i])
 
 
+def _no_manoeuvre(name: str, rate_std_dps: float, s: ClockSettings) -> ClockNotObservable:
+    return ClockNotObservable(f"{name}: clock offset not observable: no manoeuvre (the main solution's angular rate varies by "
+                              f"{rate_std_dps:.2f} deg/s rms, {s.min_rate_std_dps:g} needed); give the log's clock")
+
+
 def estimate_clock(t_main_s: FloatArray, C_nb: FloatArray, t_dev_s: FloatArray, omega_dev: FloatArray,
                    settings: ClockSettings = ClockSettings(), name: str = "sub-IMU") -> ClockEstimate:
     """Offset (and drift) of a device clock against the main solution (module docstring).
@@ -191,6 +196,8 @@ def estimate_clock(t_main_s: FloatArray, C_nb: FloatArray, t_dev_s: FloatArray, 
         ok &= (taus >= s.search_s[0]) & (taus <= s.search_s[1])
     ncc = np.where(ok, ncc, np.nan)
     if not np.isfinite(ncc).any():
+        if np.any(ok) and float(np.std(mag_main)) / DEG < s.min_rate_std_dps:
+            raise _no_manoeuvre(name, float(np.std(mag_main)) / DEG, s)
         raise ClockNotObservable(f"{name}: the log does not overlap the main solution by {s.min_overlap:.0%} at any offset")
     i = int(np.nanargmax(ncc))
     tau0, peak = float(taus[i]), float(ncc[i])
@@ -200,8 +207,7 @@ def estimate_clock(t_main_s: FloatArray, C_nb: FloatArray, t_dev_s: FloatArray, 
     sel = (mid >= t_dev_s[0] + tau0) & (mid <= t_dev_s[-1] + tau0)
     rate_std = float(np.std(mag_main[sel]) / DEG) if sel.sum() > 2 else 0.0
     if rate_std < s.min_rate_std_dps:
-        raise ClockNotObservable(f"{name}: clock offset not observable: no manoeuvre (the main solution's angular rate varies by "
-                                 f"{rate_std:.2f} deg/s rms over the log, {s.min_rate_std_dps:g} needed); give the log's clock")
+        raise _no_manoeuvre(name, rate_std, s)
     if peak < s.min_peak:
         raise ClockNotObservable(f"{name}: clock offset not observable: best rate correlation {peak:.2f} < {s.min_peak:g}; "
                                  "give the log's clock")
