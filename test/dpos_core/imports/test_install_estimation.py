@@ -5,7 +5,6 @@ refused; the leap seconds come from the table (a UTC stamp of 2016 and one of 20
 from __future__ import annotations
 
 import calendar
-
 import importlib.util
 from pathlib import Path
 

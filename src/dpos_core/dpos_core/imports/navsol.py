@@ -210,10 +210,18 @@ def read_nav_csv(path: str | Path, c: NavColumns) -> NavSolution:
             note = f"elapsed x {c.time_unit_s:g} s since the epoch {c.epoch} ({c.time_scale})"
         else:
             # a truncated date-time d_i <= epoch + elapsed_i: the epoch is at least max(d_i - elapsed_i),
-            # and within the sample interval of it when the log is longer than the column's resolution
-            epoch_ns = int(np.max(np.array(coarse, dtype=np.int64) - t_ns))
+            # and within the sample interval of it when the log is longer than the column's resolution;
+            # over the lines before the first jump of d_i - elapsed_i (a logger whose elapsed time pauses)
+            dd = np.array(coarse, dtype=np.int64) - t_ns
+            jumps = np.flatnonzero(np.abs(dd - dd[0]) > 2 * _NS)
+            head = dd if jumps.size == 0 else dd[:jumps[0]]
+            epoch_ns = int(np.max(head))
             note = (f"elapsed x {c.time_unit_s:g} s since an epoch from column {c.epoch_col} ({c.time_scale}): "
                     f"the latest of (date-time - elapsed), {_iso(epoch_ns)}")
+            if jumps.size:
+                steps = np.flatnonzero(np.abs(np.diff(dd)) > 2 * _NS) + 1
+                note += (f"; over the first {jumps[0]} lines: the date-time jumps against the elapsed time by "
+                         + ", ".join(f"{(dd[k] - dd[k - 1]) * 1e-9:+.1f} s at elapsed {t_ns[k] * 1e-9:.1f} s" for k in steps[:5]))
         t_ns = t_ns + epoch_ns
     if c.time_form in ("unix", "datetime", "elapsed"):
         t_ns = to_gpst_ns(t_ns, c.time_scale)

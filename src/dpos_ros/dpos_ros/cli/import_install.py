@@ -169,8 +169,9 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
     return streams, sources
 
 
-def read_sub(name: str, path: Path, ns: argparse.Namespace) -> tuple[ImuLog, str]:
-    """Read one sub-IMU log; returns the log (stamps: GPST, or device seconds from 0 for a counter only) and its clock kind."""
+def read_sub(name: str, path: Path, ns: argparse.Namespace) -> tuple[ImuLog, str, int]:
+    """Read one sub-IMU log; returns the log (stamps: GPST, or device seconds from 0 for a counter only),
+    its clock kind and the count of samples removed because all six values were 0."""
     if not path.is_file():
         raise ImportFailure(f"--sub {name}: {path}: {'is a directory' if path.is_dir() else 'no such file'}")
     try:
@@ -181,13 +182,16 @@ def read_sub(name: str, path: Path, ns: argparse.Namespace) -> tuple[ImuLog, str
         raise ImportFailure(f"--sub {name}: IMU columns: {exc}") from None
     tag = None if ns.tag is None else read_tag(ns.tag)
     log = read_imu_csv(path, cols, tag)
+    zero = np.all(log.omega_radps == 0.0, axis=1) & np.all(log.f_mps2 == 0.0, axis=1)
+    if zero.any():  # a logger's placeholder (e.g. an Xsens DOT's first line): no specific force is 0 under gravity
+        log = ImuLog(log.t_ns[~zero], log.omega_radps[~zero], log.f_mps2[~zero], log.skipped, log.repeated, log.clock_scale)
     if ns.time_col is not None:
         if ns.time_scale == "utc":
             log.t_ns = to_gpst_ns(log.t_ns, "utc")
-        return log, f"time column ({ns.time_scale.upper()})"
+        return log, f"time column ({ns.time_scale.upper()})", int(zero.sum())
     if tag is not None:
-        return log, "counter mapped onto the time tag"
-    return log, "counter only: offset estimated from the angular rates"
+        return log, "counter mapped onto the time tag", int(zero.sum())
+    return log, "counter only: offset estimated from the angular rates", int(zero.sum())
 
 
 def _clock_dict(c: ClockEstimate) -> dict[str, Any]:
@@ -265,10 +269,12 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
     mounts: dict[str, MountingEstimate] = {}
     settings = ClockSettings(min_peak=args.clock_min_peak)
     for name, (path, ns) in subs.items():
-        log, kind = read_sub(name, path, ns)
+        log, kind, n_zero = read_sub(name, path, ns)
         entry: dict[str, Any] = {"file": str(path), "samples_read": len(log), "lines_skipped": len(log.skipped),
                                  "skipped_first": [{"line": n, "reason": why} for n, why in log.skipped[:5]],
-                                 "repeated_samples": log.repeated, "clock": {"source": kind}}
+                                 "repeated_samples": log.repeated,
+                                 "removed_all_zero": n_zero,  # all six values 0: a placeholder, not a measurement
+                                 "clock": {"source": kind}}
         if kind.startswith("counter only"):
             td = np.asarray(log.t_ns * 1e-9, dtype=np.float64)
             try:
@@ -317,6 +323,8 @@ def summary_lines(rep: dict[str, Any], prog: str) -> list[str]:
     for name, s in rep["subs"].items():
         out.append(f"SUB   {name}: {s['file']}: {s['samples_written']} samples -> /sub_imu/{name}/imu; lines skipped: {s['lines_skipped']}, "
                    f"repeated samples: {s['repeated_samples']}, outside the solution: {s['samples_outside_nav']}")
+        if s["removed_all_zero"]:
+            out.append(f"      removed: {s['removed_all_zero']} sample(s) with all six values 0 (a logger's placeholder, not a measurement)")
         out += [f"        line {e['line']}: {e['reason']}" for e in s["skipped_first"]]
         c = s["clock"]
         if "offset_s" in c:
