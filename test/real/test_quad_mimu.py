@@ -1,4 +1,4 @@
-"""Issue #30 acceptance on real data: quad_mimu (a quadrotor's RTK GNSS/INS solution as the main
+"""Acceptance on real data: quad_mimu (a quadrotor's RTK GNSS/INS solution as the main
 navigation, four Xsens DOT IMUs as the sub-IMUs; data/real/quad_mimu, CC-BY 4.0).
 
 (a) straight paths 1-4: each DOT's mounting (roll/pitch/yaw with sigma) estimated from the rates,
@@ -128,12 +128,15 @@ def raw_vs_authors(rep: dict, t_sub_ns: np.ndarray, nav_first_ns: int) -> dict[i
     raw = np.genfromtxt(RAW_DOT1, delimiter=",", skip_header=1)
     raw = raw[~np.all(raw[:, 1:7] == 0.0, axis=1)]  # the import drops the all-zero placeholder line too
     first_elapsed_s = 200.0  # the cut flight log's first line
+    # the import removed the samples before the flight log's excerpt (the log ends inside it)
+    n_before = len(raw) - len(t_sub_ns)
+    assert n_before == rep["subs"]["dot1"]["samples_outside_nav"]
     out = {}
     for p, start_s in AUTHORS_START_S.items():
         im = np.genfromtxt(DATA / f"straight_path_{p}" / "IMU_1.csv", delimiter=",", skip_header=1)
         k = int(np.flatnonzero(np.all(raw[:, 4:7] == im[0, 7:10], axis=1))[0])
         assert np.array_equal(raw[k:k + len(im), 4:7], im[:, 7:10])  # the path file is a cut of the raw log
-        ours_s = (int(t_sub_ns[k]) - nav_first_ns) * 1e-9 + first_elapsed_s
+        ours_s = (int(t_sub_ns[k - n_before]) - nav_first_ns) * 1e-9 + first_elapsed_s
         out[p] = (ours_s - start_s) * 1e3
     return out
 
@@ -195,3 +198,60 @@ if __name__ == "__main__":
     print(_tables())
     print()
     print(_raw_table())
+
+
+# ----------------------------------------------------------------------------- (c) through dpos-process
+
+#: the reference's rounding (0.1 deg, 0.1 m) as a uniform error: sigma = step / sqrt(12)
+ROUND_DEG = 0.1 / np.sqrt(12.0)
+ROUND_M = 0.1 / np.sqrt(12.0)
+
+
+def products_vs_reference(products: Path, nav_file: Path, columns: NavColumns, mounts: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """Each DOT's antenna product (its sub-IMU's pose: the aircraft file puts the antenna at the IMU)
+    against the reference at the reference's epochs: attitude error (about E, N, U) against
+    ``C_nb C_bs`` (the reference attitude through the estimated mounting ``mounts`` [deg]) and
+    position error (E, N, U); RMSE and the fraction within 2 sigma, the sigma being the product's
+    and the reference's rounding combined."""
+    import csv
+
+    from dpos_core.attitude import dcm_to_rotvec, mount_dcm, rotvec_to_dcm
+    from dpos_core.earth import C_en, geodetic_to_ecef
+    from dpos_core.frames import C_nb_from_hpr
+
+    nav = read_nav_csv(nav_file, columns)
+    t_ref = nav.t_ns * 1e-9
+    out: dict[str, dict[str, float]] = {}
+    for name, rpy in mounts.items():
+        with (products / f"{name}.csv").open() as fh:
+            rows = [r for r in csv.DictReader(fh)]
+        t = np.array([float(r["stamp_s"]) for r in rows])
+        get = lambda k: np.array([float(r[k]) for r in rows])  # noqa: E731
+        C = C_nb_from_hpr(np.deg2rad(get("heading_deg")), np.deg2rad(get("pitch_deg")), np.deg2rad(get("roll_deg")))
+        llh = np.column_stack([np.deg2rad(get("lat_deg")), np.deg2rad(get("lon_deg")), get("h_m")])
+        sig_att = np.column_stack([get("sigma_rot_e_deg"), get("sigma_rot_n_deg"), get("sigma_heading_deg")])
+        sig_pos = np.column_stack([get("sigma_east_m"), get("sigma_north_m"), get("sigma_h_m")])
+        keep = (t_ref > t[0]) & (t_ref < t[-1])
+        C_bs = mount_dcm(rpy, (0.0, 0.0, 0.0))
+        att_err, pos_err, s_att, s_pos = [], [], [], []
+        Ren = C_en(float(nav.llh[0, 0]), float(nav.llh[0, 1]))
+        for i in np.flatnonzero(keep):
+            k = int(np.searchsorted(t, t_ref[i]))
+            a = (t_ref[i] - t[k - 1]) / (t[k] - t[k - 1])
+            C_est = C[k - 1] @ rotvec_to_dcm(a * dcm_to_rotvec(C[k - 1].T @ C[k]))
+            phi = dcm_to_rotvec(C_est @ (nav.C_nb[i] @ C_bs).T)  # about E, N, U
+            att_err.append(np.rad2deg(phi))
+            s_att.append((1 - a) * sig_att[k - 1] + a * sig_att[k])
+            p_est = (1 - a) * np.asarray(geodetic_to_ecef(*llh[k - 1])) + a * np.asarray(geodetic_to_ecef(*llh[k]))
+            d = Ren.T @ (p_est - np.asarray(geodetic_to_ecef(*nav.llh[i])))
+            pos_err.append(d)
+            s_pos.append((1 - a) * sig_pos[k - 1] + a * sig_pos[k])
+        ae, pe = np.array(att_err), np.array(pos_err)
+        # the product's heading sigma is about -U; the rounding of three angles enters each axis
+        za = np.abs(ae) / np.sqrt(np.array(s_att) ** 2 + ROUND_DEG**2)
+        zp = np.abs(pe) / np.sqrt(np.array(s_pos) ** 2 + ROUND_M**2)
+        out[name] = {"att_rmse_deg": float(np.sqrt((ae**2).mean())), "att_rmse_enu_deg": np.sqrt((ae**2).mean(axis=0)).round(3).tolist(),
+                     "att_within_2sigma": float((za < 2).mean()), "pos_rmse_m": float(np.sqrt((pe**2).mean())),
+                     "pos_rmse_enu_m": np.sqrt((pe**2).mean(axis=0)).round(3).tolist(), "pos_within_2sigma": float((zp < 2).mean()),
+                     "epochs": int(keep.sum())}
+    return out

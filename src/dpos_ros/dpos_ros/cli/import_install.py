@@ -86,6 +86,8 @@ def add_options(ap: argparse.ArgumentParser, int_triple: Any, positive: Any, non
     g.add_argument("--time-scale", choices=("gpst", "utc"), default="gpst", help="scale of a sub-IMU --time-col (default gpst; utc: leap-second table)")
     g.add_argument("--aircraft", type=Path, metavar="YAML",
                    help="aircraft file embedded in the recording; a sub-IMU's 'mount_rpy_deg: estimate' gets the estimated mounting")
+    g.add_argument("--sub-imu-preset", default="consumer_mems", metavar="PRESET",
+                   help="without --aircraft: the sub-IMUs' error model in the generated aircraft file (an imu_presets.yaml name; default consumer_mems)")
     g.add_argument("--clock-min-peak", type=non_negative, default=ClockSettings.min_peak, metavar="R",
                    help=f"smallest rate correlation accepted for an estimated clock (default {ClockSettings.min_peak})")
 
@@ -208,7 +210,7 @@ def _mount_dict(m: MountingEstimate) -> dict[str, Any]:
             "residual_correlation_factor": m.corr_factor}
 
 
-def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, MountingEstimate]) -> tuple[str, list[str]]:
+def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, MountingEstimate], preset: str = "consumer_mems") -> tuple[str, list[str]]:
     """The aircraft YAML to embed: --aircraft with ``mount_rpy_deg: estimate`` replaced by the estimates
     (ImportFailure when one is not estimated), or, without --aircraft, a starting point: each sub-IMU
     at the master IMU (lever arm 0, to be surveyed) with its estimated mounting and an antenna at it."""
@@ -221,7 +223,7 @@ def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, Mountin
                              "sub_imus": [], "antennas": []}
         for n in names:
             rpy = [round(float(x), 3) for x in mounts[n].rpy_deg] if n in mounts else [0.0, 0.0, 0.0]
-            d["sub_imus"].append({"name": n, "span_m": 0.0, "lever_arm_m": [0.0, 0.0, 0.0], "mount_rpy_deg": rpy})
+            d["sub_imus"].append({"name": n, "span_m": 0.0, "lever_arm_m": [0.0, 0.0, 0.0], "mount_rpy_deg": rpy, "imu": {"preset": preset}})
             d["antennas"].append({"name": n, "span_m": 0.0, "sub_imu": n, "lever_arm_m": [0.0, 0.0, 0.0]})
             if n in mounts:
                 replaced.append(n)
@@ -285,7 +287,12 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
             entry["clock"].update(_clock_dict(c))
         t_sub = np.asarray((log.t_ns - t0) * 1e-9, dtype=np.float64)
         inside = (t_sub >= tm[0]) & (t_sub <= tm[-1])
-        entry["samples_outside_nav"] = int((~inside).sum())
+        entry["samples_outside_nav"] = int((~inside).sum())  # removed: the transfer alignment needs the main solution
+        if not inside.any():
+            raise ImportFailure(f"--sub {name} ({path}): no sample within the main solution's span ({tm[-1]:.3f} s)")
+        if not inside.all():
+            log = ImuLog(log.t_ns[inside], log.omega_radps[inside], log.f_mps2[inside], log.skipped, log.repeated, log.clock_scale)
+            t_sub = t_sub[inside]
         try:
             m = estimate_mounting(tm, nav.C_nb, t_sub, log.omega_radps, name=f"--sub {name}")
             mounts[name] = m
@@ -297,7 +304,7 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
         streams.append(TopicStream(T.sub_imu(name), T.IMU, log.t_ns.copy(),
                                    rows=cv.imu_rows(cv.sub_imu_frame(name), log.t_ns, log.omega_radps, log.f_mps2,
                                                     ns.gyro_sigma_radps, ns.accel_sigma_mps2)))
-    text, replaced = aircraft_text(args.aircraft, list(subs), mounts)
+    text, replaced = aircraft_text(args.aircraft, list(subs), mounts, args.sub_imu_preset)
     report: dict[str, Any] = {
         "out": str(args.out),
         "nav": {"file": str(args.nav), "lines_read": len(nav), "lines_skipped": len(nav.skipped),
@@ -322,7 +329,7 @@ def summary_lines(rep: dict[str, Any], prog: str) -> list[str]:
     out += [f"      {k} sigma: {v}" for k, v in nv["sigmas"].items()]
     for name, s in rep["subs"].items():
         out.append(f"SUB   {name}: {s['file']}: {s['samples_written']} samples -> /sub_imu/{name}/imu; lines skipped: {s['lines_skipped']}, "
-                   f"repeated samples: {s['repeated_samples']}, outside the solution: {s['samples_outside_nav']}")
+                   f"repeated samples: {s['repeated_samples']}, removed outside the solution's span: {s['samples_outside_nav']}")
         if s["removed_all_zero"]:
             out.append(f"      removed: {s['removed_all_zero']} sample(s) with all six values 0 (a logger's placeholder, not a measurement)")
         out += [f"        line {e['line']}: {e['reason']}" for e in s["skipped_first"]]
