@@ -107,8 +107,8 @@ def test_path_clocks_against_the_authors(paths: dict[tuple[int, int], PathResult
 
 
 @pytest.fixture(scope="module")
-def raw_import(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, np.ndarray, int]:
-    """dpos-import on the raw DOT1 log and the flight log: (report, DOT1 stamps [ns], first nav stamp [ns])."""
+def raw_import(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, np.ndarray, int, Path]:
+    """dpos-import on the raw DOT1 log and the flight log: (report, DOT1 stamps [ns], first nav stamp [ns], recording)."""
     import json
 
     from dpos_ros.cli import import_
@@ -119,7 +119,7 @@ def raw_import(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, np.ndarr
     rep = json.loads((out / "import_report.json").read_text())
     sess = read_session(out)
     t_sub = sess.t0_ns + np.round(sess.sub_imus["dot1"].t_s * 1e9).astype(np.int64)
-    return rep, t_sub, int(rep["nav"]["first_ns"])
+    return rep, t_sub, int(rep["nav"]["first_ns"]), out
 
 
 def raw_vs_authors(rep: dict, t_sub_ns: np.ndarray, nav_first_ns: int) -> dict[int, float]:
@@ -141,11 +141,11 @@ def raw_vs_authors(rep: dict, t_sub_ns: np.ndarray, nav_first_ns: int) -> dict[i
     return out
 
 
-def test_raw_dot1_synchronized_automatically(raw_import: tuple[dict, np.ndarray, int]) -> None:
+def test_raw_dot1_synchronized_automatically(raw_import: tuple[dict, np.ndarray, int, Path]) -> None:
     """The 190 s raw log lands on the flight log with a clear correlation peak, a sub-millisecond
     sigma, and 30-40 ms before the authors' synchronization at both paths - as DOT1's path files
     say (test_path_clocks_against_the_authors): the difference is the authors'."""
-    rep, t_sub, nav0 = raw_import
+    rep, t_sub, nav0, _ = raw_import
     c = rep["subs"]["dot1"]["clock"]
     assert c["correlation_peak"] > 0.8 and c["second_peak"] < 0.5
     assert c["offset_sigma_ms"] < 2.0
@@ -255,3 +255,39 @@ def products_vs_reference(products: Path, nav_file: Path, columns: NavColumns, m
                      "pos_rmse_enu_m": np.sqrt((pe**2).mean(axis=0)).round(3).tolist(), "pos_within_2sigma": float((zp < 2).mean()),
                      "epochs": int(keep.sum())}
     return out
+
+
+#: the figures of (c), dpos-process --method ukf on the raw recording
+FLIGHT_COLUMNS = NavColumns(time=0, time_form="elapsed", time_unit_s=1e-3, epoch_col=1, time_scale="utc", llh=(2, 3, 4), vel=(5, 6, 7),
+                            att=(10, 9, 8), skip_header=1)
+
+
+def process_raw(recording: Path, out: Path, method: str = "ukf") -> dict[str, float]:
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).parent / "dpos-process"
+    r = subprocess.run([str(exe), str(recording), "--out", str(out), "--method", method, "--workers", "1"],
+                       capture_output=True, text=True, timeout=280)
+    assert r.returncode == 0, r.stderr[-2000:]
+    import json
+
+    rep = json.loads((recording / "import_report.json").read_text())
+    mounts = {n: np.asarray(v["mounting"]["rpy_deg"]) for n, v in rep["subs"].items()}
+    return products_vs_reference(out / recording.name, FLIGHT_LOG, FLIGHT_COLUMNS, mounts)["dot1"]
+
+
+@pytest.mark.slow
+def test_raw_dot1_through_dpos_process(raw_import: tuple[dict, np.ndarray, int, Path], tmp_path: Path) -> None:
+    """DOT1's antenna (at the IMU) through ``dpos-process --method ukf`` against the flight log, at
+    its 1710 epochs within the DOT log: position RMSE about 5 cm with about 0.95 within 2 sigma
+    (the reference's 0.1 m rounding in the sigma), attitude (through the estimated mounting) RMSE
+    about 0.2 deg.  The attitude's fraction within 2 sigma is only about 0.6: the transfer
+    alignment's attitude sigma (0.03 deg of the main POS: its rounding) leaves out the reference
+    attitude's own error - docs/real.md."""
+    _, _, _, rec = raw_import
+    r = process_raw(rec, tmp_path / "products")
+    assert r["epochs"] > 1500
+    assert r["pos_rmse_m"] < 0.12 and r["pos_within_2sigma"] > 0.85, r
+    assert r["att_rmse_deg"] < 0.5, r
+    assert 0.3 < r["att_within_2sigma"] < 0.9, r  # measured 0.61: see the docstring
