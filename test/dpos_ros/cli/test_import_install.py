@@ -17,8 +17,11 @@ from dpos_core.attitude import dcm_to_rotvec, quat_to_dcm
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.imports.timescales import utc_to_gpst_ns
 from dpos_core.units import DEG
-from dpos_ros.cli import import_
+from dpos_ros.cli import import_, import_install
+from dpos_ros.contract import conversions as cv
+from dpos_ros.contract import topics as T
 from dpos_ros.io.session import read_session
+from dpos_ros.io.streams import TopicStream
 
 _spec = importlib.util.spec_from_file_location("install_sim", Path(__file__).parents[2] / "dpos_core" / "imports" / "install_sim.py")
 assert _spec is not None and _spec.loader is not None
@@ -159,3 +162,14 @@ def test_datum_and_master_nav_messages(installation: tuple[Path, Path, Path], tm
     i = 100
     w_true = dcm_to_rotvec(quat_to_dcm(m.q_nb[i - 1]).T @ quat_to_dcm(m.q_nb[i + 1])) / (m.t_s[i + 1] - m.t_s[i - 1])
     np.testing.assert_allclose(m.omega_eb_b_radps[i], w_true, atol=2e-3)
+
+
+def test_datum_bytes_equal_the_contract_message() -> None:
+    """The import's /dpos/datum (rosbags, no rclpy) is byte for byte conversions.datum_msg's."""
+    from rclpy.serialization import serialize_message
+
+    llh = np.array([np.deg2rad(32.8256345), np.deg2rad(34.955858), 12.494])
+    t = 1_657_181_443_100_000_000
+    mine = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(import_install.datum_blob(t, llh),))
+    ref = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(serialize_message(cv.datum_msg(t, llh)),))
+    assert mine.message(0) == ref.message(0)

@@ -19,6 +19,7 @@ Bad lines are never fatal: they are skipped and listed (line number, reason).
 from __future__ import annotations
 
 import csv
+import datetime as dt
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -255,8 +256,6 @@ def read_nav_csv(path: str | Path, c: NavColumns) -> NavSolution:
 
 
 def _iso(t_ns: int) -> str:
-    import datetime as dt
-
     sec, ns = divmod(int(t_ns), _NS)
     return f"{dt.datetime.fromtimestamp(sec, tz=dt.UTC):%Y-%m-%d %H:%M:%S}.{ns // 1_000_000:03d}"
 
