@@ -173,3 +173,12 @@ def test_datum_bytes_equal_the_contract_message() -> None:
     mine = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(import_install.datum_blob(t, llh),))
     ref = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(serialize_message(cv.datum_msg(t, llh)),))
     assert mine.message(0) == ref.message(0)
+
+
+def test_aircraft_estimate_needs_the_import(installation: tuple[Path, Path, Path]) -> None:
+    """'mount_rpy_deg: estimate' read directly (dpos-process --aircraft) says where it is resolved."""
+    from dpos_core.config import ConfigError, load_aircraft
+
+    _, _, aircraft = installation
+    with pytest.raises(ConfigError, match="'estimate' is resolved by dpos-import --nav --aircraft"):
+        load_aircraft(aircraft)

@@ -24,6 +24,11 @@ Header stamps = GPS time (GPST on the Unix calendar, no leap seconds) [ns]; log 
 the header stamp. Times of --outage, --start and --end are seconds after the first IMU sample
 of the log. GNSS selection, in this order: --gnss-rate, --min-quality, --outage, --start/--end.
 
+An installation instead (--nav: a main navigation solution CSV and --sub NAME=CSV sub-IMU logs,
+each on its own clock -> /master/nav, /dpos/datum, /sub_imu/<name>/imu, one recording dpos-process
+takes as it is; clocks and mountings estimated from the data): dpos_ros.cli.import_install,
+docs/import.md "An installation".
+
 Prints a summary and writes it to <out>/import_report.json. Exit status 0; 2 on bad options, an
 unreadable log or an existing --out (without --overwrite); nothing is left behind on error.
 """

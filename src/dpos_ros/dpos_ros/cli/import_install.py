@@ -31,6 +31,7 @@ import yaml
 
 from dpos_core.attitude import dcm_to_quat
 from dpos_core.config import ConfigError, load_aircraft
+from dpos_core.config.aircraft import MOUNT_ESTIMATE
 from dpos_core.errors import ImportFailure
 from dpos_core.frames import hpr_sigma_to_rotation_cov
 from dpos_core.imports.clock import ClockEstimate, ClockNotObservable, ClockSettings, attitude_rates, estimate_clock
@@ -48,7 +49,6 @@ _NS = 1_000_000_000
 #: the IMU CSV layout options a --sub-options value may set (argparse dests)
 SUB_LAYOUT = ("accel_cols", "gyro_cols", "counter_col", "counter_unit_s", "time_col", "time_scale", "accel_unit", "gyro_unit",
               "skip_header", "delimiter", "tag", "gyro_sigma_radps", "accel_sigma_mps2")
-MOUNT_ESTIMATE = "estimate"
 
 
 def add_options(ap: argparse.ArgumentParser, int_triple: Any, positive: Any, non_negative: Any) -> None:
