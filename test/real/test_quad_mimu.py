@@ -20,7 +20,7 @@ import pytest
 
 from dpos_core.imports.clock import ClockEstimate, estimate_clock
 from dpos_core.imports.logs import ImuColumns, read_imu_csv
-from dpos_core.imports.mounting import MountingEstimate, estimate_mounting
+from dpos_core.imports.mounting import MountingEstimate, estimate_mounting, relative_rotation
 from dpos_core.imports.navsol import NavColumns, read_nav_csv
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "real" / "quad_mimu"
@@ -106,6 +106,36 @@ def test_path_clocks_against_the_authors(paths: dict[tuple[int, int], PathResult
     assert -50 < dot1 < -20 and -115 < dot2 < -85, (dot1, dot2)
 
 
+def relative_to_dot1(path: int, results: dict[tuple[int, int], PathResult]) -> dict[int, MountingEstimate]:
+    """DOT2..4's rotation to DOT1 (roll/pitch/yaw of DOTk's axes in DOT1's) from the two DOTs' own
+    120 Hz rates on their estimated clocks (``relative_rotation``, 0.05 s intervals)."""
+    logs = {}
+    for d in DOTS:
+        imu = read_imu_csv(DATA / f"straight_path_{path}" / f"IMU_{d}.csv", PATH_IMU)
+        td = np.asarray(imu.t_ns * 1e-9, dtype=np.float64)
+        logs[d] = (np.asarray(results[(path, d)].clock.to_gpst_ns(td, 0) * 1e-9, dtype=np.float64), imu.omega_radps)
+    return {d: relative_rotation(*logs[1], *logs[d], name=f"path {path} DOT1-DOT{d}") for d in DOTS[1:]}
+
+
+def test_baselines_consistent_across_paths(paths: dict[tuple[int, int], PathResult]) -> None:
+    """The DOTs' rotations to DOT1 from their own rates agree across the paths (spread below 1 deg on
+    every angle, reduced chi-square about the weighted mean below 6) and with the difference of their mountings against the reference (within
+    3 sigma + 0.3 deg): DOT2 is turned about -1.8 deg in yaw and +0.9 deg in roll from DOT1."""
+    rel = {p: relative_to_dot1(p, paths) for p in PATHS}
+    for d in DOTS[1:]:
+        x = np.array([rel[p][d].rpy_deg for p in PATHS])
+        sg = np.array([rel[p][d].rpy_sigma_deg for p in PATHS])
+        mean = (x / sg**2).sum(axis=0) / (1 / sg**2).sum(axis=0)
+        chi2 = (((x - mean) / sg) ** 2).sum(axis=0) / (len(PATHS) - 1)
+        assert np.all(x.std(axis=0, ddof=1) < 1.0) and np.all(chi2 < 6.0), (d, x, chi2)
+        for p in PATHS:
+            diff = paths[(p, d)].mounting.rpy_deg - paths[(p, 1)].mounting.rpy_deg  # small angles
+            sig = np.hypot(paths[(p, d)].mounting.rpy_sigma_deg, paths[(p, 1)].mounting.rpy_sigma_deg)
+            assert np.all(np.abs(rel[p][d].rpy_deg - diff) < 3 * sig + 0.3), (p, d, rel[p][d].rpy_deg, diff, sig)
+    dot2 = np.mean([rel[p][2].rpy_deg for p in PATHS], axis=0)
+    assert 0.5 < dot2[0] < 1.3 and -2.5 < dot2[2] < -1.2, dot2
+
+
 @pytest.fixture(scope="module")
 def raw_import(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, np.ndarray, int, Path]:
     """dpos-import on the raw DOT1 log and the flight log: (report, DOT1 stamps [ns], first nav stamp [ns], recording)."""
@@ -169,6 +199,11 @@ def _tables() -> str:
                          + f" | {c.offset_s * 1e3:+.1f} ± {c.offset_sigma_s * 1e3:.1f} | {c.peak:.2f} |")
         mean, sd, chi2 = spread(res, d)
         lines.append(f"| {d} | mean | " + " | ".join(f"{mean[i]:+.2f} (spread {sd[i]:.2f}, χ²/3 {chi2[i]:.1f})" for i in range(3)) + " | | |")
+    lines += ["", "| path | DOT2 to DOT1 roll / pitch / yaw [deg] | DOT3 to DOT1 | DOT4 to DOT1 |", "|---|---|---|---|"]
+    rel = {p: relative_to_dot1(p, res) for p in PATHS}
+    for p in PATHS:
+        lines.append(f"| {p} | " + " | ".join(" / ".join(f"{rel[p][d].rpy_deg[i]:+.2f} ± {rel[p][d].rpy_sigma_deg[i]:.2f}" for i in range(3))
+                                              for d in DOTS[1:]) + " |")
     return "\n".join(lines)
 
 

@@ -94,11 +94,17 @@ def estimate_mounting(t_main_s: FloatArray, C_nb: FloatArray, t_sub_s: FloatArra
     keep &= inside
     if keep.sum() < 20:
         raise MountingNotObservable(f"{name}: {int(keep.sum())} intervals of the main solution within the log, 20 needed")
-    vb, vs = w_b[keep], w_s[keep]
+    return rotation_from_rates(w_b[keep], w_s[keep], min_rate_dps, name, "the main solution's")
+
+
+def rotation_from_rates(vb: FloatArray, vs: FloatArray, min_rate_dps: float = 1.0, name: str = "sub-IMU",
+                        whose: str = "the reference's") -> MountingEstimate:
+    """``C_bs`` with ``vb ~ C_bs (vs - bias)`` from paired mean rates vb, vs (K, 3) [rad/s] (module
+    docstring: centred Wahba/SVD, sigma from the residuals). Raises :class:`MountingNotObservable`."""
     vb_c, vs_c = vb - vb.mean(axis=0), vs - vs.mean(axis=0)
     sv = np.linalg.svd(vb_c, compute_uv=False) / np.sqrt(vb_c.shape[0])
     if sv[1] < min_rate_dps * DEG:
-        raise MountingNotObservable(f"{name}: mounting not observable: the main solution's rate varies about fewer than two axes "
+        raise MountingNotObservable(f"{name}: mounting not observable: {whose} rate varies about fewer than two axes "
                                     f"(rms {sv[0] / DEG:.2f}, {sv[1] / DEG:.2f}, {sv[2] / DEG:.2f} deg/s; {min_rate_dps:g} needed on two)")
     C = wahba(vb_c, vs_c)
     v = vs_c @ C.T
@@ -126,9 +132,25 @@ def estimate_mounting(t_main_s: FloatArray, C_nb: FloatArray, t_sub_s: FloatArra
                             float(np.sqrt((r * r).mean(axis=0)).mean() / DEG), n, factor)
 
 
+def relative_rotation(t_a_s: FloatArray, omega_a: FloatArray, t_b_s: FloatArray, omega_b: FloatArray, interval_s: float = 0.05,
+                      min_rate_dps: float = 1.0, name: str = "sub-IMU pair") -> MountingEstimate:
+    """Rotation ``C_ab`` (axes of IMU b -> axes of IMU a) of two IMUs on one rigid body and one clock,
+    from their own rates: both averaged over common intervals of ``interval_s`` (their full rate
+    carries the airframe's vibration, far more rotation to match than a 10 Hz solution's), then
+    :func:`rotation_from_rates`. t_a_s (N,), omega_a (N, 3), t_b_s (M,), omega_b (M, 3) [s, rad/s]."""
+    lo, hi = max(t_a_s[0], t_b_s[0]), min(t_a_s[-1], t_b_s[-1])
+    edges = np.arange(lo, hi, interval_s)
+    if edges.size < 21:
+        raise MountingNotObservable(f"{name}: the logs overlap by {max(0.0, hi - lo):.2f} s, {20 * interval_s:g} s needed")
+    wa, ia = interval_means(t_a_s, omega_a, edges[:-1], edges[1:])
+    wb, ib = interval_means(t_b_s, omega_b, edges[:-1], edges[1:])
+    keep = ia & ib
+    return rotation_from_rates(wa[keep], wb[keep], min_rate_dps, name, "the pair's")
+
+
 def check_mount_dcm(rpy_deg: FloatArray) -> FloatArray:
     """The aircraft file's rotation of ``rpy_deg`` (``mount_dcm(rpy_deg, 0)``): the same matrix as :attr:`MountingEstimate.C_bs`."""
     return mount_dcm(rpy_deg, (0.0, 0.0, 0.0))
 
 
-__all__ = ["MountingEstimate", "MountingNotObservable", "estimate_mounting", "rpy_from_dcm", "wahba"]
+__all__ = ["MountingEstimate", "MountingNotObservable", "estimate_mounting", "relative_rotation", "rotation_from_rates", "rpy_from_dcm", "wahba"]
