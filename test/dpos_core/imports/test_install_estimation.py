@@ -137,3 +137,19 @@ def test_datetime_forms() -> None:
     assert a % NS == NS // 2
     with pytest.raises(ValueError):
         datetime_ns("07/07/2022 08:10")
+
+
+def test_relative_rotation_of_two_sub_imus() -> None:
+    """Two sub-IMUs at known mountings: the rotation between them (C_b1^T C_b2) from their own rates."""
+    from dpos_core.imports.mounting import relative_rotation
+
+    dt = 0.01
+    t = np.arange(0.0, 40.0, dt) + 5.0
+    m2 = (-1.0, 4.0, -20.0)
+    w1 = sub_rates(t, dt, MOUNT, True, noise_dps=0.5, seed=1)
+    w2 = sub_rates(t, dt, m2, True, bias_dps=(0.3, 0.3, -0.3), noise_dps=0.5, seed=2)
+    est = relative_rotation(t, w1, t, w2)
+    C_true = mount_dcm(MOUNT, (0, 0, 0)).T @ mount_dcm(m2, (0, 0, 0))
+    err = np.rad2deg(dcm_to_rotvec(est.C_bs @ C_true.T))
+    assert np.linalg.norm(err) < 0.1, err
+    assert np.all(np.abs(np.rad2deg(rpy_from_dcm(C_true)) - est.rpy_deg) < 3 * est.rpy_sigma_deg + 0.01)

@@ -130,8 +130,9 @@ def _pearson(x: FloatArray, y: FloatArray) -> float:
 
 def masked_ncc(x: FloatArray, mx: FloatArray, y: FloatArray, my: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Pearson correlation of ``x`` (N,) and ``y`` (M,) over their overlap at every lag ``L`` (y[j]
-    against x[L + j]), only where both masks are 1. Returns (lags (N+M-1,), ncc, overlap counts) with
-    lags from -(M-1) to N-1 - as (ncc, n) arrays indexed by ``L + M - 1``."""
+    against x[L + j]), only where both masks (0/1, same shapes) are 1, by six FFT correlations.
+    Returns (ncc, overlap counts), each (N + M - 1,) indexed by ``L + M - 1`` (L from -(M-1) to N-1);
+    NaN where fewer than 3 samples overlap or either side is constant."""
     n, m = x.size, y.size
     size = int(2 ** np.ceil(np.log2(n + m)))
 

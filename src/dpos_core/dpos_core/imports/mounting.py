@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..attitude import mount_dcm, rotvec_to_dcm, skew
+from ..attitude import rotvec_to_dcm, skew
 from ..units import DEG, FloatArray
 from .clock import attitude_rates, interval_means
 
@@ -146,11 +146,6 @@ def relative_rotation(t_a_s: FloatArray, omega_a: FloatArray, t_b_s: FloatArray,
     wb, ib = interval_means(t_b_s, omega_b, edges[:-1], edges[1:])
     keep = ia & ib
     return rotation_from_rates(wa[keep], wb[keep], min_rate_dps, name, "the pair's")
-
-
-def check_mount_dcm(rpy_deg: FloatArray) -> FloatArray:
-    """The aircraft file's rotation of ``rpy_deg`` (``mount_dcm(rpy_deg, 0)``): the same matrix as :attr:`MountingEstimate.C_bs`."""
-    return mount_dcm(rpy_deg, (0.0, 0.0, 0.0))
 
 
 __all__ = ["MountingEstimate", "MountingNotObservable", "estimate_mounting", "relative_rotation", "rotation_from_rates", "rpy_from_dcm", "wahba"]

@@ -288,7 +288,7 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
     settings = ClockSettings(min_peak=args.clock_min_peak)
     for name, (path, ns) in subs.items():
         log, kind, n_zero = read_sub(name, path, ns)
-        entry: dict[str, Any] = {"file": str(path), "samples_read": len(log), "lines_skipped": len(log.skipped),
+        entry: dict[str, Any] = {"file": str(path), "samples_read": len(log) + n_zero, "lines_skipped": len(log.skipped),
                                  "skipped_first": [{"line": n, "reason": why} for n, why in log.skipped[:5]],
                                  "repeated_samples": log.repeated,
                                  "removed_all_zero": n_zero,  # all six values 0: a placeholder, not a measurement
