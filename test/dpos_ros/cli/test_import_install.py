@@ -182,3 +182,14 @@ def test_aircraft_estimate_needs_the_import(installation: tuple[Path, Path, Path
     _, _, aircraft = installation
     with pytest.raises(ConfigError, match="'estimate' is resolved by dpos-import --nav --aircraft"):
         load_aircraft(aircraft)
+
+
+def test_imu_time_column_in_utc_of_2016(tmp_path: Path) -> None:
+    """--imu with a UTC time column (--time-scale utc): GPST = UTC + 17 s in 2016 (the table)."""
+    t0 = int(START_UTC.timestamp())
+    csv = tmp_path / "imu.csv"
+    csv.write_text("".join(f"0,0,1,0.1,0.2,0.3,{t0 + 0.01 * k:.2f}\n" for k in range(50)))
+    out = tmp_path / "bag"
+    assert import_.main(["--imu", str(csv), "--time-col", "6", "--time-scale", "utc", "--out", str(out)]) == 0
+    rep = json.loads((out / "import_report.json").read_text())
+    assert rep["imu"]["span"]["first_ns"] == (t0 + 17) * NS

@@ -63,6 +63,7 @@ from dpos_core.imports.logs import (
     read_pos,
     read_tag,
 )
+from dpos_core.imports.timescales import to_gpst_ns
 from dpos_ros.cli import import_install as install
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
@@ -567,6 +568,8 @@ def _read_logs(args: argparse.Namespace) -> tuple[ImuLog, PosLog | None]:
         raise ImportFailure(f"IMU columns: {exc}") from None
     tag = None if args.tag is None else read_tag(args.tag)
     imu = read_imu_csv(args.imu, columns, tag)
+    if args.time_col is not None and args.time_scale == "utc":
+        imu.t_ns = to_gpst_ns(imu.t_ns, "utc")  # the leap seconds of the date
     pos = None if args.pos is None else read_pos(args.pos)
     return imu, pos
 
