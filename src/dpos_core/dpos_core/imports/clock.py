@@ -103,13 +103,21 @@ def attitude_rates(t_s: FloatArray, C_nb: FloatArray) -> tuple[FloatArray, Float
     return t_s[:-1].copy(), t_s[1:].copy(), dcm_to_rotvec(dC) / dt[:, None]
 
 
-def interval_means(t_s: FloatArray, omega: FloatArray, a_s: FloatArray, b_s: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """Mean of a rate series over the intervals [a, b]: the difference of its running integral
-    (samples taken as the mean over the interval ending at their stamp) at the ends, divided by
-    the length.  t_s (N,), omega (N, 3); a_s, b_s (K,).  Returns (K, 3) and the mask (K,) of the
-    intervals inside the series."""
+def running_integral(t_s: FloatArray, omega: FloatArray) -> FloatArray:
+    """Running integral (N, 3) of a rate series from its first sample (each sample the mean over the
+    interval ending at its stamp)."""
     dt = np.diff(t_s)
-    theta = np.vstack([np.zeros((1, omega.shape[1])), np.cumsum(omega[1:] * dt[:, None], axis=0)])
+    return np.vstack([np.zeros((1, omega.shape[1])), np.cumsum(omega[1:] * dt[:, None], axis=0)])
+
+
+def interval_means(t_s: FloatArray, omega: FloatArray, a_s: FloatArray, b_s: FloatArray,
+                   theta: FloatArray | None = None) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Mean of a rate series over the intervals [a, b]: the difference of its running integral
+    (:func:`running_integral`, or ``theta`` precomputed) at the ends, divided by the length.
+    t_s (N,), omega (N, 3); a_s, b_s (K,).  Returns (K, 3) and the mask (K,) of the intervals
+    inside the series."""
+    if theta is None:
+        theta = running_integral(t_s, omega)
     inside = (a_s >= t_s[0]) & (b_s <= t_s[-1])
     out = np.full((a_s.size, omega.shape[1]), np.nan)
     if inside.any():
@@ -186,7 +194,8 @@ def estimate_clock(t_main_s: FloatArray, C_nb: FloatArray, t_dev_s: FloatArray, 
     u = np.arange(t_dev_s[0], t_dev_s[-1] - dt + 1e-9, dt)
     if u.size < 10 or g.size < 10:
         raise ClockNotObservable(f"{name}: too short to place on the main solution ({u.size} and {g.size} intervals of {dt:.3f} s)")
-    wd, inside = interval_means(t_dev_s, omega_dev, u, u + dt)
+    theta = running_integral(t_dev_s, omega_dev)
+    wd, inside = interval_means(t_dev_s, omega_dev, u, u + dt, theta)
     yg = np.where(inside, np.linalg.norm(np.nan_to_num(wd), axis=1), 0.0)
     my = inside.astype(float)
     ncc, cnt = masked_ncc(xg, mx, yg, my)
@@ -229,7 +238,7 @@ def estimate_clock(t_main_s: FloatArray, C_nb: FloatArray, t_dev_s: FloatArray, 
             if m.sum() < 10:
                 rows_k.append(np.nan)
                 continue
-            wm, ins = interval_means(t_dev_s, omega_dev, a[m] - tau, b[m] - tau)
+            wm, ins = interval_means(t_dev_s, omega_dev, a[m] - tau, b[m] - tau, theta)
             rows_k.append(_pearson(mag_main[m][ins], np.linalg.norm(wm[ins], axis=1)))
         r = np.array(rows_k)
         if np.isfinite(r).sum() >= 3 and np.nanmax(r) > 0:
@@ -257,4 +266,5 @@ def estimate_clock(t_main_s: FloatArray, C_nb: FloatArray, t_dev_s: FloatArray, 
                          windows=win, rate_std_dps=rate_std)
 
 
-__all__ = ["ClockEstimate", "ClockNotObservable", "ClockSettings", "attitude_rates", "estimate_clock", "interval_means", "masked_ncc"]
+__all__ = ["ClockEstimate", "ClockNotObservable", "ClockSettings", "attitude_rates", "estimate_clock", "interval_means", "masked_ncc",
+           "running_integral"]
