@@ -249,6 +249,15 @@ def test_pos_in_utc_is_shifted_to_gpst(tmp_path: Path) -> None:
     assert GPS_UTC_LEAP_S == 18
 
 
+def test_pos_in_utc_from_2016_gets_its_own_leap_seconds(tmp_path: Path) -> None:
+    """A UTC .pos file of 2016 is shifted by 17 s (the table), not today's 18 s."""
+    p = tmp_path / "utc2016.pos"
+    p.write_text(POS_HEADER.replace("GPST", "UTC ") + pos_line("2016/12/31 23:59:58.000") + pos_line("2017/01/01 00:00:01.000"))
+    log = read_pos(p)
+    assert int(log.t_ns[0]) == _gpst_ns(2016, 12, 31, 23, 59, 58, 0) + 17 * NS
+    assert int(log.t_ns[1]) == _gpst_ns(2017, 1, 1, 0, 0, 1, 0) + 18 * NS
+
+
 def test_pos_in_gps_week_and_time_of_week(tmp_path: Path) -> None:
     p = tmp_path / "tow.pos"
     p.write_text(POS_HEADER + pos_line("2381 408639.999") + pos_line("2381 408640.249"))

@@ -15,6 +15,9 @@ from .files import ConfigError, build, parse_yaml, read_yaml, vec3
 from .flexure import FlexureModel, ModalWing, WingMode
 from .sensors import ImuErrorModel, imu_model
 
+#: ``mount_rpy_deg: estimate`` - a mounting the aircraft file leaves to the data (dpos-import --nav)
+MOUNT_ESTIMATE = "estimate"
+
 
 @dataclass(frozen=True)
 class SubImuConfig:
@@ -111,6 +114,9 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
             raise ConfigError(f"{where}: needs a non-empty name")
         s = dict(s)
         imu = imu_model(s.pop("imu", None), f"{where}.imu")
+        if s.get("mount_rpy_deg") == MOUNT_ESTIMATE:
+            raise ConfigError(f"{where}.mount_rpy_deg: {MOUNT_ESTIMATE!r} is resolved by dpos-import --nav --aircraft (it estimates the "
+                              "mounting from the data and writes it into the recording's copy of this file); give roll, pitch, yaw [deg] here")
         for k in ("lever_arm_m", "mount_rpy_deg", "rho_deg"):
             if k in s:
                 s[k] = vec3(s[k], f"{where}.{k}")

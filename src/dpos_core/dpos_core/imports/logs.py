@@ -5,7 +5,7 @@ Time.  Every stamp is an integer nanosecond count of GPS time on the Unix calend
 (``time_t`` as RTKLIB's ``gtime_t`` holds GPST, no leap seconds): the ``.pos`` file's GPST
 dates, the tag's ``time_t`` and an IMU clock mapped onto them share that scale, so a bag's
 stamps of both sensors are directly comparable.  A ``.pos`` file in UTC is shifted to GPST by
-the leap seconds (``GPS_UTC_LEAP_S``).
+the leap seconds of its date (the table of :mod:`dpos_core.imports.timescales`).
 
 Bad lines are never fatal: a cut or malformed line is skipped and counted with its line number
 (:attr:`ImuLog.skipped`, :attr:`PosLog.skipped`), so that the caller says what was dropped.
@@ -28,8 +28,9 @@ from dpos_core.errors import LogFormatError
 
 from ..series import GnssSeries, ImuSeries
 from ..units import DEG, G0_MPS2, FloatArray
+from .timescales import utc_to_gpst_ns
 
-#: GPS - UTC [s] since 2017-01-01 (RTKLIB's leaps table)
+#: GPS - UTC [s] since 2017-01-01 (the last entry of :data:`dpos_core.imports.timescales.LEAP_SECONDS`)
 GPS_UTC_LEAP_S = 18
 #: the GPS epoch 1980-01-06 00:00:00 on the Unix calendar [s]
 GPS_EPOCH_UNIX_S = 315_964_800
@@ -322,7 +323,7 @@ def read_pos(path: str | Path) -> PosLog:
     """Read an RTKLIB ``.pos`` solution in the ``yyyy/mm/dd hh:mm:ss.sss`` (or ``week tow``) time
     format with latitude / longitude in degrees (RTKLIB ``out-solformat=llh``, ``out-degform=deg``);
     with or without the velocity columns (RTKLIB demo5 writes them).  GPST or UTC time (from the
-    header), UTC shifted by ``GPS_UTC_LEAP_S``.  Lines with a latitude outside [-90, 90] or a
+    header), UTC shifted by the leap seconds of its date.  Lines with a latitude outside [-90, 90] or a
     longitude outside [-180, 180] deg are skipped (an ECEF solution written without its header).
 
     Raises :class:`LogFormatError` for another solution format (ECEF, ENU baseline, NMEA, dms) or
@@ -383,7 +384,7 @@ def read_pos(path: str | Path) -> PosLog:
         out_v.append(vals)
     t = np.array(out_t, dtype=np.int64)
     if utc:
-        t = t + GPS_UTC_LEAP_S * 1_000_000_000
+        t = utc_to_gpst_ns(t)  # the leap seconds of the date (dpos_core.imports.timescales' table)
     m = len(out_v)
     llh = np.array([[v[0] * DEG, v[1] * DEG, v[2]] for v in out_v])
     q = np.array([int(v[3]) for v in out_v], dtype=np.int64)

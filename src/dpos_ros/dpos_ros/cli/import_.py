@@ -24,6 +24,11 @@ Header stamps = GPS time (GPST on the Unix calendar, no leap seconds) [ns]; log 
 the header stamp. Times of --outage, --start and --end are seconds after the first IMU sample
 of the log. GNSS selection, in this order: --gnss-rate, --min-quality, --outage, --start/--end.
 
+An installation instead (--nav: a main navigation solution CSV and --sub NAME=CSV sub-IMU logs,
+each on its own clock -> /master/nav, /dpos/datum, /sub_imu/<name>/imu, one recording dpos-process
+takes as it is; clocks and mountings estimated from the data): dpos_ros.cli.import_install,
+docs/import.md "An installation".
+
 Prints a summary and writes it to <out>/import_report.json. Exit status 0; 2 on bad options, an
 unreadable log or an existing --out (without --overwrite); nothing is left behind on error.
 """
@@ -58,6 +63,8 @@ from dpos_core.imports.logs import (
     read_pos,
     read_tag,
 )
+from dpos_core.imports.timescales import to_gpst_ns
+from dpos_ros.cli import import_install as install
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.bag import typestore, write_streams
@@ -129,30 +136,38 @@ def _non_negative(text: str) -> float:
     return v
 
 
+def add_layout(col: Any, suppress: bool = False) -> None:
+    """The IMU CSV layout options (also a --sub-options value's, with ``suppress``: only the given ones are set)."""
+    def d(v: Any) -> Any:
+        return argparse.SUPPRESS if suppress else v
+
+    col.add_argument("--accel-cols", type=_int_triple, default=d((0, 1, 2)), metavar="X,Y,Z", help="specific force columns (default 0,1,2)")
+    col.add_argument("--gyro-cols", type=_int_triple, default=d((3, 4, 5)), metavar="X,Y,Z", help="angular rate columns (default 3,4,5)")
+    col.add_argument("--counter-col", type=int, default=d(None), metavar="N", help="IMU clock counter column (default 6; none with --time-col)")
+    col.add_argument("--counter-unit-s", type=_positive, default=d(1e-3), metavar="S", help="seconds per counter unit (default 0.001)")
+    col.add_argument("--time-col", type=int, default=d(None), metavar="N",
+                     help="column of GPS time [s on the Unix calendar; --time-scale utc: UTC] (instead of counter + --tag)")
+    col.add_argument("--tag", type=Path, default=d(None), metavar="TAG",
+                     help="RTKLIB time tag of the IMU log: the IMU counter is mapped onto its GPS-time span (or give --time-col)")
+    col.add_argument("--accel-unit", choices=sorted(ACCEL_UNITS), default=d("g"), help="specific force unit (default g = 9.80665 m/s^2)")
+    col.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS), default=d("deg_s"), help="angular rate unit (default deg_s)")
+    col.add_argument("--skip-header", type=int, default=d(0), metavar="N", help="leading lines to ignore (default 0)")
+    col.add_argument("--delimiter", default=d(","), help="field separator (default ','; ' ' = any whitespace)")
+    col.add_argument("--gyro-sigma-radps", type=_non_negative, default=d(0.0), metavar="SIGMA",
+                     help="per-sample gyro noise [rad/s] for angular_velocity_covariance (default 0 = unknown)")
+    col.add_argument("--accel-sigma-mps2", type=_non_negative, default=d(0.0), metavar="SIGMA",
+                     help="per-sample accelerometer noise [m/s^2] for linear_acceleration_covariance (default 0 = unknown)")
+
 def parser() -> argparse.ArgumentParser:
     ap = _Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     io = ap.add_argument_group("inputs and output")
-    io.add_argument("--imu", type=Path, required=True, metavar="CSV", help="IMU CSV log")
-    io.add_argument("--tag", type=Path, metavar="TAG",
-                    help="RTKLIB time tag of the IMU log: the IMU counter is mapped onto its GPS-time span (or give --time-col)")
+    io.add_argument("--imu", type=Path, metavar="CSV", help="IMU CSV log (a driver-style bag; or --nav for an installation)")
     io.add_argument("--pos", type=Path, metavar="POS", help="RTKLIB .pos solution (llh, degrees); without it the bag holds the IMU only")
     io.add_argument("--out", type=Path, required=True, metavar="DIR", help="rosbag2 directory to write (must not exist)")
     io.add_argument("--overwrite", action="store_true", help="replace --out when it is an existing rosbag2 directory")
 
-    col = ap.add_argument_group("IMU CSV layout (0-based column indices)")
-    col.add_argument("--accel-cols", type=_int_triple, default=(0, 1, 2), metavar="X,Y,Z", help="specific force columns (default 0,1,2)")
-    col.add_argument("--gyro-cols", type=_int_triple, default=(3, 4, 5), metavar="X,Y,Z", help="angular rate columns (default 3,4,5)")
-    col.add_argument("--counter-col", type=int, metavar="N", help="IMU clock counter column (default 6; none with --time-col)")
-    col.add_argument("--counter-unit-s", type=_positive, default=1e-3, metavar="S", help="seconds per counter unit (default 0.001)")
-    col.add_argument("--time-col", type=int, metavar="N", help="column of GPS time [s on the Unix calendar] (instead of counter + --tag)")
-    col.add_argument("--accel-unit", choices=sorted(ACCEL_UNITS), default="g", help="specific force unit (default g = 9.80665 m/s^2)")
-    col.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS), default="deg_s", help="angular rate unit (default deg_s)")
-    col.add_argument("--skip-header", type=int, default=0, metavar="N", help="leading lines to ignore (default 0)")
-    col.add_argument("--delimiter", default=",", help="field separator (default ','; ' ' = any whitespace)")
-    col.add_argument("--gyro-sigma-radps", type=_non_negative, default=0.0, metavar="SIGMA",
-                     help="per-sample gyro noise [rad/s] for angular_velocity_covariance (default 0 = unknown)")
-    col.add_argument("--accel-sigma-mps2", type=_non_negative, default=0.0, metavar="SIGMA",
-                     help="per-sample accelerometer noise [m/s^2] for linear_acceleration_covariance (default 0 = unknown)")
+    col = ap.add_argument_group("IMU CSV layout (0-based column indices; every --sub log's too)")
+    add_layout(col)
 
     sel = ap.add_argument_group("selection (times in seconds after the first IMU sample of the log)")
     sel.add_argument("--gnss-rate", type=_positive, metavar="HZ",
@@ -172,11 +187,30 @@ def parser() -> argparse.ArgumentParser:
     names.add_argument("--vel-topic", default="/vel", help="geometry_msgs/TwistWithCovarianceStamped topic (default /vel)")
     names.add_argument("--imu-frame", default="imu_link", help="frame_id of the IMU messages (default imu_link)")
     names.add_argument("--gnss-frame", default="gps", help="frame_id of the GNSS messages (default gps)")
+    install.add_options(ap, _int_triple, _positive, _non_negative)
     return ap
+
+
+def layout_parser() -> argparse.ArgumentParser:
+    """The parser of a --sub-options value: the IMU CSV layout options, only the given ones set."""
+    lp = _Parser(prog=f"{PROG} --sub-options", add_help=False)
+    add_layout(lp, suppress=True)
+    lp.add_argument("--time-scale", choices=("gpst", "utc"), default=argparse.SUPPRESS)
+    return lp
 
 
 def _check_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Cross-option checks (one-line errors through ``ap.error``)."""
+    if (args.imu is None) == (args.nav is None):
+        ap.error("give --imu (an IMU log, a driver-style bag) or --nav (an installation: a navigation solution and --sub logs)")
+    if args.nav is not None:
+        if args.pos is not None:
+            ap.error("--pos goes with --imu, not --nav")
+        if not args.sub:
+            ap.error("--nav needs at least one --sub NAME=CSV (a sub-IMU log)")
+        return
+    if args.sub or args.sub_options or args.aircraft:
+        ap.error("--sub, --sub-options and --aircraft go with --nav")
     if args.time_col is None and args.tag is None:
         ap.error("the IMU stamps need GPS time: give --tag (RTKLIB time tag of the log) or --time-col")
     if args.time_col is not None and args.tag is not None:
@@ -534,6 +568,8 @@ def _read_logs(args: argparse.Namespace) -> tuple[ImuLog, PosLog | None]:
         raise ImportFailure(f"IMU columns: {exc}") from None
     tag = None if args.tag is None else read_tag(args.tag)
     imu = read_imu_csv(args.imu, columns, tag)
+    if args.time_col is not None and args.time_scale == "utc":
+        imu.t_ns = to_gpst_ns(imu.t_ns, "utc")  # the leap seconds of the date
     pos = None if args.pos is None else read_pos(args.pos)
     return imu, pos
 
@@ -563,6 +599,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return report
 
 
+def run_installation(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, Any]:
+    """--nav: the installation's recording (dpos_ros.cli.import_install); returns the report."""
+    _check_out(args.out, args.overwrite)
+    streams, custom, report = install.run_installation(args)
+    custom["dpos.import_command"] = " ".join([PROG, *getattr(args, "argv", [])])
+    write_bag(args.out, streams, custom, report, args.overwrite)
+    return report
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -570,7 +615,11 @@ def main(argv: list[str] | None = None) -> int:
     _check_args(ap, args)
     args.argv = argv
     try:
-        report = run(args)
+        if args.nav is not None:
+            args.layouts = install.sub_layouts(ap, layout_parser(), args)
+            report = run_installation(ap, args)
+        else:
+            report = run(args)
     except (ImportFailure, LogFormatError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
@@ -578,7 +627,7 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{PROG}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_ERROR
-    for line in summary_lines(report):
+    for line in (install.summary_lines(report, PROG) if args.nav is not None else summary_lines(report)):
         print(line)
     size_mb = sum(f.stat().st_size for f in args.out.iterdir()) / 1e6
     n = sum(v["messages"] for v in report["topics"].values())
