@@ -3,8 +3,8 @@
 The ROS environment is set at import time, before any test imports rclpy, and exported in
 os.environ so that node subprocesses inherit it:
 
-- ROS_DOMAIN_ID: one per test session (1..100, from the pid; never 0, the default domain),
-  so concurrent sessions on one machine do not see each other's nodes. Set
+- ROS_DOMAIN_ID: one per test session, one per pytest-xdist worker (1..100, from the pid; never 0,
+  the default domain), so concurrent sessions on one machine do not see each other's nodes. Set
   DPOS_TEST_ROS_DOMAIN_ID to force a value.
 - RMW_IMPLEMENTATION=rmw_fastrtps_cpp (the middleware of the wheels).
 - ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set: discovery stays on this machine.
@@ -21,9 +21,16 @@ import pytest
 
 
 def _pick_domain_id() -> int:
+    """1..100: from this process's pid, or under pytest-xdist from the controller's pid and the
+    worker's index, so that the workers of one run never share a domain."""
     forced = os.environ.get("DPOS_TEST_ROS_DOMAIN_ID")
     if forced:
         return int(forced)
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if worker.startswith("gw"):
+        n_workers = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+        slots = max(1, 100 // n_workers)
+        return (os.getppid() % slots) * n_workers + int(worker[2:]) % n_workers + 1
     return os.getpid() % 100 + 1
 
 
@@ -86,7 +93,7 @@ def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> Non
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Every test under test/nodes/ starts nodes or uses DDS: marked ``ros`` even where its module
-    does not say so (``make test`` runs the ``ros`` tests one at a time, the others on both cores)."""
+    does not say so (``make stress`` runs the ``ros`` tests beside a CPU burner; ``-m "not ros"`` leaves them out)."""
     for item in items:
         if _NODES_DIR in item.path.parents:
             item.add_marker(pytest.mark.ros)

@@ -19,6 +19,7 @@ Imports are read from the sources (module level and inside functions), relative 
 from __future__ import annotations
 
 import ast
+import functools
 import subprocess
 import sys
 from pathlib import Path
@@ -264,6 +265,7 @@ def _lazy_allowed(module: str) -> bool:
     return top in LAZY_IMPORTS or top.endswith("_msgs")
 
 
+@functools.cache
 def imports_in_functions() -> dict[str, list[str]]:
     """file (relative to src/) -> ``line: module`` of each import inside a function (absolute module
     names, relative ones resolved)."""
@@ -273,23 +275,24 @@ def imports_in_functions() -> dict[str, list[str]]:
             continue
         mod = _module_name(path)
         pkg = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
-        tree = ast.parse(path.read_text(), filename=str(path))
-        for fn in ast.walk(tree):
-            if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
-                continue
-            for node in ast.walk(fn):
-                names: list[str] = []
-                if isinstance(node, ast.Import):
-                    names = [a.name for a in node.names]
-                elif isinstance(node, ast.ImportFrom):
-                    base = node.module or ""
-                    if node.level:
-                        base = ".".join(pkg[: len(pkg) - node.level + 1] + ([base] if base else []))
-                    names = [base]
-                key = str(path.relative_to(SRC))
-                out.setdefault(key, [])
-                out[key] += [f"{node.lineno}: {n}" for n in names if f"{node.lineno}: {n}" not in out[key]]
-    return {k: v for k, v in out.items() if v}
+        found: list[str] = []
+        stack: list[tuple[ast.AST, bool]] = [(ast.parse(path.read_text(), filename=str(path)), False)]
+        while stack:  # each node once; `inside`: the node is in a function's body
+            node, inside = stack.pop()
+            names: list[str] = []
+            if inside and isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif inside and isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    base = ".".join(pkg[: len(pkg) - node.level + 1] + ([base] if base else []))
+                names = [base]
+            found += [f"{node.lineno}: {n}" for n in names if f"{node.lineno}: {n}" not in found]  # type: ignore[attr-defined]
+            inner = inside or isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+            stack += [(child, inner) for child in ast.iter_child_nodes(node)]
+        if found:
+            out[str(path.relative_to(SRC))] = sorted(found, key=lambda x: int(x.split(":")[0]))
+    return out
 
 
 def test_in_function_import_scan_sees_them() -> None:
