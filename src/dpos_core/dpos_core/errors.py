@@ -48,7 +48,8 @@ from __future__ import annotations
 from typing import Any
 
 __all__ = ["DposError", "RejectedInput", "NumericalFailure", "NumericalRepairWarning", "ConfigError", "ParameterError",
-           "InputError", "SarInputError", "SessionError", "LogFormatError", "BagError", "OutputError", "ProductsExistError",
+           "InputError", "SarInputError", "SessionError", "LogFormatError", "ClockNotObservable",
+           "MountingNotObservable", "BagError", "OutputError", "ProductsExistError",
            "GraphError", "ImportFailure", "CampaignError", "TaskFailed"]
 
 
@@ -140,6 +141,15 @@ class SessionError(DposError, ValueError):
 
 class LogFormatError(DposError, ValueError):
     """A log cannot be read at all (wrong format, no usable line); the message names the file and what is wrong."""
+
+
+class ClockNotObservable(DposError, ValueError):
+    """A sub-IMU log's clock offset cannot be told from the data (no manoeuvre, a weak or ambiguous
+    correlation peak); the message names the log and why."""
+
+
+class MountingNotObservable(DposError, ValueError):
+    """Too little rotation to tell a sub-IMU's mounting (the message says why)."""
 
 
 class BagError(DposError):

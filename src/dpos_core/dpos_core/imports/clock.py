@@ -27,13 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..attitude import dcm_to_rotvec
+from ..errors import ClockNotObservable
 from ..units import DEG, FloatArray
 
 _NS = 1_000_000_000
-
-
-class ClockNotObservable(ValueError):
-    """The clock offset cannot be told from the data (the message says why)."""
 
 
 @dataclass(frozen=True)

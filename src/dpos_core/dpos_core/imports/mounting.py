@@ -22,12 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..attitude import rotvec_to_dcm, skew
+from ..errors import MountingNotObservable
 from ..units import DEG, FloatArray
 from .clock import attitude_rates, interval_means
-
-
-class MountingNotObservable(ValueError):
-    """Too little rotation to tell the mounting (the message says why)."""
 
 
 @dataclass(frozen=True)

@@ -21,40 +21,29 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
-#: Queue depth of the sensor and navigation streams (>= 1000 required by the design).
-STREAM_DEPTH = 5000
+from dpos_ros.contract.topics import QOS_KINDS, STREAM_DEPTH
 
-#: Sensor streams: IMU, GNSS fix/velocity, truth.
-SENSOR_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=STREAM_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+_HISTORY = {"keep_last": HistoryPolicy.KEEP_LAST, "keep_all": HistoryPolicy.KEEP_ALL}
+_RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+def _profile(kind: str) -> QoSProfile:
+    history, depth, reliability, durability = QOS_KINDS[kind]
+    return QoSProfile(history=_HISTORY[history], depth=depth, reliability=_RELIABILITY[reliability], durability=_DURABILITY[durability])
+
+
+#: Sensor streams: IMU, GNSS fix/velocity, truth (RELIABLE, KEEP_LAST STREAM_DEPTH, VOLATILE).
+SENSOR_QOS = _profile("sensor")
 
 #: Navigation streams: /master/nav, /ifa/correction, /ifa/imu_bias, /antenna/*/odom, /session/end.
-NAV_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=STREAM_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+NAV_QOS = _profile("nav")
 
 #: Latched datum (/dpos/datum): the last message is kept for late joiners.
-DATUM_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+DATUM_QOS = _profile("datum")
 
 #: Status (/ifa/status, /transfer_align/status): latched, a short history.
-STATUS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+STATUS_QOS = _profile("status")
 
 
 def keep_all(qos: QoSProfile) -> QoSProfile:

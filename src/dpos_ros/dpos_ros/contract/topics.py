@@ -41,6 +41,31 @@ SAR_NAV_STATUS = "/sar_nav/status"
 FINALIZE_SERVICE = "/transfer_align_node/finalize"
 
 
+# --------------------------------------------------------------------------- QoS (without rclpy)
+#: Queue depth of the sensor and navigation streams (>= 1000 required by the design).
+STREAM_DEPTH = 5000
+
+#: The design's QoS of each kind, as (history, depth, reliability, durability): the numbers
+#: :mod:`dpos_ros.contract.qos` makes rclpy profiles of, and the bag writers store as each topic's
+#: ``offered_qos_profiles`` (so that ``ros2 bag play`` latches the datum and the statuses again).
+QOS_KINDS: dict[str, tuple[str, int, str, str]] = {
+    "sensor": ("keep_last", STREAM_DEPTH, "reliable", "volatile"),
+    "nav": ("keep_last", STREAM_DEPTH, "reliable", "volatile"),
+    "datum": ("keep_last", 1, "reliable", "transient_local"),
+    "status": ("keep_last", 10, "reliable", "transient_local"),
+}
+
+
+def qos_kind(topic: str) -> str:
+    """The design's QoS kind of a topic: ``datum``, ``status`` (both latched) or ``sensor`` (the
+    streams; ``nav`` is the same profile)."""
+    if topic == DATUM:
+        return "datum"
+    if topic.endswith("/status"):
+        return "status"
+    return "sensor"
+
+
 def sub_imu(name: str) -> str:
     """``/sub_imu/<name>/imu``: one sub-IMU's samples."""
     return f"/sub_imu/{name}/imu"

@@ -38,6 +38,7 @@ import numpy as np
 import zstandard
 from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
 from numpy.typing import NDArray
+from rosbags.interfaces import Qos
 from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
@@ -410,13 +411,14 @@ def _yaml(obj: object) -> str:
 
 def write(path: Path, topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]],
           custom_data: dict[str, str], version: int, library: str,
-          progress: Callable[[int, int], None] | None = None) -> int:
+          progress: Callable[[int, int], None] | None = None, qos: Sequence[Sequence[Qos]] | None = None) -> int:
     """Write a new rosbag2 directory ``path`` with one MCAP file, messages in ``order`` =
     ``(t_ns, topic index, message index)`` (each (N,), from :func:`dpos_ros.io.streams.merged_order`);
-    returns N.  The layout is that of rosbags' writer (module docstring)."""
+    returns N.  The layout is that of rosbags' writer (module docstring); ``qos``: the offered QoS
+    profiles of each topic (as :class:`Writer`)."""
     n = int(np.asarray(order[0]).size)
     with Writer(path, [(tp.topic, tp.msgtype) for tp in topics], custom_data, version, library,
-                None if progress is None else (lambda done: progress(done, n))) as w:
+                None if progress is None else (lambda done: progress(done, n)), qos) as w:
         w.add(topics, order)
     return n
 
@@ -511,17 +513,24 @@ class Writer:
     """A rosbag2 MCAP file written batch by batch (:meth:`add`; the whole file in one batch is
     :func:`write`): the channels are fixed at the start, each batch's messages go into chunks as
     :func:`write` lays them out (the last chunk of a batch is closed with it), the summary and
-    ``metadata.yaml`` are written by :meth:`close`.  Memory holds one batch."""
+    ``metadata.yaml`` are written by :meth:`close`.  Memory holds one batch.
+
+    ``library``: the MCAP header's writer name; ``qos``: per channel, the QoS profiles its
+    publishers offered (rosbag2's ``offered_qos_profiles``, in the channel record and in
+    ``metadata.yaml``: ``ros2 bag play`` publishes a topic TRANSIENT_LOCAL when they all were);
+    none given: an empty list per channel."""
 
     def __init__(self, path: Path, channels: Sequence[tuple[str, str]], custom_data: dict[str, str], version: int,
-                 library: str, progress: Callable[[int], None] | None = None) -> None:
+                 library: str, progress: Callable[[int], None] | None = None,
+                 qos: Sequence[Sequence[Qos]] | None = None) -> None:
         ts = get_typestore(Stores.ROS2_JAZZY)
         self.path, self.channels, self.custom_data = path, list(channels), dict(custom_data)
         self.version, self.progress = version, progress
+        if qos is not None and len(qos) != len(self.channels):
+            raise ValueError(f"{len(qos)} QoS lists for {len(self.channels)} channels")
+        self.qos = [dump_qos_v9(list(q)) for q in qos] if qos is not None else [dump_qos_v9([]) for _ in self.channels]
         path.mkdir(mode=0o755, parents=True)
         self.file = path / f"{path.name}.mcap"
-        qos = dump_qos_v9([])
-        qos_text = qos if isinstance(qos, str) else _yaml(qos).strip()
         # schemas and channels (ids from 1, a schema per message type, in the order of the topics)
         schema_ids: dict[str, int] = {}
         self.schema_recs: list[bytes] = []
@@ -536,7 +545,8 @@ class Writer:
                 self.schema_recs.append(_rec(OP_SCHEMA, _u16(schema_ids[msgtype]) + _s(msgtype) + _s(fmt) + _s(msgdef)))
                 head += self.schema_recs[-1]
             self.digests.append(ts.hash_rihs01(msgtype))
-            meta = _s("offered_qos_profiles") + _s(qos_text)
+            qos_k = self.qos[k]
+            meta = _s("offered_qos_profiles") + _s(qos_k if isinstance(qos_k, str) else _yaml(qos_k).strip())
             self.channel_recs.append(_rec(OP_CHANNEL, _u16(k + 1) + _u16(schema_ids[msgtype]) + _s(topic) + _s("cdr")
                                           + _u32(len(meta)) + meta))
             head += self.channel_recs[-1]
@@ -643,7 +653,7 @@ class Writer:
             "message_count": n,
             "topics_with_message_count": [
                 {"topic_metadata": {"name": topic, "type": msgtype, "serialization_format": "cdr",
-                                    "offered_qos_profiles": dump_qos_v9([]), "type_description_hash": self.digests[k]},
+                                    "offered_qos_profiles": self.qos[k], "type_description_hash": self.digests[k]},
                  "message_count": int(counts[k])}
                 for k, (topic, msgtype) in enumerate(self.channels)],
             "compression_format": "",
@@ -651,7 +661,7 @@ class Writer:
             "files": [{"path": file.name, "starting_time": {"nanoseconds_since_epoch": t_min},
                        "duration": {"nanoseconds": max(0, t_max - t_min)}, "message_count": n}],
             "custom_data": dict(self.custom_data) or None,
-            "ros_distro": "rosbags",
+            "ros_distro": "jazzy",
         }
         with f:
             serialized = _yaml(info).strip()

@@ -23,15 +23,19 @@ import yaml
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from dpos_ros.contract.topics import QOS_KINDS, qos_kind
 from dpos_ros.io import _mcap
 from dpos_ros.io.messages import Messages, RawTopic
 from dpos_ros.io.streams import TopicStream, merged_order
 
 ROSBAG2_VERSION = 9
+#: the MCAP header's ``library``: the writer, truthfully (the rosbag2 layout follows rosbags' writer)
+LIBRARY = f"dpos_ros-{version('dpos_ros')}"
 #: a batch laid out and compressed for a writer (:func:`encode_streams`)
 EncodedBatch = _mcap.EncodedBatch
 
@@ -54,10 +58,21 @@ def write_streams(
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
 
     n = _mcap.write(path, _topics(streams), merged_order(streams) if streams else (np.zeros(0, dtype=np.int64),) * 3,
-                    dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}", progress)
+                    dict(custom_data or {}), ROSBAG2_VERSION, LIBRARY, progress, [design_qos(s.topic) for s in streams])
     if progress is not None:
         progress(n, n)
     return n
+
+
+def design_qos(topic: str) -> list[Qos]:
+    """The QoS profile dpos publishers of ``topic`` offer (docs/design.md, QoS; the numbers of
+    :data:`dpos_ros.contract.topics.QOS_KINDS`), as rosbag2's ``offered_qos_profiles`` entry: the
+    datum and the statuses TRANSIENT_LOCAL, so that a replay with ``ros2 bag play`` latches them."""
+    history, depth, reliability, durability = QOS_KINDS[qos_kind(topic)]
+    zero = QosTime(0, 0)  # rclpy's defaults (deadline, lifespan, lease: none), as dpos-record stores them
+    return [Qos(history=QosHistory[history.upper()], depth=depth, reliability=QosReliability[reliability.upper()],
+                durability=QosDurability[durability.upper()], deadline=zero, lifespan=zero,
+                liveliness=QosLiveliness.SYSTEM_DEFAULT, liveliness_lease_duration=zero, avoid_ros_namespace_conventions=False)]
 
 
 def _topics(streams: Sequence[TopicStream]) -> list[_mcap.Topic]:
@@ -74,7 +89,8 @@ def new_writer(path: Path, channels: Sequence[tuple[str, str]], custom_data: dic
     if path.exists():
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
 
-    return _mcap.Writer(path, list(channels), dict(custom_data or {}), ROSBAG2_VERSION, f"rosbags-{version('rosbags')}")
+    return _mcap.Writer(path, list(channels), dict(custom_data or {}), ROSBAG2_VERSION, LIBRARY,
+                        qos=[design_qos(topic) for topic, _ in channels])
 
 
 def abort_writer(w: _mcap.Writer) -> None:
@@ -126,7 +142,8 @@ def write_streams_rosbags(
     custom_data: dict[str, str] | None = None,
 ) -> int:
     """:func:`write_streams` through rosbags' ``Writer``, message by message (the reference the
-    fast path is tested against)."""
+    fast path is tested against: the same offered QoS profiles; the MCAP header's library and the
+    metadata's ``ros_distro`` are rosbags' own)."""
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists: choose a new output directory (rosbag2 writes a new one)")
@@ -139,7 +156,7 @@ def write_streams_rosbags(
         w.set_custom_data(key, value)
     w.open()
     try:
-        conns = [w.add_connection(s.topic, s.msgtype, typestore=ts) for s in streams]
+        conns = [w.add_connection(s.topic, s.msgtype, typestore=ts, offered_qos_profiles=design_qos(s.topic)) for s in streams]
         for k in range(n):
             s = streams[si[k]]
             w.write(conns[si[k]], int(t[k]), s.message(int(mi[k])))

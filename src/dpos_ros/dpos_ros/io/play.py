@@ -65,7 +65,6 @@ from dpos_ros.contract.qos import qos_profile
 from dpos_ros.contract.topics import message_class
 from dpos_ros.io.bag import readable_bag, typestore
 from dpos_ros.io.flow import ACK_WARN_S, POLL_S, writer_depths
-from dpos_ros.io.record import topic_qos_kind
 
 __all__ = ["BagPlayer", "BagError", "PlayTopic", "CLOCK_TOPIC", "CLOCK_QOS", "open_bag"]
 
@@ -235,7 +234,7 @@ class BagPlayer:
                     raise BagError(f"{self.bag}: topic {c.topic} has several types ({t.msgtype}, {c.msgtype})")
                 t.count += int(c.msgcount)
                 continue
-            kind = topic_qos_kind(c.topic)
+            kind = T.qos_kind(c.topic)
             offered = getattr(getattr(c, "ext", None), "offered_qos_profiles", None) or ()
             if kind == "sensor" and any(getattr(getattr(q, "durability", None), "name", "") == "TRANSIENT_LOCAL" for q in offered):
                 kind = "status"

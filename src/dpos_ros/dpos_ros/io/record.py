@@ -73,7 +73,7 @@ from dpos_ros.contract.topics import message_class
 from dpos_ros.io.bag import ROSBAG2_VERSION, typestore
 from dpos_ros.io.flow import take_waiting
 
-__all__ = ["BagRecorder", "topic_qos_kind", "subscription_qos", "ALL_EXCLUDED", "DISCOVERY_PERIOD_S"]
+__all__ = ["BagRecorder", "subscription_qos", "ALL_EXCLUDED", "DISCOVERY_PERIOD_S"]
 
 #: Period of the graph look-up for topics not yet subscribed [s].
 DISCOVERY_PERIOD_S = 0.1
@@ -85,18 +85,9 @@ BACKLOG_WARN = 20000
 _INFINITE_NS = (2**63 - 1)
 
 
-def topic_qos_kind(topic: str) -> str:
-    """The design's QoS kind of a topic: ``datum``, ``status`` (both latched) or ``sensor``."""
-    if topic == T.DATUM:
-        return "datum"
-    if topic.endswith("/status"):
-        return "status"
-    return "sensor"
-
-
 def subscription_qos(topic: str, offered: Sequence[QoSProfile] = (), keep_all: bool = True) -> QoSProfile:
     """The recorder's QoS for ``topic`` given the publishers' ``offered`` profiles (module docstring)."""
-    base = {"datum": dpos_qos.DATUM_QOS, "status": dpos_qos.STATUS_QOS}.get(topic_qos_kind(topic), dpos_qos.SENSOR_QOS)
+    base = {"datum": dpos_qos.DATUM_QOS, "status": dpos_qos.STATUS_QOS}.get(T.qos_kind(topic), dpos_qos.SENSOR_QOS)
     reliability = base.reliability
     durability = base.durability
     if offered and all(p.reliability == ReliabilityPolicy.BEST_EFFORT for p in offered):
