@@ -13,7 +13,7 @@ filter - the real logs' NIS are 2-5 times their dof, docs/qc.md's sigma inflatio
 * ``position_bound``: an output position farther from the main POS (interpolated at the row's
   stamp, rows in its gaps or outside it not checked) than the lever arm can reach:
   ``|r0| + LEVER_ARM_SIGMAS x sqrt(3) lever_arm_sigma + POSITION_MARGIN_M``
-  (:func:`check_positions`; the smoother's blow-up of docs/ups.md: 1e69 m).
+  (:func:`check_positions`; the smoother's blow-up of docs/transfer_alignment.md: 1e69 m).
 """
 
 from __future__ import annotations

@@ -640,7 +640,8 @@ class TransferAlignmentModel:
         T = 1 s) would leave a noise-free contracting pair of states, and every smoother's gain is
         ``Phi^-1`` there (x2.9 per epoch backwards): the rounding and Cholesky-repair noise the
         forward pass leaves in them (the UPS's particles draw the flexure rate from it) came back
-        multiplied by ``2.9^K`` - 1e69 m after 150 epochs on the quad_mimu raw DOT1 log (docs/ups.md)."""
+        multiplied by ``2.9^K`` - 1e69 m after 150 epochs on the quad_mimu raw DOT1 log
+        (docs/transfer_alignment.md)."""
         key = round(T, 9)
         if key not in self._flex_cache:
             Phi, Q = self._flex.discrete(T)
