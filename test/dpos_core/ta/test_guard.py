@@ -92,6 +92,10 @@ def test_gyro_in_the_wrong_units_is_diverged_not_estimated(flight) -> None:
             pipeline.run(wrong, master, ins, CFG, method, particles=20)
         assert ei.value.reason in ("nis", "position_bound", "non_finite"), ei.value
         assert f"({method})" in str(ei.value)
+    blocks: list[np.ndarray] = []
+    with pytest.raises(AlignmentDiverged):  # streamed (a row sink): no block is handed on
+        pipeline.run(wrong, master, ins, CFG, "ukf", sink=lambda t, *rest: blocks.append(t))
+    assert blocks == []
 
 
 def test_right_units_pass_the_guard(flight) -> None:
@@ -134,3 +138,16 @@ def test_ups_on_a_rigid_mount_agrees_with_urtss() -> None:
     r_s = pipeline.run(imu, master, rigid, CFG, "urtss")
     assert np.abs(r_u.x[:, :9] - r_s.x[:, :9]).max() < 0.05
     assert np.abs(r_u.x[:, 18:24]).max() < 1e-6  # held at zero (their sigma 1e-8)
+
+
+def test_guarded_sink_checks_each_block_before_handing_it_on(flight) -> None:
+    _, _, master, ins = flight
+    got: list[np.ndarray] = []
+    sink = pipeline._guarded_sink(lambda t, *rest: got.append(t), master, ins, "t")
+    t, llh = master.t_s[5:9], master.llh[5:9].copy()
+    z3, z4 = np.zeros((4, 3)), np.zeros((4, 4))
+    sink(t, llh, z3, z4, np.zeros((4, 9)))
+    llh[2, 0] += 1e-3  # 6 km north
+    with pytest.raises(AlignmentDiverged, match="from the main POS"):
+        sink(t, llh, z3, z4, np.zeros((4, 9)))
+    assert len(got) == 1
