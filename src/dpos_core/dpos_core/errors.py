@@ -5,6 +5,7 @@ Hierarchy (every exception class of the workspace is defined here, test/dpos_cor
     DposError                                         base of every error below
     +-- RejectedInput(DposError, ValueError)          bad data the caller may skip
     +-- NumericalFailure(DposError, ArithmeticError)  a filter that cannot go on from here
+    |   +-- AlignmentDiverged                          a transfer alignment whose result is not an estimate
     +-- ConfigError(DposError, ValueError)            a scenario / aircraft file is invalid
     +-- ParameterError(DposError, ValueError)         a node's or a command's parameter is invalid
     +-- InputError(DposError, ValueError)             a recording or an option cannot be used
@@ -47,7 +48,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["DposError", "RejectedInput", "NumericalFailure", "NumericalRepairWarning", "ConfigError", "ParameterError",
+__all__ = ["DposError", "RejectedInput", "NumericalFailure", "AlignmentDiverged", "NumericalRepairWarning", "ConfigError", "ParameterError",
            "InputError", "SarInputError", "SessionError", "LogFormatError", "ClockNotObservable",
            "MountingNotObservable", "BagError", "OutputError", "ProductsExistError",
            "GraphError", "ImportFailure", "CampaignError", "TaskFailed"]
@@ -93,6 +94,24 @@ class NumericalFailure(DposError, ArithmeticError):
         super().__init__(message)
         self.what = what
         self.t_s = t_s
+
+
+class AlignmentDiverged(NumericalFailure):
+    """A transfer alignment that ran to its end but whose result is no estimate
+    (:mod:`dpos_core.ta.guard`): its rows must not be used, the sub-IMU's antennas are not estimated.
+
+    Args:
+        message: what diverged and by how much, for people.
+        reason: a short code: ``non_finite`` (a state or covariance not finite), ``nis`` (the
+            innovations grossly beyond their covariance over a sustained stretch), ``position_bound``
+            (a position outside the lever arm's reach from the main POS).
+        what: the estimator, e.g. ``"transfer alignment (ups)"``.
+        t_s: the first epoch or row where it showed [s], when known.
+    """
+
+    def __init__(self, message: str, *, reason: str = "diverged", what: str = "transfer alignment", t_s: float | None = None) -> None:
+        super().__init__(message, what=what, t_s=t_s)
+        self.reason = reason
 
 
 class NumericalRepairWarning(RuntimeWarning):

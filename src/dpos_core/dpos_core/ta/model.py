@@ -124,6 +124,10 @@ from ..strapdown import NavState, Strapdown
 from . import _vibration_kernel
 
 N_STATES = 24
+#: variance [rad^2, rad^2/s^2] of the flexure states of an axis without flexure (held at zero:
+#: :meth:`TransferAlignmentModel._flex_discrete`), their prior and per-interval noise (positive
+#: definite covariances; as the prior's floor of every flexure axis)
+RIGID_FLEXURE_VAR = 1e-16
 PHI, DV, DP, EPS, NAB, RHO, TH, THD = (slice(i, i + 3) for i in range(0, 24, 3))
 NAV = slice(0, 9)
 
@@ -628,11 +632,31 @@ class TransferAlignmentModel:
         return self._flex_cache[key]
 
     def _flex_discrete(self, T: float) -> tuple[FloatArray, FloatArray]:
-        """Exact flexure transition and noise (3, 2, 2) each over T, cached per interval length."""
+        """Exact flexure transition and noise (3, 2, 2) each over T, cached per interval length.
+
+        An axis without flexure (variance 0: a sub-IMU at span 0, a rigid mount) has its two states
+        held at zero: transition 0 and noise :data:`RIGID_FLEXURE_VAR` (:meth:`rigid_flexure_axes`).
+        Its exact transition (a damped oscillator, ``|eig Phi| = exp(-beta T)``: 0.34 at tau = 2 s,
+        T = 1 s) would leave a noise-free contracting pair of states, and every smoother's gain is
+        ``Phi^-1`` there (x2.9 per epoch backwards): the rounding and Cholesky-repair noise the
+        forward pass leaves in them (the UPS's particles draw the flexure rate from it) came back
+        multiplied by ``2.9^K`` - 1e69 m after 150 epochs on the quad_mimu raw DOT1 log
+        (docs/transfer_alignment.md)."""
         key = round(T, 9)
         if key not in self._flex_cache:
-            self._flex_cache[key] = self._flex.discrete(T)
+            Phi, Q = self._flex.discrete(T)
+            rigid = self.rigid_flexure_axes()
+            if rigid.any():
+                Phi, Q = Phi.copy(), Q.copy()
+                Phi[rigid] = 0.0
+                Q[rigid] = np.eye(2) * RIGID_FLEXURE_VAR
+            self._flex_cache[key] = (Phi, Q)
         return self._flex_cache[key]
+
+    def rigid_flexure_axes(self) -> NDArray[np.bool_]:
+        """The flexure axes (3,) without flexure (variance 0 after the span scaling): their states are
+        held at zero (:meth:`_flex_discrete`)."""
+        return np.asarray(self._flex.variance_deg2, dtype=float) == 0.0
 
     def Q(self, k: int) -> FloatArray:
         T = self._interval(k).T
@@ -790,9 +814,9 @@ class TransferAlignmentModel:
         Pf = self._flex.stationary_cov()
         if ins.known_wing is not None:
             Pf = np.zeros_like(Pf)
-        for i in range(3):
+        for i in range(3):  # (a rigid axis, variance 0: RIGID_FLEXURE_VAR, its noise)
             ii = [18 + i, 21 + i]
-            P[np.ix_(ii, ii)] = Pf[i] + np.diag([1e-16, 1e-16])
+            P[np.ix_(ii, ii)] = Pf[i] + np.diag([RIGID_FLEXURE_VAR, RIGID_FLEXURE_VAR])
         return np.zeros(self.n), P
 
     def nominal_chunks(self) -> list[NavSeries]:

@@ -55,6 +55,7 @@ from ..frames import C_nb_from_hpr, hpr_from_C_nb
 from ..series import ImuSeries, NavSeries
 from ..strapdown import NavState
 from . import flags as F
+from . import guard
 from .antenna import step_roughness
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .oracle import LinearizedAboutTruth
@@ -318,7 +319,10 @@ def run(
 
     Unusable data raise :class:`~dpos_core.errors.RejectedInput` (NaN samples, stamps out of
     order, no sub-IMU data after the master starts); a filter or smoother that fails beyond
-    repair raises :class:`~dpos_core.errors.NumericalFailure`.  The Cholesky jitter repairs made
+    repair raises :class:`~dpos_core.errors.NumericalFailure`, a run whose result is no estimate
+    (non-finite, innovations grossly inconsistent, positions beyond the lever arm's reach from the
+    main POS: :mod:`.guard`) its subclass :class:`~dpos_core.errors.AlignmentDiverged` (``reason``
+    says which), before a row is returned (with ``sink``: before the block holding it is handed on).  The Cholesky jitter repairs made
     on the way are counted in ``TAResult.chol_jitter_repairs``.
 
     ``sink``: the output rows are handed to it a block at a time (:data:`RowSink`, in
@@ -405,13 +409,32 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig
                 xs, Ps = tr.x_f, tr.P_f
             qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((xs, Ps) if smoothed else (None, None)))
             corr = tr.corrections
-            out = _apply(model, xs, Ps, corr) if sink is None else _to_sink(model, xs, Ps, corr, sink)
+            # the divergence guard (.guard): AlignmentDiverged before any row is used
+            what = f"transfer alignment ({method})"
+            guard.check_finite(xs, Ps, model.epochs_s, what)
+            guard.check_nis(qc, what)
+            if sink is None:
+                out = _apply(model, xs, Ps, corr)
+                guard.check_positions(out[0], out[1], master, install, what)
+            else:
+                out = _to_sink(model, xs, Ps, corr, _guarded_sink(sink, master, install, what))
             installation = _installation(model, np.asarray(xs[-1]), np.asarray(Ps[-1]))
             # the estimates at the epochs: kept in memory, or (the rows handed to a sink) not kept
             x, P = (in_memory(xs), in_memory(Ps)) if sink is None else (np.zeros((0, model.n)), np.zeros((0, model.n, model.n)))
         finally:
             store.close()
     return TAResult(method, *out, model.epochs_s, x, P, ess, flags=_bridged_flags(model), qc=qc, cg=cg, installation=installation)
+
+
+def _guarded_sink(sink: RowSink, master: NavSeries, install: Installation, what: str) -> RowSink:
+    """``sink`` behind :func:`.guard.check_positions`: a block with a row out of the bound raises
+    before it is handed on."""
+
+    def checked(t: FloatArray, llh: FloatArray, vel: FloatArray, q: FloatArray, sigma: FloatArray) -> None:
+        guard.check_positions(t, llh, master, install, what)
+        sink(t, llh, vel, q, sigma)
+
+    return checked
 
 
 def per_epoch_bytes(n: int, particles: int = 0, sampled: int = 0) -> int:
