@@ -71,6 +71,33 @@ def test_odometry_bytes_equal_rclpy(frame: str, child: str) -> None:
     np.testing.assert_array_equal(v2, vals)
 
 
+@pytest.mark.parametrize("frame", ["antenna_ant_r", "gnss", "abc"])
+def test_navsatfix_rows_equal_rclpy(frame: str) -> None:
+    """The antenna fixes: REP 145 content (degrees, ENU diagonal covariance) and rclpy's bytes,
+    padded to 4 as Fast DDS sends them (canonical)."""
+    from sensor_msgs.msg import NavSatFix, NavSatStatus
+
+    t_ns = np.array([1_538_265_600_010_000_000, 1_538_265_600_020_000_001], dtype=np.int64)
+    llh = np.array([[0.6, 1.9, 1234.5], [-0.3, -2.9, -12.25]])
+    sig = np.array([[0.01, 0.02, 0.03], [1.0, 2.0, 3.0]])
+    rows = cv.navsatfix_rows(frame, t_ns, llh, sig)
+    lay = cdr.layout("navsatfix", frame)
+    for i in range(2):
+        m = NavSatFix()
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t_ns[i] // 10**9), int(t_ns[i] % 10**9)
+        m.header.frame_id = frame
+        m.status.status, m.status.service = NavSatStatus.STATUS_FIX, NavSatStatus.SERVICE_GPS
+        m.latitude, m.longitude, m.altitude = float(np.rad2deg(llh[i, 0])), float(np.rad2deg(llh[i, 1])), float(llh[i, 2])
+        m.position_covariance = list(np.diag(sig[i] ** 2).reshape(9))
+        m.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+        theirs = serialize_message(m)
+        _assert_same_bytes(bytes(rows[i]), theirs + b"\x00" * (-len(theirs) % 4), lay)
+        assert deserialize_message(bytes(rows[i]), NavSatFix) == m
+    t2, v2 = cdr.decode(lay, rows)
+    np.testing.assert_array_equal(t2, t_ns)
+    np.testing.assert_array_equal(v2[:, :3], np.column_stack([np.rad2deg(llh[:, :2]), llh[:, 2]]))
+
+
 def test_decode_rejects_other_frames() -> None:
     rows = cdr.encode(cdr.layout("imu", "a"), np.array([1], dtype=np.int64), np.zeros((1, cdr.IMU_DOUBLES)))
     with pytest.raises(ValueError, match="frame names"):

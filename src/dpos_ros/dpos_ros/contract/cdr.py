@@ -27,6 +27,11 @@ CDR_LE_HEADER = b"\x00\x01\x00\x00"
 IMU_DOUBLES = 37
 #: pose position (3) + orientation xyzw (4) + cov (36) + twist linear (3) + angular (3) + cov (36)
 ODOM_DOUBLES = 85
+#: latitude, longitude [deg], altitude [m] (3) + position covariance ENU (9)
+NAVSATFIX_DOUBLES = 12
+#: the NavSatFix layout's constants (sensor_msgs/NavSatStatus, NavSatFix): a fix of the GPS service
+#: with a diagonal covariance (the antenna products' fixes: position sigmas per ENU axis)
+NAVSATFIX_STATUS, NAVSATFIX_SERVICE, NAVSATFIX_COVARIANCE_TYPE = 0, 1, 2
 
 
 def _align(payload: bytearray, n: int, pads: list[int]) -> None:
@@ -49,6 +54,7 @@ class Layout:
     prefix: bytes  # payload bytes after the stamp up to the doubles (strings + padding)
     n_doubles: int
     padding: tuple[int, ...] = ()  # offsets (in the serialized message) of alignment padding bytes
+    suffix: bytes = b""  # constant bytes after the doubles (NavSatFix: the covariance type, padded to 4)
 
     @property
     def offset(self) -> int:
@@ -56,23 +62,34 @@ class Layout:
 
     @property
     def size(self) -> int:
-        return 4 + self.offset + 8 * self.n_doubles
+        return 4 + self.offset + 8 * self.n_doubles + len(self.suffix)
 
 
 def layout(kind: str, frame_id: str, child_frame_id: str = "") -> Layout:
-    """``kind``: ``imu`` or ``odometry``."""
+    """``kind``: ``imu``, ``odometry`` or ``navsatfix`` (status, service and covariance type the
+    module's ``NAVSATFIX_*`` constants; the payload padded to 4 bytes as Fast DDS sends it)."""
     payload = bytearray(8)  # stamp sec, nanosec
     pads: list[int] = []
     _string(payload, frame_id, pads)
+    suffix = b""
     if kind == "odometry":
         _string(payload, child_frame_id, pads)
         n = ODOM_DOUBLES
     elif kind == "imu":
         n = IMU_DOUBLES
+    elif kind == "navsatfix":
+        payload += NAVSATFIX_STATUS.to_bytes(1, "little", signed=True)  # int8 status
+        _align(payload, 2, pads)
+        payload += NAVSATFIX_SERVICE.to_bytes(2, "little")  # uint16 service
+        n = NAVSATFIX_DOUBLES
+        suffix = bytes([NAVSATFIX_COVARIANCE_TYPE, 0, 0, 0])  # uint8 position_covariance_type, then padding to 4
     else:
         raise ValueError(f"unknown CDR layout {kind!r}")
     _align(payload, 8, pads)
-    return Layout(bytes(payload[8:]), n, tuple(pads))
+    if suffix:
+        end = 4 + len(payload) + 8 * n
+        pads += [end + 1, end + 2, end + 3]
+    return Layout(bytes(payload[8:]), n, tuple(pads), suffix)
 
 
 def split_stamp(t_ns: NDArray[np.int64]) -> tuple[NDArray[np.int32], NDArray[np.uint32]]:
@@ -93,7 +110,9 @@ def encode(lay: Layout, t_ns: NDArray[np.int64], values: FloatArray) -> NDArray[
     out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
     out[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
     out[:, 12 : 4 + lay.offset] = np.frombuffer(lay.prefix, dtype=np.uint8)
-    out[:, 4 + lay.offset :] = v.view(np.uint8).reshape(n, 8 * lay.n_doubles)
+    end = 4 + lay.offset + 8 * lay.n_doubles
+    out[:, 4 + lay.offset : end] = v.view(np.uint8).reshape(n, 8 * lay.n_doubles)
+    out[:, end:] = np.frombuffer(lay.suffix, dtype=np.uint8)
     return out
 
 
@@ -103,7 +122,7 @@ def matches(lay: Layout, rows: NDArray[np.uint8]) -> NDArray[np.bool_]:
     if r.ndim != 2 or r.shape[1] != lay.size:
         raise ValueError(f"expected serialized rows of {lay.size} bytes, got shape {r.shape}")
     keep = np.ones(lay.offset - 8, dtype=bool)
-    keep[[p - 12 for p in lay.padding]] = False  # padding bytes may hold anything
+    keep[[p - 12 for p in lay.padding if p < 4 + lay.offset]] = False  # padding bytes may hold anything
     return np.all(r[:, 12 : 4 + lay.offset][:, keep] == np.frombuffer(lay.prefix, dtype=np.uint8)[keep], axis=1)
 
 
@@ -117,7 +136,7 @@ def decode(lay: Layout, rows: NDArray[np.uint8], checked: bool = False) -> tuple
         raise ValueError("serialized messages do not have the expected frame names")
     sec = r[:, 4:8].copy().view("<i4")[:, 0].astype(np.int64)
     nsec = r[:, 8:12].copy().view("<u4")[:, 0].astype(np.int64)
-    vals = r[:, 4 + lay.offset :].copy().view("<f8")
+    vals = r[:, 4 + lay.offset : 4 + lay.offset + 8 * lay.n_doubles].copy().view("<f8")
     return sec * 1_000_000_000 + nsec, vals
 
 

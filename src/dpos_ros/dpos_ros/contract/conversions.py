@@ -202,6 +202,19 @@ def navsatfix_msg(t_ns: int, frame_id: str, llh: FloatArray, pos_sigma_m: FloatA
     return m
 
 
+def navsatfix_rows(frame_id: str, t_ns: NDArray[np.int64], llh: FloatArray, pos_sigma_enu_m: FloatArray) -> NDArray[np.uint8]:
+    """Serialized ``sensor_msgs/NavSatFix`` rows (N, size) of positions ``llh`` (N, 3) [rad, rad, m
+    ellipsoidal] with ENU position sigmas (N, 3) [m] (REP 145: latitude / longitude in degrees, a
+    diagonal ``position_covariance`` ENU row-major, COVARIANCE_TYPE_DIAGONAL_KNOWN, status FIX,
+    service GPS): the antenna products' fixes."""
+    llh = np.asarray(llh, dtype=float).reshape(-1, 3)
+    s = np.asarray(pos_sigma_enu_m, dtype=float).reshape(-1, 3)
+    vals = np.zeros((llh.shape[0], cdr.NAVSATFIX_DOUBLES))
+    vals[:, 0], vals[:, 1], vals[:, 2] = np.rad2deg(llh[:, 0]), np.rad2deg(llh[:, 1]), llh[:, 2]
+    vals[:, [3, 7, 11]] = s**2
+    return cdr.encode(_layout("navsatfix", frame_id), t_ns, vals)
+
+
 def gnss_vel_msg(t_ns: int, vel_n_mps: FloatArray, vel_sigma_mps: FloatArray):
     """``geometry_msgs/TwistWithCovarianceStamped``: ENU velocity at the antenna."""
     from geometry_msgs.msg import TwistWithCovarianceStamped
