@@ -389,6 +389,7 @@ class _Chunk:
     t1: int
     end: int
     index: list[tuple[int, bytes]]
+    crc: int = 0  # CRC-32 of the records (set once ``data`` is dropped: a chunk encoded elsewhere)
 
 
 @dataclass(frozen=True)
@@ -505,7 +506,8 @@ def encode_batch(topics: Sequence[Topic], order: tuple[NDArray[np.int64], NDArra
     cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
     chunks = []
     for ch in _chunks(topics, order, prefix):
-        chunks.append((_Chunk(b"", ch.t0, ch.t1, ch.end, ch.index), len(ch.data), cctx.compress(_buffer(ch.data))))
+        chunks.append((_Chunk(b"", ch.t0, ch.t1, ch.end, ch.index, zlib.crc32(_buffer(ch.data))), len(ch.data),
+                       cctx.compress(_buffer(ch.data))))
     return EncodedBatch([(tp.topic, tp.msgtype) for tp in topics], chunks, _batch_stats(len(topics), order), bool(prefix))
 
 
@@ -572,16 +574,19 @@ class Writer:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.f.close()
 
-    def _compress(self, data: bytes | NDArray[np.uint8]) -> bytes:  # zstandard releases the GIL: chunks are compressed while the next are built
+    def _compress(self, data: bytes | NDArray[np.uint8]) -> tuple[int, bytes]:
+        """(CRC-32 of ``data``, ``data`` compressed); zstandard and zlib release the GIL: chunks are
+        compressed while the next are built."""
         if not hasattr(self._local, "cctx"):
             self._local.cctx = self._zstd.ZstdCompressor(level=ZSTD_LEVEL)
         out: bytes = self._local.cctx.compress(_buffer(data))
-        return out
+        return zlib.crc32(_buffer(data)), out
 
-    def _write_chunk(self, ch: _Chunk, usize: int, comp: bytes) -> None:
-        """Chunk ``ch`` (``usize`` bytes uncompressed, ``comp`` compressed), its message indexes, its chunk index entry."""
+    def _write_chunk(self, ch: _Chunk, usize: int, comp: bytes, crc: int) -> None:
+        """Chunk ``ch`` (``usize`` bytes uncompressed with CRC-32 ``crc``, checked by readers; ``comp``
+        compressed), its message indexes, its chunk index entry."""
         f = self.f
-        body = _u64(ch.t0) + _u64(ch.t1) + _u64(usize) + _u32(0) + _s("zstd") + _u64(len(comp))
+        body = _u64(ch.t0) + _u64(ch.t1) + _u64(usize) + _u32(crc) + _s("zstd") + _u64(len(comp))
         chunk_start = f.tell()
         f.write(bytes([OP_CHUNK]) + _u64(len(body) + len(comp)) + body)
         f.write(comp)
@@ -603,15 +608,17 @@ class Writer:
         if [(tp.topic, tp.msgtype) for tp in topics] != self.channels:
             raise ValueError("a batch must hold the writer's channels, in order")
         self.n_before = self.n
-        pending: deque[tuple[_Chunk, Future[bytes]]] = deque()
+        pending: deque[tuple[_Chunk, Future[tuple[int, bytes]]]] = deque()
         for ch in _chunks(topics, order, self.prefix):
             pending.append((ch, self.pool.submit(self._compress, ch.data)))
             while len(pending) > 2 * COMPRESS_THREADS:
                 done, fut = pending.popleft()
-                self._write_chunk(done, len(done.data), fut.result())
+                crc, comp = fut.result()
+                self._write_chunk(done, len(done.data), comp, crc)
         while pending:
             done, fut = pending.popleft()
-            self._write_chunk(done, len(done.data), fut.result())
+            crc, comp = fut.result()
+            self._write_chunk(done, len(done.data), comp, crc)
         self._account(_batch_stats(len(topics), order))
 
     def add_encoded(self, batch: EncodedBatch) -> None:
@@ -624,7 +631,7 @@ class Writer:
             raise ValueError("the first batch (and only it) must be encoded with the writer's prefix (Writer.prefix)")
         self.n_before = self.n
         for ch, usize, comp in batch.chunks:
-            self._write_chunk(ch, usize, comp)
+            self._write_chunk(ch, usize, comp, ch.crc)
         self._account(batch.stats)
 
     def _account(self, stats: tuple[int, NDArray[np.int64], int, int]) -> None:
