@@ -51,11 +51,10 @@ from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom
 from dpos_ros.io.bag import topics_and_duration, write_stream_batches
 from dpos_ros.io.session import read_session_streaming, session_from_streams
 from dpos_ros.products import lsfit_tables
-from dpos_ros.products.evaluate_stream import evaluate_streaming, series_free
+from dpos_ros.products.evaluate import evaluate, series_free
 from dpos_ros.products.ifa import main_ifa
-from dpos_ros.products.report import combine_runs, evaluate, metrics_json, report_md
-from dpos_ros.products.solve import solve
-from dpos_ros.products.stream import solve_streaming
+from dpos_ros.products.report import combine_runs, metrics_json, report_md
+from dpos_ros.products.solve import SubImuSource, solve
 
 #: the filter rate of the transfer-alignment runs (TASettings' default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
@@ -277,8 +276,8 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
     """:func:`ta_run` with memory that does not grow with the run's duration (module docstring): the
     session simulated window by window (:data:`STREAM_SIM_WINDOW_S`) into a recording in a new
     temporary directory under ``scratch``, each method run on it by ``dpos-process --stream on``'s
-    path (:func:`dpos_ros.products.stream.solve_streaming`, serially in this process) and evaluated
-    by :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`; the directory is deleted
+    path (:func:`dpos_ros.products.solve.solve` reading the recording, its rows spilled to files,
+    serially in this process) and evaluated by :func:`dpos_ros.products.evaluate.evaluate`; the directory is deleted
     afterwards, whatever happens.  The oracle methods are not available (they read the simulation)."""
     scenario, methods = plan.scenario, plan.methods
     oracles = [m for m in methods if m in (ORACLE, ORACLE_FILTER, ORACLE_WING)]
@@ -302,8 +301,9 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
             t0 = time.perf_counter()
             sess = dc_replace(base, warnings=list(base.warnings))
             store = Path(tmp) / f"rows_{m}"
-            ants, tm = solve_streaming(rec, sess, scenario.aircraft, store, plan.settings(m, seed), sub_imus=subs)
-            ev = evaluate_streaming(sess, ants, topics)
+            ants, tm = solve(sess, scenario.aircraft, plan.settings(m, seed), source=SubImuSource(bag=str(rec)), store_dir=store,
+                             sub_imus=subs)
+            ev = evaluate(sess, ants, topics)
             shutil.rmtree(store, ignore_errors=True)
             _record(run, m, ev, tm, label, seed, t0, echo)
     return run
