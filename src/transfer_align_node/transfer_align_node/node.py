@@ -49,7 +49,7 @@ Long sessions
     Every session is finalized by ``dpos-process``'s code (:func:`dpos_ros.products.solve.solve`,
     :mod:`dpos_ros.products.write`, :mod:`dpos_ros.products.evaluate`) on the spill
     (:meth:`TransferAlignNode._process`): the workers read their sub-IMU's log and the main POS's a
-    block of records at a time (:func:`dpos_ros.io.session.read_session_streaming`, without the
+    block of records at a time (:func:`dpos_ros.io.session.read_session`, without the
     late messages), the poses are published :data:`~dpos_ros.products.write.BAG_BATCH_S` at a time
     (:class:`~dpos_ros.devices.sim_device.StreamBatches`: flow-controlled), and the products are
     written a block of rows at a time.  A session whose streams span more than ``stream_above_s``
@@ -100,7 +100,7 @@ from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
 from dpos_ros.devices.sim_device import SimDevice, StreamBatches, StreamInfo
-from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session_streaming, reject_reasons
+from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter, spill_meta
 from dpos_ros.products.antenna import AntennaSolution
 from dpos_ros.products.evaluate import evaluate
@@ -629,7 +629,7 @@ class TransferAlignNode(Node):
         self._progress = (f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {self._n_workers} worker(s)"
                           + (f", rows spilled to disk ({span_s:.0f} s of session > stream_above_s {cfg.stream_above_s:g} s)" if spill else ""))
         log.info(self._progress)
-        sess = read_session_streaming(spill_dir, keep=lambda t: False, include_late=False)  # the main POS alone
+        sess = read_session(spill_dir, keep=lambda t: False, include_late=False)  # the main POS alone
         sess.master_error_model = {"tau_s": settings.master_error_tau_s, "why": why}
         topics = spill_meta(spill_dir)[0]
         subs = [n for n in self.sub_names if T.sub_imu(n) in topics]

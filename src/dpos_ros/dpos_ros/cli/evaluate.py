@@ -49,7 +49,7 @@ from dpos_ros.cli.mismatch import main_mismatch
 from dpos_ros.cli.sar_eval import main_sar
 from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_streams
 from dpos_ros.io.bag import topics_and_duration, write_stream_batches
-from dpos_ros.io.session import read_session_streaming, session_from_streams
+from dpos_ros.io.session import read_session, session_from_streams
 from dpos_ros.products import lsfit_tables
 from dpos_ros.products.evaluate import evaluate, series_free
 from dpos_ros.products.ifa import main_ifa
@@ -295,7 +295,7 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
         assert meta is not None  # (written just now)
         topics = meta[0]
         subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
-        base = read_session_streaming(rec, keep=lambda t: False)  # the main POS only
+        base = read_session(rec, keep=lambda t: False)  # the main POS only
         run = TARun(seed, {}, {}, list(base.imaging_segments().keys()) or ["session"], path=PATH_STREAMING)
         for m in methods:
             t0 = time.perf_counter()

@@ -45,7 +45,7 @@ from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.bag import topics_and_duration
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
-from dpos_ros.io.session import RecordedSession, SessionError, read_session, read_session_streaming
+from dpos_ros.io.session import RecordedSession, SessionError, read_session
 from dpos_ros.products.antenna import AntennaSolution
 from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.master_reference import (
@@ -259,9 +259,9 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             topics = meta[0]
             subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
             if args.master_reference == "recorded":
-                sess = read_session_streaming(args.bag, keep=lambda t: False)  # the main POS only
+                sess = read_session(args.bag, keep=lambda t: False)  # the main POS only
             else:  # the main POS's inputs (/master/imu, /gnss/*) and truth too
-                sess = read_session_streaming(args.bag, keep=lambda t: not t.startswith(("/sub_imu/", "/truth/antenna/")))
+                sess = read_session(args.bag, keep=lambda t: not t.startswith(("/sub_imu/", "/truth/antenna/")))
             source = SubImuSource(bag=str(args.bag), read_master=args.master_reference == "recorded")
         aircraft = _aircraft(args, sess)
         ref = master_reference(sess, aircraft, args.master_reference)

@@ -3,7 +3,7 @@
 
 Each sub-IMU is aligned by :func:`align_to_store` (a worker's task): its data taken from the
 :class:`SubImuSource` (a recording the worker reads itself - its own topic and the main POS only,
-:func:`dpos_ros.io.session.read_session_streaming` - or a session in memory, dpos-eval's simulated
+:func:`dpos_ros.io.session.read_session` - or a session in memory, dpos-eval's simulated
 one), the output rows handed over a block at a time (``pipeline.run_segments(sink=...)``), its
 antennas' rows (moved by the lever arm) and its own (the wing fit's input) appended to
 :class:`~dpos_ros.products.rows.RowStore` s as they come: in memory, or spilled to a scratch
@@ -40,7 +40,7 @@ from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
-from dpos_ros.io.session import RecordedSession, read_session_streaming
+from dpos_ros.io.session import RecordedSession, read_session
 
 from . import rows as R
 from .antenna import AntennaSolution
@@ -59,7 +59,7 @@ FIT_IN_FLIGHT = 4
 class SubImuSource:
     """Where a worker finds its sub-IMU's data: the recording ``bag`` (read in the worker: its own
     topic and, unless ``master`` is sent, the main POS; ``include_late``: a spill's late messages
-    too, as :func:`dpos_ros.io.session.read_session_streaming`), or ``imus`` in memory (a simulated
+    too, as :func:`dpos_ros.io.session.read_session`), or ``imus`` in memory (a simulated
     session's; the main POS is then sent).  ``read_master``: the worker reads the main POS from
     ``bag`` (the recorded one) instead of being sent it."""
 
@@ -85,7 +85,7 @@ class SubImuSource:
         if self.imus is not None:
             return self.imus.get(sub), None, []
         assert self.bag is not None
-        sess = read_session_streaming(Path(self.bag), keep=lambda t: t == T.sub_imu(sub), include_late=self.include_late)
+        sess = read_session(Path(self.bag), keep=lambda t: t == T.sub_imu(sub), include_late=self.include_late)
         release_memory()  # (what decoding the recording's parts left in the heap)
         return sess.sub_imus.get(sub), sess, sess.warnings
 
