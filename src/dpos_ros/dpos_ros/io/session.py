@@ -358,7 +358,10 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
     if parts is None:
         return _read_whole(path, include_late, keep)
     custom = bag.custom_data(path)
-    small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
+    try:
+        small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
+    except (ValueError, OSError) as e:  # a chunk that cannot be decompressed or parsed, a file cut short
+        raise SessionError(f"{path}: cannot read the recording: {e}") from None
     if T.DATUM not in small or not small[T.DATUM][2]:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
     datum = _datum(small[T.DATUM][2][0])
@@ -366,6 +369,27 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
     counts = message_counts(path)
     acc: dict[str, _Rows] = {}  # topic -> its stamps and numbers so far
     failed: set[str] = set()
+    try:
+        _read_parts(parts, acc, failed, counts, datum, warnings)
+    except SessionError:
+        raise
+    except (ValueError, OSError) as e:  # a chunk that cannot be decompressed or parsed, a file cut short
+        raise SessionError(f"{path}: cannot read the recording: {e}") from None
+    for topic in failed:
+        acc.pop(topic, None)
+    if T.MASTER_NAV not in acc:
+        raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
+    cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
+    for topic in sorted(acc):
+        cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
+    return _session_from_cols(path, custom, datum, cols, small, warnings)
+
+
+
+def _read_parts(parts, acc: dict[str, _Rows], failed: set[str], counts: dict[str, int], datum: FloatArray,
+                warnings: list[str]) -> None:
+    """:func:`read_session`'s parts of an MCAP file decoded into ``acc`` (topic -> its rows so far;
+    a topic that cannot be decoded is warned about and put in ``failed``)."""
     for part in parts:
         for topic, (msgtype, _, blobs) in part.items():
             kind = _kind(topic, msgtype)
@@ -382,14 +406,6 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
             if topic not in acc:
                 acc[topic] = _Rows(_GROUPS[kind], counts.get(topic, 0))
             acc[topic].append(t, _compact(kind, t, v, datum))
-    for topic in failed:
-        acc.pop(topic, None)
-    if T.MASTER_NAV not in acc:
-        raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
-    cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
-    for topic in sorted(acc):
-        cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
-    return _session_from_cols(path, custom, datum, cols, small, warnings)
 
 
 def _datum(blob: bytes) -> FloatArray:
