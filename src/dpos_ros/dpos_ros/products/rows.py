@@ -39,7 +39,7 @@ class RowStore:
     """Rows appended column by column and read back by row ranges: in memory (``path`` None) or one
     file per column under ``path`` (created; the rows spilled to disk, a long flight's).  The same
     rows either way; picklable (a worker's store comes back to the caller; the files are opened
-    per call).  Rows read from memory are read-only views."""
+    per call).  The rows read are the reader's own (a copy, in memory as from the files)."""
 
     path: Path | None = None
     columns: dict[str, tuple[tuple[int, ...], str]] = field(default_factory=lambda: dict(ROW_COLUMNS))
@@ -81,7 +81,7 @@ class RowStore:
         self.n += n.pop()
 
     def _whole(self, name: str) -> NDArray:
-        """Column ``name``'s rows in memory, as one read-only array."""
+        """Column ``name``'s rows in memory, as one array (read-only: the store's)."""
         assert self._mem is not None
         parts = self._mem[name]
         if len(parts) != 1:
@@ -99,7 +99,7 @@ class RowStore:
         if i1 <= i0:
             return np.zeros((0, *shape), dtype=dt)
         if self._mem is not None:
-            return self._whole(name)[i0:i1]
+            return self._whole(name)[i0:i1].copy()  # (the reader's own, as from the files)
         a = np.fromfile(self._file(name), dtype=dt, count=(i1 - i0) * size, offset=i0 * size * dt.itemsize)
         return a.reshape((i1 - i0, *shape))
 
