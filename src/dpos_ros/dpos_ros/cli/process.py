@@ -276,6 +276,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     if ref.which != "recorded":
         _print_reference(ref, sess)
+    n_read = len(sess.warnings)
     spill = _spilled(args, meta)
     print(f"dpos-process: session {sess.session_id}: {len(subs)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
           f"method {args.method}, initial attitude error {err0:g} deg{' (rows spilled to disk)' if spill else ''}")
@@ -284,6 +285,8 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             antennas, timing = solve(sess, aircraft, settings(args, sess, _master_error(args, sess, ref.which)), source=source,
                                      store_dir=Path(tmp) if spill else None, pool=pool, sub_imus=subs)
             ev = evaluate(sess, antennas, topics)  # against the truth, a part at a time (none without it)
+            for w in sess.warnings[n_read:]:  # (the workers' reading of the sub-IMUs, the alignment, the evaluation)
+                print(f"dpos-process: warning: {w}", file=sys.stderr)
             out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
     except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
         return _write_error(e, target, final, had_products)
