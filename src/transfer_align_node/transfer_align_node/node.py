@@ -102,11 +102,12 @@ from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, ke
 from dpos_ros.devices.sim_device import SimDevice, StreamBatches, StreamInfo
 from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter, spill_meta
+from dpos_ros.products import solve as products_solve
 from dpos_ros.products.antenna import AntennaSolution
 from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.master_reference import master_error_tau
 from dpos_ros.products.rows import scratch_dir
-from dpos_ros.products.solve import SubImuSource, align_to_store, solve
+from dpos_ros.products.solve import SubImuSource, solve
 from dpos_ros.products.write import antenna_stream_batches, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
@@ -186,7 +187,7 @@ class _SubImuTasks(cf.Executor):
         try:
             fut = self.pool.submit(fn, *args, **kwargs)
         except cf.BrokenExecutor as e:  # a worker died (a sub-IMU's task): the session goes on without the pool
-            if fn is align_to_store:
+            if fn is products_solve.align_to_store:
                 self._failed(args[0].sub, e, out)
             else:  # the wing fit's windows, the products' files: in this process
                 try:
@@ -194,7 +195,7 @@ class _SubImuTasks(cf.Executor):
                 except BaseException as ex:  # noqa: BLE001 - the caller's result() raises it
                     out.set_exception(ex)
             return out
-        if fn is not align_to_store:
+        if fn is not products_solve.align_to_store:
             return fut
         sub = args[0].sub
 
