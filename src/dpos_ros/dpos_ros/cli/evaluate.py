@@ -15,11 +15,13 @@ Table 1 layout with the paper's columns, and each method's ratio to the oracle).
 ``--stream``: a run longer than an hour (``auto``, the default; ``on``: every run) is simulated
 window by window into a temporary recording beside ``--out`` (dpos-sim ``--window``'s
 machinery, deleted after the run) and processed and evaluated as ``dpos-process --stream on``
-does (dpos_ros.products.stream, dpos_ros.products.evaluate_stream), so a run's memory does not
-grow with its duration.  That path takes the recorded main POS, fits the wing over 5-minute
-windows and draws other white-noise samples than the in-memory simulation (the same statistics);
-the oracles need the simulation in memory (``--stream on`` with one is refused).  metrics.json's
-``evaluation.paths`` and a line of report.md say which path each run took.
+does (each sub-IMU read from the recording, the rows spilled to files), so a run's memory does not
+grow with its duration; a shorter run's simulated session stays in memory and goes through the
+same dpos_ros.products.solve.solve and dpos_ros.products.evaluate.evaluate, its sub-IMUs and
+truth taken from memory.  A run simulated into a recording takes the recorded main POS and draws
+other white-noise samples than the simulation in memory (the same statistics); the oracles need
+the simulation in memory (``--stream on`` with one is refused).  metrics.json's
+``evaluation.paths`` and a line of report.md say which way each run took.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ from dpos_ros.products.solve import SubImuSource, solve
 
 #: the filter rate of the transfer-alignment runs (TASettings' default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
-#: --stream auto: the streaming path for runs longer than this [s] (dpos-process's threshold)
+#: --stream auto: runs longer than this [s] are simulated into a recording, their rows spilled (dpos-process's threshold)
 STREAM_AUTO_S = 3600.0
 #: the windows of a streamed run's simulation [s] (dpos-sim --window)
 STREAM_SIM_WINDOW_S = 60.0
