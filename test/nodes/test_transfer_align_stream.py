@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import json
-import re
 from collections import defaultdict
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -28,6 +27,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from repo_paths import REPO
 from ros_wait import spin_until  # test/support/ros_wait.py
+from same_products import same_products  # test/support/same_products.py
 
 from dpos_core.errors import NumericalFailure
 from dpos_ros.contract import topics as T
@@ -108,27 +108,6 @@ def _rows(products: Path, a: str) -> int:
     return sum(1 for _ in (products / f"{a}.csv").open()) - 1
 
 
-def _masked(p: Path) -> bytes:
-    """A product file's bytes, its processing time masked (status.json / metrics.json
-    ``processing_s``, report.md's processing line)."""
-    b = p.read_bytes()
-    if p.name in ("status.json", "metrics.json"):
-        b = re.sub(rb'"processing_s": [0-9.e+-]+', b'"processing_s": X', b)
-    if p.name == "report.md":
-        b = re.sub(rb"processing [0-9.]+ s for [0-9]+ s of sub-IMU data \(processing time / data duration = [0-9.]+\)",
-                   b"processing X", b)
-    return b
-
-
-def _same_products(a: Path, b: Path) -> list[str]:
-    """Every file of the products ``a`` and ``b`` the same, byte for byte but the processing time; their names."""
-    files = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file())
-    assert files == sorted(str(p.relative_to(b)) for p in b.rglob("*") if p.is_file())
-    for f in files:
-        assert _masked(a / f) == _masked(b / f), f
-    return files
-
-
 def test_spilled_rows_publish_and_write_what_rows_in_memory_do(graph, msgs, tmp_path: Path) -> None:
     make, ex, got = graph
     received: dict[str, dict[str, list[bytes]]] = {}
@@ -149,7 +128,7 @@ def test_spilled_rows_publish_and_write_what_rows_in_memory_do(graph, msgs, tmp_
         assert len(stamps) == _rows(a, ant) == 251 and all(x < y for x, y in zip(stamps, stamps[1:])), ant
         assert [bytes(m) for m in received["stream"][ant]] == [bytes(m) for m in received["memory"][ant]], ant
     # the products
-    files = _same_products(a, b)
+    files = same_products(a, b)
     assert {"ant_l.csv", "ant_r.csv", "antennas/antennas.mcap", "qc.md", "status.json"} <= set(files)
     assert json.loads((a / "status.json").read_text())["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}
 
@@ -211,6 +190,6 @@ def test_spilled_rows_evaluate_against_the_truth_as_rows_in_memory(graph, msgs, 
         assert (products / "report.md").is_file() and all((products / f"errors_{a}.png").is_file() for a in ANTENNAS), mode
         warnings = json.loads((products / "status.json").read_text())["warnings"]
         assert not any("not evaluated" in w for w in warnings), warnings
-    files = _same_products(tmp_path / "stream" / "s", tmp_path / "memory" / "s")
+    files = same_products(tmp_path / "stream" / "s", tmp_path / "memory" / "s")
     assert "metrics.json" in files
     assert json.loads((tmp_path / "stream" / "s" / "metrics.json").read_text())["evaluation"]["path"] == "streaming"
