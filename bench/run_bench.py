@@ -189,7 +189,7 @@ def bench_transfer_alignment(results: dict, repeats: int) -> None:
     cfg = TAConfig(attitude_sigma_deg=40.0)
     dur = float(imu.t_s[-1] - imu.t_s[0])
     for method, key in (("urtss", "urtss_paper_su_time_ratio"), ("ups", "ups_paper_su_time_ratio")):
-        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, particles=100, initial=init), 1)
+        el = _best_of(lambda: pipeline.run(imu, master, ins, pipeline.TASettings(method=method, particles=100), cfg=cfg, initial=init), 1)
         results[key] = el / dur
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
@@ -210,10 +210,10 @@ def bench_cdvf(results: dict, repeats: int) -> None:
     dur = float(imu.t_s[-1] - imu.t_s[0])
     for method, key in (("urtss", "urtss_paper_su_ref_time_ratio"), ("cdkf_rts", "cdkf_paper_su_time_ratio"),
                         ("cdvf_rts", "cdvf_paper_su_time_ratio")):
-        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, initial=init), min(repeats, 2))
+        el = _best_of(lambda: pipeline.run(imu, master, ins, pipeline.TASettings(method=method), cfg=cfg, initial=init), min(repeats, 2))
         results[key] = el / dur
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
-    cg = pipeline.run(imu, master, ins, cfg, "cdvf", initial=init).cg
+    cg = pipeline.run(imu, master, ins, pipeline.TASettings(method="cdvf"), cfg=cfg, initial=init).cg
     assert cg is not None
     s = cg.summary()
     results["cdvf_paper_su_cg_iterations_mean"], results["cdvf_paper_su_cg_iterations_max"] = s["iterations_mean"], s["iterations_max"]
