@@ -189,7 +189,7 @@ def bench_transfer_alignment(results: dict, repeats: int) -> None:
     cfg = TAConfig(attitude_sigma_deg=40.0)
     dur = float(imu.t_s[-1] - imu.t_s[0])
     for method, key in (("urtss", "urtss_paper_su_time_ratio"), ("ups", "ups_paper_su_time_ratio")):
-        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, particles=100, initial=init), 1)
+        el = _best_of(lambda: pipeline.run(imu, master, ins, pipeline.TASettings(method=method, particles=100), cfg=cfg, initial=init), 1)
         results[key] = el / dur
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
 
@@ -210,10 +210,10 @@ def bench_cdvf(results: dict, repeats: int) -> None:
     dur = float(imu.t_s[-1] - imu.t_s[0])
     for method, key in (("urtss", "urtss_paper_su_ref_time_ratio"), ("cdkf_rts", "cdkf_paper_su_time_ratio"),
                         ("cdvf_rts", "cdvf_paper_su_time_ratio")):
-        el = _best_of(lambda: pipeline.run(imu, master, ins, cfg, method, initial=init), min(repeats, 2))
+        el = _best_of(lambda: pipeline.run(imu, master, ins, pipeline.TASettings(method=method), cfg=cfg, initial=init), min(repeats, 2))
         results[key] = el / dur
         print(f"transfer alignment {method}: {dur:.0f} s of data in {el:.2f} s (ratio {el / dur:.4f})")
-    cg = pipeline.run(imu, master, ins, cfg, "cdvf", initial=init).cg
+    cg = pipeline.run(imu, master, ins, pipeline.TASettings(method="cdvf"), cfg=cfg, initial=init).cg
     assert cg is not None
     s = cg.summary()
     results["cdvf_paper_su_cg_iterations_mean"], results["cdvf_paper_su_cg_iterations_max"] = s["iterations_mean"], s["iterations_max"]
@@ -250,7 +250,7 @@ def bench_wing(results: dict, repeats: int) -> None:
     from dpos_ros.devices.sim_streams import session_custom_data, session_streams
     from dpos_ros.io.session import session_from_streams
     from dpos_ros.products.solve import solve
-    from dpos_ros.runtime.pool import warm_pool
+    from dpos_ros.runtime.pool import process_pool, warm_pool
 
     scenario = load_scenario("paper_wing")
     ss = SimulatedSession(scenario, 1)
@@ -258,7 +258,7 @@ def bench_wing(results: dict, repeats: int) -> None:
     dur = float(sess.master.t_s[-1] - sess.master.t_s[0])
     err0 = float(scenario.transfer_alignment.get("initial_attitude_error_deg", 0.0))
     # warm: the 2 workers started and loaded the filters before (transfer_align_node starts them with
-    # the node, dpos-process while it reads the recording: runtime.pool.warm_pool); cold: started by solve()
+    # the node, dpos-process while it reads the recording: runtime.pool.warm_pool); cold: started with the timing
     for workers, key in ((2, "wing_paper_wing_time_ratio"), (2, "wing_paper_wing_cold_time_ratio"),
                          (1, "wing_paper_wing_serial_time_ratio")):
         pool = None
@@ -268,16 +268,19 @@ def bench_wing(results: dict, repeats: int) -> None:
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         rs0 = _children_cpu_s(pool)
         t0, c0 = time.perf_counter(), time.process_time()
+        cold = process_pool(workers) if key == "wing_paper_wing_cold_time_ratio" else None
         ants, timing = solve(sess, scenario.aircraft, TASettings(method="ups", particles=100, seed=0, initial_attitude_error_deg=err0),
-                             workers=workers, pool=pool)
+                             pool=pool or cold)
+        if cold is not None:
+            cold.shutdown()
         el, cpu = time.perf_counter() - t0, time.process_time() - c0
         if pool is not None:  # live workers: their CPU from /proc (getrusage counts joined children only)
             cpu_workers = _children_cpu_s(pool) - rs0
             pool.shutdown()
         else:
-            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the workers, joined when solve() returns
+            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the workers, joined at their shutdown
             cpu_workers = (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
-        n_est = sum(a.traj is not None for a in ants.values())
+        n_est = sum(a.rows is not None for a in ants.values())
         results[key] = el / dur
         results[f"{key}_split_s"] = {"transfer_alignment": timing["processing_s"], "antennas_and_wing_fit": el - timing["processing_s"]}
         results[f"{key}_cpu_s"] = {"this_process": cpu, "workers": cpu_workers}

@@ -1,7 +1,7 @@
 """One streaming worker task's peak memory and wall time (memory flat with the flight).
 
-Runs :func:`dpos_ros.products.stream.align_to_store` for one sub-IMU of a recording, as
-``dpos-process --stream on`` gives it to a worker (the worker reads its topic and the main POS
+Runs :func:`dpos_ros.products.solve.align_to_store` for one sub-IMU of a recording, as
+``dpos-process --stream on`` gives it to a worker (the rows spilled to files) (the worker reads its topic and the main POS
 itself), in a fresh spawned process warmed up as the pool's workers are
 (:func:`dpos_core.ta.warmup.warm_up`), and prints its peak RSS (``getrusage(RUSAGE_SELF).ru_maxrss``), its wall and CPU time
 with the largest RSS seen in each stage (``/proc/self/status`` every 20 ms; a stage is the
@@ -27,7 +27,7 @@ from pathlib import Path
 
 #: (module, function, stage) wrapped in the worker; a missing one is skipped (the names of several versions)
 STAGES = (
-    ("dpos_ros.products.stream", "read_session_streaming", "read"),
+    ("dpos_ros.products.solve", "read_session", "read"),
     ("dpos_core.ta.pipeline", "run_segments", "align (rest)"),
     ("dpos_core.ta.pipeline", "TransferAlignmentModel", "model setup"),
     ("dpos_core.ta.pipeline", "run_upf", "forward filter"),
@@ -47,15 +47,15 @@ def _rss_mb() -> float:
     return float("nan")
 
 
-def _task(args: tuple, method: str) -> dict:
+def _task(task, method: str) -> dict:
     """In the spawned worker: warm up, wrap the stages, run the task; the figures."""
     import importlib
 
     from dpos_core.ta.warmup import warm_up
-    from dpos_ros.products import stream
+    from dpos_ros.products import rows, solve
 
     warm_up(method)
-    stream.release_memory()
+    rows.release_memory()
     stack = ["task (rest)"]
     peaks: dict[str, float] = {}
     times: dict[str, float] = {}
@@ -89,7 +89,7 @@ def _task(args: tuple, method: str) -> dict:
     th.start()
     t0 = time.perf_counter()
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
-    r = stream.align_to_store(*args)
+    r = solve.align_to_store(task)
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
@@ -121,10 +121,12 @@ def main(argv: list[str] | None = None) -> int:
     from dpos_core.config import load_aircraft
     from dpos_core.ta.model import Installation
     from dpos_core.ta.pipeline import TASettings
-    from dpos_ros.io.session import read_session_streaming
+    from dpos_ros.io.session import read_session
     from dpos_ros.products.master_reference import AUTO_TAU, master_error_tau
+    from dpos_ros.products.rows import RowStore
+    from dpos_ros.products.solve import SubImuSource, SubImuTask
 
-    sess = read_session_streaming(a.bag, keep=lambda t: False)  # the main POS only (in this process, as dpos-process)
+    sess = read_session(a.bag, keep=lambda t: False)  # the main POS only (in this process, as dpos-process)
     aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
     tau, _ = master_error_tau(AUTO_TAU, sess.master_mechanized, "recorded")
     ta = json.loads(sess.custom.get("dpos.transfer_alignment", "{}") or "{}")
@@ -133,10 +135,11 @@ def main(argv: list[str] | None = None) -> int:
     duration = float(sess.master.t_s[-1] - sess.master.t_s[0])
     del sess
     with tempfile.TemporaryDirectory(prefix="dpos_wmem_") as tmp:
-        args = (str(a.bag), a.sub, None, Installation.from_aircraft(aircraft, a.sub), settings,
-                [(x.name, np.asarray(x.lever_arm_m, dtype=float)) for x in aircraft.antennas if x.sub_imu == a.sub], tmp)
+        task = SubImuTask(SubImuSource(bag=str(a.bag)), a.sub, None, Installation.from_aircraft(aircraft, a.sub), settings,
+                          tuple((x.name, np.asarray(x.lever_arm_m, dtype=float)) for x in aircraft.antennas if x.sub_imu == a.sub),
+                          RowStore(Path(tmp)))
         with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
-            out = pool.submit(_task, args, a.method).result()
+            out = pool.submit(_task, task, a.method).result()
     out.update(bag=str(a.bag), sub=a.sub, method=a.method, particles=a.particles, flight_s=round(duration, 1), master_error_tau_s=tau)
     print(json.dumps(out, indent=1))
     if a.json:

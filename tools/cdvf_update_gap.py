@@ -45,7 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     imu, master, ins = from_sim.sub_imu(ss, sub), from_sim.master_nav(ss), from_sim.installation(ss, sub)
     print(f"{sc.name} seed {args.seed}, sub-IMU {sub}, method cdvf")
     for err in errors:
-        r = pipeline.run_segments(imu, master, ins, TAConfig(attitude_sigma_deg=max(err, 1.0)), "cdvf", attitude_error_hpr_deg=(err,) * 3)
+        r = pipeline.run_segments(imu, master, ins, pipeline.TASettings(method="cdvf", initial_attitude_error_deg=err),
+                                  cfg=TAConfig(attitude_sigma_deg=max(err, 1.0)))
         cg = r.cg
         assert cg is not None
         u = np.flatnonzero(cg.updated)

@@ -1,12 +1,12 @@
-"""transfer_align_node's streaming finalize (parameter ``stream_above_s``), in-process:
-the sample bag's first 25 s (paper_su_pair: two sub-IMUs) fed to the subscription callbacks, the
-smoothers in threads, the antenna poses received through DDS by a subscriber in this process.
+"""transfer_align_node's finalize with its rows spilled to files (parameter ``stream_above_s``),
+in-process: the sample bag's first 25 s (paper_su_pair: two sub-IMUs) fed to the subscription
+callbacks, the smoothers in threads, the antenna poses received through DDS by a subscriber in
+this process.
 
-A node finalizing by streaming (``stream_above_s`` 0: the spill read a block at a time, the rows
-in files, the poses published 2 s at a time) publishes the same poses (topic for topic, message
-for message) and writes the same products (CSV byte for byte, the antenna bag message for message,
-qc.md, status.json but its timing) as one finalizing in memory.  A sub-IMU whose smoother fails
-costs that sub-IMU only, as in memory.  Every wait is bounded; nothing sleeps.
+A node whose rows are spilled (``stream_above_s`` 0; the poses published 2 s at a time) publishes
+the same poses (topic for topic, message for message) and writes the same products (every file
+byte for byte but the processing time, with and without the truth) as one whose rows stay in
+memory.  A sub-IMU whose smoother fails costs that sub-IMU only.  Every wait is bounded; nothing sleeps.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import json
 from collections import defaultdict
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -26,12 +27,13 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile
 from repo_paths import REPO
 from ros_wait import spin_until  # test/support/ros_wait.py
+from same_products import same_products  # test/support/same_products.py
 
 from dpos_core.errors import NumericalFailure
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import NAV_QOS
 from dpos_ros.io import bag
-from dpos_ros.products import stream
+from dpos_ros.products import solve, write
 
 pytestmark = pytest.mark.ros
 
@@ -61,7 +63,7 @@ def graph(ros_context, monkeypatch):
     import transfer_align_node.node as tan
 
     monkeypatch.setattr(tan, "_pool", lambda n: cf.ThreadPoolExecutor(max_workers=max(1, n)))
-    monkeypatch.setattr(stream, "BAG_BATCH_S", 2.0)  # 13 batches of poses in 25 s
+    monkeypatch.setattr(write, "BAG_BATCH_S", 2.0)  # 13 batches of poses in 25 s
     got: dict[str, list[bytes]] = defaultdict(list)
     sub = rclpy.create_node("antenna_listener", context=ros_context)
     keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=NAV_QOS.reliability, durability=NAV_QOS.durability)
@@ -106,7 +108,7 @@ def _rows(products: Path, a: str) -> int:
     return sum(1 for _ in (products / f"{a}.csv").open()) - 1
 
 
-def test_streaming_finalize_publishes_and_writes_what_the_in_memory_one_does(graph, msgs, tmp_path: Path) -> None:
+def test_spilled_rows_publish_and_write_what_rows_in_memory_do(graph, msgs, tmp_path: Path) -> None:
     make, ex, got = graph
     received: dict[str, dict[str, list[bytes]]] = {}
     for mode, limit in (("memory", 3600.0), ("stream", 0.0)):
@@ -126,32 +128,21 @@ def test_streaming_finalize_publishes_and_writes_what_the_in_memory_one_does(gra
         assert len(stamps) == _rows(a, ant) == 251 and all(x < y for x, y in zip(stamps, stamps[1:])), ant
         assert [bytes(m) for m in received["stream"][ant]] == [bytes(m) for m in received["memory"][ant]], ant
     # the products
-    csvs = sorted(p.name for p in a.glob("*.csv"))
-    assert csvs == ["ant_l.csv", "ant_r.csv"] == sorted(p.name for p in b.glob("*.csv"))
-    for name in csvs:
-        assert (a / name).read_bytes() == (b / name).read_bytes(), name
-    assert (a / "qc.md").read_text() == (b / "qc.md").read_text()
-    sa, sb = json.loads((a / "status.json").read_text()), json.loads((b / "status.json").read_text())
-    sa.pop("timing"), sb.pop("timing")
-    sa["warnings"], sb["warnings"] = sorted(sa["warnings"]), sorted(sb["warnings"])  # (in memory: in the workers' finishing order)
-    assert sa == sb and sa["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, (sa, sb)
-    ra, rb = bag.read_raw(a / "antennas"), bag.read_raw(b / "antennas")
-    assert ra.keys() == rb.keys() == {T.antenna_odom(x) for x in ANTENNAS}
-    for t in ra:
-        assert ra[t][1] == rb[t][1] and [bytes(x) for x in ra[t][2]] == [bytes(x) for x in rb[t][2]], t
-    assert sorted(p.name for p in (a / "qc").iterdir()) == sorted(p.name for p in (b / "qc").iterdir())
+    files = same_products(a, b)
+    assert {"ant_l.csv", "ant_r.csv", "antennas/antennas.mcap", "qc.md", "status.json"} <= set(files)
+    assert json.loads((a / "status.json").read_text())["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}
 
 
 def test_a_failed_sub_imu_costs_that_sub_imu_only(graph, msgs, tmp_path: Path, monkeypatch) -> None:
     make, ex, got = graph
-    real = stream.align_to_store
+    real = solve.align_to_store
 
-    def align(bag_, sub, *args, **kwargs):
-        if sub == "sub_l":
+    def align(task):
+        if task.sub == "sub_l":
             raise NumericalFailure("injected: the covariance is not positive definite")
-        return real(bag_, sub, *args, **kwargs)
+        return real(task)
 
-    monkeypatch.setattr(stream, "align_to_store", align)
+    monkeypatch.setattr(solve, "align_to_store", align)
     ta = make(tmp_path / "out", stream_above_s=0.0)
     _session(ta, ex, msgs, "f")
     products = tmp_path / "out" / "f"
@@ -178,7 +169,7 @@ def test_a_broken_pool_costs_the_sub_imus_tasks_only() -> None:
     from transfer_align_node.node import _SubImuTasks
 
     tasks = _SubImuTasks(_BrokenPool(), "ups")
-    r = tasks.submit(stream.align_to_store, "spill", "sub_r").result(timeout=5)
+    r = tasks.submit(solve.align_to_store, SimpleNamespace(sub="sub_r")).result(timeout=5)
     assert "smoother failed" in r["rejected"] and "BrokenProcessPool" in r["rejected"]
     assert list(tasks.failed) == ["sub_r"] and isinstance(tasks.failed["sub_r"], cf.BrokenExecutor)
     assert tasks.submit(sum, [1, 2, 3]).result(timeout=5) == 6
@@ -186,39 +177,19 @@ def test_a_broken_pool_costs_the_sub_imus_tasks_only() -> None:
         tasks.submit(divmod, 1, 0).result(timeout=5)
 
 
-def test_streaming_finalize_evaluates_against_the_truth_as_the_in_memory_one(graph, msgs, tmp_path: Path) -> None:
-    """With the truth in the spill, the streaming finalize evaluates it a part at a time (each truth
-    log a block at a time, dpos_ros.products.evaluate_stream): the metrics of the in-memory
-    finalize to rounding, report.md and the error figures, and no warning that it did not."""
+def test_spilled_rows_evaluate_against_the_truth_as_rows_in_memory(graph, msgs, tmp_path: Path) -> None:
+    """With the truth in the spill, the finalize evaluates it a part at a time (each truth log a
+    block at a time, dpos_ros.products.evaluate): metrics.json, report.md and the error figures,
+    the same with the rows in memory and spilled, and no warning that it did not evaluate."""
     make, ex, _ = graph
-    metrics = {}
     for mode, limit in (("memory", 3600.0), ("stream", 0.0)):
         ta = make(tmp_path / mode, stream_above_s=limit)
         _session(ta, ex, msgs, "s", truth=True)
         products = tmp_path / mode / "s"
         assert (products / "status.json").is_file(), ta._progress
         assert (products / "report.md").is_file() and all((products / f"errors_{a}.png").is_file() for a in ANTENNAS), mode
-        metrics[mode] = json.loads((products / "metrics.json").read_text())
         warnings = json.loads((products / "status.json").read_text())["warnings"]
         assert not any("not evaluated" in w for w in warnings), warnings
-    m, s = metrics["memory"], metrics["stream"]
-    assert s["evaluation"]["path"] == "streaming" and "evaluation" not in m
-
-    def numbers(x, path=""):
-        if isinstance(x, dict):
-            for k, v in x.items():
-                yield from numbers(v, f"{path}/{k}")
-        elif isinstance(x, list):
-            for i, v in enumerate(x):
-                yield from numbers(v, f"{path}/{i}")
-        elif isinstance(x, (int, float)) and not isinstance(x, bool):
-            yield path, float(x)
-
-    common = {k for k in m if k not in ("timing", "evaluation")} & set(s)
-    got = dict(numbers({k: s[k] for k in common}))
-    ref = dict(numbers({k: m[k] for k in common}))
-    assert got.keys() == ref.keys() and any("rmse" in k for k in ref)
-    for k, v in ref.items():
-        if "timing" in k or "processing" in k:
-            continue
-        assert got[k] == pytest.approx(v, rel=1e-9, abs=1e-15), k
+    files = same_products(tmp_path / "stream" / "s", tmp_path / "memory" / "s")
+    assert "metrics.json" in files
+    assert json.loads((tmp_path / "stream" / "s" / "metrics.json").read_text())["evaluation"]["path"] == "streaming"

@@ -46,18 +46,15 @@ Finalizing (``/session/end``, the ``~/finalize`` service, or shutdown)
     session products under ``output_dir/<session id>/``; then starts a new session.
 
 Long sessions
-    A session whose streams span more than ``stream_above_s`` is finalized with memory that does
-    not grow with it (:meth:`TransferAlignNode._process_streaming`), by ``dpos-process --stream
-    on``'s code (:mod:`dpos_ros.products.stream`) on the spill: the workers read their sub-IMU's
-    log and the main POS's a block of records at a time
-    (:func:`dpos_ros.io.session.read_session_streaming`, without the late messages), the rows go to
-    files beside the products, the poses are published from them
-    :data:`~dpos_ros.products.stream.BAG_BATCH_S` at a time (:class:`~dpos_ros.devices.sim_device.StreamBatches`:
-    the same writers, order and flow control), and the products are written a block at a time.
-    The same poses and products as in memory, except the ``fit`` antennas' wing fit over 5-minute
-    windows and the evaluation against the truth a part at a time
-    (:mod:`dpos_ros.products.evaluate_stream`: the same metrics to rounding, the error figures from
-    every n-th row).
+    Every session is finalized by ``dpos-process``'s code (:func:`dpos_ros.products.solve.solve`,
+    :mod:`dpos_ros.products.write`, :mod:`dpos_ros.products.evaluate`) on the spill
+    (:meth:`TransferAlignNode._process`): the workers read their sub-IMU's log and the main POS's a
+    block of records at a time (:func:`dpos_ros.io.session.read_session`, without the
+    late messages), the poses are published :data:`~dpos_ros.products.write.BAG_BATCH_S` at a time
+    (:class:`~dpos_ros.devices.sim_device.StreamBatches`: flow-controlled), and the products are
+    written a block of rows at a time.  A session whose streams span more than ``stream_above_s``
+    has its rows in files beside the products instead of in memory (memory that does not grow with
+    it); the products are the same either way.
 
 Errors
     A sub-IMU whose smoother fails - bad data (:class:`~dpos_core.errors.RejectedInput`), a
@@ -97,23 +94,21 @@ from std_srvs.srv import Trigger
 
 from dpos_core.config import ConfigError, config_text, load_aircraft
 from dpos_core.errors import RejectedInput
-from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS, keep_all
 from dpos_ros.devices.sim_device import SimDevice, StreamBatches, StreamInfo
-from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, read_session_streaming, reject_reasons
+from dpos_ros.io.session import MASTER_SOURCE_KEY, RecordedSession, read_session, reject_reasons
 from dpos_ros.io.spill import LATE_DIR, BufferedSpill, SpillWriter, spill_meta
-from dpos_ros.products import stream
+from dpos_ros.products import solve as products_solve
 from dpos_ros.products.antenna import AntennaSolution
-from dpos_ros.products.evaluate_stream import evaluate_streaming
+from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.master_reference import master_error_tau
-from dpos_ros.products.report import evaluate
-from dpos_ros.products.rows import StreamedAntenna
-from dpos_ros.products.solve import fit_antennas, solve
-from dpos_ros.products.write import antenna_streams, write
+from dpos_ros.products.rows import scratch_dir
+from dpos_ros.products.solve import SubImuSource, solve
+from dpos_ros.products.write import antenna_stream_batches, write
 from dpos_ros.runtime.node_main import run_node
 from dpos_ros.runtime.params import ParameterError, declare_config, format_config
 from dpos_ros.runtime.pool import WarmPool, process_pool, worker_count
@@ -148,15 +143,6 @@ def _check_writable(directory: Path) -> None:
         pass
 
 
-def _solve_worker(spill_dir: str, aircraft_yaml: str, sub: str, settings: TASettings):
-    """One sub-IMU in a worker process: read its topics of the spill, align, return the antenna solutions."""
-    aircraft = load_aircraft("session", text=aircraft_yaml)
-    mine = {T.sub_imu(sub), T.TRUTH_MASTER, T.truth_sub_imu(sub)} | {T.truth_antenna(a.name) for a in aircraft.antennas if a.sub_imu == sub}
-    sess = read_session(Path(spill_dir), include_late=False, keep=mine.__contains__)
-    ants, timing = solve(sess, aircraft, settings, only=[sub])
-    return ants, timing, sess.warnings
-
-
 def _pool(n_workers: int) -> cf.Executor:
     """The executor of the smoothers: spawned worker processes (one sub-IMU each).  A module
     function so that tests can run the smoothers in-process (and inject failures)."""
@@ -174,19 +160,18 @@ def _describe(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
-def _pose_batches(sess: RecordedSession, est: dict[str, StreamedAntenna],
+def _pose_batches(sess: RecordedSession, est: dict[str, AntennaSolution],
                   batch_s: float | None = None) -> Iterator[list[Any]]:
-    """The ``/antenna/<name>/odom`` streams (:func:`dpos_ros.products.write.antenna_streams`) of the
-    stored rows of ``est`` (every antenna with rows), ``batch_s`` seconds of poses at a time
-    (default :data:`dpos_ros.products.stream.BAG_BATCH_S`): each batch a stream per antenna in
+    """The ``/antenna/<name>/odom`` streams (:func:`dpos_ros.products.write.antenna_stream_batches`)
+    of the rows of ``est`` (every antenna with rows), ``batch_s`` seconds of poses at a time
+    (default :data:`dpos_ros.products.write.BAG_BATCH_S`): each batch a stream per antenna in
     ``est``'s order (empty where it has no row then), the batches in time order."""
-    for ranges in stream.bag_ranges(est, batch_s):
-        yield antenna_streams(sess, {name: a.solution(*ranges[name]) for name, a in est.items()})
+    yield from antenna_stream_batches(sess, est, batch_s)
 
 
 class _SubImuTasks(cf.Executor):
-    """The executor :func:`dpos_ros.products.stream.solve_streaming` gets in the node: its sub-IMU
-    tasks (:func:`~dpos_ros.products.stream.align_to_store`) that fail - a numerical failure, a
+    """The executor :func:`dpos_ros.products.solve.solve` gets in the node: its sub-IMU
+    tasks (:func:`~dpos_ros.products.solve.align_to_store`) that fail - a numerical failure, a
     bug, a dead worker, an unreadable log - cost that sub-IMU only (module docstring, "Errors"): the
     exception is kept in :attr:`failed` and the task's result says that its antennas are not
     estimated; every other task goes to ``pool`` as it is, or runs in this process once the pool
@@ -202,17 +187,17 @@ class _SubImuTasks(cf.Executor):
         try:
             fut = self.pool.submit(fn, *args, **kwargs)
         except cf.BrokenExecutor as e:  # a worker died (a sub-IMU's task): the session goes on without the pool
-            if fn is stream.align_to_store:
-                self._failed(str(args[1]), e, out)
+            if fn is products_solve.align_to_store:
+                self._failed(args[0].sub, e, out)
             else:  # the wing fit's windows, the products' files: in this process
                 try:
                     out.set_result(fn(*args, **kwargs))
                 except BaseException as ex:  # noqa: BLE001 - the caller's result() raises it
                     out.set_exception(ex)
             return out
-        if fn is not stream.align_to_store:
+        if fn is not products_solve.align_to_store:
             return fut
-        sub = str(args[1])
+        sub = args[0].sub
 
         def done(f: cf.Future) -> None:
             try:
@@ -554,7 +539,7 @@ class TransferAlignNode(Node):
             self._close_spill(sp, sid, mechanized)
             timed = [st for t, st in streams.items() if t != T.DATUM]  # (the latched datum's stamp may be old)
             span_s = (max(st.last_ns for st in timed) - min(st.first_ns for st in timed)) * 1e-9 if timed else 0.0
-            self._process(spill_dir, {k: (v.count, v.gaps) for k, v in streams.items()}, mechanized, span_s)
+            self._process(spill_dir, mechanized, span_s)
         except Exception as e:  # noqa: BLE001 - logged with its traceback, status ERROR; the node stays up for the next session
             log.error(f"finalize failed: {_describe(e)}\n{''.join(traceback.format_exception(e)).rstrip()}")
             with self._lock:
@@ -614,94 +599,6 @@ class TransferAlignNode(Node):
         """The smoothers' workers, started now, each loading the filters (:func:`_warm_worker`)."""
         return WarmPool(self._n_workers, partial(_warm_worker, self.config.method), make=_pool)
 
-    def _process(self, spill_dir: Path, counts: dict, mechanized: bool = False, span_s: float = 0.0) -> None:
-        cfg = self.config
-        log = self.get_logger()
-        tau, why = master_error_tau(cfg.master_error_tau_s, mechanized)
-        log.info(f"main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
-        settings = cfg.core_config(tau)
-        if span_s > cfg.stream_above_s:
-            self._process_streaming(spill_dir, settings, why, span_s)
-            return
-        t0 = time.perf_counter()
-        n_workers = self._n_workers
-        self._progress = f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {n_workers} worker(s)"
-        log.info(self._progress)
-        antennas: dict[str, AntennaSolution] = {}
-        timing = {"processing_s": 0.0, "data_s": 0.0}
-        warnings: list[str] = []
-        failed: dict[str, str] = {}
-        repairs = 0
-
-        ex = self._executor if self._executor is not None else self._new_pool()  # warm since the node started
-        self._executor = ex  # (it stays up for the next session)
-        broken = False
-
-        def submit_all(ex: cf.Executor) -> dict[cf.Future, str]:
-            return {ex.submit(_solve_worker, str(spill_dir), self.aircraft_yaml, n, settings): n for n in self.sub_names}
-
-        try:
-            futs = submit_all(ex)
-        except cf.BrokenExecutor:  # a worker died while the node waited (killed, out of memory): new workers
-            log.warning("the smoothers' worker pool is broken (a worker died since the node started): starting new workers")
-            ex.shutdown(wait=False, cancel_futures=True)
-            ex = self._executor = self._new_pool()
-            futs = submit_all(ex)
-        done = 0
-        for f in cf.as_completed(futs):
-            sub = futs[f]
-            done += 1
-            try:
-                ants, tm, warns = f.result()
-            except RejectedInput as e:  # the sub-IMU's data cannot be used: no traceback needed
-                failed[sub] = _describe(e)
-                log.error(f"sub-IMU {sub}: the {cfg.method} smoother rejected its input ({e.what}, {e.reason}): {e}; "
-                          "its antennas are not estimated")
-            except Exception as e:  # noqa: BLE001 - NumericalFailure, a bug or a dead worker: this sub-IMU only, with the traceback
-                broken |= isinstance(e, cf.BrokenExecutor)
-                failed[sub] = _describe(e)
-                log.error(f"sub-IMU {sub}: the {cfg.method} smoother failed: {_describe(e)}; its antennas are not estimated\n"
-                          f"{''.join(traceback.format_exception(e)).rstrip()}")
-            else:
-                antennas.update(ants)
-                timing["data_s"] += tm["data_s"]
-                warnings += [w for w in warns if w not in warnings]
-                repairs += max((a.chol_jitter_repairs for a in ants.values()), default=0)  # one smoother per sub-IMU
-            timing["processing_s"] = time.perf_counter() - t0
-            self._progress = f"processed {done}/{len(futs)} sub-IMU(s)" + (f", {len(failed)} failed" if failed else "")
-            log.info(f"{self._progress} ({sub}{': FAILED' if sub in failed else ''})")
-        if broken:  # a dead worker breaks the pool: a new one for the next session
-            ex.shutdown(wait=False, cancel_futures=True)
-            self._executor = None
-            self._executor = self._new_pool()
-        with self._lock:
-            self._errors.update(failed)
-        self._chol_jitter_repairs = repairs
-        if repairs:
-            log.warning(f"the smoothers repaired {repairs} covariance(s) with a diagonal jitter (chol_jitter_repairs)")
-        for sub, why in failed.items():
-            warnings.append(f"sub-IMU {sub}: the {cfg.method} smoother failed ({why}); its antennas are not estimated")
-            for a in self.aircraft.antennas:
-                if a.sub_imu == sub:
-                    antennas[a.name] = AntennaSolution(a.name, a.sub_imu, f"failed: {why}")
-        for a in self.aircraft.antennas:
-            if a.name not in antennas and a.sub_imu is not None and a.sub_imu in self.sub_names:
-                antennas[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: sub-IMU {a.sub_imu} has no data")
-        sess = read_session(spill_dir, include_late=False, keep=lambda t: not t.startswith("/sub_imu/"))  # the products need no IMU data
-        sess.warnings = list(dict.fromkeys(warnings + sess.warnings))  # the workers read the same spill: each warning once
-        sess.master_error_model = {"tau_s": tau, "why": why}
-        antennas.update(fit_antennas(sess, self.aircraft, antennas))  # the `fit` antennas: least-squares wing fit ([LSFit] sec. 2)
-        antennas = {a.name: antennas[a.name] for a in self.aircraft.antennas if a.name in antennas}  # the aircraft's order, not the workers'
-        streams = [s for s in antenna_streams(sess, antennas) if len(s)]
-        self._publish_poses(streams, sum(len(s) for s in streams))
-        self._unique_session_id(sess)
-        try:
-            out = write(self.output_dir, sess, antennas, cfg.method, timing, evaluate(sess, antennas) or None, pool=self._executor)
-        except OSError as e:
-            self._products_failed(sess, e, spill_dir)
-            return
-        self._session_done(spill_dir, sess, out, {name: a.status for name, a in antennas.items()}, failed, timing)
-
     def _publish_poses(self, streams: Sequence[Any] | StreamBatches, n: int) -> None:
         """Publish the antenna poses (``n`` messages; whole streams or :class:`StreamBatches`) without
         loss (:class:`SimDevice`, as fast as the subscribers take them) and wait until they are."""
@@ -717,19 +614,23 @@ class TransferAlignNode(Node):
         device.stop()  # every pose is published: do not hold the session's poses until the next one
         self._device = None
 
-    def _process_streaming(self, spill_dir: Path, settings: TASettings, why: str, span_s: float) -> None:
-        """:meth:`_process` of a long session with memory that does not grow with it (module docstring,
-        "Long sessions"): :func:`dpos_ros.products.stream.solve_streaming` on the spill (each worker
-        reads its sub-IMU's log and the main POS's, the rows go to files beside the products), the
-        poses published from those files :data:`~dpos_ros.products.stream.BAG_BATCH_S` at a time,
-        :func:`~dpos_ros.products.stream.write_streaming`."""
+    def _process(self, spill_dir: Path, mechanized: bool = False, span_s: float = 0.0) -> None:
+        """The session's products (module docstring): :func:`dpos_ros.products.solve.solve` on the
+        spill (each worker reads its sub-IMU's log and the main POS's), the poses published from the
+        rows :data:`~dpos_ros.products.write.BAG_BATCH_S` at a time,
+        :func:`~dpos_ros.products.write.write`.  A session longer than ``stream_above_s`` has its
+        rows in files beside the products ("Long sessions"), a shorter one in memory."""
         cfg = self.config
         log = self.get_logger()
         t0 = time.perf_counter()
-        self._progress = (f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {self._n_workers} worker(s), "
-                          f"streaming ({span_s:.0f} s of session > stream_above_s {cfg.stream_above_s:g} s)")
+        tau, why = master_error_tau(cfg.master_error_tau_s, mechanized)
+        log.info(f"main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
+        settings = cfg.core_config(tau)
+        spill = span_s > cfg.stream_above_s
+        self._progress = (f"processing {len(self.sub_names)} sub-IMU(s) with {cfg.method} on {self._n_workers} worker(s)"
+                          + (f", rows spilled to disk ({span_s:.0f} s of session > stream_above_s {cfg.stream_above_s:g} s)" if spill else ""))
         log.info(self._progress)
-        sess = read_session_streaming(spill_dir, keep=lambda t: False, include_late=False)  # the main POS alone
+        sess = read_session(spill_dir, keep=lambda t: False, include_late=False)  # the main POS alone
         sess.master_error_model = {"tau_s": settings.master_error_tau_s, "why": why}
         topics = spill_meta(spill_dir)[0]
         subs = [n for n in self.sub_names if T.sub_imu(n) in topics]
@@ -742,9 +643,9 @@ class TransferAlignNode(Node):
             ex = self._new_pool()
         self._executor = ex
         tasks = _SubImuTasks(ex, cfg.method)
-        with stream.scratch_dir(self.output_dir) as tmp:
-            antennas, timing = stream.solve_streaming(spill_dir, sess, self.aircraft, Path(tmp), settings, pool=tasks, sub_imus=subs,
-                                                      include_late=False)
+        with scratch_dir(self.output_dir) as tmp:
+            antennas, timing = solve(sess, self.aircraft, settings, source=SubImuSource(bag=str(spill_dir), include_late=False),
+                                     store_dir=Path(tmp) if spill else None, pool=tasks, sub_imus=subs)
             # the antennas of the sub-IMUs not configured (sub_imus) are not the session's (as _process)
             other = [s.name for s in self.aircraft.sub_imus if s.name not in self.sub_names]
             antennas = {k: a for k, a in antennas.items() if a.sub_imu is None or a.sub_imu in self.sub_names}
@@ -774,10 +675,9 @@ class TransferAlignNode(Node):
             self._publish_poses(StreamBatches(info, lambda: _pose_batches(sess, est)), sum(i.count for i in info))
             self._unique_session_id(sess)
             timing["processing_s"] = time.perf_counter() - t0
-            try:  # against the truth when the session has it, a part at a time (dpos_ros.products.evaluate_stream)
-                ev = evaluate_streaming(sess, antennas, list(topics))
-                out = stream.write_streaming(self.output_dir, sess, antennas, cfg.method, timing, pool=self._executor,
-                                             evaluation=ev or None)
+            try:  # against the truth when the session has it, a part at a time (dpos_ros.products.evaluate)
+                ev = evaluate(sess, antennas, list(topics))
+                out = write(self.output_dir, sess, antennas, cfg.method, timing, ev or None, pool=self._executor)
             except OSError as e:
                 self._products_failed(sess, e, spill_dir)
                 return

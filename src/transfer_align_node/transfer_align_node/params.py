@@ -47,9 +47,10 @@ class TransferAlignConfig:
         seed: random seed of the particle methods.
         disk_full_buffer_mb: messages held in memory while the disk refuses the spill (full,
             read-only), in MB of message data; past it messages are lost (counted, status ERROR).
-        stream_above_s: a session whose streams span more than this many seconds is finalized by
-            streaming (:mod:`dpos_ros.products.stream`, as ``dpos-process --stream on``; the
-            default is dpos-process's ``--stream auto`` threshold, an hour); 0 = every session.
+        stream_above_s: a session whose streams span more than this many seconds has its rows
+            spilled to files beside the products while they are made (as ``dpos-process --stream
+            on``; the default is dpos-process's ``--stream auto`` threshold, an hour; the products
+            are the same); 0 = every session.
         initial_attitude_error_deg: the papers' initial-error experiment ([Gong2018]: 40 deg): the
             sub-IMUs start from the master's attitude x mount rotated by this many degrees in
             heading, pitch and roll, and the prior 1-sigma is this (at least 1 deg). 0 for real data.
@@ -73,9 +74,8 @@ class TransferAlignConfig:
     seed: int = param(0, "random seed of the particle methods", minimum=0)
     disk_full_buffer_mb: float = param(512.0, "memory for messages while the disk refuses the spill [MB]", minimum=0.0)
     stream_above_s: float = param(
-        3600.0, "sessions longer than this [s] are finalized with memory that does not grow with them (the spill read and the "
-        "products written a part at a time, as dpos-process --stream on: the wing fit over 5 min windows; the truth, if any, "
-        "evaluated a part at a time); 0 = every session", minimum=0.0)
+        3600.0, "sessions longer than this [s] have their rows spilled to files while the products are made (memory that does "
+        "not grow with them, as dpos-process --stream on; the same products); 0 = every session", minimum=0.0)
     initial_attitude_error_deg: float = param(
         0.0, "simulation experiment: initial sub-IMU attitude offset per axis [deg] (also its prior sigma, >= 1 deg); 0 for real data", minimum=0.0)
 

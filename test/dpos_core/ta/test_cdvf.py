@@ -20,6 +20,7 @@ from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import pipeline
 from dpos_core.ta.model import TAConfig
+from dpos_core.ta.pipeline import TASettings
 
 ERR0_DEG = 3.0
 CFG = TAConfig(attitude_sigma_deg=ERR0_DEG)
@@ -33,10 +34,10 @@ def runs():
     sc = replace(sc, segments=(Segment(40.0, name="straight"), Segment(40.0, heading_change_deg=90.0, name="turn")))
     ss = SimulatedSession(sc, 3, None)
     imu, master, ins = from_sim.sub_imu(ss, "slave"), from_sim.master_nav(ss), from_sim.installation(ss, "slave")
-    out = {m: pipeline.run_segments(imu, master, ins, CFG, m, attitude_error_hpr_deg=(ERR0_DEG,) * 3) for m in NEW + ("urtss",)}
+    out = {m: pipeline.run_segments(imu, master, ins, TASettings(method=m, initial_attitude_error_deg=ERR0_DEG), cfg=CFG) for m in NEW + ("urtss",)}
     truth = from_sim.oracle_truth(ss, "slave")
     for m in (pipeline.ORACLE, pipeline.ORACLE_FILTER):
-        out[m] = pipeline.run_segments(imu, master, ins, CFG, m, attitude_error_hpr_deg=(ERR0_DEG,) * 3, oracle_truth=truth)
+        out[m] = pipeline.run_segments(imu, master, ins, TASettings(method=m, initial_attitude_error_deg=ERR0_DEG), cfg=CFG, oracle_truth=truth)
     out["_data"] = (imu, master, ins)
     return ss, out
 
@@ -123,7 +124,7 @@ def test_a_gap_restarts_the_cdvf_and_its_record_covers_both_segments(runs) -> No
     _, out = runs
     imu, master, ins = out["_data"]
     cut = imu.select((imu.t_s <= 50.0) | (imu.t_s > 51.0))
-    r = pipeline.run_segments(cut, master, ins, CFG, "cdvf", attitude_error_hpr_deg=(ERR0_DEG,) * 3)
+    r = pipeline.run_segments(cut, master, ins, TASettings(method="cdvf", initial_attitude_error_deg=ERR0_DEG), cfg=CFG)
     assert len(r.not_estimated) == 1 and r.cg is not None
     assert r.cg.iterations.size == r.epochs_s.size
     restart = int(np.searchsorted(r.epochs_s, 51.0))

@@ -24,8 +24,10 @@ from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import flags as F
 from dpos_core.ta import pipeline
 from dpos_core.ta.model import TAConfig, gap_limit_s
+from dpos_core.ta.pipeline import TASettings
 
 CFG = TAConfig(attitude_sigma_deg=1.0)
+URTSS, UKF = TASettings(method="urtss"), TASettings(method="ukf")
 R_EARTH_M = 6.378e6
 
 
@@ -69,8 +71,8 @@ def test_gap_limit_is_at_least_a_few_steps() -> None:
 def test_without_gaps_run_segments_is_run(flight) -> None:
     ss, imu, master, ins = flight
     sub = imu.select(imu.t_s <= 40.0)
-    a = pipeline.run(sub, master, ins, CFG, "urtss")
-    b = pipeline.run_segments(sub, master, ins, CFG, "urtss")
+    a = pipeline.run(sub, master, ins, URTSS, cfg=CFG)
+    b = pipeline.run_segments(sub, master, ins, URTSS, cfg=CFG)
     np.testing.assert_array_equal(a.t_s, b.t_s)
     np.testing.assert_allclose(b.llh, a.llh, rtol=0, atol=1e-10)
     np.testing.assert_allclose(b.sigma, a.sigma, rtol=1e-9, atol=0)
@@ -82,7 +84,7 @@ def test_a_60_s_gap_is_not_estimated_and_the_restart_is_covered_by_its_sigma(fli
     heading and horizontal position (the old behaviour: none was); the first 10 s after the
     restart are flagged, nothing else is."""
     ss, imu, master, ins = flight
-    r = pipeline.run_segments(_cut(imu, 50.0, 110.0), master, ins, CFG, "urtss")
+    r = pipeline.run_segments(_cut(imu, 50.0, 110.0), master, ins, URTSS, cfg=CFG)
     assert not np.any((r.t_s > 50.0 + 1e-9) & (r.t_s <= 110.0 + 1e-9))
     assert len(r.not_estimated) == 1
     t_from, t_to, why = r.not_estimated[0]
@@ -108,7 +110,7 @@ def test_one_second_of_removed_samples_in_a_turn(flight) -> None:
     """What the session reader leaves of 100 NaN samples: 1 s without samples, at 60 s in the
     right turn.  Not estimated over it; the errors are covered by the sigma; the restart flagged."""
     ss, imu, master, ins = flight
-    r = pipeline.run_segments(_cut(imu, 60.0, 61.0), master, ins, CFG, "urtss")
+    r = pipeline.run_segments(_cut(imu, 60.0, 61.0), master, ins, URTSS, cfg=CFG)
     assert not np.any((r.t_s > 60.0 + 1e-9) & (r.t_s <= 61.0 + 1e-9))
     assert [why for *_, why in r.not_estimated] == ["sub-IMU gap of 1.010 s"]
     e_h, s_h, e_p, s_p = _errors(ss, r)
@@ -123,8 +125,8 @@ def test_a_short_gap_is_bridged_with_more_process_noise_and_flagged(flight) -> N
     rows flagged, its attitude sigma larger than without the gap, the errors covered."""
     ss, imu, master, ins = flight
     sub = imu.select(imu.t_s <= 80.0)
-    ref = pipeline.run_segments(sub, master, ins, CFG, "ukf")
-    r = pipeline.run_segments(_cut(sub, 60.0, 60.04), master, ins, CFG, "ukf")
+    ref = pipeline.run_segments(sub, master, ins, UKF, cfg=CFG)
+    r = pipeline.run_segments(_cut(sub, 60.0, 60.04), master, ins, UKF, cfg=CFG)
     assert r.not_estimated == []
     bridged = (r.flags & F.BRIDGED_GAP) != 0
     assert bridged.any() and np.all((r.t_s[bridged] > 59.0) & (r.t_s[bridged] <= 61.1))
@@ -142,10 +144,10 @@ def test_too_short_segments_are_not_estimated_and_nothing_left_raises(flight) ->
     sub = imu.select(imu.t_s <= 40.0)
     # 20.5-20.8 s between two gaps: shorter than a filter interval
     cut = sub.select(((sub.t_s <= 20.0) | (sub.t_s > 20.5)) & ((sub.t_s <= 20.8) | (sub.t_s > 22.0)))
-    r = pipeline.run_segments(cut, master, ins, CFG, "ukf")
+    r = pipeline.run_segments(cut, master, ins, UKF, cfg=CFG)
     assert len(r.not_estimated) == 1 and "too short" in r.not_estimated[0][2]
     assert not np.any((r.t_s > 20.0 + 1e-9) & (r.t_s <= 22.0 + 1e-9))
     with pytest.raises(RejectedInput, match="too short"):
-        pipeline.run_segments(sub.select(sub.t_s <= 0.5), master, ins, CFG, "ukf")
+        pipeline.run_segments(sub.select(sub.t_s <= 0.5), master, ins, UKF, cfg=CFG)
     with pytest.raises(RejectedInput):
-        pipeline.run_segments(sub.select(slice(0, 0)), master, ins, CFG, "ukf")
+        pipeline.run_segments(sub.select(slice(0, 0)), master, ins, UKF, cfg=CFG)

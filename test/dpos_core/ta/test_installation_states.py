@@ -20,6 +20,7 @@ from dpos_core.ta import pipeline
 from dpos_core.ta.antenna import step_roughness
 from dpos_core.ta.model import Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var
 from dpos_core.ta.oracle import LinearizedAboutTruth
+from dpos_core.ta.pipeline import TASettings
 from dpos_core.units import FloatArray
 
 #: through the S-turn (200-400 s of paper_su), where the states become observable
@@ -34,7 +35,7 @@ def _session(case: str, seed: int = 1, duration_s: float | None = DURATION_S):
 def _align(sc, ss, **states) -> tuple[pipeline.TAResult, TransferAlignmentModel | None, str]:
     name = sc.aircraft.sub_imus[0].name
     ins = replace(Installation.from_aircraft(sc.aircraft, name), **states)  # the nominal (filters') installation
-    res = pipeline.run(from_sim.sub_imu(ss, name), from_sim.master_nav(ss), ins, TAConfig(attitude_sigma_deg=1.0), "urtss")
+    res = pipeline.run(from_sim.sub_imu(ss, name), from_sim.master_nav(ss), ins, TASettings(method="urtss"), cfg=TAConfig(attitude_sigma_deg=1.0))
     return res, None, name
 
 
@@ -136,7 +137,7 @@ def test_accel_triad_rotation_is_in_the_attitude_sigma() -> None:
     assert floor == pytest.approx(0.87e-3 / np.sqrt(2.0), rel=0.01)
     ss = MM.simulate(MM.CASES["sub_imu_scale_misalignment"], sc, 1, DURATION_S)
     ins = replace(Installation.from_aircraft(sc.aircraft, name), imu=imu, axis_error_states=True)
-    res = pipeline.run(from_sim.sub_imu(ss, name), from_sim.master_nav(ss), ins, TAConfig(attitude_sigma_deg=1.0), "urtss")
+    res = pipeline.run(from_sim.sub_imu(ss, name), from_sim.master_nav(ss), ins, TASettings(method="urtss"), cfg=TAConfig(attitude_sigma_deg=1.0))
     assert res.x.shape[1] == 24 + 9 + 6
     assert np.all(res.sigma[:, :3] >= floor)
 
@@ -234,8 +235,8 @@ def test_correlated_main_pos_errors_as_states_make_the_output_follow_the_main_po
     name = sc.aircraft.sub_imus[0].name
     ins = Installation.from_aircraft(sc.aircraft, name)
     imu, master = from_sim.sub_imu(ss, name), from_sim.master_nav(ss)
-    white = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=1.0), "urtss")
-    gm = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=1.0, master_error_tau_s=20.0), "urtss")
+    white = pipeline.run(imu, master, ins, TASettings(method="urtss"), cfg=TAConfig(attitude_sigma_deg=1.0))
+    gm = pipeline.run(imu, master, ins, TASettings(method="urtss"), cfg=TAConfig(attitude_sigma_deg=1.0, master_error_tau_s=20.0))
     late = gm.t_s > 100.0
     rel_w = np.sqrt(np.mean(_relative_error_m(ss, name, white)[late[: white.t_s.size]] ** 2))
     rel_g = np.sqrt(np.mean(_relative_error_m(ss, name, gm)[late] ** 2))

@@ -14,6 +14,7 @@ from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import pipeline
 from dpos_core.ta.model import TAConfig, TransferAlignmentModel
+from dpos_core.ta.pipeline import TASettings
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +41,7 @@ def test_urtss_aligns_from_40_deg_and_recovers_rho(su300) -> None:
     ss, imu, master, ins = su300
     init = pipeline.initial_from_master(master, ins, (40.0, 40.0, 40.0))
     cfg = TAConfig(attitude_sigma_deg=40.0)
-    res = {m: pipeline.run(imu, master, ins, cfg, m, initial=init) for m in ("ukf", "urtss")}
+    res = {m: pipeline.run(imu, master, ins, TASettings(method=m), cfg=cfg, initial=init) for m in ("ukf", "urtss")}
     rho_true = np.asarray(ss.scenario.aircraft.sub_imu("sub_r").rho_deg)
     for m, r in res.items():
         np.testing.assert_allclose(np.rad2deg(r.x[-1, 15:18]), rho_true, atol=0.1, err_msg=m)
@@ -69,7 +70,7 @@ def test_ups_matches_urtss_from_40_deg_both_engines(su300) -> None:
     ss, imu, master, ins = su300
     init = pipeline.initial_from_master(master, ins, (40.0, 40.0, 40.0))
     cfg = TAConfig(attitude_sigma_deg=40.0)
-    ref = pipeline.run(imu, master, ins, cfg, "urtss", initial=init)
+    ref = pipeline.run(imu, master, ins, TASettings(method="urtss"), cfg=cfg, initial=init)
     tr = ss.truth("sub_imu/sub_r", ref.t_s)
     sel = ref.t_s >= 200.0
 
@@ -80,7 +81,7 @@ def test_ups_matches_urtss_from_40_deg_both_engines(su300) -> None:
 
     rho_true = np.asarray(ss.scenario.aircraft.sub_imu("sub_r").rho_deg)
     for engine in (runners.SharedLinearizationUKF(), runners.PerParticleUKF()):
-        r = pipeline.run(imu, master, ins, cfg, "ups", particles=100, seed=3, initial=init, upf_engine=engine)
+        r = pipeline.run(imu, master, ins, TASettings(method="ups", particles=100, seed=3), cfg=cfg, initial=init, upf_engine=engine)
         np.testing.assert_allclose(np.rad2deg(r.x[-1, 15:18]), rho_true, atol=0.1)
         assert np.all(rms(r) <= 1.1 * rms(ref) + np.array([1e-4] * 3 + [1e-4] * 3)), (type(engine), rms(r), rms(ref))
         assert r.ess is not None and np.median(r.ess) > 20  # no weight collapse
@@ -98,7 +99,7 @@ def test_bad_imu_input_is_rejected(su300) -> None:
     with pytest.raises(ValueError, match="strictly increasing"):
         TransferAlignmentModel(ImuSeries(t, imu.omega_radps, imu.f_mps2), master, ins, TAConfig(), init)
     with pytest.raises(ValueError, match="unknown method"):
-        pipeline.run(imu, master, ins, TAConfig(), "bogus", initial=init)
+        pipeline.run(imu, master, ins, TASettings(method="bogus"), cfg=TAConfig(), initial=init)
 
 
 def test_sub_imu_data_before_the_first_master_epoch_is_skipped(su300) -> None:
@@ -107,7 +108,7 @@ def test_sub_imu_data_before_the_first_master_epoch_is_skipped(su300) -> None:
     ss, imu, master, ins = su300
     k = 1000  # master navigation starts 10 s after the sub-IMU
     late = master.select(slice(k, None))
-    r = pipeline.run(imu, late, ins, TAConfig(attitude_sigma_deg=2.0), "ukf")
+    r = pipeline.run(imu, late, ins, TASettings(method="ukf"), cfg=TAConfig(attitude_sigma_deg=2.0))
     assert r.t_s[0] > late.t_s[0] and r.t_s[-1] == pytest.approx(imu.t_s[-1])
     assert r.t_s.size == np.count_nonzero(imu.t_s > late.t_s[0])
 
@@ -149,7 +150,8 @@ def test_between_epochs_the_vibration_turned_by_the_attitude_error_is_in_the_out
     under this mismatch is docs/mismatch.md's subject: 54-84 % within 2 sigma on the north axis)."""
     ss = SimulatedSession(load_scenario("paper_wing"), 2, 60.0)
     imu, master, ins = from_sim.sub_imu(ss, "imu09"), from_sim.master_nav(ss), from_sim.installation(ss, "imu09")
-    r = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=1.0), "urtss", initial=pipeline.initial_from_master(master, ins))
+    r = pipeline.run(imu, master, ins, TASettings(method="urtss"), cfg=TAConfig(attitude_sigma_deg=1.0),
+                     initial=pipeline.initial_from_master(master, ins))
     tr = ss.truth("sub_imu/imu09", r.t_s)
     e = r.vel_n_mps - tr.vel_n_mps
     late = r.t_s > r.t_s[0] + 20.0  # after the first 20 s (the large initial errors)

@@ -35,6 +35,7 @@ from dpos_core.ta import metrics as M
 from dpos_core.ta import pipeline
 from dpos_core.ta.model import DP, DV, EPS, NAB, PHI, RHO, TAConfig, TransferAlignmentModel
 from dpos_core.ta.oracle import LinearizedAboutTruth
+from dpos_core.ta.pipeline import TASettings
 
 POINTS = UnscentedPoints(alpha=0.1)  # pipeline.run's default
 
@@ -200,7 +201,7 @@ def test_pipeline_oracle_returns_the_model_coordinates() -> None:
     ss = SimulatedSession(load_scenario("paper_su"), 1, 20.0)
     imu, master, ins = from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
     init = pipeline.initial_from_master(master, ins, (40.0,) * 3)
-    res = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=40.0), "oracle", initial=init,
+    res = pipeline.run(imu, master, ins, TASettings(method="oracle"), cfg=TAConfig(attitude_sigma_deg=40.0), initial=init,
                        oracle_truth=oracle_truth(ss, "sub_r"))
     model, lin = build(ss, 40.0)
     x0, P0 = model.prior()
@@ -209,7 +210,7 @@ def test_pipeline_oracle_returns_the_model_coordinates() -> None:
     np.testing.assert_allclose(res.x, x, rtol=0, atol=1e-15)
     np.testing.assert_allclose(res.P, P, rtol=1e-12, atol=1e-30)
     with pytest.raises(ValueError, match="needs the truth"):
-        pipeline.run(imu, master, ins, TAConfig(), "oracle", initial=init)
+        pipeline.run(imu, master, ins, TASettings(method="oracle"), cfg=TAConfig(), initial=init)
 
 
 @pytest.mark.slow
@@ -226,7 +227,7 @@ def test_the_oracle_is_not_worse_than_the_urtss() -> None:
         imu, master, ins = from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
         init = pipeline.initial_from_master(master, ins, (40.0,) * 3)
         for method in rmse:
-            r = pipeline.run(imu, master, ins, TAConfig(attitude_sigma_deg=40.0), method, initial=init,
+            r = pipeline.run(imu, master, ins, TASettings(method=method), cfg=TAConfig(attitude_sigma_deg=40.0), initial=init,
                              oracle_truth=oracle_truth(ss, "sub_r") if method == "oracle" else None)
             t = ss.truth("sub_imu/sub_r", r.t_s)
             err = M.errors(NavSeries(r.t_s, r.q_nb, r.vel_n_mps, r.llh), t)
@@ -258,4 +259,4 @@ def test_the_known_wing_is_the_simulated_wing() -> None:
         assert np.linalg.norm(r_dot_b) > 1e-3  # the tip moves (tenths of a m/s)
     with pytest.raises(ValueError, match="known_wing"):
         imu, master, ins = from_sim.sub_imu(ss, "imu11"), from_sim.master_nav(ss), from_sim.installation(ss, "imu11")
-        pipeline.run(imu, master, ins, TAConfig(), pipeline.ORACLE_WING)
+        pipeline.run(imu, master, ins, TASettings(method=pipeline.ORACLE_WING), cfg=TAConfig())

@@ -157,10 +157,11 @@ def test_pipeline_carries_the_epoch_qc(short_flight, method: str) -> None:
     are concatenated."""
     from dpos_core.ta import pipeline
     from dpos_core.ta.model import TAConfig
+    from dpos_core.ta.pipeline import TASettings
 
     imu, master, ins = short_flight
     cut = imu.select((imu.t_s < 20.0) | (imu.t_s > 23.0))
-    r = pipeline.run_segments(cut, master, ins, TAConfig(attitude_sigma_deg=1.0), method, particles=20)
+    r = pipeline.run_segments(cut, master, ins, TASettings(method=method, particles=20), cfg=TAConfig(attitude_sigma_deg=1.0))
     q = r.qc
     assert q is not None and len(r.not_estimated) == 1
     np.testing.assert_array_equal(q.epochs_s, r.epochs_s)

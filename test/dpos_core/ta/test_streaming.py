@@ -19,6 +19,7 @@ from dpos_core.sim.session import SimulatedSession
 from dpos_core.strapdown import NavState, Strapdown
 from dpos_core.ta import pipeline, qc
 from dpos_core.ta.model import TAConfig, TransferAlignmentModel
+from dpos_core.ta.pipeline import TASettings
 
 
 @pytest.fixture(scope="module")
@@ -44,10 +45,10 @@ def test_re_integrated_nominal_gives_the_stored_nominals_result(flight, monkeypa
     cfg = TAConfig(attitude_sigma_deg=1.0)
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", True)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 10**6)  # every row at once, as one block
-    stored = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=3)
+    stored = pipeline.run_segments(imu, master, ins, TASettings(method=method, particles=16, seed=3), cfg=cfg)
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", False)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 3)
-    replayed = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=3)
+    replayed = pipeline.run_segments(imu, master, ins, TASettings(method=method, particles=16, seed=3), cfg=cfg)
     assert stored.t_s.size == imu.t_s.size
     _same(stored, replayed)
 
@@ -92,7 +93,7 @@ def test_per_epoch_arrays_on_disk_give_the_same_result(flight, monkeypatch, meth
     that do not divide the epochs (backward pass, quality measures, output rows): the same result."""
     imu, master, ins = flight
     cfg = TAConfig(attitude_sigma_deg=1.0)
-    mem = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=5)
+    mem = pipeline.run_segments(imu, master, ins, TASettings(method=method, particles=16, seed=5), cfg=cfg)
     made: list[bool] = []
     real = pipeline.EpochStore
 
@@ -106,7 +107,7 @@ def test_per_epoch_arrays_on_disk_give_the_same_result(flight, monkeypatch, meth
     monkeypatch.setattr(gaussian, "RTS_BLOCK", 3)
     monkeypatch.setattr(qc, "QC_BLOCK", 5)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 2)
-    disk = pipeline.run_segments(imu, master, ins, cfg, method, particles=16, seed=5)
+    disk = pipeline.run_segments(imu, master, ins, TASettings(method=method, particles=16, seed=5), cfg=cfg)
     assert made == [True] and mem.x.shape[0] > 5
     _same(mem, disk)
     assert mem.qc is not None and disk.qc is not None and mem.qc.smoothed == disk.qc.smoothed
@@ -153,9 +154,9 @@ def test_sink_gets_the_rows_in_blocks(flight, monkeypatch) -> None:
     imu, master, ins = flight
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 6)
     cfg = TAConfig(attitude_sigma_deg=1.0)
-    whole = pipeline.run_segments(imu, master, ins, cfg, "urtss")
+    whole = pipeline.run_segments(imu, master, ins, TASettings(method="urtss"), cfg=cfg)
     blocks: list[tuple] = []
-    lean = pipeline.run_segments(imu, master, ins, cfg, "urtss", sink=lambda *b: blocks.append(b))
+    lean = pipeline.run_segments(imu, master, ins, TASettings(method="urtss"), cfg=cfg, sink=lambda *b: blocks.append(b))
     assert len(blocks) > 1 and lean.llh.shape == (0, 3) and lean.sigma.shape == (0, 9)
     assert np.array_equal(lean.t_s, whole.t_s) and np.array_equal(lean.flags, whole.flags)
     # the epoch estimates are not kept with a sink; what the products need from them is
@@ -175,11 +176,11 @@ def test_installation_states_with_the_re_integrated_nominal(flight, monkeypatch)
     cfg = TAConfig(attitude_sigma_deg=1.0, master_error_tau_s=30.0)
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", True)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 10**6)
-    stored = pipeline.run_segments(imu, master, ins, cfg, "urtss")
+    stored = pipeline.run_segments(imu, master, ins, TASettings(method="urtss"), cfg=cfg)
     assert stored.installation["time_offset"]["sigma"][0] > 0
     monkeypatch.setattr(pipeline, "KEEP_NOMINAL", False)
     monkeypatch.setattr(pipeline, "APPLY_BLOCK", 3)
-    _same(stored, pipeline.run_segments(imu, master, ins, cfg, "urtss"))
+    _same(stored, pipeline.run_segments(imu, master, ins, TASettings(method="urtss"), cfg=cfg))
 
 
 @pytest.mark.parametrize("M", [3, 4, 50, 1000])

@@ -9,14 +9,14 @@ import pytest
 
 from dpos_core import earth
 from dpos_core.ta.model import TAConfig
-from dpos_core.ta.pipeline import METHODS, run_segments
+from dpos_core.ta.pipeline import METHODS, TASettings, run_segments
 from dpos_core.ta.warmup import resting_session, warm_up
 
 
 @pytest.mark.parametrize("method", METHODS)
 def test_resting_sub_imu_stays_at_its_lever_arm(method: str) -> None:
     imu, master, install = resting_session()
-    res = run_segments(imu, master, install, TAConfig(attitude_sigma_deg=1.0), method, 8, 0)
+    res = run_segments(imu, master, install, TASettings(method=method, particles=8), cfg=TAConfig(attitude_sigma_deg=1.0))
     assert res.t_s[-1] - res.t_s[0] > 2.5  # rows up to the last filter epoch (1 Hz)
     expected = earth.offset_llh(master.llh[0], master.C_nb[0] @ install.lever_arm_m)
     d_enu = earth.dllh_to_enu(res.llh - expected, res.llh)

@@ -6,7 +6,6 @@ reach the rows they entered."""
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -126,18 +125,16 @@ def test_a_flag_between_two_rows_reaches_the_epochs_between_them() -> None:
 def test_fit_antennas_flags_every_row_when_a_sub_imu_of_the_wing_is_not_estimated() -> None:
     """products.solve.fit_antennas: paper_wing's right wing has six sub-IMUs; with imu09 not estimated
     at all the fit uses five and every fit row says so; with all six, none does."""
-    from dpos_ros.products.antenna import AntennaSolution
     from dpos_ros.products.solve import FIT_STATUS, fit_antennas
 
     aircraft = load_aircraft("paper_wing")
     master, subs, _ = _wing(seed=4)
-    sols = {f"ant{tr.name[3:]}": AntennaSolution(f"ant{tr.name[3:]}", tr.name, "estimated",
-                                                 NavSeries.from_C_nb(tr.t_s, tr.C_nb, tr.vel_n_mps, tr.llh), tr.sigma,
-                                                 flags=tr.flags, carrier=tr) for tr in subs}
-    sess = SimpleNamespace(master=master, warnings=[])
-    full = fit_antennas(sess, aircraft, sols)  # type: ignore[arg-type]
-    del sols["ant09"]
-    five = fit_antennas(sess, aircraft, sols)  # type: ignore[arg-type]
+    tracks = {tr.name: tr for tr in subs}
+    warnings: list[str] = []
+    full = fit_antennas(master, aircraft, tracks, warnings)
+    del tracks["imu09"]
+    five = fit_antennas(master, aircraft, tracks, warnings)
+    assert not warnings
     fits = [a.name for a in aircraft.antennas if a.sub_imu is None]
     assert set(full) == set(five) == set(fits)
     for name in fits:

@@ -64,10 +64,8 @@ def test_the_source_is_read_from_the_recording(tmp_path: Path) -> None:
                                blobs=(status,), qos="status"))
     bag.write_streams(with_status, streams, custom_data=custom)
     assert read_session(with_status).master_mechanized is True
-    from dpos_ros.io.session import read_session_streaming
-
-    assert read_session_streaming(with_status, keep=lambda t: False).master_mechanized is True
-    assert read_session_streaming(BAG, keep=lambda t: False).master_mechanized is False
+    assert read_session(with_status, keep=lambda t: False).master_mechanized is True
+    assert read_session(BAG, keep=lambda t: False).master_mechanized is False
 
 
 @pytest.mark.parametrize("option, tau", [([], 0.0), (["--master-error-tau", "3"], 3.0)])

@@ -48,7 +48,7 @@ def test_the_qc_products_do_not_depend_on_the_truth(bags, tmp_path: Path) -> Non
     from dpos_core.config import load_aircraft
     from dpos_core.ta.pipeline import TASettings
     from dpos_ros.io.session import read_session
-    from dpos_ros.products.report import evaluate
+    from dpos_ros.products.evaluate import evaluate
     from dpos_ros.products.solve import solve
     from dpos_ros.products.write import write
 

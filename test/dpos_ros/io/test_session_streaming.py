@@ -1,4 +1,4 @@
-"""read_session_streaming: the recording decoded a part at a time gives the series of
+"""read_session: the recording decoded a part at a time gives the series of
 read_session, bit for bit; one sub-IMU's topic can be read alone."""
 
 from __future__ import annotations
@@ -9,21 +9,22 @@ from repo_paths import REPO
 from same_session import same_series, same_session
 
 from dpos_ros.io import _mcap, bag
-from dpos_ros.io.session import read_session, read_session_streaming
+from dpos_ros.io.session import _read_whole as read_whole  # the reference: every message in memory at once
+from dpos_ros.io.session import read_session
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 
 
 @pytest.mark.parametrize("batch_bytes", [150_000, 2**26])
 def test_streaming_reader_gives_read_sessions_series(batch_bytes) -> None:
-    same_session(read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=batch_bytes))
+    same_session(read_whole(SAMPLE), read_session(SAMPLE, batch_bytes=batch_bytes))
 
 
 def test_one_sub_imu_alone() -> None:
-    name = sorted(read_session(SAMPLE).sub_imus)[0]
-    s = read_session_streaming(SAMPLE, keep=lambda t: t == f"/sub_imu/{name}/imu", batch_bytes=100_000)
+    name = sorted(read_whole(SAMPLE).sub_imus)[0]
+    s = read_session(SAMPLE, keep=lambda t: t == f"/sub_imu/{name}/imu", batch_bytes=100_000)
     assert list(s.sub_imus) == [name] and not s.truth
-    same_series(s.sub_imus[name], read_session(SAMPLE).sub_imus[name])
+    same_series(s.sub_imus[name], read_whole(SAMPLE).sub_imus[name])
 
 
 def test_read_batches_hold_read_s_messages() -> None:
@@ -46,7 +47,7 @@ def test_series_grow_beyond_the_metadatas_message_counts(monkeypatch, counts) ->
     real = session.message_counts(SAMPLE)
     assert real and all(v > 0 for v in real.values())
     monkeypatch.setattr(session, "message_counts", lambda p: {} if counts == {} else {k: v // 7 for k, v in real.items()})
-    same_session(read_session(SAMPLE), read_session_streaming(SAMPLE, batch_bytes=150_000))
+    same_session(read_whole(SAMPLE), read_session(SAMPLE, batch_bytes=150_000))
 
 
 def test_clean_groups_is_clean_of_the_columns_side_by_side() -> None:

@@ -1,4 +1,4 @@
-"""read_session_streaming of a transfer_align_node spill: each topic's log read a block of
+"""read_session of a transfer_align_node spill: each topic's log read a block of
 records at a time gives read_session's session of the same spill - the same series bit for bit, the
 same warnings, metadata and end - with and without its late messages, with a last record cut
 short by a crash, with bad messages (another frame, stamp 0, NaN, duplicates, out of order), and
@@ -14,7 +14,8 @@ from same_session import same_session
 
 from dpos_ros.contract import topics as T
 from dpos_ros.io import bag, spill
-from dpos_ros.io.session import MASTER_SOURCE_KEY, SessionError, read_session, read_session_streaming
+from dpos_ros.io.session import MASTER_SOURCE_KEY, SessionError, read_session
+from dpos_ros.io.session import _read_whole as read_whole  # the reference: every message in memory at once
 
 SAMPLE = REPO / "bags" / "paper_su_pair_seed1_45s"
 SUB_R, SUB_L = T.sub_imu("sub_r"), T.sub_imu("sub_l")
@@ -57,8 +58,8 @@ def _write(d: Path, raw: dict, topics=None, custom: dict[str, str] | None = None
 @pytest.mark.parametrize("batch_bytes", [20_000, 2**24])
 def test_spill_read_in_blocks_is_read_session(tmp_path: Path, raw, batch_bytes: int) -> None:
     d = _write(tmp_path / "s", raw, custom={MASTER_SOURCE_KEY: "mechanized", "dpos.start_time_s": "1700000000.0"})
-    a = read_session(d)
-    b = read_session_streaming(d, batch_bytes=batch_bytes)
+    a = read_whole(d)
+    b = read_session(d, batch_bytes=batch_bytes)
     same_session(a, b)
     assert b.master_mechanized and b.custom[MASTER_SOURCE_KEY] == "mechanized" and set(b.sub_imus) == {"sub_r", "sub_l"}
     assert b.truth  # (the sample bag has truth)
@@ -67,8 +68,8 @@ def test_spill_read_in_blocks_is_read_session(tmp_path: Path, raw, batch_bytes: 
 @pytest.mark.parametrize("include_late", [True, False])
 def test_late_messages_merged_or_left_out_as_read_session(tmp_path: Path, raw, include_late: bool) -> None:
     d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R, SUB_L}, late_after_s=30.0)
-    a = read_session(d, include_late=include_late)
-    b = read_session_streaming(d, batch_bytes=30_000, include_late=include_late)
+    a = read_whole(d, include_late=include_late)
+    b = read_session(d, batch_bytes=30_000, include_late=include_late)
     same_session(a, b)
     n_all = len(raw[SUB_R][1])
     assert (b.sub_imus["sub_r"].t_s.size == n_all) == include_late
@@ -78,8 +79,8 @@ def test_late_messages_merged_or_left_out_as_read_session(tmp_path: Path, raw, i
 def test_one_sub_imu_log_alone(tmp_path: Path, raw) -> None:
     d = _write(tmp_path / "s", raw, late_after_s=40.0)
     keep = lambda t: t == SUB_L  # noqa: E731
-    a = read_session(d, include_late=False, keep=keep)
-    b = read_session_streaming(d, keep=keep, batch_bytes=50_000, include_late=False)
+    a = read_whole(d, include_late=False, keep=keep)
+    b = read_session(d, keep=keep, batch_bytes=50_000, include_late=False)
     same_session(a, b)
     assert list(b.sub_imus) == ["sub_l"] and not b.truth
 
@@ -91,8 +92,8 @@ def test_last_record_cut_short_is_dropped_with_a_warning(tmp_path: Path, raw) ->
     for f, cut in ((topics[SUB_R][1], 100), (late_topics[SUB_R][1], 5), (topics[T.MASTER_NAV][1], 13)):
         with f.open("r+b") as fh:  # a crash in the middle of a record
             fh.truncate(f.stat().st_size - cut)
-    a = read_session(d)
-    b = read_session_streaming(d, batch_bytes=10_000)
+    a = read_whole(d)
+    b = read_session(d, batch_bytes=10_000)
     same_session(a, b)
     cut_notes = [w for w in b.warnings if "cut short" in w]
     assert len(cut_notes) == 3 and cut_notes[2].startswith(f"{spill.LATE_DIR}/{SUB_R}"), cut_notes
@@ -149,8 +150,8 @@ def _edit(topic: str, blobs: list[bytes]) -> list[bytes]:
 @pytest.mark.parametrize("late_after_s", [None, 20.0])
 def test_bad_messages_same_checks_and_warnings(tmp_path: Path, raw, late_after_s) -> None:
     d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R}, late_after_s=late_after_s, edit=_edit)
-    a = read_session(d)
-    b = read_session_streaming(d, batch_bytes=40_000)
+    a = read_whole(d)
+    b = read_session(d, batch_bytes=40_000)
     same_session(a, b)
     w = " | ".join(b.warnings)
     for text in ("3 message(s) with other frame names", "3 message(s) rejected (zero_stamp", "1 message(s) rejected (unavailable",
@@ -162,11 +163,11 @@ def test_bad_messages_same_checks_and_warnings(tmp_path: Path, raw, late_after_s
 def test_unusable_spills_are_session_errors(tmp_path: Path, raw) -> None:
     d = _write(tmp_path / "nodatum", raw, topics={T.MASTER_NAV, SUB_R})
     with pytest.raises(SessionError, match="no /dpos/datum"):
-        read_session_streaming(d)
+        read_session(d)
     d = _write(tmp_path / "nonav", raw, topics={T.DATUM, SUB_R})
     with pytest.raises(SessionError, match="no /master/nav"):
-        read_session_streaming(d)
+        read_session(d)
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "spill.json").write_text('{"format": "other"}')
     with pytest.raises(SessionError, match="cannot read the spill"):
-        read_session_streaming(tmp_path / "bad")
+        read_session(tmp_path / "bad")

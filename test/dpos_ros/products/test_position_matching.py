@@ -15,7 +15,7 @@ from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta.pipeline import TASettings
 from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
-from dpos_ros.products.report import evaluate
+from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.solve import solve
 
 

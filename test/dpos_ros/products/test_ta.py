@@ -10,7 +10,8 @@ from repo_paths import REPO
 from dpos_core.config import load_aircraft
 from dpos_core.ta.pipeline import TASettings
 from dpos_ros.io.session import read_session
-from dpos_ros.products.solve import solve
+from dpos_ros.products.solve import SubImuSource, solve
+from dpos_ros.runtime.pool import process_pool
 
 BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 
@@ -30,7 +31,9 @@ def test_antenna_poses_start_when_the_main_pos_is_aligned() -> None:
     t0 = sess.master.t_s[0]
     first_aligned = sess.master.t_s[sess.master.t_s >= t0 + 10.0][0]
     for a in ants.values():
-        assert a.status == "estimated" and a.traj.t_s[0] >= first_aligned - 1e-9 and a.traj.t_s[0] < first_aligned + 0.02
+        assert a.status == "estimated" and a.rows is not None
+        t_first = a.rows.read("t_s", 0, 1)[0]
+        assert first_aligned - 1e-9 <= t_first < first_aligned + 0.02
     assert any("unaligned" in w and "10.0 s" in w for w in sess.warnings), sess.warnings
 
 
@@ -39,3 +42,21 @@ def test_a_never_aligned_main_pos_gives_no_antenna_and_says_why() -> None:
     ants, _ = solve(sess, load_aircraft("paper_su_pair"), TASettings(method="ukf"))
     assert {a.status for a in ants.values()} == {"not estimated: the main POS is never aligned"}
     assert any("never aligned" in w for w in sess.warnings), sess.warnings
+
+
+def test_workers_reading_the_recording_align_against_the_main_pos_they_are_sent() -> None:
+    """A main POS other than the recorded one (dpos-process --master-reference forward | smoothed:
+    here the recorded one made unaligned for 10 s) is sent to the workers that read their sub-IMU
+    from the recording (``read_master=False``), not read there: the poses start when it is aligned."""
+    sess = _session_with_unaligned_start(10.0)
+    src = SubImuSource(bag=str(BAG), read_master=False)
+    pool = process_pool(2)
+    try:
+        ants, _ = solve(replace(sess, sub_imus={}), load_aircraft("paper_su_pair"), TASettings(method="ukf", initial_attitude_error_deg=1.0),
+                        source=src, pool=pool, sub_imus=sorted(sess.sub_imus))
+    finally:
+        pool.shutdown()
+    first_aligned = sess.master.t_s[sess.master.t_s >= sess.master.t_s[0] + 10.0][0]
+    assert {a.status for a in ants.values()} == {"estimated"}
+    for a in ants.values():
+        assert a.rows is not None and first_aligned - 1e-9 <= a.rows.read("t_s", 0, 1)[0] < first_aligned + 0.02

@@ -1,7 +1,7 @@
 """The warm-up of the transfer-alignment workers (dpos_core.ta.warmup, run by dpos-process's and
 transfer_align_node's WarmPool): after it, a worker's real task compiles no numba kernel of the
-alignment that the warm-up did not - the in-memory solve and the streaming ``align_to_store`` on
-the sample bag, UPS (the default).  Checked in a fresh interpreter (test/support/numba_probe.py);
+alignment that the warm-up did not - ``solve`` of a session in memory and a worker's
+``align_to_store`` reading the sample bag, its rows spilled to files, UPS (the default).  Checked in a fresh interpreter (test/support/numba_probe.py);
 reading the recording is set aside (dpos_ros's reader kernels, which the core's warm-up cannot
 reach: a few small kernels compiled in the worker's first read on a fresh install)."""
 
@@ -19,24 +19,24 @@ from dpos_core.config import load_aircraft
 from dpos_core.ta.model import Installation
 from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.warmup import warm_up
-from dpos_ros.io.session import read_session, read_session_streaming
-from dpos_ros.products import stream
-from dpos_ros.products.solve import solve
+from dpos_ros.io.session import read_session
+from dpos_ros.products.rows import RowStore
+from dpos_ros.products.solve import SubImuSource, SubImuTask, align_to_store, solve
 
 warm_up("ups")
 mark("warm_up")
 bag = Path(sys.argv[2])
 sess = read_session(bag)
-read_session_streaming(bag, keep=lambda t: t.startswith("/sub_imu/"))
+read_session(bag, keep=lambda t: t.startswith("/sub_imu/"))
 aircraft = load_aircraft("recording", text=sess.custom["dpos.aircraft_yaml"])
 mark("data")
 if sys.argv[1] == "solve":
-    solve(sess, aircraft, TASettings(method="ups"), workers=1)
+    solve(sess, aircraft, TASettings(method="ups"))
 else:
     s = aircraft.sub_imus[0]
-    stream.align_to_store(str(bag), s.name, None, Installation.from_aircraft(aircraft, s.name), TASettings(method="ups"),
-                          [(a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name],
-                          tempfile.mkdtemp())
+    align_to_store(SubImuTask(SubImuSource(bag=str(bag)), s.name, None, Installation.from_aircraft(aircraft, s.name), TASettings(method="ups"),
+                              tuple((a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name),
+                              RowStore(Path(tempfile.mkdtemp()))))
 mark("use")
 """
 

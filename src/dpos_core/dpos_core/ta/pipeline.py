@@ -76,8 +76,9 @@ ORACLE_WING = "oracle_wing"
 @dataclass(frozen=True)
 class TASettings:
     """One transfer-alignment run's settings, the same object from transfer_align_node's parameters
-    (``TransferAlignConfig.core_config()``) or dpos-process's options to the session's solve and
-    its workers (:func:`align`), with the core's names.
+    (``TransferAlignConfig.core_config()``) or dpos-process's options to the session's solve, its
+    workers (:func:`align`) and the alignment itself (:func:`run_segments`, :func:`run`), with the
+    core's names.
 
     Attributes:
         method: one of :data:`METHODS` (or an evaluation-only oracle method).
@@ -131,8 +132,7 @@ def align(imu: ImuSeries, master: NavSeries, install: Installation, settings: TA
     """:func:`run_segments` of one sub-IMU with ``settings`` (a module function: the products'
     workers are sent it by name with their sub-IMU's data, the main POS, its installation and the
     settings, nothing else)."""
-    return run_segments(imu, master, install, settings.ta_config(), settings.method, settings.particles, settings.seed,
-                        settings.attitude_error_hpr_deg, oracle_truth=oracle_truth, sink=sink)
+    return run_segments(imu, master, install, settings, oracle_truth=oracle_truth, sink=sink)
 
 
 @dataclass
@@ -214,29 +214,28 @@ def run_segments(
     imu: ImuSeries,
     master: NavSeries,
     install: Installation,
-    cfg: TAConfig = TAConfig(),
-    method: str = "ups",
-    particles: int = 100,
-    seed: int = 0,
-    attitude_error_hpr_deg=(0.0, 0.0, 0.0),
-    points: UnscentedPoints = UnscentedPoints(alpha=0.1),
+    settings: TASettings = TASettings(),
+    *,
+    cfg: TAConfig | None = None,
     oracle_truth=None,
     upf_engine=None,
-    *,
     sink: RowSink | None = None,
 ) -> TAResult:
     """Align one sub-IMU whose stream may have gaps (module docstring): split it at steps longer
     than :func:`.model.gap_limit_s`, align every segment from the main POS at its start (the
     start of its first sample's interval - a sample is the mean over the nominal step before its
     stamp - with the master interpolated there, or the first master epoch for data that start
-    before it; ``attitude_error_hpr_deg`` as :func:`initial_from_master`, on every
+    before it; ``settings.attitude_error_hpr_deg`` as :func:`initial_from_master`, on every
     segment), and concatenate the results (rows, epochs, states, covariances, flags; the jitter
-    repairs summed).  Data without such a gap give :func:`run`'s result.
+    repairs summed).  Data without such a gap give :func:`run`'s result.  ``settings``: the
+    method, particles, seed and initial attitude error (:class:`TASettings`); ``cfg``: the
+    filter's configuration, default ``settings.ta_config()``; the others as :func:`run`.
 
     A segment shorter than one filter interval (after the master starts and before it ends), or
     starting inside a master gap with no master epoch after it, is not estimated: it adds to
     ``TAResult.not_estimated`` instead of raising.  RejectedInput when no segment can be aligned
     (or as :func:`run` for NaN samples, stamps out of order); NumericalFailure as :func:`run`."""
+    cfg = settings.ta_config() if cfg is None else cfg
     t = imu.t_s
     check_imu_stamps(t)
     step = 1.0 / cfg.filter_rate_hz
@@ -256,8 +255,8 @@ def run_segments(
         if why is not None:
             pending.append(why)
             continue
-        init = initial_from_master(master, install, attitude_error_hpr_deg, None if start == float(master.t_s[0]) else start)
-        r = run(imu.select(seg), master, install, cfg, method, particles, seed, init, points, oracle_truth, upf_engine, sink=sink)
+        init = initial_from_master(master, install, settings.attitude_error_hpr_deg, None if start == float(master.t_s[0]) else start)
+        r = run(imu.select(seg), master, install, settings, cfg=cfg, initial=init, oracle_truth=oracle_truth, upf_engine=upf_engine, sink=sink)
         if i > 0:
             r.flags[r.t_s <= start + cfg.restart_flag_s] |= F.RESTARTED_AFTER_GAP
         if pending:
@@ -277,7 +276,7 @@ def run_segments(
     ess = None if any(p.ess is None for p in parts) else cat("ess")
     qcs = [p.qc for p in parts if p.qc is not None]
     cgs = [p.cg for p in parts if p.cg is not None]
-    return TAResult(method, cat("t_s"), cat("llh"), cat("vel_n_mps"), cat("q_nb"), cat("sigma"), cat("epochs_s"), cat("x"), cat("P"),
+    return TAResult(settings.method, cat("t_s"), cat("llh"), cat("vel_n_mps"), cat("q_nb"), cat("sigma"), cat("epochs_s"), cat("x"), cat("P"),
                     ess, sum(p.chol_jitter_repairs for p in parts), cat("flags"), spans,
                     EpochQC.concat(qcs) if len(qcs) == len(parts) else None, CGStats.concat(cgs) if len(cgs) == len(parts) else None,
                     max(parts, key=lambda p: p.t_s.size).installation)
@@ -302,20 +301,21 @@ def run(
     imu: ImuSeries,
     master: NavSeries,
     install: Installation,
-    cfg: TAConfig = TAConfig(),
-    method: str = "ups",
-    particles: int = 100,
-    seed: int = 0,
+    settings: TASettings = TASettings(),
+    *,
+    cfg: TAConfig | None = None,
     initial: NavState | None = None,
-    points: UnscentedPoints = UnscentedPoints(alpha=0.1),
     oracle_truth=None,
     upf_engine=None,
-    *,
     sink: RowSink | None = None,
 ) -> TAResult:
-    """Align one sub-IMU.  ``method`` in METHODS, or ``oracle`` (``oracle_filter``: its forward
-    filter only) with ``oracle_truth = (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`).  ``upf_engine``:
-    the particles' UKFs for upf/ups (filters.runners; default the shared linearization).
+    """Align one sub-IMU.  ``settings.method`` in METHODS, or ``oracle`` (``oracle_filter``: its forward
+    filter only) with ``oracle_truth = (truth_nav, truth_other)`` (see :class:`.oracle.LinearizedAboutTruth`);
+    ``settings.particles`` and ``settings.seed`` for the particle methods; ``cfg``: the filter's
+    configuration, default ``settings.ta_config()``; ``initial``: the starting state, default the
+    main POS's at its first epoch (:func:`initial_from_master`, without the settings' initial
+    error: :func:`run_segments` applies it).  ``upf_engine``: the particles' UKFs for upf/ups
+    (filters.runners; default the shared linearization).  The unscented points: :data:`POINTS`.
 
     Unusable data raise :class:`~dpos_core.errors.RejectedInput` (NaN samples, stamps out of
     order, no sub-IMU data after the master starts); a filter or smoother that fails beyond
@@ -331,7 +331,7 @@ def run(
     and ``sigma`` are empty)."""
     repairs = JitterRepairs()
     with repairs:
-        res = _run(imu, master, install, cfg, method, particles, seed, initial, points, oracle_truth, upf_engine, sink)
+        res = _run(imu, master, install, settings, settings.ta_config() if cfg is None else cfg, initial, oracle_truth, upf_engine, sink)
     res.chol_jitter_repairs = repairs.count
     return res
 
@@ -353,8 +353,13 @@ def _bridged_flags(model: TransferAlignmentModel) -> F.FlagArray:
     return out
 
 
-def _run(imu: ImuSeries, master: NavSeries, install: Installation, cfg: TAConfig, method: str, particles: int, seed: int,
-         initial: NavState | None, points: UnscentedPoints, oracle_truth, upf_engine, sink: RowSink | None = None) -> TAResult:
+#: the unscented points of the sigma-point filters and the particles' UKFs
+POINTS = UnscentedPoints(alpha=0.1)
+
+
+def _run(imu: ImuSeries, master: NavSeries, install: Installation, settings: TASettings, cfg: TAConfig, initial: NavState | None,
+         oracle_truth, upf_engine, sink: RowSink | None = None) -> TAResult:
+    method, particles, seed, points = settings.method, settings.particles, settings.seed, POINTS
     if method == ORACLE_WING:
         if install.known_wing is None:
             raise ValueError("the oracle with the true wing needs Installation.known_wing (evaluation of simulations only)")

@@ -19,7 +19,7 @@ from ..config.sensors import ImuErrorModel
 from ..series import ImuSeries, NavSeries
 from ..warmup_data import resting_imu_and_master
 from .model import Installation, TAConfig
-from .pipeline import run_segments
+from .pipeline import TASettings, run_segments
 
 
 def resting_session() -> tuple[ImuSeries, NavSeries, Installation]:
@@ -37,5 +37,5 @@ def warm_up(method: str = "ups", particles: int = 8) -> float:
     and smoother runs once); returns the seconds it took.  The result is discarded: this exists
     for its side effects (imports, numba kernels loaded from their cache)."""
     t0 = time.perf_counter()
-    run_segments(*resting_session(), TAConfig(attitude_sigma_deg=1.0), method, particles, 0)
+    run_segments(*resting_session(), TASettings(method=method, particles=particles), cfg=TAConfig(attitude_sigma_deg=1.0))
     return time.perf_counter() - t0

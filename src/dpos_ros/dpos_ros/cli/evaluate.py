@@ -15,11 +15,13 @@ Table 1 layout with the paper's columns, and each method's ratio to the oracle).
 ``--stream``: a run longer than an hour (``auto``, the default; ``on``: every run) is simulated
 window by window into a temporary recording beside ``--out`` (dpos-sim ``--window``'s
 machinery, deleted after the run) and processed and evaluated as ``dpos-process --stream on``
-does (dpos_ros.products.stream, dpos_ros.products.evaluate_stream), so a run's memory does not
-grow with its duration.  That path takes the recorded main POS, fits the wing over 5-minute
-windows and draws other white-noise samples than the in-memory simulation (the same statistics);
-the oracles need the simulation in memory (``--stream on`` with one is refused).  metrics.json's
-``evaluation.paths`` and a line of report.md say which path each run took.
+does (each sub-IMU read from the recording, the rows spilled to files), so a run's memory does not
+grow with its duration; a shorter run's simulated session stays in memory and goes through the
+same dpos_ros.products.solve.solve and dpos_ros.products.evaluate.evaluate, its sub-IMUs and
+truth taken from memory.  A run simulated into a recording takes the recorded main POS and draws
+other white-noise samples than the simulation in memory (the same statistics); the oracles need
+the simulation in memory (``--stream on`` with one is refused).  metrics.json's
+``evaluation.paths`` and a line of report.md say which way each run took.
 """
 
 from __future__ import annotations
@@ -49,17 +51,16 @@ from dpos_ros.cli.mismatch import main_mismatch
 from dpos_ros.cli.sar_eval import main_sar
 from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_streams
 from dpos_ros.io.bag import topics_and_duration, write_stream_batches
-from dpos_ros.io.session import read_session_streaming, session_from_streams
+from dpos_ros.io.session import read_session, session_from_streams
 from dpos_ros.products import lsfit_tables
-from dpos_ros.products.evaluate_stream import evaluate_streaming, series_free
+from dpos_ros.products.evaluate import evaluate, series_free
 from dpos_ros.products.ifa import main_ifa
-from dpos_ros.products.report import combine_runs, evaluate, metrics_json, report_md
-from dpos_ros.products.solve import solve
-from dpos_ros.products.stream import solve_streaming
+from dpos_ros.products.report import combine_runs, metrics_json, report_md
+from dpos_ros.products.solve import SubImuSource, solve
 
 #: the filter rate of the transfer-alignment runs (TASettings' default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
-#: --stream auto: the streaming path for runs longer than this [s] (dpos-process's threshold)
+#: --stream auto: runs longer than this [s] are simulated into a recording, their rows spilled (dpos-process's threshold)
 STREAM_AUTO_S = 3600.0
 #: the windows of a streamed run's simulation [s] (dpos-sim --window)
 STREAM_SIM_WINDOW_S = 60.0
@@ -277,8 +278,8 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
     """:func:`ta_run` with memory that does not grow with the run's duration (module docstring): the
     session simulated window by window (:data:`STREAM_SIM_WINDOW_S`) into a recording in a new
     temporary directory under ``scratch``, each method run on it by ``dpos-process --stream on``'s
-    path (:func:`dpos_ros.products.stream.solve_streaming`, serially in this process) and evaluated
-    by :func:`dpos_ros.products.evaluate_stream.evaluate_streaming`; the directory is deleted
+    path (:func:`dpos_ros.products.solve.solve` reading the recording, its rows spilled to files,
+    serially in this process) and evaluated by :func:`dpos_ros.products.evaluate.evaluate`; the directory is deleted
     afterwards, whatever happens.  The oracle methods are not available (they read the simulation)."""
     scenario, methods = plan.scenario, plan.methods
     oracles = [m for m in methods if m in (ORACLE, ORACLE_FILTER, ORACLE_WING)]
@@ -296,14 +297,15 @@ def ta_run_streamed(plan: TAPlan, seed: int, label: str = "run", echo: bool = Tr
         assert meta is not None  # (written just now)
         topics = meta[0]
         subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
-        base = read_session_streaming(rec, keep=lambda t: False)  # the main POS only
+        base = read_session(rec, keep=lambda t: False)  # the main POS only
         run = TARun(seed, {}, {}, list(base.imaging_segments().keys()) or ["session"], path=PATH_STREAMING)
         for m in methods:
             t0 = time.perf_counter()
             sess = dc_replace(base, warnings=list(base.warnings))
             store = Path(tmp) / f"rows_{m}"
-            ants, tm = solve_streaming(rec, sess, scenario.aircraft, store, plan.settings(m, seed), sub_imus=subs)
-            ev = evaluate_streaming(sess, ants, topics)
+            ants, tm = solve(sess, scenario.aircraft, plan.settings(m, seed), source=SubImuSource(bag=str(rec)), store_dir=store,
+                             sub_imus=subs)
+            ev = evaluate(sess, ants, topics)
             shutil.rmtree(store, ignore_errors=True)
             _record(run, m, ev, tm, label, seed, t0, echo)
     return run

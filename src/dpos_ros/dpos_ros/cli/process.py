@@ -7,15 +7,15 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
     dpos-process BAG --out DIR --overwrite                            # replace DIR/<session id>/
     dpos-process BAG --out DIR --workers 1                            # the sub-IMUs one after the other
     dpos-process BAG --out DIR --master-reference smoothed            # main POS: the IFA re-run and RTS-smoothed
-    dpos-process BAG --out DIR --stream on                            # a long flight: memory that does not grow with it
+    dpos-process BAG --out DIR --stream on                            # a long flight: the rows spilled to disk
 
-``--stream``: ``on`` reads, aligns and writes the products a part of the flight at a time, the
-rows in files beside the products (dpos_ros.products.stream; docs/campaign.md "Long flights"):
+The recording is read, aligned and written a part of the flight at a time (docs/long_flights.md):
 each worker reads its own sub-IMU's topic and the main POS only; the wing fit is made over
 5-minute windows; the truth, when recorded, is evaluated against a part at a time
-(dpos_ros.products.evaluate_stream: the same metrics.json, the error figures from every n-th row).  ``auto`` (the default) is
-``on`` for a recording of more than an hour (the recorded main POS only), ``off`` the in-memory
-path.
+(dpos_ros.products.evaluate).  ``--stream`` says only where the antennas' rows are held between
+the alignment and the products: ``off`` in memory, ``on`` in files beside the products (memory
+that does not grow with the flight), ``auto`` (the default) ``on`` for a recording of more than
+an hour; the products are the same either way.
 
 ``--master-reference``: the main-POS reference of the transfer alignment - ``recorded`` (default,
 the recording's /master/nav), ``forward`` (the in-flight alignment re-run from /master/imu,
@@ -45,9 +45,9 @@ from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.bag import topics_and_duration
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
-from dpos_ros.io.session import RecordedSession, SessionError, read_session, read_session_streaming
+from dpos_ros.io.session import RecordedSession, SessionError, read_session
 from dpos_ros.products.antenna import AntennaSolution
-from dpos_ros.products.evaluate_stream import evaluate_streaming
+from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.master_reference import (
     AUTO_TAU,
     GNSS_INS_ERROR_TAU_S,
@@ -57,13 +57,12 @@ from dpos_ros.products.master_reference import (
     master_error_tau,
     master_reference,
 )
-from dpos_ros.products.report import evaluate
-from dpos_ros.products.solve import solve
-from dpos_ros.products.stream import scratch_dir, solve_streaming, write_streaming
+from dpos_ros.products.rows import scratch_dir
+from dpos_ros.products.solve import SubImuSource, solve
 from dpos_ros.products.write import ProductsExistError, write
 from dpos_ros.runtime.pool import warm_pool
 
-#: --stream auto: the streaming path for recordings longer than this [s]
+#: --stream auto: the rows spilled to disk for recordings longer than this [s]
 STREAM_AUTO_S = 3600.0
 
 EXIT_OK = 0
@@ -100,8 +99,8 @@ def parser() -> argparse.ArgumentParser:
                     help="main-POS reference: recorded /master/nav (default), forward = the in-flight alignment re-run from "
                          "/master/imu + /gnss/*, smoothed = that run RTS-smoothed")
     ap.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
-                    help="long flights: on = bounded memory (the wing fit in 5 min windows); "
-                         f"auto (default) = on above {STREAM_AUTO_S / 3600:g} h of recording")
+                    help="where the rows are held: on = spilled to files beside the products (long flights), off = in memory; "
+                         f"auto (default) = on above {STREAM_AUTO_S / 3600:g} h of recording; the products are the same")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
@@ -166,11 +165,8 @@ def not_estimated(antennas: dict[str, AntennaSolution], aircraft_name: str, sub_
     """Why the run's exit status is 1 (one line), or None when every configured antenna is estimated."""
     if not antennas:
         return f"no antenna was estimated: the aircraft {aircraft_name!r} configures no antenna"
-    return _not_estimated_text({name: a.status for name, a in antennas.items() if a.traj is None}, len(antennas), sub_imus)
-
-
-def _not_estimated_text(missing: dict[str, str], n_antennas: int, sub_imus: list[str]) -> str | None:
-    """:func:`not_estimated` of the statuses of the antennas not estimated (``missing``) of ``n_antennas``."""
+    missing = {name: a.status for name, a in antennas.items() if a.rows is None}
+    n_antennas = len(antennas)
     if not missing:
         return None
     why = "; ".join(f"{name}: {status}" for name, status in missing.items())
@@ -215,14 +211,11 @@ def _refuse_existing(final: Path) -> int:
     return EXIT_ERROR
 
 
-def _streaming(args: argparse.Namespace) -> bool:
-    """Whether ``--stream`` (module docstring) takes the streaming path for this recording."""
-    if args.stream == "off":
-        return False
-    meta = topics_and_duration(args.bag)
-    if args.stream == "on":
-        return True
-    return meta is not None and meta[1] > STREAM_AUTO_S and args.master_reference == "recorded"
+def _spilled(args: argparse.Namespace, meta: tuple | None) -> bool:
+    """Whether ``--stream`` (module docstring) spills the rows to disk for this recording."""
+    if args.stream != "auto":
+        return args.stream == "on"
+    return meta is not None and meta[1] > STREAM_AUTO_S
 
 
 def _read_error(e: Exception, bag: Path) -> int:
@@ -254,11 +247,22 @@ def _summary(antennas: dict, timing: dict[str, float], out: Path) -> None:
 
 
 def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
-    """:func:`main` once the output target is checked: read, align (on ``pool`` when given), write."""
-    if _streaming(args):
-        return _process_streaming(args, target, pool)
+    """:func:`main` once the output target is checked: read the main POS, align the sub-IMUs (each
+    worker of ``pool`` reading its own from the recording), evaluate, write."""
     try:
-        sess = read_session(args.bag)
+        meta = topics_and_duration(args.bag)
+        source: SubImuSource | None = None
+        if meta is None:  # (not a rosbag2 recording with its metadata: read whole)
+            sess = read_session(args.bag)
+            topics, subs = None, sorted(sess.sub_imus)
+        else:
+            topics = meta[0]
+            subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
+            if args.master_reference == "recorded":
+                sess = read_session(args.bag, keep=lambda t: False)  # the main POS only
+            else:  # the main POS's inputs (/master/imu, /gnss/*) and truth too
+                sess = read_session(args.bag, keep=lambda t: not t.startswith(("/sub_imu/", "/truth/antenna/")))
+            source = SubImuSource(bag=str(args.bag), read_master=args.master_reference == "recorded")
         aircraft = _aircraft(args, sess)
         ref = master_reference(sess, aircraft, args.master_reference)
     except (SessionError, ConfigError, OSError) as e:
@@ -271,13 +275,41 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     if ref.which != "recorded":
-        i = ref.info
-        print(f"dpos-process: main POS: {i['source']}: start {i['start_s']:.1f} s, aligned "
-              f"{'never' if i['aligned_s'] is None else format(i['aligned_s'], '.1f') + ' s'}, {i['fixes']} fixes "
-              f"({i['rejected_fixes']} rejected), {i['runtime_s']:.1f} s")
-        for note in i["notes"]:
-            print(f"dpos-process: warning: main POS: {note}", file=sys.stderr)
-        sess.master = ref.nav
+        _print_reference(ref, sess)
+    n_read = len(sess.warnings)
+    spill = _spilled(args, meta)
+    print(f"dpos-process: session {sess.session_id}: {len(subs)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
+          f"method {args.method}, initial attitude error {err0:g} deg{' (rows spilled to disk)' if spill else ''}")
+    try:
+        with scratch_dir(args.out) as tmp:
+            antennas, timing = solve(sess, aircraft, settings(args, sess, _master_error(args, sess, ref.which)), source=source,
+                                     store_dir=Path(tmp) if spill else None, pool=pool, sub_imus=subs)
+            ev = evaluate(sess, antennas, topics)  # against the truth, a part at a time (none without it)
+            for w in sess.warnings[n_read:]:  # (the workers' reading of the sub-IMUs, the alignment, the evaluation)
+                print(f"dpos-process: warning: {w}", file=sys.stderr)
+            out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
+    except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
+        return _write_error(e, target, final, had_products)
+    _summary(antennas, timing, out)
+    if ev:
+        print((out / "report.md").read_text())
+    problem = not_estimated(antennas, aircraft.name, subs)
+    if problem is not None:
+        print(f"dpos-process: {problem}", file=sys.stderr)
+        return EXIT_NOT_ESTIMATED
+    return EXIT_OK
+
+
+def _print_reference(ref, sess: RecordedSession) -> None:
+    """The main-POS reference re-run (``--master-reference forward | smoothed``): its summary, its
+    notes as warnings and, with /truth/master, its accuracy; ``sess.master`` becomes it."""
+    i = ref.info
+    print(f"dpos-process: main POS: {i['source']}: start {i['start_s']:.1f} s, aligned "
+          f"{'never' if i['aligned_s'] is None else format(i['aligned_s'], '.1f') + ' s'}, {i['fixes']} fixes "
+          f"({i['rejected_fixes']} rejected), {i['runtime_s']:.1f} s")
+    for note in i["notes"]:
+        print(f"dpos-process: warning: main POS: {note}", file=sys.stderr)
+    sess.master = ref.nav
     if "master" in sess.truth:
         since = aligned_since(sess.master)
         try:
@@ -287,66 +319,6 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
                   f"position {', '.join(f'{v:.3f}' for v in acc['pos_m'])} m")
         except ValueError:
             pass
-    print(f"dpos-process: session {sess.session_id}: {len(sess.sub_imus)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
-          f"method {args.method}, initial attitude error {err0:g} deg")
-    antennas, timing = solve(sess, aircraft, settings(args, sess, _master_error(args, sess, ref.which)), workers=args.workers, pool=pool)
-    ev = evaluate(sess, antennas)
-    try:
-        out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
-    except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
-        return _write_error(e, target, final, had_products)
-    _summary(antennas, timing, out)
-    if ev:
-        print((out / "report.md").read_text())
-    problem = not_estimated(antennas, aircraft.name, list(sess.sub_imus))
-    if problem is not None:
-        print(f"dpos-process: {problem}", file=sys.stderr)
-        return EXIT_NOT_ESTIMATED
-    return EXIT_OK
-
-
-def _process_streaming(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
-    """:func:`_process` by :mod:`dpos_ros.products.stream` (``--stream``)."""
-    if args.master_reference != "recorded":
-        print("dpos-process: error: --stream on takes the recorded main POS only (--master-reference recorded)", file=sys.stderr)
-        return EXIT_ERROR
-    try:
-        meta = topics_and_duration(args.bag)
-        if meta is None:
-            raise SessionError(f"{args.bag}: --stream reads rosbag2 recordings with their metadata.yaml")
-        sess = read_session_streaming(args.bag, keep=lambda t: False)  # the main POS only
-        aircraft = _aircraft(args, sess)
-    except (SessionError, ConfigError, OSError) as e:
-        return _read_error(e, args.bag)
-    final = args.out / sess.session_id
-    had_products = final.exists()
-    if had_products and not args.overwrite:
-        return _refuse_existing(final)
-    topics = meta[0]
-    subs = sorted(t.split("/")[2] for t in topics if t.startswith("/sub_imu/") and t.endswith("/imu") and t.count("/") == 3)
-    err0 = _initial_error(args, sess)
-    for w in sess.warnings:
-        print(f"dpos-process: warning: {w}", file=sys.stderr)
-    print(f"dpos-process: session {sess.session_id}: {len(subs)} sub-IMU(s), {sess.master.t_s[-1] - sess.master.t_s[0]:.0f} s, "
-          f"method {args.method}, initial attitude error {err0:g} deg (streaming)")
-    try:
-        with scratch_dir(args.out) as tmp:
-            antennas, timing = solve_streaming(args.bag, sess, aircraft, Path(tmp), settings(args, sess, _master_error(args, sess, "recorded")),
-                                               pool=pool, sub_imus=subs)
-            ev = evaluate_streaming(sess, antennas, topics)  # against the truth, a part at a time (none without it)
-            out = write_streaming(args.out, sess, antennas, args.method, timing, overwrite=args.overwrite, pool=pool,
-                                  evaluation=ev or None)
-    except OSError as e:
-        return _write_error(e, target, final, had_products)
-    _summary(antennas, timing, out)
-    if ev:
-        print((out / "report.md").read_text())
-    problem = (f"no antenna was estimated: the aircraft {aircraft.name!r} configures no antenna" if not antennas else
-               _not_estimated_text({name: a.status for name, a in antennas.items() if a.rows is None}, len(antennas), subs))
-    if problem is not None:
-        print(f"dpos-process: {problem}", file=sys.stderr)
-        return EXIT_NOT_ESTIMATED
-    return EXIT_OK
 
 
 if __name__ == "__main__":

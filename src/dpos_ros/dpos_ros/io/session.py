@@ -140,7 +140,7 @@ _REASONS = ("zero_stamp", "unavailable", "negative_cov")
 
 class _TopicDecoder:
     """:func:`_decode_rows` of one topic's messages handed over a block at a time (the spill read
-    in blocks, :func:`read_session_streaming`): the frame names are chosen in the first block with
+    in blocks, :func:`read_session`): the frame names are chosen in the first block with
     messages (as :func:`_decode_rows` chooses them in all of them: the names of most of the
     messages at its first, middle and last one) and kept for the next blocks; the rejected
     messages are counted over every block, so :meth:`warnings` are those of one
@@ -236,10 +236,12 @@ def reject_reasons(kind: str, t_ns: NDArray[np.int64], vals: FloatArray) -> dict
     return reasons
 
 
-def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None) -> RecordedSession:
-    """Read a recording made by dpos-sim, dpos-record or the graph (see module docstring); of a
-    spill, with its late messages unless ``include_late`` is False (:func:`dpos_ros.io.spill.read_spill`).
-    ``keep``: read only the topics it accepts (/master/nav and /dpos/datum are always read)."""
+def _read_whole(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None) -> RecordedSession:
+    """:func:`read_session` of a recording read whole, every message in memory at once: the
+    recordings the part-at-a-time reader does not read (sqlite3, several files, without metadata),
+    and the reference its tests compare it with.  A spill: with its late messages unless
+    ``include_late`` is False (:func:`dpos_ros.io.spill.read_spill`).  ``keep``: read only the
+    topics it accepts (/master/nav and /dpos/datum are always read)."""
     if keep is not None:
         only = keep
         keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) or only(t)  # noqa: E731
@@ -324,37 +326,42 @@ def session_from_raw(raw: dict, custom: dict[str, str], path: Path) -> RecordedS
                            master_mechanized=master_is_mechanized(custom, raw))
 
 
-#: bytes of raw messages decoded at a time by :func:`read_session_streaming`
+#: bytes of raw messages decoded at a time by :func:`read_session`
 STREAM_BATCH_BYTES = 2**24
 
 
-def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None,
-                           batch_bytes: int = STREAM_BATCH_BYTES, include_late: bool = True) -> RecordedSession:
-    """:func:`read_session` of a rosbag2 MCAP recording or a spill with memory for one part of it:
-    the file is read ``batch_bytes`` of messages at a time (MCAP:
+def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None,
+                 batch_bytes: int = STREAM_BATCH_BYTES) -> RecordedSession:
+    """Read a recording made by dpos-sim, dpos-record or the graph, or a spill of
+    transfer_align_node (see module docstring), with memory for one part of it: ``keep``: read
+    only the topics it accepts (/master/nav and /dpos/datum are always read); ``include_late``: a
+    spill's late messages too.  The file is read ``batch_bytes`` of messages at a time (MCAP:
     :func:`dpos_ros.io._mcap.read_batches`; a spill: each wanted topic's log file alone,
     :class:`dpos_ros.io.spill.LogBlocks`), each part's messages decoded and converted at once,
     and only the series kept (the sub-IMU's 7 numbers a sample instead of its ~330 bytes of CDR
-    and 43 decoded doubles).  The same series as :func:`read_session`; the data checks are the
-    same.  MCAP: a problem found in several parts is warned about once per part, and duplicates
-    are told identical by the kept numbers.  A spill (``include_late`` as :func:`read_session`):
-    the same warnings as :func:`read_session` (the rejections counted over the parts, duplicates
-    told identical by a hash of all their numbers), except that a topic's frame names are chosen
-    in its first part (:class:`_TopicDecoder`).  Recordings the fast reader does not read
-    (sqlite3, several files) go through :func:`read_session`."""
+    and 43 decoded doubles).  The same series as reading it whole (:func:`_read_whole`); the data
+    checks are the same.  MCAP: a problem found in several parts is warned about once per part, and
+    duplicates are told identical by the kept numbers.  A spill: the same warnings as reading it
+    whole (the rejections counted over the parts, duplicates told identical by a hash of all their
+    numbers), except that a topic's frame names are chosen in its first part
+    (:class:`_TopicDecoder`).  Recordings the part-at-a-time reader does not read (sqlite3, several
+    files, without metadata) are read whole (:func:`_read_whole`)."""
     path = Path(path)
     if S.is_spill(path):
         return _read_spill_streaming(path, keep, batch_bytes, include_late)
     if not (path / "metadata.yaml").is_file():
-        return read_session(path, keep=keep)
+        return _read_whole(path, include_late, keep)
     file = bag._single_mcap(path)
     wanted = (lambda t: t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)) if keep is None else \
         (lambda t: t == T.MASTER_NAV or (t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) and keep(t)))  # noqa: E731
     parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes)
     if parts is None:
-        return read_session(path, keep=keep)
+        return _read_whole(path, include_late, keep)
     custom = bag.custom_data(path)
-    small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
+    try:
+        small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
+    except (ValueError, OSError) as e:  # a chunk that cannot be decompressed or parsed, a file cut short
+        raise SessionError(f"{path}: cannot read the recording: {e}") from None
     if T.DATUM not in small or not small[T.DATUM][2]:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
     datum = _datum(small[T.DATUM][2][0])
@@ -362,6 +369,27 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
     counts = message_counts(path)
     acc: dict[str, _Rows] = {}  # topic -> its stamps and numbers so far
     failed: set[str] = set()
+    try:
+        _read_parts(parts, acc, failed, counts, datum, warnings)
+    except SessionError:
+        raise
+    except (ValueError, OSError) as e:  # a chunk that cannot be decompressed or parsed, a file cut short
+        raise SessionError(f"{path}: cannot read the recording: {e}") from None
+    for topic in failed:
+        acc.pop(topic, None)
+    if T.MASTER_NAV not in acc:
+        raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
+    cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
+    for topic in sorted(acc):
+        cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
+    return _session_from_cols(path, custom, datum, cols, small, warnings)
+
+
+
+def _read_parts(parts, acc: dict[str, _Rows], failed: set[str], counts: dict[str, int], datum: FloatArray,
+                warnings: list[str]) -> None:
+    """:func:`read_session`'s parts of an MCAP file decoded into ``acc`` (topic -> its rows so far;
+    a topic that cannot be decoded is warned about and put in ``failed``)."""
     for part in parts:
         for topic, (msgtype, _, blobs) in part.items():
             kind = _kind(topic, msgtype)
@@ -378,14 +406,6 @@ def read_session_streaming(path: Path, keep: Callable[[str], bool] | None = None
             if topic not in acc:
                 acc[topic] = _Rows(_GROUPS[kind], counts.get(topic, 0))
             acc[topic].append(t, _compact(kind, t, v, datum))
-    for topic in failed:
-        acc.pop(topic, None)
-    if T.MASTER_NAV not in acc:
-        raise SessionError(f"{path}: no /master/nav messages: the transfer alignment needs the main-system navigation")
-    cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
-    for topic in sorted(acc):
-        cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
-    return _session_from_cols(path, custom, datum, cols, small, warnings)
 
 
 def _datum(blob: bytes) -> FloatArray:
@@ -450,7 +470,7 @@ def _row_hash(v: FloatArray) -> FloatArray:
 
 
 def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_bytes: int, include_late: bool) -> RecordedSession:
-    """:func:`read_session_streaming` of a spill (its docstring): each wanted topic's log (and its
+    """:func:`read_session` of a spill (its docstring): each wanted topic's log (and its
     late log) read a block at a time, the topics one after the other."""
     try:
         topics, custom, sid = S.spill_meta(path)

@@ -1,43 +1,46 @@
 """The antenna type of the transfer alignment's session products (design.md "Session products"):
-what :func:`dpos_ros.products.solve.solve` gives per antenna and the writers and the evaluation read."""
+what :func:`dpos_ros.products.solve.solve` gives per antenna, the writers and the evaluation read."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 from dpos_core.filters.variational import CGStats
-from dpos_core.series import NavSeries
-from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import qc as ta_qc
-from dpos_core.ta.wingfit import SubImuTrack
-from dpos_core.units import FloatArray
+
+from .rows import RowBlock, RowStore
 
 
 @dataclass
 class AntennaSolution:
-    """An antenna's smoothed trajectory (``traj``) with 1-sigma (N, 9): attitude (rad, rotation
-    about local ENU), velocity (m/s, ENU), position (m, ENU); or a status saying why there is none.
+    """An antenna's smoothed rows (``rows``: :data:`dpos_ros.products.rows.ROW_COLUMNS`, stamps,
+    attitude, velocity, position and their 1-sigma (N, 9), quality flags), or None with a status
+    saying why there are none.
     ``chol_jitter_repairs``: Cholesky jitter repairs made by its sub-IMU's smoother (counted, not silent).
-    ``flags`` (N,): each row's quality bits (:mod:`dpos_core.ta.flags`; none set when None).
     ``not_estimated``: the spans ``(t_from_s, t_to_s, reason)`` without rows (sub-IMU gaps).
-    ``carrier``: its sub-IMU's own solution at the same rows (the input of the least-squares wing
-    fit, :func:`fit_antennas`); ``wing_fit``: for a ``fit`` antenna, the fit's basis choice and
-    cross-validation (:class:`dpos_core.ta.wingfit.WingFit`); ``qc``: its sub-IMU's consistency
-    measures at the filter epochs (:class:`dpos_core.ta.qc.EpochQC`; None for a ``fit`` antenna);
-    ``cg``: the CDVF's conjugate-gradient record per epoch (:class:`dpos_core.filters.variational.CGStats`;
-    None for the other methods); ``installation``: its sub-IMU's installation-state estimates
+    ``qc``: its sub-IMU's consistency measures at the filter epochs (:class:`dpos_core.ta.qc.EpochQC`;
+    None for a ``fit`` antenna); ``cg``: the CDVF's conjugate-gradient record per epoch
+    (:class:`dpos_core.filters.variational.CGStats`; None for the other methods); ``wing_fit``: for a
+    ``fit`` antenna, the fit's basis choice and cross-validation (:class:`dpos_core.ta.wingfit.WingFit`);
+    ``installation``: its sub-IMU's installation-state estimates
     (:attr:`dpos_core.ta.pipeline.TAResult.installation`; empty without them)."""
 
     name: str
     sub_imu: str | None
     status: str
-    traj: NavSeries | None = None
-    sigma: FloatArray | None = None
+    rows: RowStore | None = None
     chol_jitter_repairs: int = 0
-    flags: ta_flags.FlagArray | None = None
     not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
-    carrier: SubImuTrack | None = None
-    wing_fit: dict | None = None
     qc: ta_qc.EpochQC | None = None
     cg: CGStats | None = None
+    wing_fit: dict | None = None
     installation: dict = field(default_factory=dict)
+
+    @property
+    def estimated(self) -> bool:
+        return self.rows is not None
+
+    def block(self, i0: int = 0, i1: int | None = None, step: int = 1) -> RowBlock:
+        """Its rows ``i0:i1`` (every ``step``-th) as arrays (:meth:`dpos_ros.products.rows.RowBlock.of`)."""
+        assert self.rows is not None
+        return RowBlock.of(self.rows, i0, i1, step)

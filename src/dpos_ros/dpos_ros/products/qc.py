@@ -18,37 +18,15 @@ from dpos_core.ta import qc as Q
 from dpos_core.units import DEG
 
 from .antenna import AntennaSolution
+from .rows import RowBlock
 
 #: the plots show at most this many points per curve (rows decimated by striding)
 MAX_PLOT_POINTS = 4000
 
 
-def summaries(antennas: dict[str, AntennaSolution]) -> dict[str, dict]:
-    """Per antenna the :func:`dpos_core.ta.qc.summarize` summary (estimated antennas; the others:
-    ``{"verdict": <status>}``)."""
-    out: dict[str, dict] = {}
-    for name, a in antennas.items():
-        if a.traj is None or a.sigma is None:
-            out[name] = {"verdict": a.status}
-            continue
-        s = Q.summarize(a.traj.t_s, a.sigma, a.flags, a.qc, a.wing_fit)
-        s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
-        out[name] = s
-    return out
-
-
 def qc_dir(out: Path) -> Path:
     """Where the QC figures of the products in ``out`` go."""
     return out / "qc"
-
-
-def write_qc(out: Path, antennas: dict[str, AntennaSolution], session_id: str, method: str) -> dict:
-    """``out/qc.md``; returns the ``status.json`` ``qc`` block (JSON-safe: NaN as null).  The
-    figures ``out/qc/<antenna>_qc.png`` (:func:`plot_qc`) are written with each antenna's files
-    (:func:`dpos_ros.products.write.write`)."""
-    summ = summaries(antennas)
-    (out / "qc.md").write_text(qc_md(summ, session_id, method))
-    return json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
 
 
 def json_safe(v):
@@ -177,13 +155,13 @@ def _plain_log_labels(ax) -> None:
         ax.yaxis.set_minor_locator(NullLocator())
 
 
-def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
-    """The antenna's QC figure: its 1-sigma over time per group, NIS per dof with its bounds (per
-    epoch and windowed), the forward/backward separation in RMS sigmas, and the flags as bands."""
+def plot_qc(path: Path, a: AntennaSolution, b: RowBlock, method: str) -> Path:
+    """Antenna ``a``'s QC figure from its rows ``b`` (all, or every n-th): its 1-sigma over time per
+    group, NIS per dof with its bounds (per epoch and windowed), the forward/backward separation in
+    RMS sigmas, and the flags as bands."""
     from matplotlib.figure import Figure
 
-    assert a.traj is not None and a.sigma is not None
-    t, s = a.traj.t_s, a.sigma
+    t, s = b.traj.t_s, b.sigma
     step = max(1, t.size // MAX_PLOT_POINTS)
     td, sd = t[::step], s[::step]
     fig = Figure(figsize=(10, 12))  # no pyplot: figures may be drawn in threads at once (thread-pool executors)
@@ -231,7 +209,7 @@ def plot_qc(path: Path, a: AntennaSolution, method: str) -> Path:
         ax.text(0.5, 0.5, "no backward pass (forward-only method or wing fit)", transform=ax.transAxes, ha="center", va="center")
     ax.set(ylabel="fwd/bwd separation\n[RMS sigmas]")
     ax = axs[5]
-    fl = F.none(t.size) if a.flags is None else np.asarray(a.flags, dtype=np.uint32)
+    fl = np.asarray(b.flags, dtype=np.uint32)
     names = list(F.NAMES.items())
     for row, (bit, _) in enumerate(names):
         m = (fl[::step] & np.uint32(bit)) != 0

@@ -1,6 +1,5 @@
-"""The evaluation of a session's antennas against the recorded truth and its reports
-(design.md "Session products"): :func:`evaluate` (RMSE/STD per antenna, [Gong2018] eq. 21),
-``metrics.json`` (:func:`metrics_json`, :func:`combine_runs` over runs), ``report.md`` in the
+"""The reports of the evaluation of a session's antennas against the recorded truth
+(design.md "Session products"): ``metrics.json`` (:func:`metrics_json`, :func:`combine_runs` over runs), ``report.md`` in the
 papers' table layouts (:func:`report_md`: [Gong2018] Table 1, [Ye2024] Table 2) and the error
 figures (:func:`plot_antenna_errors`)."""
 
@@ -15,41 +14,6 @@ from dpos_core.ta import metrics as M
 from dpos_core.units import FloatArray
 from dpos_ros.io.session import RecordedSession
 
-from .antenna import AntennaSolution
-
-
-def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution]) -> dict[str, dict]:
-    """RMSE/STD per antenna over the imaging segments (whole session when none), when truth exists."""
-    segs = sess.imaging_segments() or {"session": (float(sess.master.t_s[0]), float(sess.master.t_s[-1]))}
-    tm = sess.truth.get("master")
-    out = {}
-    for name, a in antennas.items():
-        tr = sess.truth.get(f"antenna/{name}")
-        if a.traj is None or tr is None:
-            continue
-        t = a.traj.t_s
-        idx = np.searchsorted(tr.t_s, t)
-        ok = (idx < tr.t_s.size) & (np.abs(tr.t_s[np.clip(idx, 0, tr.t_s.size - 1)] - t) < 1e-6)
-        i = idx[ok]
-        est = a.traj.select(ok)
-        tru = tr.select(i)
-        m_est = m_true = None
-        if tm is not None:
-            m_est = interp_llh(sess.master.t_s, sess.master.llh, est.t_s)
-            m_true = interp_llh(tm.t_s, tm.llh, est.t_s)
-        err = M.errors(est, tru, m_est, m_true)
-        out[name] = {**M.segment_stats(err, est.t_s, segs), "errors": err, "t_s": est.t_s}
-        if a.sigma is not None:  # the reported sigma against the errors, over the same segments
-            sel = np.zeros(est.t_s.size, dtype=bool)
-            for t_a, t_b in segs.values():
-                sel |= (est.t_s >= t_a) & (est.t_s <= t_b)
-            e9, s9 = M.state_errors(est, tru)[sel], a.sigma[ok][sel]
-            out[name]["consistency"] = M.consistency(e9, s9)
-            out[name]["nsq"] = (e9 / s9) ** 2  # (n, 9) normalized squared errors, for the ANEES over runs
-        if a.cg is not None:  # the CDVF's conjugate-gradient iterations (whole session)
-            out[name]["cg"] = a.cg.summary()
-    return out
-
 
 def interp_llh(t: FloatArray, llh: FloatArray, tq: FloatArray) -> FloatArray:
     return np.stack([np.interp(tq, t, llh[:, i]) for i in range(3)], -1)
@@ -57,7 +21,7 @@ def interp_llh(t: FloatArray, llh: FloatArray, tq: FloatArray) -> FloatArray:
 
 def combine_runs(per_method: dict[str, list[dict]], timing: dict[str, dict]) -> dict[str, tuple[dict, dict]]:
     """Per method, the mean over the runs of each antenna's RMSE / STD (and its consistency, where
-    the runs have it) from the runs' :func:`evaluate` results, with the method's timing: the
+    the runs have it) from the runs' :func:`dpos_ros.products.evaluate.evaluate` results, with the method's timing: the
     ``per_method`` argument of :func:`metrics_json`."""
     combined = {}
     for m, runs in per_method.items():
@@ -214,7 +178,7 @@ def _fmt(v) -> str:
 
 
 def plot_antenna_errors(path: Path, name: str, ev: dict, method: str) -> Path:
-    """The antenna's errors against the truth over time (``ev``: its entry of :func:`evaluate`)."""
+    """The antenna's errors against the truth over time (``ev``: its entry of :func:`dpos_ros.products.evaluate.evaluate`)."""
     from matplotlib.figure import Figure
 
     e, t = ev["errors"], ev["t_s"]

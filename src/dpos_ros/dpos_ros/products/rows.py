@@ -1,22 +1,28 @@
-"""Rows of the session products held a block at a time (docs/campaign.md "Long flights"): a
-:class:`RowStore` per antenna (one file per column, appended as the transfer alignment hands the
-rows over, read back by row ranges), :class:`StampCursor` over its stamps, and
-:class:`StreamedAntenna`, an antenna whose rows are in a store."""
+"""Rows of the session products held a block at a time (docs/long_flights.md): a :class:`RowStore`
+per antenna (appended as the transfer alignment hands the rows over, read back by row ranges; in
+memory, or one file per column in a scratch directory for a long flight), :class:`StampCursor`
+over its stamps, :class:`RowBlock` (a range of rows as arrays) and the helpers of the workers that
+fill them (:func:`release_memory`, :func:`drained`, :func:`scratch_dir`)."""
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import ctypes
+import ctypes.util
+import functools
 import shutil
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dpos_core.filters.variational import CGStats
 from dpos_core.series import NavSeries
-from dpos_core.ta import qc as Q
-
-from .antenna import AntennaSolution
+from dpos_core.ta import flags as ta_flags
+from dpos_core.units import FloatArray
 
 #: rows read or written at a time
 ROW_BLOCK = 2**16
@@ -30,18 +36,32 @@ ROW_COLUMNS: dict[str, tuple[tuple[int, ...], str]] = {
 
 @dataclass
 class RowStore:
-    """Rows appended to one file per column under ``path`` (created), read back by row ranges;
-    picklable (the files are opened per call)."""
+    """Rows appended column by column and read back by row ranges: in memory (``path`` None) or one
+    file per column under ``path`` (created; the rows spilled to disk, a long flight's).  The same
+    rows either way; picklable (a worker's store comes back to the caller; the files are opened
+    per call).  The rows read are the reader's own (a copy, in memory as from the files)."""
 
-    path: Path
+    path: Path | None = None
     columns: dict[str, tuple[tuple[int, ...], str]] = field(default_factory=lambda: dict(ROW_COLUMNS))
     n: int = 0
+    _mem: dict[str, list[NDArray]] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if self.path is None:
+            if self._mem is None:
+                self._mem = {name: [] for name in self.columns}
+            return
         self.path = Path(self.path)
         self.path.mkdir(parents=True, exist_ok=True)
 
+    def child(self, name: str, columns: dict[str, tuple[tuple[int, ...], str]] | None = None) -> RowStore:
+        """A new store of ``columns`` (default :data:`ROW_COLUMNS`) kept as this one is: in memory, or
+        in the directory ``name`` beside this one's files."""
+        cols = dict(ROW_COLUMNS) if columns is None else columns
+        return RowStore(None if self.path is None else self.path / name, cols)
+
     def _file(self, name: str) -> Path:
+        assert self.path is not None
         return self.path / f"{name}.bin"
 
     def append(self, **cols: NDArray) -> None:
@@ -53,9 +73,22 @@ class RowStore:
             a = np.ascontiguousarray(cols[name], dtype=dtype)
             if a.shape[1:] != shape:
                 raise ValueError(f"column {name}: rows of shape {a.shape[1:]}, not {shape}")
+            if self._mem is not None:
+                self._mem[name].append(a.copy())
+                continue
             with self._file(name).open("ab") as f:
                 f.write(a.tobytes())
         self.n += n.pop()
+
+    def _whole(self, name: str) -> NDArray:
+        """Column ``name``'s rows in memory, as one array (read-only: the store's)."""
+        assert self._mem is not None
+        parts = self._mem[name]
+        if len(parts) != 1:
+            shape, dtype = self.columns[name]
+            parts[:] = [np.concatenate(parts) if parts else np.zeros((0, *shape), dtype=dtype)]
+        parts[0].flags.writeable = False
+        return parts[0]
 
     def read(self, name: str, i0: int = 0, i1: int | None = None) -> NDArray:
         """Rows ``i0:i1`` of column ``name``."""
@@ -65,6 +98,8 @@ class RowStore:
         dt = np.dtype(dtype)
         if i1 <= i0:
             return np.zeros((0, *shape), dtype=dt)
+        if self._mem is not None:
+            return self._whole(name)[i0:i1].copy()  # (the reader's own, as from the files)
         a = np.fromfile(self._file(name), dtype=dt, count=(i1 - i0) * size, offset=i0 * size * dt.itemsize)
         return a.reshape((i1 - i0, *shape))
 
@@ -80,16 +115,28 @@ class RowStore:
         return {name: self.read(name, i0, i1) for name in self.columns}
 
     def extend(self, other: RowStore) -> None:
-        """Append the rows of ``other`` (the same columns), file to file (not through memory), and remove it."""
+        """Append the rows of ``other`` (the same columns; files: file to file, not through memory), and remove it."""
         if other.columns != self.columns:
             raise ValueError("extend needs a store of the same columns")
         for name in self.columns:
+            if self._mem is not None:
+                self._mem[name].append(other.read(name))
+                continue
+            if other._mem is not None:
+                with self._file(name).open("ab") as f:
+                    f.write(np.ascontiguousarray(other.read(name)).tobytes())
+                continue
             with self._file(name).open("ab") as f, other._file(name).open("rb") as g:
                 shutil.copyfileobj(g, f, 2**20)
         self.n += other.n
         other.remove()
 
     def remove(self) -> None:
+        if self._mem is not None:
+            self._mem = {name: [] for name in self.columns}
+            self.n = 0
+            return
+        assert self.path is not None
         shutil.rmtree(self.path, ignore_errors=True)
 
 
@@ -123,32 +170,62 @@ def nav_of(cols: dict[str, NDArray]) -> NavSeries:
 
 
 @dataclass
-class StreamedAntenna:
-    """An antenna of the streamed products: :class:`~dpos_ros.products.antenna.AntennaSolution`'s fields
-    with its rows in ``rows`` (None when not estimated)."""
+class RowBlock:
+    """Rows ``i0:i1`` of an antenna (or a sub-IMU) as arrays: ``traj`` (N) with ``sigma`` (N, 9)
+    attitude (rad, rotation about local ENU), velocity (m/s, ENU), position (m, ENU) 1-sigma and
+    ``flags`` (N,) (:mod:`dpos_core.ta.flags`)."""
 
-    name: str
-    sub_imu: str | None
-    status: str
-    rows: RowStore | None = None
-    chol_jitter_repairs: int = 0
-    not_estimated: list[tuple[float, float, str]] = field(default_factory=list)
-    qc: Q.EpochQC | None = None
-    cg: CGStats | None = None
-    wing_fit: dict | None = None
-    installation: dict = field(default_factory=dict)
+    traj: NavSeries
+    sigma: FloatArray
+    flags: ta_flags.FlagArray
 
-    def solution(self, i0: int = 0, i1: int | None = None, step: int = 1) -> AntennaSolution:
-        """An :class:`~dpos_ros.products.antenna.AntennaSolution` of the rows ``i0:i1`` (every ``step``-th)."""
-        traj = sigma = flags = None
-        if self.rows is not None:
-            i1 = self.rows.n if i1 is None else min(i1, self.rows.n)
-            # at most ROW_BLOCK rows read at a time (a multiple of step: every step-th row from i0), the kept rows
-            # copied out (a strided view would hold its whole block: a 4 h antenna's rows for its QC figure)
-            span = step * max(1, ROW_BLOCK // step)
-            parts = [{k: (v[::step].copy() if step > 1 else v) for k, v in self.rows.rows(a, min(a + span, i1)).items()}
-                     for a in range(i0, max(i1, i0 + 1), span)]
-            c = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in self.rows.columns}
-            traj, sigma, flags = nav_of(c), c["sigma"], c["flags"]
-        return AntennaSolution(self.name, self.sub_imu, self.status, traj, sigma, self.chol_jitter_repairs, flags,
-                                 list(self.not_estimated), qc=self.qc, cg=self.cg, wing_fit=self.wing_fit, installation=self.installation)
+    @classmethod
+    def of(cls, rows: RowStore, i0: int = 0, i1: int | None = None, step: int = 1) -> RowBlock:
+        """The rows ``i0:i1`` (every ``step``-th) of ``rows``: at most ROW_BLOCK rows read at a time (a
+        multiple of step: every step-th row from i0), the kept rows copied out (a strided view would
+        hold its whole block: a 4 h antenna's rows for its QC figure)."""
+        i1 = rows.n if i1 is None else min(i1, rows.n)
+        span = step * max(1, ROW_BLOCK // step)
+        parts = [{k: (v[::step].copy() if step > 1 else v) for k, v in rows.rows(a, min(a + span, i1)).items()}
+                 for a in range(i0, max(i1, i0 + 1), span)]
+        c = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in rows.columns}
+        return cls(nav_of(c), c["sigma"], c["flags"])
+
+
+@functools.cache
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim`` (None elsewhere), looked up once: ``ctypes.util.find_library`` runs
+    ``ldconfig`` in a subprocess, ~10 ms a call (and it is called once per bag batch)."""
+    try:
+        fn: Callable[[int], int] = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        return fn
+    except (OSError, AttributeError):
+        return None
+
+
+def release_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc ``malloc_trim``; nothing elsewhere): a
+    worker's heap otherwise keeps what a task grew it to while it idles or runs a smaller task."""
+    fn = _malloc_trim()
+    if fn is not None:
+        fn(0)
+
+
+@contextmanager
+def drained(futures: Callable[[], Iterable[cf.Future]]) -> Iterator[None]:
+    """On an error inside, cancel the pool's tasks ``futures()`` that have not started and wait for
+    those running: they write into a directory the caller removes (the rows' scratch, the products)."""
+    try:
+        yield
+    except BaseException:
+        fs = list(futures())
+        for f in fs:
+            f.cancel()
+        cf.wait(fs)
+        raise
+
+
+def scratch_dir(out_root: Path) -> tempfile.TemporaryDirectory:
+    """A temporary directory for the rows spilled to disk, beside the products (same file system, likely room)."""
+    Path(out_root).mkdir(parents=True, exist_ok=True)
+    return tempfile.TemporaryDirectory(prefix=".dpos_rows_", dir=out_root)

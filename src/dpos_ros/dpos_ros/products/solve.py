@@ -1,216 +1,329 @@
 """Transfer alignment of a recorded session's sub-IMUs and the antennas they carry (design.md
-"Session products"): :func:`solve` (the sub-IMUs aligned in workers, their antennas carried by the
-lever arm, the ``fit`` antennas by the least-squares wing fit).  The products are written by
-:mod:`dpos_ros.products.write`, evaluated and reported by :mod:`dpos_ros.products.report`."""
+"Session products"; docs/long_flights.md): :func:`solve`, over blocks of rows.
+
+Each sub-IMU is aligned by :func:`align_to_store` (a worker's task): its data taken from the
+:class:`SubImuSource` (a recording the worker reads itself - its own topic and the main POS only,
+:func:`dpos_ros.io.session.read_session` - or a session in memory, dpos-eval's simulated
+one), the output rows handed over a block at a time (``pipeline.run_segments(sink=...)``), its
+antennas' rows (moved by the lever arm) and its own (the wing fit's input) appended to
+:class:`~dpos_ros.products.rows.RowStore` s as they come: in memory, or spilled to a scratch
+directory (``store_dir``) for a long flight - the same rows either way.  The ``fit`` antennas are
+made by the least-squares wing fit over consecutive windows of :data:`FIT_WINDOW_S` (the rigid
+misalignment, the degree choice and the variance factor per window; one window for a session
+shorter than that); ``status.json`` ``wing_fit`` gives the first window's choice and the number of
+windows.  The products are written by :mod:`dpos_ros.products.write`, evaluated against the truth
+by :mod:`dpos_ros.products.evaluate`."""
 
 from __future__ import annotations
 
 import concurrent.futures as cf
-import contextlib
+import shutil
 import time
+from collections import deque
+from dataclasses import dataclass
 from dataclasses import replace as dc_replace
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dpos_core.attitude import mount_dcm
-from dpos_core.config import AircraftConfig, AntennaConfig
+from dpos_core.attitude import mount_dcm, quat_to_dcm
+from dpos_core.config import AircraftConfig
 from dpos_core.errors import RejectedInput
-from dpos_core.series import NavSeries
+from dpos_core.series import ImuSeries, NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import pipeline
-from dpos_core.ta import qc as ta_qc
-from dpos_core.ta.antenna import antenna_motion, lever_velocity_var, rate_at, rate_interpolation_var
+from dpos_core.ta import qc as Q
+from dpos_core.ta.antenna import ImuRates, antenna_motion, lever_velocity_var
 from dpos_core.ta.model import Installation
 from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
-from dpos_ros.io.session import RecordedSession
-from dpos_ros.runtime.pool import process_pool, worker_count
+from dpos_ros.contract import topics as T
+from dpos_ros.io.session import RecordedSession, read_session
 
+from . import rows as R
 from .antenna import AntennaSolution
+from .rows import ROW_COLUMNS, RowStore, StampCursor, drained, release_memory
+
+#: seconds of the wing fit's windows (module docstring)
+FIT_WINDOW_S = 300.0
+#: wing-fit windows submitted to the workers ahead of the one being stored (their rows in memory)
+FIT_IN_FLIGHT = 4
 
 
-def solve(
-    sess: RecordedSession,
-    aircraft: AircraftConfig,
-    settings: TASettings,
-    *,
-    only: list[str] | None = None,
-    oracle_truth: dict | None = None,
-    known_wing: dict | None = None,
-    workers: int = 1,
-    pool: cf.Executor | None = None,
-) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
-    """Transfer-align every sub-IMU of the aircraft found in the recording (or the ``only`` ones,
-    with their antennas) from the first epoch at which the main POS is aligned
-    (:func:`aligned_master`); carry the solutions to their antennas.  Returns the antennas and the
-    timing (processing and data seconds).
+# ------------------------------------------------------------------------------------ the sub-IMUs' data
+
+
+@dataclass(frozen=True)
+class SubImuSource:
+    """Where a worker finds its sub-IMU's data: the recording ``bag`` (read in the worker: its own
+    topic and, unless ``master`` is sent, the main POS; ``include_late``: a spill's late messages
+    too, as :func:`dpos_ros.io.session.read_session`), or ``imus`` in memory (a simulated
+    session's; the main POS is then sent).  ``read_master``: the worker reads the main POS from
+    ``bag`` (the recorded one) instead of being sent it."""
+
+    bag: str | None = None
+    include_late: bool = True
+    read_master: bool = True
+    imus: dict[str, ImuSeries] | None = None
+
+    @classmethod
+    def of_session(cls, sess: RecordedSession) -> SubImuSource:
+        """The sub-IMUs of a session read (or simulated) in memory."""
+        return cls(imus=dict(sess.sub_imus), read_master=False)
+
+    def only(self, sub: str) -> SubImuSource:
+        """This source with sub-IMU ``sub``'s data alone (what its worker is sent)."""
+        if self.imus is None:
+            return self
+        return dc_replace(self, imus={k: v for k, v in self.imus.items() if k == sub})
+
+    def read(self, sub: str) -> tuple[ImuSeries | None, RecordedSession | None, list[str]]:
+        """Sub-IMU ``sub``'s samples (None: not in the source), the recording read with it (its main
+        POS; None in memory) and the reading's warnings."""
+        if self.imus is not None:
+            return self.imus.get(sub), None, []
+        assert self.bag is not None
+        sess = read_session(Path(self.bag), keep=lambda t: t == T.sub_imu(sub), include_late=self.include_late)
+        release_memory()  # (what decoding the recording's parts left in the heap)
+        return sess.sub_imus.get(sub), sess, sess.warnings
+
+
+@dataclass(frozen=True)
+class SubImuTask:
+    """One sub-IMU's work (:func:`align_to_store`): its data's ``source``, the aligned main POS
+    ``master`` (None: read with the sub-IMU by the worker, :meth:`SubImuSource.read`), its
+    installation, the settings, its antennas (name, lever arm [m] (3,)), the store its rows go
+    beside and, for the evaluation only, the oracle's truth of the sub-IMU."""
+
+    source: SubImuSource
+    sub: str
+    master: NavSeries | None
+    install: Installation
+    settings: TASettings
+    antennas: tuple[tuple[str, FloatArray], ...]
+    store: RowStore
+    oracle_truth: object | None = None
+
+
+# ------------------------------------------------------------------------------------ the workers
+
+
+def align_to_store(task: SubImuTask) -> dict:
+    """One sub-IMU (a worker's task; module docstring): aligned, its antennas' rows and its own at
+    ``settings.output_rate_hz`` appended to RowStores as the transfer alignment hands them over.
+    Returns ``{"missing": True}``, ``{"rejected": why}`` or the per-epoch results and stores."""
+    try:
+        return _align_to_store(task)
+    finally:
+        release_memory()
+
+
+def _align_to_store(task: SubImuTask) -> dict:
+    sub, settings = task.sub, task.settings
+    imu, sess, warnings = task.source.read(sub)
+    if imu is None:
+        return {"missing": True, "warnings": warnings}
+    master = task.master
+    if master is None:
+        assert sess is not None
+        master = aligned_master(sess, settings.master_aligned_sigma_deg)
+        if master is None:  # (the caller has found it aligned)
+            return {"rejected": "the main POS is never aligned", "warnings": warnings}
+    ta_rows = task.store.child(f"ta_{sub}", {k: v for k, v in ROW_COLUMNS.items() if k != "flags"})
+
+    def sink(t: FloatArray, llh: FloatArray, vel: FloatArray, q: FloatArray, sigma: FloatArray) -> None:
+        ta_rows.append(t_s=t, llh=llh, vel_n_mps=vel, q_nb=q, sigma=sigma)
+
+    try:
+        res = pipeline.align(imu, master, task.install, settings, sink=sink, oracle_truth=task.oracle_truth)
+    except RejectedInput as ex:
+        ta_rows.remove()
+        return {"rejected": str(ex), "warnings": warnings}
+    if ta_rows.n == 0 and res.t_s.size:  # (the oracle methods, evaluation only, keep their rows in the result)
+        ta_rows.append(t_s=res.t_s, llh=res.llh, vel_n_mps=res.vel_n_mps, q_nb=res.q_nb, sigma=res.sigma)
+    # the rows' quality bits (dpos_core.ta.qc.row_flags: INCONSISTENT_INNOVATIONS from the filter, MASTER_UNALIGNED
+    # where the main POS's attitude 1-sigma is master_aligned_sigma_deg or more), the decimation, the rate at the rows
+    # (with a time offset, at the instant the moved rows stand for) and what the rate between the IMU's samples leaves
+    # unknown through the lever arm, a block of rows at a time (no array of them all but their stamps and flags)
+    (att_cov,) = master.required("att_cov")
+    att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))
+    tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
+    rates = ImuRates(imu.t_s, imu.omega_radps)
+    stores = {name: task.store.child(f"ant_{name}") for name, _ in task.antennas}
+    own = task.store.child(f"sub_{sub}")
+    for i0 in range(0, res.t_s.size, R.ROW_BLOCK):
+        i1 = min(i0 + R.ROW_BLOCK, res.t_s.size)
+        c = ta_rows.rows(i0, i1)
+        t, sigma = c["t_s"], c["sigma"]
+        flags = res.flags[i0:i1] | Q.row_flags(t, res.qc, master.t_s, att_sig, np.deg2rad(settings.master_aligned_sigma_deg))
+        k = _kept(res.t_s, i0, i1, settings.output_rate_hz)
+        if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
+            sigma = sigma * Q.sigma_scale(res.qc, t)
+        C = quat_to_dcm(c["q_nb"])
+        w = rates.rate_at(t + tau) if task.antennas else np.zeros((0, 3))
+        w_var = rates.interpolation_var(t[k] + tau) if task.antennas else np.zeros((0, 3))
+        for name, lever in task.antennas:
+            llh, v = antenna_motion(C, c["vel_n_mps"], c["llh"], w, lever)
+            s_a = sigma[k].copy()
+            s_a[:, 3:6] = np.sqrt(s_a[:, 3:6] ** 2 + lever_velocity_var(C[k], w_var, lever))
+            stores[name].append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=v[k], llh=llh[k], sigma=s_a, flags=flags[k])
+        own.append(t_s=t[k], q_nb=c["q_nb"][k], vel_n_mps=c["vel_n_mps"][k], llh=c["llh"][k], sigma=sigma[k], flags=flags[k])
+    ta_rows.remove()
+    return {"stores": stores, "own": own, "qc": res.qc, "cg": res.cg, "not_estimated": list(res.not_estimated),
+            "chol_jitter_repairs": res.chol_jitter_repairs, "installation": res.installation, "warnings": warnings}
+
+
+def _kept(t_s: FloatArray, i0: int, i1: int, rate_hz: float) -> NDArray[np.bool_]:
+    """Which of the rows i0 .. i1 - 1 of the rows stamped ``t_s`` (N,) :func:`decimate` keeps at
+    ``rate_hz`` (the same rows, from the block and the row before it)."""
+    if rate_hz <= 0.0:
+        return np.ones(i1 - i0, dtype=bool)
+    j0 = max(i0 - 1, 0)  # (the row before decides whether row i0 starts a new step)
+    kept = np.zeros(i1 - j0, dtype=bool)
+    kept[decimate(t_s[j0:i1], rate_hz)] = True
+    return kept[i0 - j0:]
+
+
+# ------------------------------------------------------------------------------------ the session
+
+
+def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings, *, source: SubImuSource | None = None,
+          store_dir: Path | None = None, pool: cf.Executor | None = None, sub_imus: list[str] | None = None,
+          oracle_truth: dict | None = None, known_wing: dict | None = None) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
+    """Transfer-align every sub-IMU of the aircraft found in the recording from the first epoch at
+    which the main POS is aligned (:func:`aligned_master`); carry the solutions to their antennas
+    (module docstring).  Returns the antennas (the aircraft's order) and the timing (processing and
+    data seconds).
+
+    ``sess``: the recording's main POS and metadata (read without the sub-IMUs when ``source`` is a
+    recording); ``source``: where the sub-IMUs' data are (default: ``sess``'s own, in memory);
+    ``sub_imus``: the sub-IMU topics the recording has (default: ``sess.sub_imus``);
+    ``store_dir``: the rows spilled to files under it (a long flight), None: in memory.
+    ``pool``: the sub-IMUs aligned (and the wing-fit windows fitted) on its workers, else in this
+    process one after the other; every sub-IMU uses ``settings.seed`` either way, so the results
+    (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it.
 
     A sub-IMU's stream is aligned by :func:`dpos_core.ta.pipeline.run_segments`: across a gap
     longer than ``TAConfig.max_imu_gap_s`` it restarts from the main POS and the span has no rows
     (the status says ``estimated (not estimated over <from>-<to> s: <why>)`` and a warning names
     the spans); a sub-IMU whose data cannot be aligned at all (empty or all-NaN topic, too short,
     rejected by the core) gives its antennas ``not estimated: <why>`` and a warning, the other
-    sub-IMUs going on.
+    sub-IMUs going on.  ``settings.inflate_sigma``: each sub-IMU's output 1-sigma is scaled by the
+    innovations' variance factor where they say the filter is optimistic (docs/qc.md).
 
-    The rows get the quality control's flags (:func:`dpos_core.ta.qc.row_flags`):
-    ``INCONSISTENT_INNOVATIONS`` from the sub-IMU's filter, ``MASTER_UNALIGNED`` where the main
-    POS's attitude 1-sigma is ``settings.master_aligned_sigma_deg`` or more (after its first alignment).
-
-    ``workers``: the sub-IMUs are aligned in that many spawned worker processes (0 = one per
-    core; 1 = in this process, one after the other).  Each worker gets only its sub-IMU's data,
-    the main POS, its installation and the settings; every sub-IMU uses ``settings.seed`` either way,
-    so the results (and the order of the warnings: the aircraft's sub-IMUs) do not depend on it.
-    ``pool``: an executor already started (:func:`dpos_ros.runtime.pool.warm_pool`: its workers
-    have imported and run the filters while the recording was read), used instead of starting
-    one when there are at least 2 sub-IMUs (``workers`` is then ignored); it is left running.
-
-    ``settings`` (:class:`dpos_core.ta.pipeline.TASettings`): the method and the filter's settings,
-    as transfer_align_node's ``TransferAlignConfig.core_config()`` and dpos-process make them.
-    ``settings.inflate_sigma``: each sub-IMU's output 1-sigma is scaled by the innovations' variance factor
-    per match group where they say the filter is optimistic (:func:`dpos_core.ta.qc.sigma_scale`;
-    docs/qc.md "Sigma inflation"); the fit antennas inherit it through their sub-IMUs.
-
-    ``settings.master_error_tau_s``: the main POS's position and velocity errors as correlated states of that
-    correlation time (``TAConfig.master_error_tau_s``; the antennas then follow the main POS), 0 = white.
-
-    ``known_wing`` (evaluation only, with the method ``oracle_wing``): per sub-IMU the true wing
-    (:func:`dpos_core.evaluation.ta.known_wing`), set as ``Installation.known_wing``."""
-    results = {}
-    unusable: dict[str, str] = {}  # sub-IMU -> why it is not estimated
+    ``oracle_truth`` / ``known_wing`` (evaluation only, the oracle methods): per sub-IMU the
+    simulation's truth, or the true wing set as ``Installation.known_wing``."""
     t0 = time.perf_counter()
+    source = SubImuSource.of_session(sess) if source is None else source
+    store = RowStore(None if store_dir is None else Path(store_dir))
     master = aligned_master(sess, settings.master_aligned_sigma_deg)
-    if only is not None:
-        aircraft = dc_replace(aircraft, sub_imus=tuple(s for s in aircraft.sub_imus if s.name in only),
-                              antennas=tuple(a for a in aircraft.antennas if a.sub_imu in only))
+    release_memory()  # (what reading the main POS grew the heap to)
+    present = set(sess.sub_imus if sub_imus is None else sub_imus)
 
     def install(name: str) -> Installation:
         ins = Installation.from_aircraft(aircraft, name)
         return ins if known_wing is None else dc_replace(ins, known_wing=known_wing[name])
 
-    tasks = {s.name: (sess.sub_imus[s.name], master, install(s.name), settings, None if oracle_truth is None else oracle_truth[s.name])
-             for s in aircraft.sub_imus if s.name in sess.sub_imus and master is not None}
-    n_workers = worker_count(workers, len(tasks))
-    futs: dict[str, cf.Future[pipeline.TAResult]] = {}
+    # the workers read the recorded main POS with their sub-IMU's topic (a long flight's main POS is not pickled to them)
+    send_master = pool is None or not source.read_master or source.bag is None
+    tasks = {s.name: SubImuTask(source.only(s.name), s.name, master if send_master else None, install(s.name), settings,
+                                tuple((a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name),
+                                store, None if oracle_truth is None else oracle_truth[s.name])
+             for s in aircraft.sub_imus if s.name in present and master is not None}
+    futs = {name: pool.submit(align_to_store, task) for name, task in tasks.items()} if pool is not None else {}
     out: dict[str, AntennaSolution] = {}
-    with contextlib.ExitStack() as stack:
-        ex: cf.Executor | None = None
-        if pool is not None and len(tasks) > 1:
-            ex = pool
-            stack.callback(lambda: [f.cancel() for f in futs.values()])  # on an error: the queued ones are not run
-        elif n_workers > 1:
-            ex = process_pool(n_workers)
-            stack.callback(ex.shutdown, wait=True, cancel_futures=True)  # on an error: the queued ones are not run
-        if ex is not None:  # submitted all at once, collected below in the aircraft's order
-            # the core's function itself (pickled by name): a worker imports dpos_core.ta.pipeline, not this module
-            futs = {name: ex.submit(pipeline.align, *args[:-1], oracle_truth=args[-1]) for name, args in tasks.items()}
+    unusable: dict[str, str] = {}
+    carriers: dict[str, RowStore] = {}
+    n_done = 0
+    with drained(futs.values):  # (a worker's failure: the others' rows are written in store_dir)
         for s in aircraft.sub_imus:
-            if s.name not in sess.sub_imus:
+            if s.name not in present:
                 sess.warnings.append(f"sub-IMU {s.name}: no /sub_imu/{s.name}/imu in the recording; its antennas are not estimated")
                 continue
             if master is None:
                 continue
-            try:
-                res = futs[s.name].result() if futs else pipeline.align(*tasks[s.name][:-1], oracle_truth=tasks[s.name][-1])
-            except RejectedInput as ex:
-                unusable[s.name] = f"sub-IMU {s.name}: {ex}"
-                sess.warnings.append(f"sub-IMU {s.name}: {ex}; its antennas are not estimated")
+            r = futs[s.name].result() if futs else align_to_store(tasks[s.name])
+            sess.warnings.extend(w for w in r.get("warnings", []) if w not in sess.warnings)
+            if "rejected" in r:
+                unusable[s.name] = f"sub-IMU {s.name}: {r['rejected']}"
+                sess.warnings.append(f"sub-IMU {s.name}: {r['rejected']}; its antennas are not estimated")
                 continue
-            if res.not_estimated:
-                sess.warnings.append(f"sub-IMU {s.name}: no pose over {spans_text(res.not_estimated)}; each part after a gap "
+            if "missing" in r:
+                continue
+            n_done += 1
+            if r["not_estimated"]:
+                sess.warnings.append(f"sub-IMU {s.name}: no pose over {spans_text(r['not_estimated'])}; each part after a gap "
                                      f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
-            res.flags |= _qc_flags(res, master, settings.master_aligned_sigma_deg)
-            if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
-                res.sigma = res.sigma * ta_qc.sigma_scale(res.qc, res.t_s)
-            results[s.name] = res
-            # its antennas now, while the workers align the next sub-IMUs
-            out.update({a.name: _sub_imu_antenna(sess, aircraft, a, res, settings.output_rate_hz) for a in aircraft.antennas if a.sub_imu == s.name})
-    for name in sess.sub_imus if only is None else ():
+            status = f"estimated (not estimated over {spans_text(r['not_estimated'])})" if r["not_estimated"] else "estimated"
+            for a in aircraft.antennas:
+                if a.sub_imu == s.name:
+                    out[a.name] = AntennaSolution(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
+                                                  list(r["not_estimated"]), r["qc"], r["cg"], installation=r["installation"])
+            if r["own"].n > 1 and any(a.sub_imu == s.name for a in aircraft.antennas):  # (the antennas' carriers)
+                carriers[s.name] = r["own"]
+    for name in sorted(present):
         if name not in {s.name for s in aircraft.sub_imus}:
             sess.warnings.append(f"/sub_imu/{name}/imu is not in the aircraft configuration {aircraft.name!r}; ignored")
-    timing = {"processing_s": time.perf_counter() - t0,
-              "data_s": float(sess.master.t_s[-1] - sess.master.t_s[0]) * max(1, len(results))}
+    timing = {"processing_s": time.perf_counter() - t0, "data_s": float(sess.master.t_s[-1] - sess.master.t_s[0]) * max(1, n_done)}
     for a in aircraft.antennas:
-        if a.sub_imu is not None and a.sub_imu not in results:  # (the fit antennas: fit_antennas below)
+        if a.sub_imu is not None and a.name not in out:
             why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
             out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
-    out = {a.name: out[a.name] for a in aircraft.antennas if a.name in out}  # the aircraft's order (as the wing fit takes them)
     if any(a.sub_imu is None for a in aircraft.antennas):
-        out.update(fit_antennas(sess, aircraft, out))
+        out.update(_fit_windows(sess, aircraft, carriers, store, pool))
+    release_memory()
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
 
 
-def _sub_imu_antenna(sess: RecordedSession, aircraft: AircraftConfig, a: AntennaConfig, r: pipeline.TAResult,
-                     output_rate_hz: float) -> AntennaSolution:
-    """Antenna ``a`` (one with a sub-IMU) carried by its sub-IMU's solution ``r`` (:func:`solve`):
-    its position and velocity by the lever arm, the rows at ``output_rate_hz``."""
-    assert a.sub_imu is not None
-    imu = sess.sub_imus[a.sub_imu]
-    # the rate at the rows (with a time offset, at the instant the moved rows stand for)
-    tau = r.installation.get("time_offset", {}).get("value", [0.0])[0]
-    C = r.C_nb
-    llh, v = antenna_motion(C, r.vel_n_mps, r.llh, rate_at(imu.t_s, imu.omega_radps, r.t_s + tau), a.lever_arm_m)
-    keep = decimate(r.t_s, output_rate_hz)
-    status = f"estimated (not estimated over {spans_text(r.not_estimated)})" if r.not_estimated else "estimated"
-    # the velocity sigma adds what the rate between the IMU's samples leaves unknown, through the lever arm
-    sigma = r.sigma[keep].copy()
-    w_var = rate_interpolation_var(imu.t_s, imu.omega_radps, r.t_s[keep] + tau)
-    sigma[:, 3:6] = np.sqrt(sigma[:, 3:6] ** 2 + lever_velocity_var(C[keep], w_var, a.lever_arm_m))
-    return AntennaSolution(a.name, a.sub_imu, status, NavSeries(r.t_s[keep], r.q_nb[keep], v[keep], llh[keep]), sigma,
-                           r.chol_jitter_repairs, r.flags[keep], list(r.not_estimated), _carrier(aircraft, a.sub_imu, r, keep), qc=r.qc,
-                           cg=r.cg, installation=r.installation)
-
-
-def _qc_flags(r: pipeline.TAResult, master: NavSeries, sigma_deg: float) -> ta_flags.FlagArray:
-    """The quality control's bits of a sub-IMU's rows (:func:`dpos_core.ta.qc.row_flags`)."""
-    (att_cov,) = master.required("att_cov")
-    sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))
-    return ta_qc.row_flags(r.t_s, r.qc, master.t_s, sig, np.deg2rad(sigma_deg))
-
-
-def _carrier(aircraft: AircraftConfig, sub: str, r: pipeline.TAResult, keep: NDArray[np.intp]) -> SubImuTrack:
-    """The sub-IMU's smoothed solution at the output rows ``keep``, for the wing fit."""
-    s = aircraft.sub_imu(sub)
-    return SubImuTrack(sub, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
-                       r.t_s[keep], r.C_nb[keep], r.vel_n_mps[keep], r.llh[keep], r.sigma[keep], r.flags[keep])
+# ------------------------------------------------------------------------------------ the wing fit
 
 
 #: the status of an antenna estimated by the wing fit starts with this
 FIT_STATUS = "estimated (least-squares wing fit"
 
 
-def fit_antennas(sess: RecordedSession, aircraft: AircraftConfig, antennas: dict[str, AntennaSolution]) -> dict[str, AntennaSolution]:
+@dataclass
+class FitAntenna:
+    """A ``fit`` antenna of one window of the wing fit (:func:`fit_antennas`): its status, the fit's
+    record (``status.json`` ``wing_fit``) and its rows (N) with their 1-sigma (N, 9) and flags (N,), or None."""
+
+    status: str
+    wing_fit: dict | None = None
+    traj: NavSeries | None = None
+    sigma: FloatArray | None = None
+    flags: ta_flags.FlagArray | None = None
+
+
+def fit_antennas(master: NavSeries, aircraft: AircraftConfig, tracks: dict[str, SubImuTrack], warnings: list[str]) -> dict[str, FitAntenna]:
     """The antennas without a sub-IMU (``sub_imu: fit``) by the least-squares wing fit ([LSFit]
     sec. 2, :func:`dpos_core.ta.wingfit.fit_wing`) from the estimated sub-IMUs of their wing side
-    (the ``carrier`` of ``antennas``, the solutions of :func:`solve`, or collected from the
-    transfer_align_node's workers) and the main POS of ``sess``.  Each wing side with at least 2
-    estimated sub-IMUs gives its ``fit`` antennas the status ``estimated (least-squares wing fit,
-    <basis>; from sub-IMUs ...)``; otherwise ``not estimated: ...``.  Their rows' flags are the
-    fit's (:mod:`dpos_core.ta.flags`: ``WING_FIT``, ``EXTRAPOLATED``, ``FEWER_SUB_IMUS``, the used
-    sub-IMUs' own bits), with ``FEWER_SUB_IMUS`` on every row when a sub-IMU of the wing side in
-    the aircraft is not estimated."""
-    out: dict[str, AntennaSolution] = {}
-    tracks: dict[str, SubImuTrack] = {}
-    for sol in antennas.values():
-        if sol.carrier is not None and sol.traj is not None and sol.carrier.t_s.size > 1:
-            tracks.setdefault(sol.carrier.name, sol.carrier)
+    (``tracks``: sub-IMU -> its smoothed rows, :func:`carrier_track`) and the main POS ``master``.
+    Each wing side with at least 2 estimated sub-IMUs gives its ``fit`` antennas the status
+    ``estimated (least-squares wing fit, <basis>; from sub-IMUs ...)``; otherwise ``not estimated:
+    ...``.  Their rows' flags are the fit's (:mod:`dpos_core.ta.flags`: ``WING_FIT``,
+    ``EXTRAPOLATED``, ``FEWER_SUB_IMUS``, the used sub-IMUs' own bits), with ``FEWER_SUB_IMUS`` on
+    every row when a sub-IMU of the wing side in the aircraft is not estimated.  A failed fit is
+    named in ``warnings``."""
+    out: dict[str, FitAntenna] = {}
+    usable = {name: tr for name, tr in tracks.items() if tr.t_s.size > 1}
     for side in (1.0, -1.0):
         fits = [a for a in aircraft.antennas if a.sub_imu is None and np.sign(a.span_m or 1.0) == side]
         if not fits:
             continue
-        subs = sorted((tr for tr in tracks.values() if np.sign(tr.span_m) == side), key=lambda tr: (-tr.t_s.size, abs(tr.span_m)))
+        subs = sorted((tr for tr in usable.values() if np.sign(tr.span_m) == side), key=lambda tr: (-tr.t_s.size, abs(tr.span_m)))
         wing = "right" if side > 0 else "left"
         if len(subs) < 2:
             why = (f"not estimated: the least-squares wing fit needs at least 2 estimated sub-IMUs on the {wing} wing, "
                    f"has {len(subs)}")
-            out.update({a.name: AntennaSolution(a.name, None, why) for a in fits})
+            out.update({a.name: FitAntenna(why) for a in fits})
             continue
         try:
-            wf = fit_wing(sess.master, subs, [(a.name, a.span_m, np.asarray(a.lever_arm_m, dtype=float)) for a in fits])
+            wf = fit_wing(master, subs, [(a.name, a.span_m, np.asarray(a.lever_arm_m, dtype=float)) for a in fits])
         except Exception as ex:  # noqa: BLE001 - a bug or bad data of the fit: its antennas only, the others' products go on
-            sess.warnings.append(f"least-squares wing fit of the {wing} wing failed: {ex}; its fit antennas are not estimated")
-            out.update({a.name: AntennaSolution(a.name, None, f"not estimated: the least-squares wing fit failed: {ex}") for a in fits})
+            warnings.append(f"least-squares wing fit of the {wing} wing failed: {ex}; its fit antennas are not estimated")
+            out.update({a.name: FitAntenna(f"not estimated: the least-squares wing fit failed: {ex}") for a in fits})
             continue
         names = ", ".join(sorted(tr.name for tr in subs))
         n_wing = sum(1 for s in aircraft.sub_imus if np.sign(s.span_m) == side)
@@ -220,13 +333,112 @@ def fit_antennas(sess: RecordedSession, aircraft: AircraftConfig, antennas: dict
                 "cv": {c: {str(k): v for k, v in cv.items()} for c, cv in wf.cv.items()}}
         for a in fits:
             fa = wf.antennas[a.name]
-            status = f"{FIT_STATUS}, {wf.basis_text()}; from sub-IMUs {names})"
             if fa.traj.t_s.size == 0:
-                out[a.name] = AntennaSolution(a.name, None, "not estimated: the least-squares wing fit has no epoch with enough sub-IMUs")
+                out[a.name] = FitAntenna("not estimated: the least-squares wing fit has no epoch with enough sub-IMUs")
                 continue
             fl = (ta_flags.none(fa.traj.t_s.size) | np.uint32(ta_flags.WING_FIT) if fa.flags is None else fa.flags) | fewer
-            out[a.name] = AntennaSolution(a.name, None, status, fa.traj, fa.sigma, flags=fl.astype(np.uint32), wing_fit=info)
+            out[a.name] = FitAntenna(f"{FIT_STATUS}, {wf.basis_text()}; from sub-IMUs {names})", info, fa.traj, fa.sigma,
+                                     fl.astype(np.uint32))
     return out
+
+
+def carrier_track(aircraft: AircraftConfig, sub: str, c: dict[str, NDArray]) -> SubImuTrack:
+    """Sub-IMU ``sub``'s smoothed rows ``c`` (a RowStore's columns) as the wing fit's input."""
+    s = aircraft.sub_imu(sub)
+    return SubImuTrack(sub, s.span_m, np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)),
+                       c["t_s"], quat_to_dcm(c["q_nb"]), c["vel_n_mps"], c["llh"], c["sigma"], c["flags"])
+
+
+def fit_window(master: NavSeries, aircraft: AircraftConfig, carriers: dict[str, RowStore], ranges: dict[str, tuple[int, int]],
+               store: RowStore) -> tuple[dict[str, tuple[str, dict | None, RowStore | None]], list[str]]:
+    """One window of :func:`_fit_windows` (a worker's task): :func:`fit_antennas` of the carriers'
+    rows ``ranges`` (name -> ``(i0, i1)``) with ``master`` (the main POS cut to the window); each
+    ``fit`` antenna's rows put in a store beside ``store`` (files: not sent back, the main process
+    appends them).  Returns per fit antenna (status, wing_fit info, its rows or None) and the
+    warnings it added."""
+    warnings: list[str] = []
+    out: dict[str, tuple[str, dict | None, RowStore | None]] = {}
+    try:
+        tracks = {name: carrier_track(aircraft, name, st.rows(*ranges[name])) for name, st in carriers.items()}
+        sol = fit_antennas(master, aircraft, tracks, warnings)
+        del tracks
+        for a in aircraft.antennas:
+            fa = sol.get(a.name)
+            if a.sub_imu is not None or fa is None:
+                continue
+            rows = None
+            if fa.traj is not None and fa.sigma is not None and fa.flags is not None:
+                rows = store.child(a.name)
+                rows.append(t_s=fa.traj.t_s, q_nb=fa.traj.q_nb, vel_n_mps=fa.traj.vel_n_mps, llh=fa.traj.llh, sigma=fa.sigma, flags=fa.flags)
+            out[a.name] = (fa.status, fa.wing_fit, rows)
+    finally:
+        release_memory()
+    return out, warnings
+
+
+def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
+                 store: RowStore, pool: cf.Executor | None = None) -> dict[str, AntennaSolution]:
+    """The ``fit`` antennas by :func:`fit_antennas` over consecutive windows of :data:`FIT_WINDOW_S`
+    (module docstring), their rows appended window by window; the windows fitted on ``pool`` when
+    given (a few at a time, taken in order)."""
+    fits = [a for a in aircraft.antennas if a.sub_imu is None]
+    cursors = {name: StampCursor(st) for name, st in carriers.items()}
+    if not cursors:
+        sol = fit_antennas(sess.master, aircraft, {}, sess.warnings)
+        return {a.name: AntennaSolution(a.name, None, sol[a.name].status) for a in fits if a.name in sol}
+    spans = [c.first_last() for c in cursors.values()]
+    t_lo = min(lo for lo, _ in spans)
+    t_hi = max(hi for _, hi in spans)
+    n_win = max(1, int(np.ceil((t_hi - t_lo) / FIT_WINDOW_S - 1e-9)))
+    edges = t_lo + FIT_WINDOW_S * np.arange(n_win + 1)
+    edges[-1] = np.inf
+    stores = {a.name: store.child(f"ant_{a.name}") for a in fits}
+    first: dict[str, tuple[str, dict | None]] = {}
+    statuses: dict[str, set[str]] = {a.name: set() for a in fits}
+
+    def task(w: int) -> tuple:
+        ranges = {name: (cursors[name].index(edges[w]), cursors[name].index(edges[w + 1])) for name in carriers}
+        lo, hi = (edges[w] - 1.0, edges[w + 1] + 1.0)
+        m = sess.master.select((sess.master.t_s >= lo) & (sess.master.t_s <= hi))
+        return m, aircraft, carriers, ranges, store.child(f"fit_window{w:05d}", {})
+
+    pending: deque = deque()
+    with drained(lambda: [f for _, f in pending if isinstance(f, cf.Future)]):
+        for w in range(n_win):
+            if pool is None:
+                pending.append((w, fit_window(*task(w))))
+            else:
+                pending.append((w, pool.submit(fit_window, *task(w))))
+            while pending and (pool is None or len(pending) > FIT_IN_FLIGHT or w == n_win - 1):
+                w_done, r = pending.popleft()
+                sol, warnings = r if pool is None else r.result()
+                sess.warnings.extend(warnings)
+                for a in fits:
+                    if a.name not in sol:
+                        continue
+                    status, info, rows = sol[a.name]
+                    statuses[a.name].add(status)
+                    first.setdefault(a.name, (status, info))
+                    if rows is not None:
+                        stores[a.name].extend(rows)
+                if store.path is not None:
+                    shutil.rmtree(store.path / f"fit_window{w_done:05d}", ignore_errors=True)
+    out: dict[str, AntennaSolution] = {}
+    for a in fits:
+        if a.name not in first:
+            continue
+        status0, info0 = first[a.name]
+        est = sorted(s for s in statuses[a.name] if s.startswith("estimated"))
+        status = est[0] if est else status0
+        if len(statuses[a.name]) > 1:
+            status += f" ({len(statuses[a.name])} different outcomes over the {n_win} windows of the fit)"
+        info = None if info0 is None else {**info0, "windows": n_win, "window_s": FIT_WINDOW_S}
+        rows = stores[a.name] if stores[a.name].n else None
+        out[a.name] = AntennaSolution(a.name, None, status if rows is not None else status0, rows, wing_fit=info)
+    return out
+
+
+# ------------------------------------------------------------------------------------ helpers
 
 
 def spans_text(spans: list[tuple[float, float, str]]) -> str:
@@ -234,7 +446,7 @@ def spans_text(spans: list[tuple[float, float, str]]) -> str:
     return "; ".join(f"{a:.1f}-{b:.1f} s: {why}" for a, b, why in spans)
 
 
-def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1):
+def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1) -> NavSeries | None:
     """The main-system navigation from its first epoch whose attitude 1-sigma (every axis, from
     the /master/nav covariance) is below ``sigma_deg`` - the covariance is how pos_master_node flags
     a navigation that the in-flight alignment has not aligned yet (design.md) - or None if it never

@@ -18,7 +18,9 @@ import functools
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import replace as dc_replace
 from pathlib import Path
 from typing import BinaryIO
 
@@ -29,31 +31,26 @@ from dpos_core.errors import ProductsExistError
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.series import NavSeries
 from dpos_core.ta import flags as ta_flags
+from dpos_core.ta import qc as Q
 from dpos_core.units import FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.io.bag import write_stream_batches
+from dpos_ros.io.bag import EncodedBatch, abort_writer, encode_streams, new_writer, write_stream_batches
 from dpos_ros.io.session import RecordedSession
 from dpos_ros.io.streams import TopicStream
 
 from . import _csv_kernel as K
+from . import rows as R
 from .antenna import AntennaSolution
-from .qc import plot_qc, qc_dir, write_qc
-from .report import metrics_json, plot_antenna_errors, report_md
+from .evaluate import write_evaluation
+from .qc import MAX_PLOT_POINTS, json_safe, plot_qc, qc_dir, qc_md
+from .rows import RowBlock, RowStore, StampCursor, drained, nav_of, release_memory
 
 
-def write(
-    out_root: Path,
-    sess: RecordedSession,
-    antennas: dict[str, AntennaSolution],
-    method: str,
-    timing: dict[str, float],
-    evaluation: dict[str, dict] | None = None,
-    *,
-    overwrite: bool = False,
-    pool: cf.Executor | None = None,
-) -> Path:
-    """Write the products under ``out_root/<session id>/`` (module docstring); returns that directory.
+def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
+          evaluation: dict[str, dict] | None = None, *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
+    """Write the products under ``out_root/<session id>/`` (module docstring) from the antennas'
+    rows, a block of rows at a time; returns that directory.
 
     The directory is new: when it exists, :class:`ProductsExistError` (a FileExistsError) is raised
     before anything is written, unless ``overwrite``; then the products are written into a
@@ -61,11 +58,13 @@ def write(
     products are kept when writing fails). On any exception while writing, what this call created
     (the new directory or the temporary one) is removed and the exception re-raised: the
     products are complete or absent, never mixed or partial. ``out_root`` is created if needed.
-    ``pool``: each antenna's files (CSV, QC figure, error figure) are written by its workers (the
-    smoothers' pool, idle by then), the rest in this process meanwhile."""
-
+    ``pool``: each antenna's files (CSV, QC summary and figure, error figure) are written by its
+    workers, and the antenna bag's batches (:data:`BAG_BATCH_S` of poses each) made and compressed
+    there while this process writes them to the file in order.  ``evaluation``:
+    :func:`dpos_ros.products.evaluate.evaluate`'s result, written (metrics.json, report.md, error
+    figures) before status.json."""
     return write_complete(Path(out_root) / sess.session_id, overwrite,
-                          lambda out: _write_products(out, sess, antennas, method, timing, evaluation, pool))
+                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation))
 
 
 def write_complete(final: Path, overwrite: bool, fill: Callable[[Path], None]) -> Path:
@@ -123,7 +122,7 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
     the timing, the jitter repairs of the ``estimated`` antennas, the wing fits and each sub-IMU's
     installation states (aircraft file: lever_arm_sigma_m, time_offset_sigma_ms, axis_error_states)
     and how the main POS's errors were modelled (``sess.master_error_model``: tau_s, why).
-    ``antennas``: AntennaSolution or the streaming path's antennas (the same fields)."""
+    ``antennas``: :class:`~dpos_ros.products.antenna.AntennaSolution` s."""
     doc = {"session_id": sess.session_id, "method": method, "antennas": {name: a.status for name, a in antennas.items()},
            "warnings": sess.warnings, "timing": timing,
            "chol_jitter_repairs": {name: a.chol_jitter_repairs for name, a in antennas.items() if name in estimated}}
@@ -138,85 +137,140 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
     return doc
 
 
-def _write_products(
-    out: Path,
-    sess: RecordedSession,
-    antennas: dict[str, AntennaSolution],
-    method: str,
-    timing: dict[str, float],
-    evaluation: dict[str, dict] | None,
-    pool: cf.Executor | None = None,
-) -> None:
-    """The products (module docstring) into the new, empty directory ``out``; the antennas' own
-    files by :func:`_antenna_files`, on ``pool`` when given."""
-    est = {name: a for name, a in antennas.items() if a.traj is not None and a.sigma is not None}
+def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
+                    pool: cf.Executor | None, evaluation: dict[str, dict] | None = None) -> None:
+    """The products (module docstring) into the new, empty directory ``out``."""
+    est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
-    files = []
-    for name, a in est.items():
-        assert a.traj is not None
-        args = (out, name, antenna_stamps_ns(sess, a.traj.t_s), a, method, (evaluation or {}).get(name))
-        if pool is None:
-            _antenna_files(*args)
-        else:
-            files.append(pool.submit(_antenna_files, *args))
-    bag_dir = out / "antennas"
-    if est:  # (out is a new directory: write() never mixes runs); a batch of poses in memory at a time
-        write_stream_batches(bag_dir, antenna_stream_batches(sess, est),
-                             custom_data={"dpos.session_id": sess.session_id, "dpos.method": method})
-    doc = status_doc(sess, antennas, method, timing, {name for name, a in antennas.items() if a.traj is not None})
-    doc["qc"] = write_qc(out, antennas, sess.session_id, method)  # never reads truth (its figures: _antenna_files)
-    if evaluation:
-        metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-        (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
-    for f in files:  # the workers' part: an exception there is this call's (write() removes the products)
-        f.result()
+    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method) if pool is not None else None) for name, a in est.items()}
+    summ: dict[str, dict] = {}
+    with drained(lambda: [f for f in files.values() if f is not None]):  # (they write into out)
+        if est:
+            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool)
+        for name, a in antennas.items():
+            f = files.get(name)
+            summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
+    doc = status_doc(sess, antennas, method, timing, set(est))
+    (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))  # never reads truth
+    if evaluation:  # against the truth (dpos_ros.products.evaluate)
+        write_evaluation(out, sess, evaluation, method, timing, pool)
+    doc["qc"] = json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
 
-def _antenna_files(out: Path, name: str, t_ns: NDArray[np.int64], a: AntennaSolution, method: str, ev: dict | None) -> None:
-    """One estimated antenna's files of the products: ``<name>.csv``, ``qc/<name>_qc.png`` and, with
-    its evaluation against the truth ``ev``, ``errors_<name>.png`` (a module function: it runs in
-    the workers of :func:`write`'s pool)."""
-    assert a.traj is not None and a.sigma is not None  # antenna_streams: estimated antennas only
-    _write_csv(out / f"{name}.csv", t_ns, a.traj, a.sigma, a.flags)
-    plot_qc(qc_dir(out) / f"{name}_qc.png", a, method)
-    if ev is not None:
-        plot_antenna_errors(out / f"errors_{name}.png", name, ev, method)
+def _antenna_files(out: Path, a: AntennaSolution, t0_ns: int, method: str) -> dict:
+    """One estimated antenna's CSV and QC figure; returns its QC summary (a worker's task)."""
+    try:
+        return _antenna_files_in(out, a, t0_ns, method)
+    finally:
+        release_memory()
 
 
-def antenna_streams(sess: RecordedSession, antennas: dict[str, AntennaSolution]):
-    """``/antenna/<name>/odom`` TopicStreams (pose in ``enu`` with the smoother's covariance; twist
-    in the antenna frame with the velocity covariance; angular rate not estimated) of the
-    estimated antennas."""
-    return [antenna_stream(sess, name, a, slice(None)) for name, a in antennas.items() if a.traj is not None and a.sigma is not None]
+def _antenna_files_in(out: Path, a: AntennaSolution, t0_ns: int, method: str) -> dict:
+    assert a.rows is not None
+    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows)
+    rows = a.rows
+    t, flags = rows.read("t_s"), rows.read("flags")
+    s = Q.summarize(t, lambda j: rows.column("sigma", j), flags, a.qc, a.wing_fit)  # (a column of the sigmas at a time)
+    del t, flags
+    s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
+    step = max(1, a.rows.n // (50 * MAX_PLOT_POINTS))  # plot_qc strides to MAX_PLOT_POINTS points: every row is not needed
+    plot_qc(qc_dir(out) / f"{a.name}_qc.png", a, a.block(step=step), method)
+    return s
 
 
-#: seconds of antenna poses per batch of the products' antenna bag (:func:`antenna_stream_batches`)
-BAG_BATCH_S = 60.0
+def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
+    """The antenna CSV (design.md "Session products"): per row stamp, position, velocity, attitude,
+    their 1-sigma and flags (:data:`CSV_HEADER`), ROW_BLOCK rows at a time."""
+    text = CsvRows(CSV_FORMATS)  # one buffer for every block's text
+    with path.open("wb") as f:
+        f.write(CSV_HEADER.encode() + b"\n")
+        for i0 in range(0, rows.n, R.ROW_BLOCK):
+            c = rows.rows(i0, i0 + R.ROW_BLOCK)
+            text.write(f, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), csv_columns(nav_of(c), c["sigma"], c["flags"]))
 
 
-def antenna_stream_batches(sess: RecordedSession, antennas: dict[str, AntennaSolution], batch_s: float = BAG_BATCH_S):
-    """:func:`antenna_streams` in consecutive time windows of ``batch_s`` seconds (each window a list
-    with every estimated antenna's stream, empty where it has no row): the same messages, a window's
-    in memory at a time (for :func:`dpos_ros.io.bag.write_stream_batches`)."""
-    est = {name: a for name, a in antennas.items() if a.traj is not None and a.sigma is not None}
-    if not est:
-        return
-    t_lo = min((float(a.traj.t_s[0]) for a in est.values() if a.traj is not None and a.traj.t_s.size), default=0.0)
-    t_hi = max((float(a.traj.t_s[-1]) for a in est.values() if a.traj is not None and a.traj.t_s.size), default=t_lo)
+#: seconds of antenna poses per batch of the antenna bag (~0.2 GB of messages and their values for
+#: twelve antennas at 200 Hz in memory at once)
+BAG_BATCH_S = 20.0
+#: antenna-bag batches made on the workers ahead of the one being written (~12 MB each compressed)
+BAG_IN_FLIGHT = 4
+
+
+def bag_ranges(est: dict[str, AntennaSolution], batch_s: float | None = None) -> Iterator[dict[str, tuple[int, int]]]:
+    """Each batch's rows ``(i0, i1)`` per antenna: :data:`BAG_BATCH_S` of poses from the first row
+    of all (the last batch to the end), found from the stamps a block at a time (:class:`StampCursor`)."""
+    batch_s = BAG_BATCH_S if batch_s is None else batch_s
+    cursors = {name: StampCursor(a.rows) for name, a in est.items() if a.rows is not None}
+    spans = [c.first_last() for c in cursors.values() if c.rows.n]
+    t_lo = min((lo for lo, _ in spans), default=0.0)
+    t_hi = max((hi for _, hi in spans), default=t_lo)
     n = max(1, int(np.floor((t_hi - t_lo) / batch_s)) + 1)
     edges = t_lo + batch_s * np.arange(n + 1)
     edges[-1] = np.inf
+    i_from = dict.fromkeys(cursors, 0)
     for k in range(n):
-        out = []
-        for name, a in est.items():
-            assert a.traj is not None
-            i0 = 0 if k == 0 else int(np.searchsorted(a.traj.t_s, edges[k]))
-            i1 = int(np.searchsorted(a.traj.t_s, edges[k + 1]))
-            out.append(antenna_stream(sess, name, a, slice(i0, i1)))
-        yield out
+        ranges = {}
+        for name in est:
+            i0 = i_from[name]  # (the first batch from row 0)
+            i1 = i_from[name] = cursors[name].index(edges[k + 1])
+            ranges[name] = (i0, i1)
+        yield ranges
+
+
+def antenna_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution], batch_s: float | None = None):
+    """The ``/antenna/<name>/odom`` streams (:func:`antenna_stream`) of the estimated antennas
+    ``est``, :data:`BAG_BATCH_S` of poses at a time (each batch a list with every antenna's
+    stream, empty where it has no row; for :func:`dpos_ros.io.bag.write_stream_batches`)."""
+    for ranges in bag_ranges(est, batch_s):
+        yield _bag_streams(sess, est, ranges)
+
+
+def _bag_streams(sess: RecordedSession, est: dict[str, AntennaSolution], ranges: dict[str, tuple[int, int]]) -> list:
+    return [antenna_stream(sess, name, a.block(*ranges[name])) for name, a in est.items()]
+
+
+def encode_bag_batch(sess: RecordedSession, est: dict[str, AntennaSolution], ranges: dict[str, tuple[int, int]],
+                     prefix: bytes) -> EncodedBatch:
+    """One batch of the antenna bag (:func:`antenna_stream_batches`'s) made and compressed (a
+    worker's task; ``sess`` and ``est`` as :func:`_light`); ``prefix``: the writer's, for the first batch."""
+    try:
+        return encode_streams(_bag_streams(sess, est, ranges), prefix)
+    finally:
+        release_memory()
+
+
+def _light(sess: RecordedSession, est: dict[str, AntennaSolution]) -> tuple[RecordedSession, dict[str, AntennaSolution]]:
+    """What a bag batch needs, to pickle to a worker: the session without its main POS (one epoch
+    kept), the antennas' rows without their per-epoch QC."""
+    return (dc_replace(sess, master=sess.master.select(slice(0, 1)), sub_imus={}, truth={}, warnings=[]),
+            {name: AntennaSolution(name, a.sub_imu, a.status, a.rows) for name, a in est.items()})
+
+
+def _write_bag(path: Path, sess: RecordedSession, est: dict[str, AntennaSolution], custom_data: dict[str, str],
+               pool: cf.Executor | None) -> None:
+    """The antenna bag of ``est``: batches made and compressed on ``pool`` (:data:`BAG_IN_FLIGHT` at
+    a time, appended in order: the same file as made here) or in this process."""
+    if pool is None:
+        write_stream_batches(path, antenna_stream_batches(sess, est), custom_data=custom_data)
+        return
+    w = new_writer(path, [(T.antenna_odom(name), T.ODOMETRY) for name in est], custom_data)
+    s_l, e_l = _light(sess, est)
+    pending: deque[cf.Future] = deque()
+    try:
+        for k, ranges in enumerate(bag_ranges(est)):
+            pending.append(pool.submit(encode_bag_batch, s_l, e_l, ranges, w.prefix if k == 0 else b""))
+            while len(pending) > BAG_IN_FLIGHT:
+                w.add_encoded(pending.popleft().result())
+        while pending:
+            w.add_encoded(pending.popleft().result())
+        w.close()
+    except BaseException:
+        for f in pending:
+            f.cancel()
+        abort_writer(w)
+        raise
 
 
 def antenna_stamps_ns(sess: RecordedSession, t_s: FloatArray) -> NDArray[np.int64]:
@@ -224,20 +278,13 @@ def antenna_stamps_ns(sess: RecordedSession, t_s: FloatArray) -> NDArray[np.int6
     return sess.t0_ns + np.round(t_s * 1e9).astype(np.int64)
 
 
-def antenna_stream(sess: RecordedSession, name: str, a: AntennaSolution, rows: slice):
-    """The ``/antenna/<name>/odom`` stream of the rows ``rows`` of an estimated antenna (:func:`antenna_streams`)."""
-    assert a.traj is not None and a.sigma is not None
-    tr, s = a.traj.select(rows), a.sigma[rows]
-    t_ns = antenna_stamps_ns(sess, tr.t_s)
-    vals = cv.antenna_odometry_values(tr.llh, tr.vel_n_mps, tr.C_nb, s, sess.datum_llh)
+def antenna_stream(sess: RecordedSession, name: str, b: RowBlock) -> TopicStream:
+    """The ``/antenna/<name>/odom`` stream of an antenna's rows ``b`` (pose in ``enu`` with the
+    smoother's covariance; twist in the antenna frame with the velocity covariance; angular rate
+    not estimated)."""
+    t_ns = antenna_stamps_ns(sess, b.traj.t_s)
+    vals = cv.antenna_odometry_values(b.traj.llh, b.traj.vel_n_mps, b.traj.C_nb, b.sigma, sess.datum_llh)
     return TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav")
-
-
-def _write_csv(path: Path, t_ns: NDArray[np.int64], tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None = None) -> None:
-    """The antenna CSV (design.md "Session products"): per row (N) stamp, position, velocity,
-    attitude, their 1-sigma (s (N, 9) as AntennaSolution.sigma) and ``flags`` (N,) (the quality
-    bits of :mod:`dpos_core.ta.flags`; 0 when None)."""
-    write_csv_rows(path, CSV_HEADER, np.asarray(t_ns, dtype=np.int64), csv_columns(tr, s, flags), CSV_FORMATS)
 
 
 def csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None) -> FloatArray:

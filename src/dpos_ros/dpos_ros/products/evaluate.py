@@ -1,32 +1,35 @@
-"""The evaluation against the truth of the streamed products (docs/long_flights.md): :func:`dpos_ros.products.report.evaluate` with memory that does not grow with the flight.
+"""The evaluation of a session's antennas against the recorded truth (design.md "Session
+products", docs/long_flights.md): :func:`evaluate`, RMSE/STD per antenna ([Gong2018] eq. 21) over
+the imaging segments (the whole session when none), with memory that does not grow with the flight.
 
 The truth topics (``/truth/master`` and ``/truth/antenna/<name>`` of the estimated antennas) are
 read once, a part of the file at a time in time order (:func:`dpos_ros.io._mcap.read_batches`,
 :data:`dpos_ros.io.session.STREAM_BATCH_BYTES` of messages a part; a spill of transfer_align_node,
 each topic's log a block at a time, the topics advancing together), and each antenna's rows from
 its :class:`~dpos_ros.products.rows.RowStore` a block at a time; each row is matched to the
-truth sample at its stamp as :func:`~dpos_ros.products.report.evaluate` matches it (the first truth
-sample at or after the row's stamp, within 1 us), and the errors of each block accumulated:
+truth sample at its stamp (the first truth sample at or after the row's stamp, within 1 us), and
+the errors of each block accumulated (a session held in memory - dpos-eval's simulated one - gives
+its truth as one part):
 
 * per imaging segment and error key (``dpos_core.ta.metrics.KEYS``) the count, the sum of the
   squared errors (RMSE) and the mean and the sum of squared deviations from it, merged block by
   block by the parallel update of Chan et al. (STD): [Gong2018] eq. 21 exactly, to rounding;
 * per antenna the consistency (``metrics.consistency``): the count, the count within 2 sigma and
   the sum of e^2/sigma^2 per component, over the rows in any segment: exact sums;
-* the CDVF's conjugate-gradient summary: the solver's, as in memory.
+* the CDVF's conjugate-gradient summary: the solver's.
 
 What is not a sum: the error figure (``errors_<antenna>.png``) is drawn from every n-th evaluated
 row (n = the rows over :data:`PLOT_POINTS`, rounded up: every row for a flight of under 100 s at
-200 Hz); the per-epoch normalized squared errors (``nsq``, read by ``dpos-eval --mismatch`` only)
-are not kept.  The baseline's main-POS positions are interpolated in the main POS held in memory
-(the streaming path holds it) and in the truth's kept from the sample before the first row still
-to evaluate on: the same numbers as the whole series'.
+200 Hz); the per-row normalized squared errors (``nsq``, read by ``dpos-eval --mismatch`` only)
+are kept only when asked.  The baseline's main-POS positions are interpolated in the main POS held
+in memory and in the truth's kept from the sample before the first row still to evaluate on: the
+same numbers as the whole series'.
 
 Bad input: an estimated antenna without its truth topic is named in a warning and not evaluated;
 rows without a truth sample at their stamp (the truth has a gap) are counted in a warning and the
 others evaluated; the truth's samples are cleaned as the reader cleans them (sorted within a part,
 duplicate stamps and NaN rows dropped, gaps counted), a sample older than one already read in an
-earlier part is dropped with a warning (the in-memory reader would sort it in).
+earlier part is dropped with a warning.
 """
 
 from __future__ import annotations
@@ -51,8 +54,8 @@ from dpos_ros.io import spill as S
 from dpos_ros.io.session import RecordedSession, SessionError, _compact, _decode_rows, read_session
 
 from . import rows as R
+from .antenna import AntennaSolution
 from .report import interp_llh, metrics_json, plot_antenna_errors, report_md
-from .rows import StreamedAntenna
 
 #: the most points of an error figure (every n-th evaluated row; module docstring)
 PLOT_POINTS = 20_000
@@ -132,6 +135,10 @@ def truth_parts(sess: RecordedSession, topics: list[str], warnings: list[str]) -
     messages are not read, as the node's streaming finalize does not read them); a recording
     neither reads (several files) is read whole (one part)."""
     wanted = set(topics)
+    if all(t.removeprefix("/truth/") in sess.truth for t in topics):  # held in memory (a simulated session): one part
+        held = {t: sess.truth[t.removeprefix("/truth/")] for t in topics}
+        yield {t: np.hstack([tr.t_s[:, None], tr.llh, tr.vel_n_mps, tr.q_nb]) for t, tr in held.items()}
+        return
     path = Path(sess.path)
     cleaners = {t: _TruthCleaner(t) for t in topics}
     failed: set[str] = set()
@@ -252,7 +259,8 @@ class _Moments:
 class _AntennaEval:
     """One antenna's evaluation, fed its rows and their truth a block at a time."""
 
-    def __init__(self, name: str, a: StreamedAntenna, segs: dict[str, tuple[float, float]], baseline: bool) -> None:
+    def __init__(self, name: str, a: AntennaSolution, segs: dict[str, tuple[float, float]], baseline: bool,
+                 keep_nsq: bool = False) -> None:
         assert a.rows is not None
         self.name, self.a, self.rows = name, a, a.rows
         self.segs = segs
@@ -269,6 +277,7 @@ class _AntennaEval:
         self.buf: dict[str, NDArray] | None = None  # rows read, not evaluated
         self.truth = np.zeros((0, _TRUTH_COLS))  # the truth samples not yet passed
         self.t_done = -math.inf  # every row at or before it is evaluated
+        self.nsq: list[FloatArray] | None = [] if keep_nsq else None  # per block (n, 9), when kept
 
     def done(self) -> bool:
         return self.next_row >= self.rows.n and (self.buf is None or self.buf["t_s"].size == 0)
@@ -312,6 +321,8 @@ class _AntennaEval:
             self.moments[name].add(e[sel])
             sel_any |= sel
         e9, s9 = M.state_errors(est, tru)[sel_any], rows["sigma"][ok][sel_any]
+        if self.nsq is not None:
+            self.nsq.append((e9 / s9) ** 2)
         good = np.all(np.isfinite(e9), axis=1) & np.all(np.isfinite(s9) & (s9 > 0), axis=1)
         z2 = (e9[good] / s9[good]) ** 2
         self.c_n += z2.shape[0]
@@ -323,8 +334,7 @@ class _AntennaEval:
         self.n_eval += est.t_s.size
 
     def result(self) -> dict:
-        """:func:`dpos_ros.products.report.evaluate`'s entry of the antenna (``errors``, ``t_s``: every
-        ``step``-th row; no ``nsq``)."""
+        """:func:`evaluate`'s entry of the antenna (``errors``, ``t_s``: every ``step``-th row)."""
         per: dict[str, dict[str, dict[str, float]]] = {}
         for name, mom in self.moments.items():
             r, s = mom.rmse_std()
@@ -339,6 +349,8 @@ class _AntennaEval:
                                "nees": {k: float(self.c_nsq[i] / self.c_n) for i, k in enumerate(M.CONS_KEYS)}})
         if self.a.cg is not None:
             out["cg"] = self.a.cg.summary()
+        if self.nsq is not None:
+            out["nsq"] = np.concatenate(self.nsq) if self.nsq else np.zeros((0, 9))
         return out
 
 
@@ -350,13 +362,16 @@ def truth_topics(topics: list[str] | set[str]) -> bool:
     return any(t.startswith("/truth/antenna/") for t in topics)
 
 
-def evaluate_streaming(sess: RecordedSession, antennas: dict[str, StreamedAntenna], topics: list[str] | set[str]) -> dict[str, dict]:
-    """:func:`dpos_ros.products.report.evaluate` of the streamed ``antennas`` (module docstring):
+def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution], topics: list[str] | set[str] | None = None, *,
+             keep_nsq: bool = False) -> dict[str, dict]:
+    """The antennas' errors against the truth (module docstring):
     ``{antenna: {"rmse", "std", "segments", "consistency", "cg", "errors", "t_s", "plot_step"}}``
     for the estimated antennas with a ``/truth/antenna/<name>`` topic among the recording's
-    ``topics``; ``sess``: the recording's main POS and metadata.  Warnings (an antenna without its
-    truth, rows without a truth sample, the truth's cleaning) go to ``sess.warnings``."""
-    topics = set(topics)
+    ``topics`` (None: the truth held in ``sess``, a session in memory); ``sess``: the recording's
+    main POS and metadata.  ``keep_nsq``: each antenna's per-row normalized squared errors (n, 9)
+    too, ``nsq`` (the rows in the segments; for the ANEES over runs).  Warnings (an antenna without
+    its truth, rows without a truth sample, the truth's cleaning) go to ``sess.warnings``."""
+    topics = {f"/truth/{k}" for k in sess.truth} if topics is None else set(topics)
     if not truth_topics(topics):
         return {}
     segs = sess.imaging_segments() or {"session": (float(sess.master.t_s[0]), float(sess.master.t_s[-1]))}
@@ -369,7 +384,7 @@ def evaluate_streaming(sess: RecordedSession, antennas: dict[str, StreamedAntenn
         if T.truth_antenna(name) not in topics:
             sess.warnings.append(f"evaluation: no {T.truth_antenna(name)} in the recording; antenna {name} is not evaluated")
             continue
-        evs[name] = _AntennaEval(name, a, segs, with_master)
+        evs[name] = _AntennaEval(name, a, segs, with_master, keep_nsq)
     if not evs:
         return {}
     tm = np.zeros((0, _TRUTH_COLS)) if with_master else None
@@ -421,12 +436,12 @@ def evaluate_streaming(sess: RecordedSession, antennas: dict[str, StreamedAntenn
 
 def write_evaluation(out: Path, sess: RecordedSession, evaluation: dict[str, dict], method: str, timing: dict[str, float],
                      pool: cf.Executor | None = None) -> None:
-    """``metrics.json``, ``report.md`` and ``errors_<antenna>.png`` of :func:`evaluate_streaming`'s
-    result into the products directory ``out``, as :func:`dpos_ros.products.write.write` writes them;
-    metrics.json also says ``"evaluation": {"path": "streaming", "plot_step": {antenna: n}}``."""
+    """``metrics.json``, ``report.md`` and ``errors_<antenna>.png`` of :func:`evaluate`'s result into
+    the products directory ``out`` (:func:`dpos_ros.products.write.write`); metrics.json also says
+    ``"evaluation": {"path": "streaming", "plot_step": {antenna: n}}`` (:func:`evaluation_metrics`)."""
     figs = [pool.submit(plot_antenna_errors, out / f"errors_{name}.png", name, ev, method) if pool is not None else
             plot_antenna_errors(out / f"errors_{name}.png", name, ev, method) for name, ev in evaluation.items()]
-    metrics = metrics_streaming(sess, evaluation, method, timing)
+    metrics = evaluation_metrics(sess, evaluation, method, timing)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))
     for f in figs:
@@ -434,8 +449,9 @@ def write_evaluation(out: Path, sess: RecordedSession, evaluation: dict[str, dic
             f.result()
 
 
-def metrics_streaming(sess: RecordedSession, evaluation: dict[str, dict], method: str, timing: dict[str, float]) -> dict:
-    """:func:`dpos_ros.products.report.metrics_json` of a streamed evaluation, with its ``evaluation`` note."""
+def evaluation_metrics(sess: RecordedSession, evaluation: dict[str, dict], method: str, timing: dict[str, float]) -> dict:
+    """:func:`dpos_ros.products.report.metrics_json` of an evaluation, with its ``evaluation`` note
+    (``path``: how the rows were evaluated, a block at a time; ``plot_step``: the error figures' n)."""
     metrics = metrics_json(sess, {method: (evaluation, timing)}, runs=1)
     metrics["evaluation"] = {"path": "streaming", "plot_step": {name: ev["plot_step"] for name, ev in evaluation.items()}}
     return metrics
@@ -447,5 +463,4 @@ def series_free(evaluation: dict[str, dict]) -> dict[str, dict]:
     return {name: {k: v for k, v in e.items() if k not in ("errors", "t_s", "plot_step", "nsq")} for name, e in evaluation.items()}
 
 
-__all__ = ["PLOT_POINTS", "evaluate_streaming", "metrics_streaming", "series_free", "truth_parts", "truth_topics",
-           "write_evaluation"]
+__all__ = ["PLOT_POINTS", "evaluate", "evaluation_metrics", "series_free", "truth_parts", "truth_topics", "write_evaluation"]
