@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from bag_faults import fail_bag_writes_after
 
@@ -176,3 +177,30 @@ def test_bad_numbers_are_usage_errors(tmp_path, capsys, args, needle):
     assert e.value.code == 2
     assert needle in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_diverged_alignment_is_not_estimated_naming_why(tmp_path, capsys):
+    """A sub-IMU whose gyro is in deg/s where rad/s are declared: its transfer alignment diverges
+    (dpos_core.ta.guard), so its antenna is "not estimated" with the reason, exit 1, no traceback;
+    the other wing's antenna is estimated."""
+    from dpos_ros.contract import cdr
+    from dpos_ros.contract import conversions as cv
+    from dpos_ros.io.streams import TopicStream
+
+    ss = SimulatedSession(load_scenario("paper_su", aircraft="paper_su_pair"), 2, 20.0)
+    streams = []
+    for s in session_streams(ss):
+        if s.topic == "/sub_imu/sub_l/imu":
+            lay = cdr.layout("imu", cv.sub_imu_frame("sub_l"))
+            t_ns, vals = cdr.decode(lay, s.rows)
+            vals[:, 13:16] *= 180.0 / np.pi  # deg/s written as rad/s
+            s = TopicStream(s.topic, s.msgtype, t_ns, rows=cdr.encode(lay, t_ns, vals), qos=s.qos)
+        streams.append(s)
+    b = tmp_path / "degps"
+    bag.write_streams(b, streams, custom_data=session_custom_data(ss, config_text("aircraft", "paper_su_pair")))
+    assert process_cli.main([str(b), "--method", "ukf", "--workers", "1", "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "diverged" in err, err
+    status = json.loads((tmp_path / "o" / SID / "status.json").read_text())
+    assert status["antennas"]["ant_r"] == "estimated"
+    assert status["antennas"]["ant_l"].startswith("not estimated") and "diverged" in status["antennas"]["ant_l"], status

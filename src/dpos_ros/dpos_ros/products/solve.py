@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from dpos_core.attitude import mount_dcm, quat_to_dcm
 from dpos_core.config import AircraftConfig
-from dpos_core.errors import RejectedInput
+from dpos_core.errors import AlignmentDiverged, RejectedInput
 from dpos_core.series import ImuSeries, NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import pipeline
@@ -141,6 +141,9 @@ def _align_to_store(task: SubImuTask) -> dict:
     except RejectedInput as ex:
         ta_rows.remove()
         return {"rejected": str(ex), "warnings": warnings}
+    except AlignmentDiverged as ex:  # (dpos_core.ta.guard: the run ended but its rows are no estimate)
+        ta_rows.remove()
+        return {"rejected": f"the transfer alignment diverged ({ex.reason}): {ex}", "warnings": warnings}
     if ta_rows.n == 0 and res.t_s.size:  # (the oracle methods, evaluation only, keep their rows in the result)
         ta_rows.append(t_s=res.t_s, llh=res.llh, vel_n_mps=res.vel_n_mps, q_nb=res.q_nb, sigma=res.sigma)
     # the rows' quality bits (dpos_core.ta.qc.row_flags: INCONSISTENT_INNOVATIONS from the filter, MASTER_UNALIGNED
