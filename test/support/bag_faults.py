@@ -25,14 +25,14 @@ def fail_bag_writes_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) ->
         return original(path, topics, order, custom_data, version, library, fail)
 
     class Writer(_mcap.Writer):  # the batch-by-batch writer (dpos_ros.io.bag.write_stream_batches)
-        def __init__(self, path, channels, custom_data, version, library, progress=None):
+        def __init__(self, path, channels, custom_data, version, library, progress=None, qos=None):
             def fail(k: int) -> None:
                 if k > n:
                     raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
                 if progress is not None:
                     progress(k)
 
-            super().__init__(path, channels, custom_data, version, library, fail)
+            super().__init__(path, channels, custom_data, version, library, fail, qos)
 
     monkeypatch.setattr(_mcap, "write", write)
     monkeypatch.setattr(_mcap, "Writer", Writer)

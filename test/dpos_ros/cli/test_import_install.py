@@ -17,7 +17,7 @@ from dpos_core.attitude import dcm_to_rotvec, quat_to_dcm
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.imports.timescales import utc_to_gpst_ns
 from dpos_core.units import DEG
-from dpos_ros.cli import import_, import_install
+from dpos_ros.cli import import_
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.session import read_session
@@ -170,7 +170,7 @@ def test_datum_bytes_equal_the_contract_message() -> None:
 
     llh = np.array([np.deg2rad(32.8256345), np.deg2rad(34.955858), 12.494])
     t = 1_657_181_443_100_000_000
-    mine = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(import_install.datum_blob(t, llh),))
+    mine = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(cv.datum_blob(t, llh),))
     ref = TopicStream(T.DATUM, T.NAVSATFIX, np.array([t]), blobs=(serialize_message(cv.datum_msg(t, llh)),))
     assert mine.message(0) == ref.message(0)
 

@@ -47,7 +47,49 @@ def test_products_are_written(products: Path) -> None:
     assert len(rows) == 45000 and float(rows[1]["stamp_s"]) - float(rows[0]["stamp_s"]) == pytest.approx(0.01)
     assert 39.0 < float(rows[-1]["lat_deg"]) < 41.0 and float(rows[-1]["sigma_heading_deg"]) > 0.0
     raw = bag.read_raw(products / "antennas")
-    assert set(raw) == {"/antenna/ant_r/odom"} and len(raw["/antenna/ant_r/odom"][2]) == 45000
+    assert set(raw) == {"/antenna/ant_r/odom", "/antenna/ant_r/fix", "/dpos/datum"} and len(raw["/antenna/ant_r/odom"][2]) == 45000
+
+
+def test_antenna_bag_has_navsatfix_the_datum_and_its_qos_and_a_geojson_track(products: Path) -> None:
+    """What a surveyor and a ROS user load directly: /antenna/<name>/fix (NavSatFix, WGS-84 degrees,
+    ellipsoidal height, the CSV's sigmas as an ENU diagonal covariance) row for row with the CSV,
+    the datum latched once (its stored QoS TRANSIENT_LOCAL, as ros2 bag play reads it), the MCAP
+    header naming dpos, and tracks.geojson (RFC 7946) one point per second."""
+    from importlib.metadata import version
+
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import QosDurability
+
+    csv_rows = np.loadtxt(products / "ant_r.csv", delimiter=",", skiprows=1, max_rows=3000)
+    header = (products / "ant_r.csv").open().readline().strip().split(",")
+    col = {name: k for k, name in enumerate(header)}
+    with AnyReader([products / "antennas"]) as r:
+        qos = {c.topic: c.ext.offered_qos_profiles[0] for c in r.connections}
+        fixes, datums = [], []
+        for c, t, data in r.messages():
+            if c.topic == "/antenna/ant_r/fix" and len(fixes) < 3000:
+                fixes.append((t, r.deserialize(data, c.msgtype)))
+            elif c.topic == "/dpos/datum":
+                datums.append(r.deserialize(data, c.msgtype))
+    assert qos["/dpos/datum"].durability == QosDurability.TRANSIENT_LOCAL and qos["/antenna/ant_r/fix"].durability == QosDurability.VOLATILE
+    assert len(datums) == 1 and datums[0].header.frame_id == "enu"
+    t_fix = np.array([t for t, _ in fixes]) * 1e-9
+    lat = np.array([m.latitude for _, m in fixes])
+    cov = np.array([m.position_covariance for _, m in fixes])
+    np.testing.assert_allclose(t_fix, csv_rows[:, col["stamp_s"]], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(lat, csv_rows[:, col["lat_deg"]], rtol=0, atol=1e-9)  # (the CSV's 10 decimals)
+    np.testing.assert_allclose(np.sqrt(cov[:, 4]), csv_rows[:, col["sigma_north_m"]], rtol=1e-4, atol=0)  # north (the CSV: 4 decimals of an exponent)
+    np.testing.assert_allclose(np.sqrt(cov[:, 0]), csv_rows[:, col["sigma_east_m"]], rtol=1e-4, atol=0)  # east
+    assert all(m.header.frame_id == "antenna_ant_r" and m.position_covariance_type == 2 for _, m in fixes[:10])
+    with (products / "antennas" / "antennas.mcap").open("rb") as f:
+        assert make_reader(f).get_header().library == f"dpos_ros-{version('dpos_ros')}"
+    doc = json.loads((products / "tracks.geojson").read_text())
+    (feat,) = doc["features"]
+    assert feat["properties"]["antenna"] == "ant_r" and feat["geometry"]["type"] == "LineString"
+    assert len(feat["geometry"]["coordinates"]) == 450  # 450 s, one point a second
+    lon0, lat0, h0 = feat["geometry"]["coordinates"][0]
+    assert lat0 == pytest.approx(csv_rows[0, col["lat_deg"]], abs=1e-9) and lon0 == pytest.approx(csv_rows[0, col["lon_deg"]], abs=1e-9)
 
 
 def test_metrics_schema_and_accuracy(products: Path) -> None:

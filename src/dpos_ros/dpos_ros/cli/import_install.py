@@ -42,7 +42,6 @@ from dpos_core.imports.timescales import to_gpst_ns
 from dpos_core.units import DEG
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.io.bag import typestore
 from dpos_ros.io.streams import TopicStream
 
 _NS = 1_000_000_000
@@ -143,22 +142,6 @@ def _rates_at(t_s: np.ndarray, C_nb: np.ndarray) -> np.ndarray:
     return np.column_stack([np.interp(t_s, mid, w[:, j]) for j in range(3)])
 
 
-def datum_blob(t_ns: int, datum_llh: np.ndarray) -> bytes:
-    """``/dpos/datum`` serialized without the ROS client library (the offline path loads no rclpy):
-    the fields of :func:`dpos_ros.contract.conversions.datum_msg` - frame ``enu``, status GBAS_FIX,
-    service GPS, degrees and ellipsoidal height, covariance unknown - through rosbags' typestore
-    (the test compares the bytes with the rclpy message's)."""
-    ts = typestore()
-    NavSatFix, NavSatStatus = ts.types[T.NAVSATFIX], ts.types["sensor_msgs/msg/NavSatStatus"]
-    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
-    sec, nsec = divmod(int(t_ns), _NS)
-    msg = NavSatFix(header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=cv.WORLD_FRAME),
-                    status=NavSatStatus(status=NavSatStatus.STATUS_GBAS_FIX, service=NavSatStatus.SERVICE_GPS),
-                    latitude=float(np.rad2deg(datum_llh[0])), longitude=float(np.rad2deg(datum_llh[1])), altitude=float(datum_llh[2]),
-                    position_covariance=np.zeros(9), position_covariance_type=NavSatFix.COVARIANCE_TYPE_UNKNOWN)
-    return bytes(ts.serialize_cdr(msg, T.NAVSATFIX))
-
-
 def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list[TopicStream], dict[str, Any]]:
     """/dpos/datum (the first point) and /master/nav (conversions.odometry_values_cov); the sigma sources."""
     n = len(nav)
@@ -181,7 +164,7 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
                                   pos_sig[:, :, None] ** 2 * np.eye(3), att_cov, vel_sig[:, :, None] ** 2 * np.eye(3))
     t_ns = nav.t_ns.copy()
     streams = [
-        TopicStream(T.DATUM, T.NAVSATFIX, t_ns[:1].copy(), blobs=(datum_blob(t0, datum),), qos="datum"),
+        TopicStream(T.DATUM, T.NAVSATFIX, t_ns[:1].copy(), blobs=(cv.datum_blob(t0, datum),), qos="datum"),
         TopicStream(T.MASTER_NAV, T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.MASTER_FRAME, t_ns, vals), qos="nav"),
     ]
     return streams, sources

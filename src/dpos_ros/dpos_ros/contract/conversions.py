@@ -18,9 +18,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from rosbags.typesys import Stores, get_typestore
 
 from dpos_core import earth
 from dpos_core.attitude import dcm_to_quat, quat_to_dcm
@@ -232,6 +234,28 @@ def gnss_vel_msg(t_ns: int, vel_n_mps: FloatArray, vel_sigma_mps: FloatArray):
 def datum_msg(t_ns: int, datum_llh: FloatArray):
     """``/dpos/datum``: the session datum as a NavSatFix (frame ``enu``, no covariance)."""
     return navsatfix_msg(t_ns, WORLD_FRAME, datum_llh, None)
+
+
+_TYPESTORE: Any = None
+
+
+def datum_blob(t_ns: int, datum_llh: FloatArray) -> bytes:
+    """``/dpos/datum`` serialized without the ROS client library (the offline paths load no rclpy):
+    the fields of :func:`datum_msg` - frame ``enu``, status GBAS_FIX, service GPS, degrees and
+    ellipsoidal height, covariance unknown - through rosbags' typestore (test_cdr compares the
+    bytes with the rclpy message's)."""
+    global _TYPESTORE
+    if _TYPESTORE is None:
+        _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+    ts = _TYPESTORE
+    NavSatFix, NavSatStatus = ts.types["sensor_msgs/msg/NavSatFix"], ts.types["sensor_msgs/msg/NavSatStatus"]
+    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    sec, nsec = divmod(int(t_ns), 1_000_000_000)
+    msg = NavSatFix(header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=WORLD_FRAME),
+                    status=NavSatStatus(status=NavSatStatus.STATUS_GBAS_FIX, service=NavSatStatus.SERVICE_GPS),
+                    latitude=float(np.rad2deg(datum_llh[0])), longitude=float(np.rad2deg(datum_llh[1])), altitude=float(datum_llh[2]),
+                    position_covariance=np.zeros(9), position_covariance_type=NavSatFix.COVARIANCE_TYPE_UNKNOWN)
+    return bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/NavSatFix"))
 
 
 def datum_from_msg(msg) -> FloatArray:

@@ -76,6 +76,11 @@ def antenna_odom(name: str) -> str:
     return f"/antenna/{name}/odom"
 
 
+def antenna_fix(name: str) -> str:
+    """``/antenna/<name>/fix``: one antenna's smoothed position as sensor_msgs/NavSatFix (products' bag)."""
+    return f"/antenna/{name}/fix"
+
+
 def truth_sub_imu(name: str) -> str:
     """``/truth/sub_imu/<name>`` (simulated devices only)."""
     return f"/truth/sub_imu/{name}"

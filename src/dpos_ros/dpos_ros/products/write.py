@@ -2,8 +2,11 @@
 or not at all.  ``output_dir/<session id>/``:
 
   ``antennas/``            rosbag2 (MCAP) with ``/antenna/<name>/odom`` (pose in ``enu``, twist in the
-                           antenna frame, covariances from the smoother)
+                           antenna frame, covariances from the smoother), ``/antenna/<name>/fix``
+                           (sensor_msgs/NavSatFix: WGS-84, ENU sigmas) and the latched ``/dpos/datum``;
+                           each topic's QoS stored (a replay latches the datum again)
   ``<antenna>.csv``        time, lat, lon, h, vE, vN, vU, heading, pitch, roll and their 1-sigma
+  ``tracks.geojson``       one track per antenna a GIS opens (:mod:`dpos_ros.products.track`)
   ``metrics.json``         when truth is in the recording: RMSE/STD ([Gong2018] eq. 21) per antenna
   ``report.md`` + PNGs     the papers' table layout and error plots (:mod:`dpos_ros.products.report`)
   ``qc.md``, ``qc/``       quality control without truth, every session (:mod:`dpos_ros.products.qc`)
@@ -45,6 +48,7 @@ from .antenna import AntennaSolution
 from .evaluate import write_evaluation
 from .qc import MAX_PLOT_POINTS, json_safe, plot_qc, qc_dir, qc_md
 from .rows import RowBlock, RowStore, StampCursor, drained, nav_of, release_memory
+from .track import TrackWriter
 
 
 def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
@@ -151,12 +155,28 @@ def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, Antenn
         for name, a in antennas.items():
             f = files.get(name)
             summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
+    _write_tracks(out / "tracks.geojson", sess, est)
     doc = status_doc(sess, antennas, method, timing, set(est))
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))  # never reads truth
     if evaluation:  # against the truth (dpos_ros.products.evaluate)
         write_evaluation(out, sess, evaluation, method, timing, pool)
     doc["qc"] = json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
+
+
+#: one point of the antennas' GeoJSON tracks per this many seconds
+TRACK_INTERVAL_S = 1.0
+
+
+def _write_tracks(path: Path, sess: RecordedSession, est: dict[str, AntennaSolution]) -> None:
+    """``tracks.geojson``: each estimated antenna's track (:class:`~dpos_ros.products.track.TrackWriter`),
+    its rows read a block at a time (stamps and positions only)."""
+    w = TrackWriter(TRACK_INTERVAL_S)
+    for name, a in est.items():
+        assert a.rows is not None
+        for i0 in range(0, a.rows.n, R.ROW_BLOCK):
+            w.add(name, antenna_stamps_ns(sess, a.rows.read("t_s", i0, i0 + R.ROW_BLOCK)), a.rows.read("llh", i0, i0 + R.ROW_BLOCK))
+    w.write(path)
 
 
 def _antenna_files(out: Path, a: AntennaSolution, t0_ns: int, method: str) -> dict:
@@ -222,13 +242,37 @@ def bag_ranges(est: dict[str, AntennaSolution], batch_s: float | None = None) ->
 def antenna_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution], batch_s: float | None = None):
     """The ``/antenna/<name>/odom`` streams (:func:`antenna_stream`) of the estimated antennas
     ``est``, :data:`BAG_BATCH_S` of poses at a time (each batch a list with every antenna's
-    stream, empty where it has no row; for :func:`dpos_ros.io.bag.write_stream_batches`)."""
+    stream, empty where it has no row): what transfer_align_node publishes."""
+    for ranges in bag_ranges(est, batch_s):
+        yield [antenna_stream(sess, name, a.block(*ranges[name])) for name, a in est.items()]
+
+
+def bag_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution], batch_s: float | None = None):
+    """The antenna bag's batches (:func:`bag_channels`; for :func:`dpos_ros.io.bag.write_stream_batches`)."""
     for ranges in bag_ranges(est, batch_s):
         yield _bag_streams(sess, est, ranges)
 
 
+def bag_channels(est: dict[str, AntennaSolution]) -> list[tuple[str, str]]:
+    """The antenna bag's channels, in the order of every batch's streams: each antenna's
+    ``/antenna/<name>/odom`` and ``/antenna/<name>/fix``, then ``/dpos/datum``."""
+    return [ch for name in est for ch in ((T.antenna_odom(name), T.ODOMETRY), (T.antenna_fix(name), T.NAVSATFIX))] + [(T.DATUM, T.NAVSATFIX)]
+
+
 def _bag_streams(sess: RecordedSession, est: dict[str, AntennaSolution], ranges: dict[str, tuple[int, int]]) -> list:
-    return [antenna_stream(sess, name, a.block(*ranges[name])) for name, a in est.items()]
+    """One batch's streams (:func:`bag_channels`' order); the datum in the batch that holds the first
+    rows (stamped at the first antenna row), an empty stream in the others."""
+    out: list[TopicStream] = []
+    first_ns: list[int] = []
+    for name, a in est.items():
+        b = a.block(*ranges[name])
+        out += antenna_streams(sess, name, b)
+        if ranges[name][0] == 0 and b.traj.t_s.size:
+            first_ns.append(int(antenna_stamps_ns(sess, b.traj.t_s[:1])[0]))
+    t_datum = np.array([min(first_ns)] if first_ns and all(r[0] == 0 for r in ranges.values()) else [], dtype=np.int64)
+    out.append(TopicStream(T.DATUM, T.NAVSATFIX, t_datum, blobs=tuple(cv.datum_blob(int(t), sess.datum_llh) for t in t_datum),
+                           qos="datum"))
+    return out
 
 
 def encode_bag_batch(sess: RecordedSession, est: dict[str, AntennaSolution], ranges: dict[str, tuple[int, int]],
@@ -253,9 +297,9 @@ def _write_bag(path: Path, sess: RecordedSession, est: dict[str, AntennaSolution
     """The antenna bag of ``est``: batches made and compressed on ``pool`` (:data:`BAG_IN_FLIGHT` at
     a time, appended in order: the same file as made here) or in this process."""
     if pool is None:
-        write_stream_batches(path, antenna_stream_batches(sess, est), custom_data=custom_data)
+        write_stream_batches(path, bag_stream_batches(sess, est), custom_data=custom_data)
         return
-    w = new_writer(path, [(T.antenna_odom(name), T.ODOMETRY) for name in est], custom_data)
+    w = new_writer(path, bag_channels(est), custom_data)
     s_l, e_l = _light(sess, est)
     pending: deque[cf.Future] = deque()
     try:
@@ -285,6 +329,15 @@ def antenna_stream(sess: RecordedSession, name: str, b: RowBlock) -> TopicStream
     t_ns = antenna_stamps_ns(sess, b.traj.t_s)
     vals = cv.antenna_odometry_values(b.traj.llh, b.traj.vel_n_mps, b.traj.C_nb, b.sigma, sess.datum_llh)
     return TopicStream(T.antenna_odom(name), T.ODOMETRY, t_ns, rows=cv.odometry_rows(cv.WORLD_FRAME, cv.antenna_frame(name), t_ns, vals), qos="nav")
+
+
+def antenna_streams(sess: RecordedSession, name: str, b: RowBlock) -> list[TopicStream]:
+    """An antenna's two streams of rows ``b``: :func:`antenna_stream` and ``/antenna/<name>/fix``
+    (sensor_msgs/NavSatFix: WGS-84 latitude / longitude [deg], ellipsoidal height, the rows'
+    ENU position sigmas as a diagonal covariance; frame ``antenna_<name>``)."""
+    t_ns = antenna_stamps_ns(sess, b.traj.t_s)
+    fix = cv.navsatfix_rows(cv.antenna_frame(name), t_ns, b.traj.llh, b.sigma[:, 6:9])
+    return [antenna_stream(sess, name, b), TopicStream(T.antenna_fix(name), T.NAVSATFIX, t_ns, rows=fix, qos="nav")]
 
 
 def csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None) -> FloatArray:
