@@ -25,18 +25,20 @@ from .states import AlignmentState
 
 
 def initial_state(imu: ImuSeries, gnss: GnssSeries, min_course_speed_mps: float = 5.0, level_window_s: float = 1.0,
-                  heading_rad: float | None = None, lever_arm_m: FloatArray | None = None) -> NavState:
+                  heading_rad: float | None = None, lever_arm_m: FloatArray | None = None,
+                  gnss_time_offset_s: float = 0.0) -> NavState:
     """The initial state of a recording, by pos_master_node's live rule (``device: ros``,
     ``alignment: ifa``; its module docstring): at the first fix whose ground speed is at least
     ``min_course_speed_mps`` (or any fix when ``heading_rad`` is given) and after which IMU data
     follow, stamped at the fix: velocity = the fix's; heading = the course over ground (below the
     speed: ``heading_rad``); pitch and roll levelled from the mean specific force over the
     ``level_window_s`` before the fix (0 without samples there); position = the fix moved from the
-    antenna to the IMU by ``lever_arm_m`` with that attitude.  The bank of heading hypotheses
-    covers any heading.  Raises ValueError when no fix qualifies."""
+    antenna to the IMU by ``lever_arm_m`` with that attitude.  The fix's stamp is taken onto the
+    IMU's clock first (minus ``gnss_time_offset_s``, as the filter takes it).  The bank of heading
+    hypotheses covers any heading.  Raises ValueError when no fix qualifies."""
     t_imu = np.asarray(imu.t_s, dtype=float)
     for j in range(len(gnss.t_s)):
-        t_fix = float(gnss.t_s[j])
+        t_fix = float(gnss.t_s[j]) - float(gnss_time_offset_s)
         if not (t_imu[0] <= t_fix < t_imu[-1]):
             continue
         v = np.asarray(gnss.vel_n_mps[j], dtype=float)
@@ -134,9 +136,14 @@ class Reference:
     pos_sigma_m: FloatArray
 
     @classmethod
-    def from_gnss(cls, g: GnssSeries) -> Reference:
-        return cls(np.asarray(g.t_s, dtype=float), np.asarray(g.llh, dtype=float), np.asarray(g.vel_n_mps, dtype=float),
-                   np.asarray(g.pos_sigma_m, dtype=float))
+    def from_gnss(cls, g: GnssSeries, gnss_time_offset_s: float = 0.0) -> Reference:
+        """A GNSS solution (stamped on the receiver's clock) as a reference on the IMU's clock, where
+        the navigation is: each stamp minus ``gnss_time_offset_s`` (GNSS stamp minus the IMU time of
+        the same instant, the filter's own convention, :func:`~dpos_core.ifa.pipeline.fix_at`).
+        Scoring against the unshifted stamps would charge a correctly declared offset ``v * offset``
+        of error and reward a wrong one (the navigation then follows the mis-stamped fixes)."""
+        return cls(np.asarray(g.t_s, dtype=float) - float(gnss_time_offset_s), np.asarray(g.llh, dtype=float),
+                   np.asarray(g.vel_n_mps, dtype=float), np.asarray(g.pos_sigma_m, dtype=float))
 
 
 @dataclass
@@ -172,7 +179,8 @@ def compare(result: IfaResult, ref: Reference, outage_s: tuple[float, float] | N
 
     Args:
         result: :func:`~dpos_core.ifa.pipeline.run`'s result (navigation at the IMU rate).
-        ref: the reference solution on the same clock.
+        ref: the reference solution on the IMU's clock (:meth:`Reference.from_gnss` with the run's
+            ``gnss_time_offset_s``).
         outage_s: [start, end) of the GNSS outage the aligner had (phases before / during /
             after), None for none.
         moving_mps: heading minus course is taken where the reference speed is at least this.
