@@ -21,7 +21,8 @@ is indistinguishable from a tilt for the IMU (its variance is zero and ``|f|`` c
 ``a^2 / 2g``): only the GNSS speed tells it from rest.
 
 **Level at the start** (:func:`start_level`): at rest, pitch and roll from the mean specific force
-(the tilt is then only the accelerometer bias's, ``asin(b / g)``).  In motion the mean specific
+(the tilt is then only the accelerometer bias's, ``asin(b / g)`` per axis; the level sigma is
+``2 asin(b / g)``, the fine phase's level prior, ``IfaFilterConfig.fine_level_sigma_rad``).  In motion the mean specific
 force is ``C_bn (a_n + g_up)``: levelling it raw tilts the result by ``|a_h| / g`` (a 2 m/s^2 turn:
 11.5 deg).  The vehicle's acceleration ``a_n`` is taken from the GNSS velocities (the fix's minus
 the previous fix's over their interval, at most 1.5 windows) and removed to first order (its pitch and roll as seen in
@@ -94,8 +95,8 @@ def detect_standstill(omega_radps: FloatArray, f_mps2: FloatArray, imu: ImuError
 
 @dataclass(frozen=True)
 class StartLevel:
-    """Pitch and roll [rad] at the start, their 1 sigma [rad] (None: at rest, the filter's own
-    ``level_sigma_deg`` stands), how they were found (``rest``, ``compensated``, ``raw``), and the
+    """Pitch and roll [rad] at the start, their 1 sigma [rad] (the filter's ``level_sigma_deg`` is
+    widened to it, never narrowed), how they were found (``rest``, ``compensated``, ``raw``), and the
     standstill test of the window (None without an IMU model)."""
 
     pitch_rad: float
@@ -121,8 +122,8 @@ def start_level(imu: ImuSeries, gnss: GnssSeries, j: int, t_fix_s: float, headin
     if imu_model is not None:
         dt = float(np.median(np.diff(t[win]))) if np.count_nonzero(win) > 2 else float(window_s)
         test = detect_standstill(om, fb, imu_model, dt, v)
-        if test.at_rest:
-            return StartLevel(pitch, roll, None, "rest", test)
+        if test.at_rest:  # the tilt the accelerometer bias leaves (IfaFilterConfig.fine_level_sigma_rad's 2 asin(b / g))
+            return StartLevel(pitch, roll, 2.0 * float(np.arcsin(min(imu_model.accel_bias_ug * 1e-6, 0.5))), "rest", test)
     # in motion (or not known to be at rest): the vehicle's acceleration from the GNSS velocities
     if j >= 1:
         dt_g = float(gnss.t_s[j] - gnss.t_s[j - 1])
