@@ -110,3 +110,36 @@ def test_outages_in_flight_against_the_withheld_fixes(thor):
     # take-off, before either is aligned in heading
     assert ends[1] < 90.1 and ends[2] < 127.2, ends
     assert max(afters) < 25.0 and afters[2] < 2.0, afters
+
+
+def test_started_in_flight_with_a_30_deg_heading_error(thor):
+    """Started at the first fix after 300 s (flying, 20-26 m/s) with the onboard heading + 30 deg:
+    the heading comes within 2 deg of the onboard EKF's and stays there (the peer: after 4 s,
+    staying from 9 s; [12 s with its fixed-wing configuration])."""
+    imu, gnss, t, onboard, _, _ = thor
+    m = gnss.t_s >= 300.0
+    g = _sel(gnss, m)
+    j = int(np.searchsorted(t, g.t_s[0]))
+    init, _ = start(imu, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto",
+                    imu_model=imu_model({"preset": "automotive_mems"}, "thor_flight75"))
+    c = IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"),
+                        gnss_pos_sigma_m=(3.0, 3.0, 6.0), gnss_vel_sigma_mps=(0.5, 0.5, 1.0), level_sigma_deg=5.8)  # a level from flight
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = run(imu, g, np.zeros(3), c, "add2", init)
+    k = res.t_s <= 577.0
+    d = np.degrees(hpr_from_C_nb(res.C_nb[k]))[:, 0] - onboard[np.searchsorted(t, res.t_s[k]), 0]
+    d = (d + 180.0) % 360.0 - 180.0
+    tt = res.t_s[k] - init.t_s
+    first = float(tt[np.flatnonzero(np.abs(d) < 2.0)[0]])
+
+    def stays(lim: float) -> float:
+        out_of = np.flatnonzero(np.abs(d) >= lim)
+        return float(tt[out_of[-1] + 1]) if out_of.size and out_of[-1] + 1 < tt.size else float(tt[0])
+
+    print(f"30 deg start at {init.t_s:.1f} s: within 2 deg of onboard after {first:.1f} s, stays within 2 deg from "
+          f"{stays(2.0):.1f} s, within 5 deg from {stays(5.0):.1f} s; aligned "
+          f"{None if res.aligned_t_s is None else round(res.aligned_t_s - init.t_s, 1)} s after the start")
+    # measured: 7.0 s; staying within 2 deg of a comparison that is itself no truth (std 1.9 deg in
+    # the all-GPS run) only from 175 s
+    assert res.aligned_t_s is not None and first < 15.0 and stays(5.0) < 120.0
