@@ -3,7 +3,7 @@ Minnesota "Thor", 50 Hz MEMS IMU, 1 Hz GPS, the onboard 15-state EKF as a compar
 truth; MIT licence, /work/shared/data/real/thor_flight75/README.md).  The recording is not in the
 repository yet: the test skips without it (``DPOS_THOR_FLIGHT75`` names the .mat file).
 
-The run as #31 sets it (the peer's settings): every new GPS fix from the first at 22 s, sigmas
+The run as #31 sets it (the peer's settings): the IMU samples with the onboard biases added back, every new GPS fix from the first at 22 s, sigmas
 3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet), the start
 at the first fix on the ground (``start(level="auto")``); attitude scored 271-577 s against the
 onboard EKF; three 30 s outages 200, 350 and 500 s after the first fix, scored against the
@@ -37,9 +37,12 @@ def _load():
 
     d = scipy.io.loadmat(MAT, squeeze_me=True, struct_as_record=False)["flight_data"]
     t = np.asarray(d.time, dtype=float)
-    # body FRD -> FLU; NED -> ENU
-    om = np.column_stack([d.p, -np.asarray(d.q), -np.asarray(d.r)]).astype(float)
-    f = np.column_stack([d.ax, -np.asarray(d.ay), -np.asarray(d.az)]).astype(float)
+    # the logged rates and specific forces have the onboard EKF's bias estimates removed: added back
+    # (as the peer's loader does), so that nothing of the onboard solution enters; body FRD -> FLU
+    raw = {k: np.asarray(getattr(d, k), dtype=float) + np.asarray(getattr(d, k + "_bias"), dtype=float)
+           for k in ("p", "q", "r", "ax", "ay", "az")}
+    om = np.column_stack([raw["p"], -raw["q"], -raw["r"]])
+    f = np.column_stack([raw["ax"], -raw["ay"], -raw["az"]])
     k = np.flatnonzero(np.r_[False, np.diff(np.asarray(d.GPS_TOW, dtype=float)) > 0] & (t > 22.0))  # each new fix
     llh = np.column_stack([np.radians(d.lat[k]), np.radians(d.lon[k]), np.asarray(d.alt, dtype=float)[k]])
     vel = np.column_stack([d.ve[k], d.vn[k], -np.asarray(d.vd, dtype=float)[k]])
@@ -89,7 +92,7 @@ def test_attitude_against_the_onboard_ekf(thor):
         print(f"{name}: aligned at {res.aligned_t_s:.1f} s; heading, pitch, roll minus onboard: mean "
               f"{np.round(d.mean(axis=0), 2)}, std {np.round(d.std(axis=0), 2)}, p95 |.| {np.round(p95, 2)} deg")
         # the peer (NavEKF15, default): heading +11.74 / 1.63 / 14.33, pitch 0.00 / 0.47 / 0.93, roll -1.22 / 0.92 / 2.62
-        assert p95[0] < 8.0 and p95[1] < 1.5 and p95[2] < 2.5, p95
+        assert p95[0] < 4.0 and p95[1] < 1.5 and p95[2] < 3.0, p95
 
 
 def test_outages_in_flight_against_the_withheld_fixes(thor):
@@ -106,10 +109,9 @@ def test_outages_in_flight_against_the_withheld_fixes(thor):
         print(f"outage {a:.0f}-{b:.0f} s: at its end {end:.1f} m, max in it {e[tt < b].max():.1f} m, 10 s after {after:.2f} m")
         ends.append(end)
         afters.append(after)
-    # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m; the first outage starts 11 s after
-    # take-off, before either is aligned in heading
-    assert ends[1] < 90.1 and ends[2] < 127.2, ends
-    assert max(afters) < 25.0 and afters[2] < 2.0, afters
+    # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m (docs/ifa.md has ours beside)
+    assert ends[0] < 150.0 and ends[1] < 150.0 and ends[2] < 127.2, ends
+    assert max(afters) < 6.0, afters
 
 
 def test_started_in_flight_with_a_30_deg_heading_error(thor):
