@@ -39,7 +39,8 @@ class IfaConfig:
         gnss_pos_sigma_m, gnss_vel_sigma_mps: nominal GNSS noise (E, N, U) of the filter's R.
         use_reported_sigma: R from each fix's own covariance instead of the nominal sigmas.
         aligned_heading_sigma_deg: heading 1 sigma below which ALIGNED may be declared (with a
-            consistent innovation window).
+            consistent innovation window); a floor: the core takes at least what the IMU's grade
+            reaches (``IfaFilterConfig.aligned_heading_threshold_rad``).
         heading_sigma_deg: prior heading 1 sigma [deg] (large: any initial heading).
         vertical: 15 states with the vertical channel (True) or the paper's 13.
         imu_preset: main IMU model, a grade preset; '' = the aircraft file's ``master_imu``, else

@@ -158,7 +158,9 @@ class IfaFilterConfig:
         heading_hypotheses: filters in the bank (initial heading + k 360/M deg); 1 = a single filter.
         hypothesis_prune_log: drop a hypothesis whose accumulated innovation log-likelihood is
             this far below the best (pipeline.InFlightAligner).
-        aligned_heading_sigma_deg: heading 1 sigma below which the alignment may be declared.
+        aligned_heading_sigma_deg: the heading 1 sigma required for ALIGNED (a floor: the
+            criterion uses the larger of it and what the unit's grade can reach,
+            :attr:`aligned_heading_threshold_rad`).
         nis_quantile: the windowed mean NIS must stay below this chi-square quantile.
         max_fix_bridge_s: a fix may lie this far [s] from the navigation time (before or after):
             real GNSS fixes fall anywhere between IMU samples (and samples get dropped), the
@@ -272,6 +274,23 @@ class IfaFilterConfig:
         MEMS filter overconfident: attitude NEES 20-80 instead of 3 on scenario mems_vehicle)."""
         tilt = 2.0 * float(np.arcsin(min(self.imu.accel_bias_ug * 1e-6, 0.5)))
         return max(self.fine_level_sigma_deg * DEG, tilt)
+
+    @property
+    def reachable_heading_sigma_rad(self) -> float:
+        """The heading 1 sigma the unit's grade can reach [rad]: the heading is seen through the
+        horizontal accelerations, where a heading error ``psi`` is a specific-force error ``a_h psi``
+        that the accelerometer bias ``b`` (turn-on, datasheet) can mimic until manoeuvres separate
+        them; with manoeuvres of ``a_h = g / 2`` (turns and accelerations of vehicles and aircraft
+        are 0.1-0.5 g) ``psi = b / a_h``, i.e. ``2 asin(b / g)``: 2.3 deg for a 20 mg automotive
+        MEMS unit, 0.11 deg for a 1 mg tactical one, 0.003 deg for a 25 ug navigation-grade one."""
+        return 2.0 * float(np.arcsin(min(self.imu.accel_bias_ug * 1e-6, 0.5)))
+
+    @property
+    def aligned_heading_threshold_rad(self) -> float:
+        """ALIGNED's heading-sigma threshold [rad]: ``max(aligned_heading_sigma_deg,
+        reachable_heading_sigma_rad)`` (a MEMS unit's heading sigma never reaches the 0.1 deg a
+        navigation-grade unit does: with the fixed 0.1 deg a real MEMS run never aligned, #31)."""
+        return max(self.aligned_heading_sigma_deg * DEG, self.reachable_heading_sigma_rad)
 
     @property
     def axis_states(self) -> bool:

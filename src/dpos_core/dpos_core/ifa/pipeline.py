@@ -24,7 +24,8 @@ innovation consistency over the last N epochs are checked.  The normalized innov
 ``NIS_k = nu_k^T P_y,k^-1 nu_k`` uses the filter's *model* innovation covariance (nominal R), so
 it detects GNSS noise the model does not explain; its window mean over N epochs is
 ``chi^2(N p) / N`` when consistent.  The alignment is declared (and latched) at the first epoch
-with ``sigma_heading < cfg.aligned_heading_sigma_deg`` and window-mean NIS below the
+with ``sigma_heading < cfg.aligned_heading_threshold_rad`` (the larger of
+``aligned_heading_sigma_deg`` and the heading sigma the IMU's grade can reach) and window-mean NIS below the
 ``cfg.nis_quantile`` quantile (window full).  Status per epoch (:class:`~.states.AlignmentState`):
 ALIGNING (0), ALIGNED (1), DEGRADED (2: aligned, but the current window is inconsistent).
 
@@ -170,6 +171,7 @@ class _Engine:
         self.P = P0  # covariance form (AEKF)
         self.window = noise_window(cfg)  # adaptation (ADD2 / AEKF)
         self.nis_hist: list[float] = []
+        self.sig_h_hist: list[float] = []  #: heading 1 sigma [rad] of the last ``window`` epochs (ALIGNED)
         self.nis_used_hist: list[float] = []  #: NIS with r_ceiling x R (divergence), last ``window`` epochs
         self.last_fix_t: float | None = None
         self.status = AlignmentState.ALIGNING
@@ -232,11 +234,12 @@ class _Engine:
         :class:`~dpos_core.errors.NumericalFailure` (previous state restored) when the update
         fails numerically (a covariance beyond repair, a singular matrix, a non-finite state)."""
         self.check(fix)
-        saved = (self.x.copy(), self.S.copy(), self.P.copy(), self.window.copy(), list(self.nis_hist), list(self.nis_used_hist))
+        saved = (self.x.copy(), self.S.copy(), self.P.copy(), self.window.copy(), list(self.nis_hist), list(self.nis_used_hist),
+                 list(self.sig_h_hist))
         try:
             return self._epoch(fix)
         except (NumericalFailure, np.linalg.LinAlgError, FloatingPointError) as e:
-            self.x, self.S, self.P, self.window, self.nis_hist, self.nis_used_hist = saved
+            self.x, self.S, self.P, self.window, self.nis_hist, self.nis_used_hist, self.sig_h_hist = saved
             raise NumericalFailure(f"GNSS fix at t={fix.t_s}: the {self.method.upper()} update failed numerically "
                                    f"({type(e).__name__}: {e}); the previous state is restored", what="IFA filter", t_s=fix.t_s) from e
 
@@ -325,7 +328,9 @@ class _Engine:
         sig_h = float(np.sqrt(P_hat[m.phi_index][:, m.phi_index][2, 2]))
         full = len(self.nis_hist) >= cfg.window
         consistent = full and nis_w < self._nis_limit
-        if not self.aligned and self.may_align and consistent and sig_h < cfg.aligned_heading_sigma_deg * DEG:
+        self.sig_h_hist = (self.sig_h_hist + [sig_h])[-cfg.window:]
+        settled = len(self.sig_h_hist) >= cfg.window and max(self.sig_h_hist) < cfg.aligned_heading_threshold_rad
+        if not self.aligned and self.may_align and consistent and settled:
             self.aligned_t_s = fix.t_s
             m.feed_biases = True
         if full and not consistent:

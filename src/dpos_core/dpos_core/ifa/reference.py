@@ -16,27 +16,42 @@ from dpos_core.units import DEG, FloatArray
 
 from .. import earth
 from ..attitude import attitude_error, quat_to_dcm
+from ..config.sensors import ImuErrorModel
 from ..frames import hpr_from_C_nb
 from ..series import GnssSeries, ImuSeries
 from ..strapdown import NavState
 from .mechanization import level_from_specific_force
 from .pipeline import IfaResult
+from .standstill import StartLevel, start_level
 from .states import AlignmentState
 
 
 def initial_state(imu: ImuSeries, gnss: GnssSeries, min_course_speed_mps: float = 5.0, level_window_s: float = 1.0,
-                  heading_rad: float | None = None, lever_arm_m: FloatArray | None = None) -> NavState:
+                  heading_rad: float | None = None, lever_arm_m: FloatArray | None = None,
+                  gnss_time_offset_s: float = 0.0) -> NavState:
+    """:func:`start` with pos_master_node's raw level (its docstring); the state alone."""
+    return start(imu, gnss, min_course_speed_mps, level_window_s, heading_rad, lever_arm_m, gnss_time_offset_s)[0]
+
+
+def start(imu: ImuSeries, gnss: GnssSeries, min_course_speed_mps: float = 5.0, level_window_s: float = 1.0,
+          heading_rad: float | None = None, lever_arm_m: FloatArray | None = None, gnss_time_offset_s: float = 0.0,
+          level: str = "raw", imu_model: ImuErrorModel | None = None) -> tuple[NavState, StartLevel | None]:
     """The initial state of a recording, by pos_master_node's live rule (``device: ros``,
     ``alignment: ifa``; its module docstring): at the first fix whose ground speed is at least
     ``min_course_speed_mps`` (or any fix when ``heading_rad`` is given) and after which IMU data
     follow, stamped at the fix: velocity = the fix's; heading = the course over ground (below the
     speed: ``heading_rad``); pitch and roll levelled from the mean specific force over the
-    ``level_window_s`` before the fix (0 without samples there); position = the fix moved from the
-    antenna to the IMU by ``lever_arm_m`` with that attitude.  The bank of heading hypotheses
-    covers any heading.  Raises ValueError when no fix qualifies."""
+    ``level_window_s`` before the fix (0 without samples there): ``level="raw"`` as it is
+    (pos_master_node's live rule; the second value returned is None), ``level="auto"`` at rest
+    only, in motion with the vehicle's GNSS acceleration removed and a level sigma for what is left
+    (:func:`~dpos_core.ifa.standstill.start_level` with ``imu_model``: the standstill test;
+    returned as the second value); position = the fix moved from the
+    antenna to the IMU by ``lever_arm_m`` with that attitude.  The fix's stamp is taken onto the
+    IMU's clock first (minus ``gnss_time_offset_s``, as the filter takes it).  The bank of heading
+    hypotheses covers any heading.  Raises ValueError when no fix qualifies."""
     t_imu = np.asarray(imu.t_s, dtype=float)
     for j in range(len(gnss.t_s)):
-        t_fix = float(gnss.t_s[j])
+        t_fix = float(gnss.t_s[j]) - float(gnss_time_offset_s)
         if not (t_imu[0] <= t_fix < t_imu[-1]):
             continue
         v = np.asarray(gnss.vel_n_mps[j], dtype=float)
@@ -46,13 +61,20 @@ def initial_state(imu: ImuSeries, gnss: GnssSeries, min_course_speed_mps: float 
             heading = float(heading_rad)
         else:
             continue
-        win = (t_imu > t_fix - level_window_s) & (t_imu <= t_fix)
-        pitch, roll = level_from_specific_force(np.mean(np.asarray(imu.f_mps2)[win], axis=0)) if np.any(win) else (0.0, 0.0)
+        lv = None
+        if level == "auto":
+            lv = start_level(imu, gnss, j, t_fix, heading, level_window_s, imu_model)
+            pitch, roll = lv.pitch_rad, lv.roll_rad
+        elif level == "raw":
+            win = (t_imu > t_fix - level_window_s) & (t_imu <= t_fix)
+            pitch, roll = level_from_specific_force(np.mean(np.asarray(imu.f_mps2)[win], axis=0)) if np.any(win) else (0.0, 0.0)
+        else:
+            raise ValueError(f"level must be 'raw' or 'auto', got {level!r}")
         s = NavState.from_hpr(t_fix, [heading, pitch, roll], v, np.asarray(gnss.llh[j], dtype=float))
         if lever_arm_m is not None and np.any(np.asarray(lever_arm_m) != 0.0):
             llh = earth.offset_llh(s.llh, -(s.C_nb @ np.asarray(lever_arm_m, dtype=float)))
             s = NavState(t_fix, s.q_nb, v, llh)
-        return s
+        return s, lv
     raise ValueError(f"no GNSS fix with a ground speed of {min_course_speed_mps} m/s or more inside the IMU data "
                      "(set the heading, or lower min_course_speed_mps: the bank of heading hypotheses covers any heading)")
 
@@ -134,9 +156,14 @@ class Reference:
     pos_sigma_m: FloatArray
 
     @classmethod
-    def from_gnss(cls, g: GnssSeries) -> Reference:
-        return cls(np.asarray(g.t_s, dtype=float), np.asarray(g.llh, dtype=float), np.asarray(g.vel_n_mps, dtype=float),
-                   np.asarray(g.pos_sigma_m, dtype=float))
+    def from_gnss(cls, g: GnssSeries, gnss_time_offset_s: float = 0.0) -> Reference:
+        """A GNSS solution (stamped on the receiver's clock) as a reference on the IMU's clock, where
+        the navigation is: each stamp minus ``gnss_time_offset_s`` (GNSS stamp minus the IMU time of
+        the same instant, the filter's own convention, :func:`~dpos_core.ifa.pipeline.fix_at`).
+        Scoring against the unshifted stamps would charge a correctly declared offset ``v * offset``
+        of error and reward a wrong one (the navigation then follows the mis-stamped fixes)."""
+        return cls(np.asarray(g.t_s, dtype=float) - float(gnss_time_offset_s), np.asarray(g.llh, dtype=float),
+                   np.asarray(g.vel_n_mps, dtype=float), np.asarray(g.pos_sigma_m, dtype=float))
 
 
 @dataclass
@@ -172,7 +199,8 @@ def compare(result: IfaResult, ref: Reference, outage_s: tuple[float, float] | N
 
     Args:
         result: :func:`~dpos_core.ifa.pipeline.run`'s result (navigation at the IMU rate).
-        ref: the reference solution on the same clock.
+        ref: the reference solution on the IMU's clock (:meth:`Reference.from_gnss` with the run's
+            ``gnss_time_offset_s``).
         outage_s: [start, end) of the GNSS outage the aligner had (phases before / during /
             after), None for none.
         moving_mps: heading minus course is taken where the reference speed is at least this.
@@ -221,4 +249,4 @@ def compare(result: IfaResult, ref: Reference, outage_s: tuple[float, float] | N
     return RealDataReport(aligned, diverged, result.restarts, hc, errs, cov, phases)
 
 
-__all__ = ["initial_state", "track_sigmas", "Consistency", "consistency", "Reference", "RealDataReport", "compare"]
+__all__ = ["initial_state", "start", "track_sigmas", "Consistency", "consistency", "Reference", "RealDataReport", "compare"]

@@ -58,6 +58,9 @@ class TimeOffsetEstimate:
                 f"GNSS-IMU time offset: not observable on this data (J rises by less than {MIN_RISE:g} within "
                 f"[{self.offsets_s[0] * 1e3:+.0f}, {self.offsets_s[-1] * 1e3:+.0f}] ms of its minimum at "
                 f"{self.offset_s * 1e3:+.1f} ms): keep gnss_time_offset_s from the installation")
+        if self.observable:
+            head += (f"; set gnss_time_offset_s: {self.offset_s:.4f} (dpos-ifa --gnss-time-offset {self.offset_s * 1e3:.1f}), "
+                     "as it is: the candidates replace the configured offset, they are not added to it")
         return [head, f"sum of NIS over {self.epochs_used} epochs by offset (reduced chi-square at the minimum "
                       f"{self.reduced_chi2:.2f}): {curve}"]
 

@@ -30,7 +30,7 @@ from dpos_core.config.aircraft import AircraftConfig
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import IfaResult, run
-from dpos_core.ifa.reference import Reference, compare, initial_state, track_sigmas
+from dpos_core.ifa.reference import Reference, compare, start, track_sigmas
 from dpos_core.ifa.time_offset import estimate_time_offset
 from dpos_core.imports.logs import LogFormatError, read_pos
 from dpos_core.units import DEG, FloatArray
@@ -61,6 +61,13 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--estimate-time-offset", metavar="MIN:MAX:STEP",
                     help="estimate the GNSS-IMU time offset [ms] over these candidates (dpos_core.ifa.time_offset: the "
                          "fixed-noise filter's innovations; says when the data do not make it observable)")
+    ap.add_argument("--gnss-time-offset", type=float, metavar="MS",
+                    help="override the parameter file's gnss_time_offset_s [ms]: GNSS stamps minus the IMU time of the same "
+                         "instant (a receiver stamping 50 ms late: +50); the value --estimate-time-offset prints is this one")
+    ap.add_argument("--start-level", choices=("raw", "auto"), default="auto",
+                    help="raw: level on the mean specific force before the start fix (pos_master_node's live rule); "
+                         "auto (default): as raw at rest (standstill test), in motion with the GNSS acceleration removed and the level "
+                         "sigma widened to what is left (dpos_core.ifa.standstill)")
     ap.add_argument("--out", type=Path, required=True)
     return ap
 
@@ -148,16 +155,20 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
 
     try:
         cfg, aircraft, method, lever = load_config(args.params_file, args.method)
+        if args.gnss_time_offset is not None:
+            cfg = dc_replace(cfg, gnss_time_offset_s=args.gnss_time_offset * 1e-3)
+        offset_s = cfg.gnss_time_offset_s
         avail = _topics(args.bag)
         default = PRODUCT_TOPICS if PRODUCT_TOPICS[0] in avail else DRIVER_TOPICS
         topics = (args.imu_topic or default[0], args.fix_topic or default[1], args.vel_topic or default[2])
         origin, imu, gnss, notes = read_recording(args.bag, topics, rotation_from_rpy_deg(rpy))
         heading = None if args.initial_heading is None else args.initial_heading * DEG
-        init = initial_state(imu, gnss, args.min_course_speed, heading_rad=heading, lever_arm_m=lever)
-        if args.reference is not None:
-            ref = Reference.from_gnss(read_pos(args.reference).series(origin))
-        else:
-            ref = Reference.from_gnss(gnss)
+        init, lv = start(imu, gnss, args.min_course_speed, heading_rad=heading, lever_arm_m=lever, gnss_time_offset_s=offset_s,
+                         level=args.start_level, imu_model=cfg.imu)
+        if lv is not None and lv.sigma_rad is not None and lv.sigma_rad / DEG > cfg.level_sigma_deg:
+            cfg = dc_replace(cfg, level_sigma_deg=lv.sigma_rad / DEG)  # what the motion can leave in the level
+        # the reference is a GNSS solution stamped on the receiver's clock: onto the IMU's, as the fixes
+        ref = Reference.from_gnss(read_pos(args.reference).series(origin) if args.reference is not None else gnss, offset_s)
     except (InputError, LogFormatError, ValueError) as e:
         print(f"dpos-ifa: error: {e}", file=sys.stderr)
         return 2
@@ -172,10 +183,14 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
     lines = [f"# In-flight alignment of {args.bag} ({method.upper()}, {args.params_file})", "",
              f"- topics {', '.join(topics)}: {len(imu.t_s)} IMU samples, {len(gnss.t_s)} fixes; {'; '.join(notes) or 'nothing dropped'}",
              f"- start: {init.t_s:.3f} s after the first IMU sample (heading {np.degrees(init.hpr_rad[0]):.1f}, pitch "
-             f"{np.degrees(init.hpr_rad[1]):.2f}, roll {np.degrees(init.hpr_rad[2]):.2f} deg); fixes before it: {res.before_start}",
+             f"{np.degrees(init.hpr_rad[1]):.2f}, roll {np.degrees(init.hpr_rad[2]):.2f} deg); fixes before it: {res.before_start}"
+             + ("" if lv is None else f"; level {lv.how}" + ("" if lv.standstill is None else
+                f" (standstill T {lv.standstill.statistic:.3g}, threshold {lv.standstill.threshold:.3g})")
+                + ("" if lv.sigma_rad is None else f", level sigma {lv.sigma_rad / DEG:.2f} deg")),
              f"- rejected fixes: {len(res.rejected)}; warnings: {len(caught)}; processing {res.runtime_s:.2f} s for {data_s:.1f} s "
              f"of data (ratio {res.runtime_s / max(data_s, 1e-9):.4f})",
-             f"- reference: {args.reference or 'the bag fixes'}", ""]
+             f"- reference: {args.reference or 'the bag fixes'}; gnss_time_offset_s {offset_s * 1e3:+.1f} ms (GNSS stamps minus "
+             "IMU time: fixes and reference taken onto the IMU's clock)", ""]
     lines += [f"- {x}" for x in rep.lines()]
     offset_json = None
     if offsets is not None:

@@ -1,0 +1,147 @@
+"""The main POS on a real fixed-wing UAV it was not developed on: thor_flight75 (University of
+Minnesota "Thor", 50 Hz MEMS IMU, 1 Hz GPS, the onboard 15-state EKF as a comparison - not a
+truth; MIT licence, /work/shared/data/real/thor_flight75/README.md).  The recording is not in the
+repository yet: the test skips without it (``DPOS_THOR_FLIGHT75`` names the .mat file).
+
+The run as #31 sets it (the peer's settings): the IMU samples with the onboard biases added back, every new GPS fix from the first at 22 s, sigmas
+3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet), the start
+at the first fix on the ground (``start(level="auto")``); attitude scored 271-577 s against the
+onboard EKF; three 30 s outages 200, 350 and 500 s after the first fix, scored against the
+withheld fixes.  Figures (docs/ifa.md, beside the peer's) are printed with ``-s``."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dpos_core import earth
+from dpos_core.config.sensors import imu_model
+from dpos_core.frames import hpr_from_C_nb
+from dpos_core.ifa.model import IfaFilterConfig
+from dpos_core.ifa.pipeline import run
+from dpos_core.ifa.reference import start
+from dpos_core.series import GnssSeries, ImuSeries
+
+MAT = Path(os.environ.get("DPOS_THOR_FLIGHT75", "/work/shared/data/real/thor_flight75/"
+                          "thor_flight75_WaypointTracker_150squareWaypointNew_2012_10_10.mat"))
+pytestmark = pytest.mark.skipif(not MAT.exists(), reason=f"{MAT} not present (DPOS_THOR_FLIGHT75)")
+
+
+def _load():
+    import scipy.io
+
+    d = scipy.io.loadmat(MAT, squeeze_me=True, struct_as_record=False)["flight_data"]
+    t = np.asarray(d.time, dtype=float)
+    # the logged rates and specific forces have the onboard EKF's bias estimates removed: added back
+    # (as the peer's loader does), so that nothing of the onboard solution enters; body FRD -> FLU
+    raw = {k: np.asarray(getattr(d, k), dtype=float) + np.asarray(getattr(d, k + "_bias"), dtype=float)
+           for k in ("p", "q", "r", "ax", "ay", "az")}
+    om = np.column_stack([raw["p"], -raw["q"], -raw["r"]])
+    f = np.column_stack([raw["ax"], -raw["ay"], -raw["az"]])
+    k = np.flatnonzero(np.r_[False, np.diff(np.asarray(d.GPS_TOW, dtype=float)) > 0] & (t > 22.0))  # each new fix
+    llh = np.column_stack([np.radians(d.lat[k]), np.radians(d.lon[k]), np.asarray(d.alt, dtype=float)[k]])
+    vel = np.column_stack([d.ve[k], d.vn[k], -np.asarray(d.vd, dtype=float)[k]])
+    n = k.size
+    gnss = GnssSeries(t[k], llh, np.tile([3.0, 3.0, 6.0], (n, 1)), vel, np.tile([0.5, 0.5, 1.0], (n, 1)))
+    onboard = np.degrees(np.column_stack([d.psi, d.theta, d.phi]).astype(float))  # heading, pitch, roll
+    return ImuSeries(t, om, f), gnss, t, onboard
+
+
+def _sel(g: GnssSeries, m: np.ndarray) -> GnssSeries:
+    return GnssSeries(g.t_s[m], g.llh[m], g.pos_sigma_m[m], g.vel_n_mps[m], g.vel_sigma_mps[m])
+
+
+@pytest.fixture(scope="module")
+def thor():
+    imu, gnss, t, onboard = _load()
+    cfg = IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"),
+                          gnss_pos_sigma_m=(3.0, 3.0, 6.0), gnss_vel_sigma_mps=(0.5, 0.5, 1.0))
+    t0 = float(gnss.t_s[0])
+    outages = [(t0 + s, t0 + s + 30.0) for s in (200.0, 350.0, 500.0)]
+    keep = np.ones(gnss.t_s.size, dtype=bool)
+    for a, b in outages:
+        keep &= ~((gnss.t_s >= a) & (gnss.t_s < b))
+    out = {}
+    for name, g in (("all", gnss), ("outages", _sel(gnss, keep))):
+        init, lv = start(imu, g, 0.0, heading_rad=0.0, level="auto", imu_model=cfg.imu)
+        c = cfg if lv is None or lv.sigma_rad is None else replace(cfg, level_sigma_deg=max(cfg.level_sigma_deg, np.degrees(lv.sigma_rad)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out[name] = run(imu, g, np.zeros(3), c, "add2", init)
+    return imu, gnss, t, onboard, outages, out
+
+
+def _attitude_minus_onboard(res, t, onboard):
+    m = (res.t_s >= 271.0) & (res.t_s <= 577.0)
+    d = np.degrees(hpr_from_C_nb(res.C_nb[m])) - onboard[np.searchsorted(t, res.t_s[m])]
+    d[:, 0] = (d[:, 0] + 180.0) % 360.0 - 180.0
+    return d
+
+
+def test_attitude_against_the_onboard_ekf(thor):
+    _, _, t, onboard, _, out = thor
+    for name, res in out.items():
+        assert res.aligned_t_s is not None and res.restarts == 0 and not res.rejected
+        d = _attitude_minus_onboard(res, t, onboard)
+        p95 = np.percentile(np.abs(d), 95, axis=0)
+        print(f"{name}: aligned at {res.aligned_t_s:.1f} s; heading, pitch, roll minus onboard: mean "
+              f"{np.round(d.mean(axis=0), 2)}, std {np.round(d.std(axis=0), 2)}, p95 |.| {np.round(p95, 2)} deg")
+        # the peer (NavEKF15, default): heading +11.74 / 1.63 / 14.33, pitch 0.00 / 0.47 / 0.93, roll -1.22 / 0.92 / 2.62
+        assert p95[0] < 4.0 and p95[1] < 1.5 and p95[2] < 3.0, p95
+
+
+def test_outages_in_flight_against_the_withheld_fixes(thor):
+    _, gnss, _, _, outages, out = thor
+    res = out["outages"]
+    ends, afters = [], []
+    for a, b in outages:
+        w = (gnss.t_s >= a) & (gnss.t_s < b + 10.5)
+        tt = gnss.t_s[w]
+        q = np.clip(np.searchsorted(res.t_s, tt), 0, res.t_s.size - 1)
+        e = np.array([np.hypot(*earth.enu_between(x, y)[:2]) for x, y in zip(res.llh[q], gnss.llh[w])])
+        end = e[tt < b][-1]
+        after = e[np.flatnonzero(tt >= b + 9.5)[0]]
+        print(f"outage {a:.0f}-{b:.0f} s: at its end {end:.1f} m, max in it {e[tt < b].max():.1f} m, 10 s after {after:.2f} m")
+        ends.append(end)
+        afters.append(after)
+    # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m (docs/ifa.md has ours beside)
+    assert ends[0] < 150.0 and ends[1] < 150.0 and ends[2] < 127.2, ends
+    assert max(afters) < 6.0, afters
+
+
+def test_started_in_flight_with_a_30_deg_heading_error(thor):
+    """Started at the first fix after 300 s (flying, 20-26 m/s) with the onboard heading + 30 deg:
+    the heading comes within 2 deg of the onboard EKF's and stays there (the peer: after 4 s,
+    staying from 9 s; [12 s with its fixed-wing configuration])."""
+    imu, gnss, t, onboard, _, _ = thor
+    m = gnss.t_s >= 300.0
+    g = _sel(gnss, m)
+    j = int(np.searchsorted(t, g.t_s[0]))
+    init, _ = start(imu, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto",
+                    imu_model=imu_model({"preset": "automotive_mems"}, "thor_flight75"))
+    c = IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"),
+                        gnss_pos_sigma_m=(3.0, 3.0, 6.0), gnss_vel_sigma_mps=(0.5, 0.5, 1.0), level_sigma_deg=5.8)  # a level from flight
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = run(imu, g, np.zeros(3), c, "add2", init)
+    k = res.t_s <= 577.0
+    d = np.degrees(hpr_from_C_nb(res.C_nb[k]))[:, 0] - onboard[np.searchsorted(t, res.t_s[k]), 0]
+    d = (d + 180.0) % 360.0 - 180.0
+    tt = res.t_s[k] - init.t_s
+    first = float(tt[np.flatnonzero(np.abs(d) < 2.0)[0]])
+
+    def stays(lim: float) -> float:
+        out_of = np.flatnonzero(np.abs(d) >= lim)
+        return float(tt[out_of[-1] + 1]) if out_of.size and out_of[-1] + 1 < tt.size else float(tt[0])
+
+    print(f"30 deg start at {init.t_s:.1f} s: within 2 deg of onboard after {first:.1f} s, stays within 2 deg from "
+          f"{stays(2.0):.1f} s, within 5 deg from {stays(5.0):.1f} s; aligned "
+          f"{None if res.aligned_t_s is None else round(res.aligned_t_s - init.t_s, 1)} s after the start")
+    # measured: 7.0 s; staying within 2 deg of a comparison that is itself no truth (std 1.9 deg in
+    # the all-GPS run) only from 175 s
+    assert res.aligned_t_s is not None and first < 15.0 and stays(5.0) < 120.0
