@@ -1,7 +1,6 @@
 """The main POS on a real fixed-wing UAV it was not developed on: thor_flight75 (University of
 Minnesota "Thor", 50 Hz MEMS IMU, 1 Hz GPS, the onboard 15-state EKF as a comparison - not a
-truth; MIT licence, /work/shared/data/real/thor_flight75/README.md).  The recording is not in the
-repository yet: the test skips without it (``DPOS_THOR_FLIGHT75`` names the .mat file).
+truth; MIT licence, data/real/thor_flight75/README.md and LICENSE).
 
 The run as #31 sets it (the peer's settings): the IMU samples with the onboard biases added back, every new GPS fix from the first at 22 s, sigmas
 3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet), the start
@@ -11,13 +10,12 @@ withheld fixes.  Figures (docs/ifa.md, beside the peer's) are printed with ``-s`
 
 from __future__ import annotations
 
-import os
 import warnings
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import REPO
 
 from dpos_core import earth
 from dpos_core.config.sensors import imu_model
@@ -27,9 +25,7 @@ from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.reference import start
 from dpos_core.series import GnssSeries, ImuSeries
 
-MAT = Path(os.environ.get("DPOS_THOR_FLIGHT75", "/work/shared/data/real/thor_flight75/"
-                          "thor_flight75_WaypointTracker_150squareWaypointNew_2012_10_10.mat"))
-pytestmark = pytest.mark.skipif(not MAT.exists(), reason=f"{MAT} not present (DPOS_THOR_FLIGHT75)")
+MAT = REPO / "data" / "real" / "thor_flight75" / "thor_flight75_WaypointTracker_150squareWaypointNew_2012_10_10.mat"
 
 
 def _load():
