@@ -98,6 +98,7 @@ def test_installation_recording(installation: tuple[Path, Path, Path], tmp_path:
     assert rep["aircraft"]["mountings_from_estimate"] == ["left"]
     # the recording, as dpos-process reads it
     sess = read_session(out)
+    assert sess.custom["dpos.master_source"] == "solution"  # dpos-process: "an imported navigation solution"
     ac = yaml.safe_load(sess.custom["dpos.aircraft_yaml"])
     np.testing.assert_allclose(ac["sub_imus"][0]["mount_rpy_deg"], m["rpy_deg"], atol=1e-3)
     assert ac["sub_imus"][0]["lever_arm_m"] == [0.0, 3.0, 0.0]

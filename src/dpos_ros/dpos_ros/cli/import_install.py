@@ -42,6 +42,7 @@ from dpos_core.imports.timescales import to_gpst_ns
 from dpos_core.units import DEG
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
+from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION
 from dpos_ros.io.streams import TopicStream
 
 _NS = 1_000_000_000
@@ -315,7 +316,8 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
                      "mountings_from_estimate": replaced},
         "topics": {s.topic: {"type": s.msgtype, "messages": len(s)} for s in streams},
     }
-    custom = {"dpos.session_id": args.out.name, "dpos.start_time_s": repr(t0 * 1e-9), "dpos.aircraft_yaml": text}
+    custom = {"dpos.session_id": args.out.name, "dpos.start_time_s": repr(t0 * 1e-9), "dpos.aircraft_yaml": text,
+              MASTER_SOURCE_KEY: MASTER_SOURCE_SOLUTION}
     return streams, custom, report
 
 

@@ -45,7 +45,7 @@ from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.io.bag import topics_and_duration
 from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
-from dpos_ros.io.session import RecordedSession, SessionError, read_session
+from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, RecordedSession, SessionError, read_session
 from dpos_ros.products.antenna import AntennaSolution
 from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.master_reference import (
@@ -124,7 +124,8 @@ def _tau(text: str) -> float:
 def _master_error(args: argparse.Namespace, sess: RecordedSession, which: str) -> float:
     """The main POS's error model of ``--master-error-tau`` (:func:`master_error_tau`): printed, and
     kept for status.json (``sess.master_error_model``)."""
-    tau, why = master_error_tau(args.master_error_tau, sess.master_mechanized, which)
+    tau, why = master_error_tau(args.master_error_tau, sess.master_mechanized, which,
+                                imported=sess.custom.get(MASTER_SOURCE_KEY) == MASTER_SOURCE_SOLUTION)
     sess.master_error_model = {"tau_s": tau, "why": why}
     print(f"dpos-process: main POS errors: {'white noise' if tau == 0 else f'correlated, {tau:g} s, estimated as states'} ({why})")
     return tau

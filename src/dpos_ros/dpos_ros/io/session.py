@@ -31,6 +31,8 @@ from dpos_ros.io.messages import Messages, RawTopic
 #: ``mechanized`` = pos_master_node's GNSS/INS mechanization (transfer_align_node writes it into its
 #: spill when a /pos_master/status publisher exists)
 MASTER_SOURCE_KEY = "dpos.master_source"
+#: :data:`MASTER_SOURCE_KEY` of a recording whose /master/nav is an imported navigation solution (dpos-import --nav)
+MASTER_SOURCE_SOLUTION = "solution"
 
 
 def master_is_mechanized(custom: dict[str, str], raw: dict) -> bool:

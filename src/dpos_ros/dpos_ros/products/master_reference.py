@@ -116,7 +116,7 @@ GNSS_INS_ERROR_TAU_S = 20.0
 AUTO_TAU = -1.0
 
 
-def master_error_tau(requested: float, mechanized: bool, which: str = "recorded") -> tuple[float, str]:
+def master_error_tau(requested: float, mechanized: bool, which: str = "recorded", imported: bool = False) -> tuple[float, str]:
     """The correlation time [s] of the main POS's position and velocity errors the transfer
     alignment takes (``TAConfig.master_error_tau_s``; 0 = white noise), and why.
 
@@ -125,7 +125,8 @@ def master_error_tau(requested: float, mechanized: bool, which: str = "recorded"
     or a recorded /master/nav that is pos_master_node's mechanization (``mechanized``:
     :attr:`~dpos_ros.io.session.RecordedSession.master_mechanized`) - has errors correlated in time, estimated as states with
     :data:`GNSS_INS_ERROR_TAU_S`; the simulator's reference main POS (truth + white noise, [Gong2018]'s
-    model; no /pos_master/status) keeps 0."""
+    model; no /pos_master/status) and an ``imported`` navigation solution (dpos-import --nav: a
+    solution of record, its sigmas as given) keep 0."""
     if requested >= 0:
         return float(requested), "configured"
     if requested != AUTO_TAU:
@@ -134,6 +135,8 @@ def master_error_tau(requested: float, mechanized: bool, which: str = "recorded"
         return GNSS_INS_ERROR_TAU_S, f"auto: the main POS is the in-flight alignment ({which}), a GNSS/INS with correlated errors"
     if mechanized:
         return GNSS_INS_ERROR_TAU_S, "auto: /master/nav is pos_master_node's GNSS/INS mechanization (/pos_master/status), correlated errors"
+    if imported:
+        return 0.0, "auto: /master/nav is an imported navigation solution (dpos-import --nav): white noise with its sigmas"
     return 0.0, "auto: /master/nav without /pos_master/status (the simulator's reference main POS): white noise"
 
 
