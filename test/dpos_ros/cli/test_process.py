@@ -82,6 +82,14 @@ def test_antenna_bag_has_navsatfix_the_datum_and_its_qos_and_a_geojson_track(pro
     np.testing.assert_allclose(np.sqrt(cov[:, 4]), csv_rows[:, col["sigma_north_m"]], rtol=1e-4, atol=0)  # north (the CSV: 4 decimals of an exponent)
     np.testing.assert_allclose(np.sqrt(cov[:, 0]), csv_rows[:, col["sigma_east_m"]], rtol=1e-4, atol=0)  # east
     assert all(m.header.frame_id == "antenna_ant_r" and m.position_covariance_type == 2 for _, m in fixes[:10])
+    # the CSV's time in a surveyor's scales: GPS week + seconds of week, UTC (the leap seconds of the date)
+    from dpos_core.imports.timescales import GPS_EPOCH_UNIX_S, gps_minus_utc_s
+
+    t = csv_rows[:, col["stamp_s"]]
+    np.testing.assert_allclose(csv_rows[:, col["gps_week"]] * 604800 + csv_rows[:, col["gps_sow_s"]], t - GPS_EPOCH_UNIX_S, rtol=0, atol=1e-6)
+    leap = int(gps_minus_utc_s(np.int64(int(t[0]) * 1_000_000_000)))
+    assert 17 <= leap <= 18
+    np.testing.assert_allclose(csv_rows[:, col["utc_unix_s"]], t - leap, rtol=0, atol=2e-6)
     with (products / "antennas" / "antennas.mcap").open("rb") as f:
         assert make_reader(f).get_header().library == f"dpos_ros-{version('dpos_ros')}"
     doc = json.loads((products / "tracks.geojson").read_text())

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from dpos_core.errors import ProductsExistError
 from dpos_core.frames import hpr_from_C_nb
+from dpos_core.imports.timescales import GPS_EPOCH_UNIX_S, WEEK_S, gpst_to_utc_ns
 from dpos_core.series import NavSeries
 from dpos_core.ta import flags as ta_flags
 from dpos_core.ta import qc as Q
@@ -208,8 +209,11 @@ def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
         f.write(CSV_HEADER.encode() + b"\n")
         for i0 in range(0, rows.n, R.ROW_BLOCK):
             c = rows.rows(i0, i0 + R.ROW_BLOCK)
-            text.write(f, t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64), csv_columns(nav_of(c), c["sigma"], c["flags"]))
+            t_ns = t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64)
+            text.write(f, t_ns, csv_columns(nav_of(c), c["sigma"], c["flags"], t_ns))
 
+
+_NS = 1_000_000_000
 
 #: seconds of antenna poses per batch of the antenna bag (~0.2 GB of messages and their values for
 #: twelve antennas at 200 Hz in memory at once)
@@ -340,25 +344,30 @@ def antenna_streams(sess: RecordedSession, name: str, b: RowBlock) -> list[Topic
     return [antenna_stream(sess, name, b), TopicStream(T.antenna_fix(name), T.NAVSATFIX, t_ns, rows=fix, qos="nav")]
 
 
-def csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None) -> FloatArray:
-    """The antenna CSV's columns after the stamp (N, 19), as :data:`CSV_FORMATS` formats them."""
+def csv_columns(tr: NavSeries, s: FloatArray, flags: ta_flags.FlagArray | None, t_ns: NDArray[np.int64]) -> FloatArray:
+    """The antenna CSV's columns after the stamp (N, 22), as :data:`CSV_FORMATS` formats them; the
+    last three the rows' stamps ``t_ns`` (N,) [ns, GPS time] as GPS week, seconds of week and UTC
+    (seconds since 1970, the leap seconds of the date)."""
     hpr = np.rad2deg(hpr_from_C_nb(tr.C_nb))
     fl = ta_flags.none(tr.t_s.size) if flags is None else flags
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    week, sow_ns = np.divmod(t_ns - GPS_EPOCH_UNIX_S * _NS, WEEK_S * _NS)
     return np.column_stack([
         np.rad2deg(tr.llh[:, 0]), np.rad2deg(tr.llh[:, 1]), tr.llh[:, 2], tr.vel_n_mps, hpr,
         s[:, 7], s[:, 6], s[:, 8], s[:, 3:6], np.rad2deg(s[:, 2]), np.rad2deg(s[:, 0]), np.rad2deg(s[:, 1]), fl,
+        week, sow_ns / 1e9, gpst_to_utc_ns(t_ns) / 1e9,
     ])
 
 
 #: the antenna CSV's header
 CSV_HEADER = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading_deg,pitch_deg,roll_deg,"
               "sigma_north_m,sigma_east_m,sigma_h_m,sigma_vel_e_mps,sigma_vel_n_mps,sigma_vel_u_mps,"
-              "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg,flags")
+              "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg,flags,gps_week,gps_sow_s,utc_unix_s")
 
 
 #: the antenna CSV's columns after the stamp (``%.10f`` = ("f", 10), ``%.4e`` = ("e", 4), ``%d`` = ("d", 0))
 CSV_FORMATS: tuple[tuple[str, int], ...] = (
-    (("f", 10),) * 2 + (("f", 4),) + (("f", 5),) * 3 + (("f", 6),) * 3 + (("e", 4),) * 9 + (("d", 0),))
+    (("f", 10),) * 2 + (("f", 4),) + (("f", 5),) * 3 + (("f", 6),) * 3 + (("e", 4),) * 9 + (("d", 0),) * 2 + (("f", 9),) + (("f", 6),))
 
 
 def write_csv_rows(path: Path, header: str, t_ns: NDArray[np.int64], cols: FloatArray, formats: tuple[tuple[str, int], ...]) -> None:
