@@ -15,14 +15,14 @@ def fail_bag_writes_after(monkeypatch: pytest.MonkeyPatch, n: int, code: int) ->
     or read-only disk would; the chunks written so far stay in the file)."""
     original = _mcap.write
 
-    def write(path, topics, order, custom_data, version, library, progress=None):
+    def write(path, topics, order, custom_data, version, library, progress=None, qos=None):
         def fail(k: int, total: int) -> None:  # called after each chunk written
             if k > n:
                 raise OSError(code, os.strerror(code), str(path / f"{path.name}.mcap"))
             if progress is not None:
                 progress(k, total)
 
-        return original(path, topics, order, custom_data, version, library, fail)
+        return original(path, topics, order, custom_data, version, library, fail, qos)
 
     class Writer(_mcap.Writer):  # the batch-by-batch writer (dpos_ros.io.bag.write_stream_batches)
         def __init__(self, path, channels, custom_data, version, library, progress=None, qos=None):

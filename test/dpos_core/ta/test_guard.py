@@ -19,6 +19,7 @@ from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import guard, pipeline
 from dpos_core.ta.model import RIGID_FLEXURE_VAR, TAConfig, TransferAlignmentModel
+from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.qc import EpochQC
 
 CFG = TAConfig(attitude_sigma_deg=1.0)
@@ -89,19 +90,19 @@ def test_gyro_in_the_wrong_units_is_diverged_not_estimated(flight) -> None:
     wrong = ImuSeries(imu.t_s, imu.omega_radps * np.rad2deg(1.0), imu.f_mps2)
     for method in ("ukf", "ups"):
         with pytest.raises(AlignmentDiverged) as ei:
-            pipeline.run(wrong, master, ins, CFG, method, particles=20)
+            pipeline.run(wrong, master, ins, TASettings(method=method, particles=20), cfg=CFG)
         assert ei.value.reason in ("nis", "position_bound", "non_finite"), ei.value
         assert f"({method})" in str(ei.value)
     blocks: list[np.ndarray] = []
     with pytest.raises(AlignmentDiverged):  # streamed (a row sink): no block is handed on
-        pipeline.run(wrong, master, ins, CFG, "ukf", sink=lambda t, *rest: blocks.append(t))
+        pipeline.run(wrong, master, ins, TASettings(method="ukf"), cfg=CFG, sink=lambda t, *rest: blocks.append(t))
     assert blocks == []
 
 
 def test_right_units_pass_the_guard(flight) -> None:
     """The same flight in the right units: the guard does not fire (a sane run, errors of cm)."""
     ss, imu, master, ins = flight
-    r = pipeline.run(imu, master, ins, CFG, "ups", particles=20)
+    r = pipeline.run(imu, master, ins, TASettings(method="ups", particles=20), cfg=CFG)
     tr = ss.truth("sub_imu/sub_r", r.t_s)
     assert np.abs(r.llh[:, 2] - tr.llh[:, 2]).max() < 0.5
 
@@ -134,8 +135,8 @@ def test_ups_on_a_rigid_mount_agrees_with_urtss() -> None:
     ss = SimulatedSession(sc, 1, None)
     imu, master, rigid = from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
     assert rigid.flexure.variance_deg2 == (0.0, 0.0, 0.0)
-    r_u = pipeline.run(imu, master, rigid, CFG, "ups", particles=20)
-    r_s = pipeline.run(imu, master, rigid, CFG, "urtss")
+    r_u = pipeline.run(imu, master, rigid, TASettings(method="ups", particles=20), cfg=CFG)
+    r_s = pipeline.run(imu, master, rigid, TASettings(method="urtss"), cfg=CFG)
     assert np.abs(r_u.x[:, :9] - r_s.x[:, :9]).max() < 0.05
     assert np.abs(r_u.x[:, 18:24]).max() < 1e-6  # held at zero (their sigma 1e-8)
 
