@@ -7,6 +7,7 @@ os.environ so that node subprocesses inherit it:
   the default domain), so concurrent sessions on one machine do not see each other's nodes. Set
   DPOS_TEST_ROS_DOMAIN_ID to force a value.
 - RMW_IMPLEMENTATION=rmw_fastrtps_cpp (the middleware of the wheels).
+- DPOS_WORKERS=1 unless set: ``workers: 0`` (one per core) starts one worker process.
 - ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set: discovery stays on this machine.
 """
 
@@ -35,6 +36,9 @@ def _pick_domain_id() -> int:
 
 
 ROS_DOMAIN_ID = _pick_domain_id()
+# "one worker process per core" means one in the tests (the tests run two at a time on two cores;
+# the results do not depend on it): the tests of the pools ask for their workers explicitly
+os.environ.setdefault("DPOS_WORKERS", "1")
 os.environ["ROS_DOMAIN_ID"] = str(ROS_DOMAIN_ID)
 os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

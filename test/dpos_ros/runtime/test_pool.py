@@ -30,3 +30,20 @@ def test_workers_that_compiled_are_replaced_by_workers_that_load_from_the_cache(
         assert pool.submit(int).result(timeout=60) == 0 and not pool.recycled
     finally:
         pool.shutdown()
+
+
+def test_default_workers_is_the_environment_or_the_cores(monkeypatch) -> None:
+    """``workers: 0`` means DPOS_WORKERS when set (a shared computer), else this process's CPUs;
+    a value that is no positive integer is an error naming the variable."""
+    import os
+
+    from dpos_ros.runtime.pool import default_workers, worker_count
+
+    monkeypatch.setenv("DPOS_WORKERS", "3")
+    assert default_workers() == 3 and worker_count(0, 10) == 3 and worker_count(0, 2) == 2 and worker_count(5, 10) == 5
+    monkeypatch.delenv("DPOS_WORKERS")
+    assert default_workers() == len(os.sched_getaffinity(0))
+    for bad in ("0", "-2", "two"):
+        monkeypatch.setenv("DPOS_WORKERS", bad)
+        with pytest.raises(ValueError, match="DPOS_WORKERS"):
+            default_workers()

@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import os
 import sys
 import time
 import uuid
@@ -67,7 +66,7 @@ from dpos_ros.cli.campaign_tasks import (
     write_summary,
 )
 from dpos_ros.io.outdir import OutputError, probe_writable
-from dpos_ros.runtime.pool import WORKER_ENV, numba_stats
+from dpos_ros.runtime.pool import WORKER_ENV, default_workers, numba_stats
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -203,7 +202,7 @@ def dask_engine(scheduler: str | None, workers: int, connect_timeout_s: float) -
                                     f"(start some: dask worker {scheduler} --nthreads 1)") from None
             info: dict[str, Any] = {"cluster": "remote", "scheduler": scheduler}
         else:
-            n = workers or (os.cpu_count() or 1)
+            n = workers or default_workers()
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", scheduler_port=0,
                                    dashboard_address=None, silence_logs=logging.CRITICAL, env=dict(WORKER_ENV))
             stack.callback(cluster.close)

@@ -35,7 +35,6 @@ import argparse
 import concurrent.futures as cf
 import json
 import math
-import os
 import sys
 from functools import partial
 from pathlib import Path
@@ -60,7 +59,7 @@ from dpos_ros.products.master_reference import (
 from dpos_ros.products.rows import scratch_dir
 from dpos_ros.products.solve import SubImuSource, solve
 from dpos_ros.products.write import ProductsExistError, write
-from dpos_ros.runtime.pool import warm_pool
+from dpos_ros.runtime.pool import default_workers, warm_pool
 
 #: --stream auto: the rows spilled to disk for recordings longer than this [s]
 STREAM_AUTO_S = 3600.0
@@ -90,7 +89,7 @@ def parser() -> argparse.ArgumentParser:
                     help="report the smoother's own 1-sigma, without the innovations' variance factor (docs/qc.md)")
     ap.add_argument("--output-rate", type=float, default=0.0, metavar="HZ", help="rate of the antenna poses (default 0 = the sub-IMU rate)")
     ap.add_argument("--workers", type=int, default=0, metavar="N",
-                    help="worker processes aligning the sub-IMUs in parallel (default 0 = one per core; 1 = serial); "
+                    help="worker processes aligning the sub-IMUs in parallel (default 0 = one per core, or $DPOS_WORKERS; 1 = serial); "
                          "they start, and load the filters, while the recording is read; the results do not depend on it")
     ap.add_argument("--aircraft", help="aircraft configuration (default: the one embedded in the recording)")
     ap.add_argument("--initial-attitude-error", type=float, metavar="DEG",
@@ -189,7 +188,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dpos-process: error: --out {e}", file=sys.stderr)
         return EXIT_ERROR
     # the workers start and load the filters while the recording is read (runtime.pool.warm_pool)
-    pool = warm_pool(args.workers or os.cpu_count() or 1, partial(warm_up, args.method))[0] if args.workers != 1 else None
+    try:
+        n_workers = args.workers or default_workers()
+    except ValueError as e:
+        print(f"dpos-process: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    pool = warm_pool(n_workers, partial(warm_up, args.method))[0] if n_workers != 1 else None
     try:
         return _process(args, target, pool)
     finally:

@@ -57,10 +57,33 @@ def process_pool(n_workers: int) -> cf.ProcessPoolExecutor:
     return cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=_SpawnContext(), initializer=_ignore_sigint)
 
 
+#: environment variable: the worker count that ``workers: 0`` ("one per core") means, e.g. on a
+#: computer shared with other work (docs/running.md); unset: the cores this process may run on
+WORKERS_ENV = "DPOS_WORKERS"
+
+
+def default_workers() -> int:
+    """The worker processes that ``0`` (one per core) means: :data:`WORKERS_ENV` when set to a
+    positive integer (anything else is an error naming it), else the CPUs this process may use."""
+    text = os.environ.get(WORKERS_ENV, "").strip()
+    if text:
+        try:
+            n = int(text)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ValueError(f"{WORKERS_ENV}={text!r}: expected a positive number of worker processes")
+        return n
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # (no affinity on this platform)
+        return os.cpu_count() or 1
+
+
 def worker_count(workers: int, tasks: int) -> int:
-    """How many workers to start for ``tasks`` tasks: ``workers`` (0 = one per core), at most one
-    per task, at least 1."""
-    return max(1, min(tasks, workers or (os.cpu_count() or 1)))
+    """How many workers to start for ``tasks`` tasks: ``workers`` (0 = :func:`default_workers`), at
+    most one per task, at least 1."""
+    return max(1, min(tasks, workers or default_workers()))
 
 
 def numba_stats() -> dict:
