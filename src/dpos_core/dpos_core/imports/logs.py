@@ -16,6 +16,7 @@ from __future__ import annotations
 import calendar
 import math
 import struct
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal
 from fractions import Fraction
@@ -45,7 +46,26 @@ ACCEL_UNITS = {"g": G0_MPS2, "mps2": 1.0}
 GYRO_UNITS = {"deg_s": DEG, "rad_s": 1.0}
 
 
-def _first_reasons(skipped: list[tuple[int, str]]) -> str:
+def data_fields(path: Path, skip_header: int, width: int, split: Callable[[str], list[str]],
+                skipped: list[tuple[int, str]]) -> Iterator[tuple[int, list[str]]]:
+    """(line number, fields) of each data line of a text log: the first ``skip_header`` lines, blank
+    lines and ``#`` / ``%`` comments left out; a line of fewer than ``width`` fields (``split`` of
+    the stripped line) is appended to ``skipped`` as a cut line."""
+    with path.open("r", encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, start=1):
+            if lineno <= skip_header:
+                continue
+            s = line.strip()
+            if not s or s.startswith("#") or s.startswith("%"):
+                continue
+            parts = split(s)
+            if len(parts) < width:
+                skipped.append((lineno, f"{len(parts)} field(s), {width} needed (cut line)"))
+                continue
+            yield lineno, parts
+
+
+def first_reasons(skipped: list[tuple[int, str]]) -> str:
     """``line 3: <reason>; line 7: <reason>`` of the first skipped lines (for error messages)."""
     return "; ".join(f"line {n}: {why}" for n, why in sorted(skipped)[:_QUOTED_REASONS])
 
@@ -180,30 +200,21 @@ def read_imu_csv(path: str | Path, columns: ImuColumns = ImuColumns(), tag: Time
     skipped: list[tuple[int, str]] = []
     tcol = c.time if c.time is not None else c.counter
     assert tcol is not None
-    with p.open("r", encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            if lineno <= c.skip_header:
-                continue
-            s = line.strip()
-            if not s or s.startswith("#") or s.startswith("%"):
-                continue
-            parts = s.split(c.delimiter) if c.delimiter.strip() else s.split()
-            if len(parts) < c.width:
-                skipped.append((lineno, f"{len(parts)} field(s), {c.width} needed (cut line)"))
-                continue
-            try:
-                vals = [float(parts[k]) for k in (*c.accel, *c.gyro)]
-                tick = float(parts[tcol]) if c.time is None else _decimal_ns(parts[tcol])
-            except (ValueError, ArithmeticError):
-                skipped.append((lineno, "a field is not a number"))
-                continue
-            if tick is None or not all(math.isfinite(v) for v in (*vals, tick)):
-                skipped.append((lineno, "a field is not finite"))
-                continue
-            rows.append([*vals, float(lineno)])
-            clock.append(tick)
+    split = (lambda s: s.split(c.delimiter)) if c.delimiter.strip() else str.split
+    for lineno, parts in data_fields(p, c.skip_header, c.width, split, skipped):
+        try:
+            vals = [float(parts[k]) for k in (*c.accel, *c.gyro)]
+            tick = float(parts[tcol]) if c.time is None else _decimal_ns(parts[tcol])
+        except (ValueError, ArithmeticError):
+            skipped.append((lineno, "a field is not a number"))
+            continue
+        if tick is None or not all(math.isfinite(v) for v in (*vals, tick)):
+            skipped.append((lineno, "a field is not finite"))
+            continue
+        rows.append([*vals, float(lineno)])
+        clock.append(tick)
     if not rows:
-        first = f": {_first_reasons(skipped)}" if skipped else ""
+        first = f": {first_reasons(skipped)}" if skipped else ""
         raise LogFormatError(f"{p}: no usable IMU line ({len(skipped)} skipped{first}; expected columns {c})")
     a = np.array(rows)
     # stamps must increase: drop (and name) lines whose clock does not advance
@@ -368,10 +379,10 @@ def read_pos(path: str | Path) -> PosLog:
                 continue
             rows.append((lineno, t_ns, vals))
     if not header_seen and not rows:
-        first = f"; {len(skipped)} skipped: {_first_reasons(skipped)}" if skipped else ""
+        first = f"; {len(skipped)} skipped: {first_reasons(skipped)}" if skipped else ""
         raise LogFormatError(f"{p}: not an RTKLIB .pos solution (no header, no usable solution line{first})")
     if not rows:
-        first = f": {_first_reasons(skipped)}" if skipped else ""
+        first = f": {first_reasons(skipped)}" if skipped else ""
         raise LogFormatError(f"{p}: no usable solution line ({len(skipped)} skipped{first})")
     # strictly increasing stamps (duplicates and reversals named, not used)
     out_t: list[int] = []

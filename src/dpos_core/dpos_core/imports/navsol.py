@@ -30,6 +30,7 @@ from dpos_core.errors import LogFormatError
 from dpos_core.frames import C_nb_from_hpr
 
 from ..units import DEG, FloatArray
+from .logs import data_fields, first_reasons
 from .timescales import GPS_EPOCH_UNIX_S, TIME_SCALES, datetime_ns, decimal_ns, to_gpst_ns, week_sow_ns
 
 TIME_FORMS = ("unix", "gps", "week_sow", "datetime", "elapsed")
@@ -170,36 +171,26 @@ def read_nav_csv(path: str | Path, c: NavColumns) -> NavSolution:
     skipped: list[tuple[int, str]] = []
     num_cols = [*c.llh, *c.vel, *c.att, *(c.pos_sigma or ()), *(c.vel_sigma or ()), *(c.att_sigma or ())]
     last: int | None = None
-    with p.open("r", encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            if lineno <= c.skip_header:
-                continue
-            s = line.strip()
-            if not s or s.startswith("#") or s.startswith("%"):
-                continue
-            parts = _split(s, c.delimiter)
-            if len(parts) < c.width:
-                skipped.append((lineno, f"{len(parts)} field(s), {c.width} needed (cut line)"))
-                continue
-            try:
-                vals = [float(parts[k]) for k in num_cols]
-                t = _stamp(parts, c)
-                ep = datetime_ns(parts[c.epoch_col]) if c.epoch_col is not None else 0
-            except (ValueError, ArithmeticError, IndexError):
-                skipped.append((lineno, "a field is not a number (or not a date)"))
-                continue
-            if not all(np.isfinite(vals)):
-                skipped.append((lineno, "a field is not finite"))
-                continue
-            if last is not None and t <= last:
-                skipped.append((lineno, f"time {t * 1e-9:.3f} s not after the previous {last * 1e-9:.3f} s"))
-                continue
-            last = t
-            rows.append(vals)
-            stamps.append(t)
-            coarse.append(ep)
+    for lineno, parts in data_fields(p, c.skip_header, c.width, lambda s: _split(s, c.delimiter), skipped):
+        try:
+            vals = [float(parts[k]) for k in num_cols]
+            t = _stamp(parts, c)
+            ep = datetime_ns(parts[c.epoch_col]) if c.epoch_col is not None else 0
+        except (ValueError, ArithmeticError, IndexError):
+            skipped.append((lineno, "a field is not a number (or not a date)"))
+            continue
+        if not all(np.isfinite(vals)):
+            skipped.append((lineno, "a field is not finite"))
+            continue
+        if last is not None and t <= last:
+            skipped.append((lineno, f"time {t * 1e-9:.3f} s not after the previous {last * 1e-9:.3f} s"))
+            continue
+        last = t
+        rows.append(vals)
+        stamps.append(t)
+        coarse.append(ep)
     if not rows:
-        first = "; ".join(f"line {n}: {why}" for n, why in skipped[:3])
+        first = first_reasons(skipped)
         raise LogFormatError(f"{p}: no usable navigation line ({len(skipped)} skipped{': ' + first if first else ''})")
     a = np.array(rows)
     t_ns = np.array(stamps, dtype=np.int64)
