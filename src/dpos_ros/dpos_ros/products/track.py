@@ -104,7 +104,7 @@ class TrackWriter:
         return {"type": "FeatureCollection", "features": features}
 
     def write(self, path: Path) -> None:
-        """Write :meth:`geojson` to ``path`` (UTF-8, one feature per line block)."""
+        """Write :meth:`geojson` to ``path`` (UTF-8, compact JSON)."""
         Path(path).write_text(json.dumps(self.geojson(), separators=(",", ":")) + "\n", encoding="utf-8")
 
 
