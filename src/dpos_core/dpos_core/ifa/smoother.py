@@ -28,6 +28,7 @@ the nominal is corrected by the last step's estimate (the forward one: nothing c
 from __future__ import annotations
 
 from dataclasses import dataclass
+from dataclasses import replace as dc_replace
 
 import numpy as np
 
@@ -174,4 +175,18 @@ def smooth(result: IfaResult, imu: ImuSeries) -> SmoothedIfa:
     return SmoothedIfa(smoothed, fwd, T, x_s, P_s, segs)
 
 
-__all__ = ["SmoothedIfa", "smooth", "segments", "track_of"]
+def as_result(result: IfaResult, nav: NavSeries) -> IfaResult:
+    """``result`` with its navigation replaced by ``nav`` (:attr:`SmoothedIfa.nav` or ``.forward``)
+    and its ``track`` the covariance ``nav`` carries at every row ((9, 9): position, velocity,
+    attitude blocks, no cross terms): what :func:`~dpos_core.ifa.reference.compare` and
+    :func:`~dpos_core.ifa.reference.track_sigmas` score (the smoothed sigma of each row, where the
+    forward run's track holds the filter epochs' only)."""
+    if nav.pos_cov is None or nav.vel_cov is None or nav.att_cov is None:
+        raise ValueError("as_result needs a navigation with its position, velocity and attitude covariances")
+    P = np.zeros((nav.t_s.size, 9, 9))
+    P[:, 0:3, 0:3], P[:, 3:6, 3:6], P[:, 6:9, 6:9] = nav.pos_cov, nav.vel_cov, nav.att_cov
+    return dc_replace(result, t_s=nav.t_s, llh=nav.llh, vel_n_mps=nav.vel_n_mps, q_nb=nav.q_nb,
+                      track=[(float(t), p) for t, p in zip(nav.t_s, P, strict=True)])
+
+
+__all__ = ["SmoothedIfa", "as_result", "smooth", "segments", "track_of"]

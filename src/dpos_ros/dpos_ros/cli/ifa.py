@@ -9,7 +9,10 @@ Topics: the product's (``/master/imu``, ``/gnss/fix``, ``/gnss/vel``: a recorded
 the bag has them, else real drivers' (``/imu/data``, ``/fix``, ``/vel``: ``dpos-import``); the
 ``--*-topic`` options name others.  Times in the report are seconds after the first IMU sample.
 Writes ``OUT/nav.csv`` (the navigation at the IMU rate with its 1-sigma), ``OUT/report.md``,
-``OUT/report.json`` and ``OUT/ifa.png``.
+``OUT/report.json`` and ``OUT/ifa.png``.  With ``--smooth`` also the forward-backward (RTS)
+navigation of :mod:`dpos_core.ifa.smoother`, scored as the forward one: ``OUT/nav_smoothed.csv``
+(nav.csv's columns, each row's smoothed 1-sigma) and ``OUT/nav_smoothed.pos`` (RTKLIB ``.pos``
+columns, :mod:`dpos_core.ifa.pos_file`).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace as dc_replace
@@ -30,7 +34,9 @@ from dpos_core.config.aircraft import AircraftConfig
 from dpos_core.frames import hpr_from_C_nb
 from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import IfaResult, run
+from dpos_core.ifa.pos_file import gnss_support, write_pos
 from dpos_core.ifa.reference import Reference, compare, start, track_sigmas
+from dpos_core.ifa.smoother import as_result, smooth
 from dpos_core.ifa.time_offset import estimate_time_offset
 from dpos_core.imports.logs import LogFormatError, read_pos
 from dpos_core.units import DEG, FloatArray
@@ -68,11 +74,15 @@ def parser() -> argparse.ArgumentParser:
                     help="raw: level on the mean specific force before the start fix (pos_master_node's live rule); "
                          "auto (default): as raw at rest (standstill test), in motion with the GNSS acceleration removed and the level "
                          "sigma widened to what is left (dpos_core.ifa.standstill)")
+    ap.add_argument("--smooth", action="store_true",
+                    help="also the forward-backward (RTS) smoothed navigation, post-processing: OUT/nav_smoothed.csv and "
+                         "OUT/nav_smoothed.pos (RTKLIB .pos columns), scored against the reference as the forward one")
     ap.add_argument("--out", type=Path, required=True)
     return ap
 
 
-def _write_nav(path: Path, res: IfaResult, origin_ns: int) -> None:
+def _write_nav(path: Path, res: IfaResult, origin_ns: int, title: str | None = None) -> None:
+    """nav.csv's columns; ``title``: a ``#`` line before the column names (what the solution is)."""
     tt, sig = track_sigmas(res)
     j = np.clip(np.searchsorted(tt, res.t_s, side="right") - 1, 0, max(tt.size - 1, 0))
     s = sig[j] if tt.size else np.full((res.t_s.size, 9), np.nan)
@@ -81,7 +91,27 @@ def _write_nav(path: Path, res: IfaResult, origin_ns: int) -> None:
                             res.llh[:, 2], res.vel_n_mps, hpr, s[:, 0:6], s[:, 6:9] / DEG])
     head = ("t_ns,t_s,lat_deg,lon_deg,h_m,vE_mps,vN_mps,vU_mps,heading_deg,pitch_deg,roll_deg,sE_m,sN_m,sU_m,svE_mps,svN_mps,svU_mps,"
             "s_attE_deg,s_attN_deg,s_attU_deg")
+    if title is not None:
+        head = f"# {title}\n{head}"
     np.savetxt(path, cols, delimiter=",", header=head, comments="", fmt=["%d", "%.6f", "%.9f", "%.9f"] + ["%.6f"] * 16)
+
+
+#: the title line of nav_smoothed.csv
+SMOOTHED_TITLE = ("dpos-ifa --smooth: forward-backward (RTS) smoothed navigation of the final heading hypothesis, "
+                  "each row's smoothed 1-sigma (post-processing: uses the fixes after the row)")
+
+
+def _write_smoothed(out: Path, res: IfaResult, smoothed: IfaResult, origin_ns: int, predict_interval_s: float, what: str) -> None:
+    """``nav_smoothed.csv`` and ``nav_smoothed.pos`` of a smoothed run (``as_result``)."""
+    _write_nav(out / "nav_smoothed.csv", smoothed, origin_ns, SMOOTHED_TITLE)
+    P = np.array([p for _, p in smoothed.track])
+    q, ns, age = gnss_support(smoothed.t_s, res.epochs_s, predict_interval_s, smoothed=True)
+    t_ns = origin_ns + np.round(smoothed.t_s * 1e9).astype(np.int64)
+    write_pos(out / "nav_smoothed.pos", t_ns, smoothed.llh, P[:, 0:3, 0:3], smoothed.vel_n_mps, P[:, 3:6, 3:6], q, ns, age,
+              comments=[f"dpos-ifa --smooth: {what}", "forward-backward (RTS) smoothed main POS at the IMU, IMU rate; "
+                        f"Q 1: a GNSS update within {predict_interval_s:g} s on both sides, Q 5: bridged across a longer gap; "
+                        "ns: GNSS updates within that time (0-2); age: time to the nearest one [s]",
+                        "columns: dpos_core.ifa.pos_file"])
 
 
 def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float] | None) -> None:
@@ -174,10 +204,25 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         return 2
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = run(imu, gnss, lever, cfg, method, init)
+        res = run(imu, gnss, lever, cfg, method, init, record_smoother=args.smooth)
     rep = compare(res, ref, outage)
     args.out.mkdir(parents=True, exist_ok=True)
     _write_nav(args.out / "nav.csv", res, origin)
+    smoothed_json = None
+    smoothed_lines: list[str] = []
+    if args.smooth:
+        t_sm = time.perf_counter()
+        sm = smooth(res, imu)
+        sres = as_result(res, sm.nav)
+        smoothing_s = time.perf_counter() - t_sm
+        rep_s = compare(sres, ref, outage)
+        _write_smoothed(args.out, res, sres, origin, cfg.predict_interval_s, f"{args.bag} ({method.upper()}, {args.params_file})")
+        smoothed_lines = [f"smoothed (forward-backward, {len(sm.segments)} chain(s) of {sm.steps_s.size} filter steps; "
+                          f"smoothing {smoothing_s:.2f} s): nav_smoothed.csv, nav_smoothed.pos"]
+        smoothed_lines += [f"smoothed {x}" for x in rep_s.lines()[2:]]  # aligned / DIVERGED: the forward run's
+        smoothed_json = {"horizontal_error_m": rep_s.horizontal_error_m, "inside_3sigma": rep_s.inside_3sigma,
+                         "heading_minus_course_deg": rep_s.heading_minus_course_deg, "smoothing_s": smoothing_s,
+                         "filter_steps": int(sm.steps_s.size), "chains": len(sm.segments)}
     _plot(args.out / "ifa.png", res, ref, outage)
     data_s = float(imu.t_s[-1] - imu.t_s[0])
     lines = [f"# In-flight alignment of {args.bag} ({method.upper()}, {args.params_file})", "",
@@ -192,6 +237,8 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
              f"- reference: {args.reference or 'the bag fixes'}; gnss_time_offset_s {offset_s * 1e3:+.1f} ms (GNSS stamps minus "
              "IMU time: fixes and reference taken onto the IMU's clock)", ""]
     lines += [f"- {x}" for x in rep.lines()]
+    if smoothed_lines:
+        lines += [""] + [f"- {x}" for x in smoothed_lines]
     offset_json = None
     if offsets is not None:
         with warnings.catch_warnings():
@@ -206,7 +253,8 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         "aligned_t_s": rep.aligned_t_s, "diverged_epochs": rep.diverged, "restarts": rep.restarts,
         "rejected_fixes": len(res.rejected), "heading_minus_course_deg": rep.heading_minus_course_deg,
         "horizontal_error_m": rep.horizontal_error_m, "inside_3sigma": rep.inside_3sigma, "processing_s": res.runtime_s,
-        "data_s": data_s, "start_t_s": init.t_s, "before_start": res.before_start, "time_offset": offset_json}, indent=2) + "\n")
+        "data_s": data_s, "start_t_s": init.t_s, "before_start": res.before_start, "time_offset": offset_json,
+        "smoothed": smoothed_json}, indent=2) + "\n")
     if args.live is not None:
         try:
             counters, live_lines = live_report(args.live, origin, res, ref, outage)
@@ -217,7 +265,7 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         (args.out / "report.md").write_text("\n".join(lines) + "\n")
         (args.out / "live.json").write_text(json.dumps(counters, indent=2) + "\n")
     print("\n".join(lines))
-    print(f"wrote {args.out / 'nav.csv'}, report.md, report.json, ifa.png")
+    print(f"wrote {args.out / 'nav.csv'}, report.md, report.json, ifa.png" + (", nav_smoothed.csv, nav_smoothed.pos" if args.smooth else ""))
     return 0
 
 
