@@ -19,9 +19,15 @@ own - heading sigma about 1 deg at the restart - adds next to nothing; left out,
 
 Navigation at the IMU rate: the smoothed error states (position, velocity, attitude) are
 interpolated linearly in time between consecutive steps - from the step's error after its feedback
-to the next step's error before its feedback (the shift undone) - and removed from the nominal
+to the next step's error before its feedback (the shift undone) - the position error as the
+integral of that interpolated velocity error (``d dp / dt = dv``) with what is left of its
+end-to-end change spread linearly - and removed from the nominal
 (``C_nb = expm([phi x]) C_nb_nominal``, ``v - dv``, position minus ``dp``), as the transfer
-alignment's ``_apply`` does; the covariances are interpolated the same way.  After the last step
+alignment's ``_apply`` does; the covariances are interpolated linearly.  In an outage the steps
+are the time updates alone, ``IfaFilterConfig.predict_interval_s`` (1.5 s) apart, so the outage
+is bridged from both ends by the RTS recursion itself, the interpolation spanning 1.5 s at most
+(on mems_vehicle the smoothed error mid-way between two steps of the 30 s outage is that at the
+steps to 1 %: test/dpos_core/ifa/test_smoother.py).  After the last step
 the nominal is corrected by the last step's estimate (the forward one: nothing comes after).
 """
 
@@ -155,6 +161,10 @@ def smooth(result: IfaResult, imu: ImuSeries) -> SmoothedIfa:
     e0 = model.full(x_s)[:, :9]
     e1 = _unshift(model.full(x_end), corr)
     err = (1.0 - a) * e0[k] + a * e1[k1]
+    # position: the integral of the interpolated velocity error (d dp / dt = dv), what is left of the
+    # end-to-end change spread linearly; the linear interpolation above plus -(dv1 - dv0) tau (T - tau) / 2T
+    tau = a[:, 0] * span
+    err[:, DP] -= (e1[k1][:, DV] - e0[k][:, DV]) * (tau * (span - tau) / (2.0 * np.where(span > 0.0, span, 1.0)))[:, None]
     q = dcm_to_quat(rotvec_to_dcm(err[:, PHI]) @ quat_to_dcm(nom.q_nb))
     llh = nom.llh - earth.enu_to_dllh(err[:, DP], nom.llh)
     vel = nom.vel_n_mps - err[:, DV]
