@@ -23,6 +23,7 @@ from dpos_core.frames import hpr_from_C_nb
 from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.reference import start
+from dpos_core.ifa.smoother import as_result, smooth
 from dpos_core.series import GnssSeries, ImuSeries
 
 MAT = REPO / "data" / "real" / "thor_flight75" / "thor_flight75_WaypointTracker_150squareWaypointNew_2012_10_10.mat"
@@ -68,7 +69,7 @@ def thor():
         c = cfg if lv is None or lv.sigma_rad is None else replace(cfg, level_sigma_deg=max(cfg.level_sigma_deg, np.degrees(lv.sigma_rad)))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            out[name] = run(imu, g, np.zeros(3), c, "add2", init)
+            out[name] = run(imu, g, np.zeros(3), c, "add2", init, record_smoother=True)
     return imu, gnss, t, onboard, outages, out
 
 
@@ -91,20 +92,31 @@ def test_attitude_against_the_onboard_ekf(thor):
         assert p95[0] < 4.0 and p95[1] < 1.5 and p95[2] < 3.0, p95
 
 
-def test_outages_in_flight_against_the_withheld_fixes(thor):
-    _, gnss, _, _, outages, out = thor
-    res = out["outages"]
-    ends, afters = [], []
+def _outage_figures(res, gnss, outages, label: str) -> list[tuple[float, float, float, float]]:
+    """Per outage: horizontal error against the withheld fix at its end, max in it, 10 s after [m],
+    and the fraction of the withheld fixes inside 3 sigma (E, N, U; the fixes' own 3 / 6 m with)."""
+    tt_, P = np.array([x for x, _ in res.track]), np.array([p for _, p in res.track])
+    figs = []
     for a, b in outages:
         w = (gnss.t_s >= a) & (gnss.t_s < b + 10.5)
         tt = gnss.t_s[w]
         q = np.clip(np.searchsorted(res.t_s, tt), 0, res.t_s.size - 1)
-        e = np.array([np.hypot(*earth.enu_between(x, y)[:2]) for x, y in zip(res.llh[q], gnss.llh[w])])
-        end = e[tt < b][-1]
-        after = e[np.flatnonzero(tt >= b + 9.5)[0]]
-        print(f"outage {a:.0f}-{b:.0f} s: at its end {end:.1f} m, max in it {e[tt < b].max():.1f} m, 10 s after {after:.2f} m")
-        ends.append(end)
-        afters.append(after)
+        enu = np.array([earth.enu_between(x, y) for x, y in zip(res.llh[q], gnss.llh[w])])
+        e = np.hypot(enu[:, 0], enu[:, 1])
+        j = np.clip(np.searchsorted(tt_, tt, side="right") - 1, 0, tt_.size - 1)
+        sig = np.sqrt(np.diagonal(P[j], axis1=1, axis2=2))[:, :3]
+        inside = np.all(np.abs(enu) <= 3.0 * np.sqrt(sig**2 + gnss.pos_sigma_m[w] ** 2), axis=1)[tt < b]
+        end, after = e[tt < b][-1], e[np.flatnonzero(tt >= b + 9.5)[0]]
+        print(f"{label} outage {a:.0f}-{b:.0f} s: at its end {end:.1f} m, max in it {e[tt < b].max():.1f} m, 10 s after {after:.2f} m; "
+              f"in 3 sigma {inside.mean():.2f}")
+        figs.append((end, float(e[tt < b].max()), after, float(inside.mean())))
+    return figs
+
+
+def test_outages_in_flight_against_the_withheld_fixes(thor):
+    _, gnss, _, _, outages, out = thor
+    figs = _outage_figures(out["outages"], gnss, outages, "forward")
+    ends, afters = [f[0] for f in figs], [f[2] for f in figs]
     # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m (docs/ifa.md has ours beside)
     assert ends[0] < 150.0 and ends[1] < 150.0 and ends[2] < 127.2, ends
     assert max(afters) < 6.0, afters
@@ -141,3 +153,26 @@ def test_started_in_flight_with_a_30_deg_heading_error(thor):
     # measured: 7.0 s; staying within 2 deg of a comparison that is itself no truth (std 1.9 deg in
     # the all-GPS run) only from 175 s
     assert res.aligned_t_s is not None and first < 15.0 and stays(5.0) < 120.0
+
+
+def test_smoothed_bridges_the_outages_and_follows_the_onboard_attitude(thor):
+    """The forward-backward (RTS) main POS (dpos-ifa --smooth) of the same runs.  Measured: at the
+    outages' ends 2.9 / 2.9 / 0.7 m, max in them 25.2 / 2.9 / 1.8 m, 10 s after 0.96 / 2.93 / 0.37 m
+    (forward 97.0 / 103.8 / 80.0 m at the ends; the peer's forward 242.9 / 90.1 / 127.2 m, 10 s after
+    0.67 / 3.47 / 1.53 m: within the fixes' 3 m sigma).  The first outage (222-252 s) falls in the
+    alignment's coarse phase (the fine phase restarts at 280.8 s), whose heading is several degrees
+    off with a sigma that does not say so: its smoothed errors are inside 3 sigma at 0.31 of the
+    withheld fixes (the others 1.00), docs/ifa.md.  Attitude minus onboard, p95 of |.|, all GPS
+    2.24 / 0.72 / 2.20 deg (heading, pitch, roll; forward 2.89 / 0.94 / 2.56)."""
+    imu, gnss, t, onboard, outages, out = thor
+    for name, res in out.items():
+        srs = as_result(res, smooth(res, imu).nav)
+        d = _attitude_minus_onboard(srs, t, onboard)
+        p95 = np.percentile(np.abs(d), 95, axis=0)
+        print(f"smoothed {name}: heading, pitch, roll minus onboard: mean {np.round(d.mean(axis=0), 2)}, std "
+              f"{np.round(d.std(axis=0), 2)}, p95 |.| {np.round(p95, 2)} deg")
+        assert p95[0] < 2.6 and p95[1] < 0.9 and p95[2] < 2.5, p95
+        if name == "outages":
+            figs = _outage_figures(srs, gnss, outages, "smoothed")
+            assert all(f[0] < 10.0 and f[1] < 40.0 and f[2] < 4.0 for f in figs), figs
+            assert figs[1][3] > 0.95 and figs[2][3] > 0.95, figs
