@@ -114,7 +114,9 @@ def _write_smoothed(out: Path, res: IfaResult, smoothed: IfaResult, origin_ns: i
                         "columns: dpos_core.ifa.pos_file"])
 
 
-def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float] | None) -> None:
+def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float] | None, smoothed: IfaResult | None = None) -> None:
+    """ifa.png: horizontal and up error against the reference with the reported 3 sigma, heading
+    sigma and NIS; ``smoothed`` (``--smooth``): its horizontal error and 3 sigma too."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,6 +130,12 @@ def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float
     fig, ax = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     ax[0].plot(tr, np.hypot(err[:, 0], err[:, 1]), label="horizontal error vs reference")
     ax[0].plot(tt, 3 * np.hypot(sig[:, 0], sig[:, 1]), label="3 sigma (reported)")
+    if smoothed is not None:
+        ks = np.clip(np.searchsorted(smoothed.t_s, tr), 0, smoothed.t_s.size - 1)
+        es = np.array([earth.enu_between(a, b) for a, b in zip(smoothed.llh[ks], ref.llh[inside])])
+        ts, ss = track_sigmas(smoothed)
+        ax[0].plot(tr, np.hypot(es[:, 0], es[:, 1]), label="smoothed: horizontal error")
+        ax[0].plot(ts, 3 * np.hypot(ss[:, 0], ss[:, 1]), label="smoothed: 3 sigma")
     ax[0].set_ylabel("m")
     ax[0].set_yscale("log")
     ax[1].plot(tr, err[:, 2], label="up error")
@@ -210,6 +218,7 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
     _write_nav(args.out / "nav.csv", res, origin)
     smoothed_json = None
     smoothed_lines: list[str] = []
+    sres: IfaResult | None = None
     if args.smooth:
         t_sm = time.perf_counter()
         sm = smooth(res, imu)
@@ -223,7 +232,7 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         smoothed_json = {"horizontal_error_m": rep_s.horizontal_error_m, "inside_3sigma": rep_s.inside_3sigma,
                          "heading_minus_course_deg": rep_s.heading_minus_course_deg, "smoothing_s": smoothing_s,
                          "filter_steps": int(sm.steps_s.size), "chains": len(sm.segments)}
-    _plot(args.out / "ifa.png", res, ref, outage)
+    _plot(args.out / "ifa.png", res, ref, outage, sres)
     data_s = float(imu.t_s[-1] - imu.t_s[0])
     lines = [f"# In-flight alignment of {args.bag} ({method.upper()}, {args.params_file})", "",
              f"- topics {', '.join(topics)}: {len(imu.t_s)} IMU samples, {len(gnss.t_s)} fixes; {'; '.join(notes) or 'nothing dropped'}",
