@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dpos_core.imports.baseline import LeverArmEstimate, lever_arm_from_specific_force
 from dpos_core.imports.clock import ClockEstimate, estimate_clock
 from dpos_core.imports.logs import ImuColumns, read_imu_csv
 from dpos_core.imports.mounting import MountingEstimate, estimate_mounting, relative_rotation
@@ -136,6 +137,50 @@ def test_baselines_consistent_across_paths(paths: dict[tuple[int, int], PathResu
     assert 0.5 < dot2[0] < 1.3 and -2.5 < dot2[2] < -1.2, dot2
 
 
+def lever_arms_to_dot1(path: int, results: dict[tuple[int, int], PathResult]) -> dict[int, LeverArmEstimate]:
+    """DOT2..4's positions relative to DOT1 (DOT1's axes) from the specific-force differences
+    (``lever_arm_from_specific_force``) on their estimated clocks, DOTk's axes turned into DOT1's by
+    ``relative_rotation``."""
+    logs = {}
+    for d in DOTS:
+        imu = read_imu_csv(DATA / f"straight_path_{path}" / f"IMU_{d}.csv", PATH_IMU)
+        td = np.asarray(imu.t_ns * 1e-9, dtype=np.float64)
+        logs[d] = (np.asarray(results[(path, d)].clock.to_gpst_ns(td, 0) * 1e-9, dtype=np.float64), imu.f_mps2, imu.omega_radps)
+    out = {}
+    for d in DOTS[1:]:
+        rot = relative_rotation(logs[1][0], logs[1][2], logs[d][0], logs[d][2], name=f"path {path} DOT1-DOT{d}")
+        out[d] = lever_arm_from_specific_force(*logs[1], *logs[d], rot.C_bs, name=f"path {path} DOT1-DOT{d}")
+    return out
+
+
+def lever_arm_spread(arms: dict[int, dict[int, LeverArmEstimate]], dot: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per axis over the paths: the weighted mean [m], the spread (sample std) [m] and the reduced
+    chi-square about the weighted mean."""
+    x = np.array([arms[p][dot].r_m for p in PATHS])
+    s = np.array([arms[p][dot].r_sigma_m for p in PATHS])
+    w = 1.0 / s**2
+    mean = (w * x).sum(axis=0) / w.sum(axis=0)
+    return mean, x.std(axis=0, ddof=1), (((x - mean) / s) ** 2).sum(axis=0) / (len(PATHS) - 1)
+
+
+def test_lever_arms_consistent_across_paths(paths: dict[tuple[int, int], PathResult]) -> None:
+    """The DOTs' positions relative to DOT1 from their specific-force differences: on every path DOT2
+    3-6 cm along -x, DOT3 7-13 cm along +y, DOT4 at both (a 3.5 x 10 cm rectangle: the DOTs lie side
+    by side, a DOT is 36 x 30 mm), z within 1 cm (one plate); the sigmas 1-13 mm, the spread across
+    the paths below 2 cm per axis.  The paths scatter more than their sigmas say (reduced chi-square
+    up to about 10: path 4, the weakest manoeuvres, is off by 1.5-2 cm) - docs/real.md."""
+    arms = {p: lever_arms_to_dot1(p, paths) for p in PATHS}
+    box = {2: ((-0.065, -0.01), (-0.03, 0.03)), 3: ((-0.045, 0.02), (0.07, 0.13)), 4: ((-0.06, -0.01), (0.08, 0.13))}
+    for p in PATHS:
+        for d, ((x0, x1), (y0, y1)) in box.items():
+            r, s = arms[p][d].r_m, arms[p][d].r_sigma_m
+            assert x0 < r[0] < x1 and y0 < r[1] < y1 and abs(r[2]) < 0.01, (p, d, r)
+            assert np.all(s < 0.015), (p, d, s)
+    for d in DOTS[1:]:
+        _, sd, chi2 = lever_arm_spread(arms, d)
+        assert np.all(sd < 0.02) and np.all(chi2 < 25.0), (d, sd, chi2)
+
+
 @pytest.fixture(scope="module")
 def raw_import(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, np.ndarray, int, Path]:
     """dpos-import on the raw DOT1 log and the flight log: (report, DOT1 stamps [ns], first nav stamp [ns], recording)."""
@@ -204,6 +249,13 @@ def _tables() -> str:
     for p in PATHS:
         lines.append(f"| {p} | " + " | ".join(" / ".join(f"{rel[p][d].rpy_deg[i]:+.2f} ± {rel[p][d].rpy_sigma_deg[i]:.2f}" for i in range(3))
                                               for d in DOTS[1:]) + " |")
+    lines += ["", "| path | DOT2 from DOT1 x / y / z [cm] | DOT3 from DOT1 | DOT4 from DOT1 |", "|---|---|---|---|"]
+    arms = {p: lever_arms_to_dot1(p, res) for p in PATHS}
+    for p in PATHS:
+        lines.append(f"| {p} | " + " | ".join(" / ".join(f"{arms[p][d].r_m[i] * 100:+.1f} ± {arms[p][d].r_sigma_m[i] * 100:.1f}" for i in range(3))
+                                              for d in DOTS[1:]) + " |")
+    lines.append("| mean | " + " | ".join(" / ".join(f"{m * 100:+.1f} (spread {sd * 100:.1f}, χ²/3 {c:.1f})" for m, sd, c in zip(*lever_arm_spread(arms, d)))
+                                          for d in DOTS[1:]) + " |")
     return "\n".join(lines)
 
 
