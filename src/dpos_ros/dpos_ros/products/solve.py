@@ -40,7 +40,7 @@ from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
-from dpos_ros.io.session import RecordedSession, read_session
+from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, RecordedSession, read_session
 
 from . import rows as R
 from .antenna import AntennaSolution
@@ -105,6 +105,9 @@ class SubImuTask:
     antennas: tuple[tuple[str, FloatArray], ...]
     store: RowStore
     oracle_truth: object | None = None
+    #: the main POS's attitude covariance is its absolute accuracy, correlated in time (an imported
+    #: navigation solution): the filter, taking it as white, averages it down; the rows add it back
+    master_att_absolute: bool = False
 
 
 # ------------------------------------------------------------------------------------ the workers
@@ -164,6 +167,10 @@ def _align_to_store(task: SubImuTask) -> dict:
         k = _kept(res.t_s, i0, i1, settings.output_rate_hz)
         if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
             sigma = sigma * Q.sigma_scale(res.qc, t)
+        if task.master_att_absolute:  # (SubImuTask): the sub-IMU's attitude is known relative to the main POS's
+            sigma = sigma.copy()
+            var_m = np.column_stack([np.interp(t, master.t_s, att_cov[:, j, j]) for j in range(3)])
+            sigma[:, 0:3] = np.sqrt(sigma[:, 0:3] ** 2 + var_m)
         C = quat_to_dcm(c["q_nb"])
         w = rates.rate_at(t + tau) if task.antennas else np.zeros((0, 3))
         w_var = rates.interpolation_var(t[k] + tau) if task.antennas else np.zeros((0, 3))
@@ -221,6 +228,11 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     t0 = time.perf_counter()
     source = SubImuSource.of_session(sess) if source is None else source
     store = RowStore(None if store_dir is None else Path(store_dir))
+    imported = sess.custom.get(MASTER_SOURCE_KEY) == MASTER_SOURCE_SOLUTION
+    if imported:
+        # an imported navigation solution (dpos-import --nav) is a finished solution: aligned throughout, its attitude
+        # sigma its accuracy (a live in-flight alignment's threshold would refuse an honest 0.1 deg: aligned_master)
+        settings = dc_replace(settings, master_aligned_sigma_deg=float("inf"))
     master = aligned_master(sess, settings.master_aligned_sigma_deg)
     release_memory()  # (what reading the main POS grew the heap to)
     present = set(sess.sub_imus if sub_imus is None else sub_imus)
@@ -233,7 +245,7 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     send_master = pool is None or not source.read_master or source.bag is None
     tasks = {s.name: SubImuTask(source.only(s.name), s.name, master if send_master else None, install(s.name), settings,
                                 tuple((a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name),
-                                store, None if oracle_truth is None else oracle_truth[s.name])
+                                store, None if oracle_truth is None else oracle_truth[s.name], imported)
              for s in aircraft.sub_imus if s.name in present and master is not None}
     futs = {name: pool.submit(align_to_store, task) for name, task in tasks.items()} if pool is not None else {}
     out: dict[str, AntennaSolution] = {}
@@ -455,7 +467,8 @@ def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1) -> NavSeries |
     a navigation that the in-flight alignment has not aligned yet (design.md) - or None if it never
     is.  Transfer alignment against an unaligned main POS (e.g. a 30 deg heading error with a
     100 deg sigma) would start the sub-IMUs from a wrong attitude; their poses start when the main
-    POS is aligned instead, and a warning says so."""
+    POS is aligned instead, and a warning says so.  (An imported navigation solution is aligned
+    throughout: :func:`solve` passes ``sigma_deg`` = inf for it.)"""
     m = sess.master
     (att_cov,) = m.required("att_cov")
     sig = np.rad2deg(np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1)))
