@@ -48,8 +48,9 @@ def test_an_imported_solution_is_aligned_and_its_attitude_sigma_kept() -> None:
     """An imported navigation solution (``dpos.master_source: solution``) whose attitude 1-sigma is
     0.3 deg throughout - its stated accuracy, not an in-flight alignment's state - is aligned from
     its first epoch (the live threshold would call it never aligned), and the sub-IMUs' attitude
-    sigma does not fall below it (the filter averages the solution's attitude as white noise; its
-    error is correlated in time, so the rows add its covariance back).  The recorded main POS
+    sigma does not fall below it, nor their velocity and position sigmas below the solution's (the
+    filter averages the solution as white noise; its errors are correlated in time, so the rows
+    add its covariances back).  The recorded main POS
     (the same data without the metadata) keeps the live rule."""
     sess = read_session(BAG)
     m = sess.master
@@ -65,6 +66,9 @@ def test_an_imported_solution_is_aligned_and_its_attitude_sigma_kept() -> None:
         assert abs(a.rows.read("t_s", 0, 1)[0] - m.t_s[0]) < 0.05
         sig = a.rows.read("sigma", 0, a.rows.n)
         assert np.all(sig[:, 0:3] >= np.deg2rad(0.3) * (1 - 1e-9)), sig[:, 0:3].min()
+        for cols, cov in ((slice(3, 6), m.vel_cov), (slice(6, 9), m.pos_cov)):  # (velocity, position: the same)
+            floor = np.sqrt(np.diagonal(cov, axis1=1, axis2=2).min(axis=0))
+            assert np.all(sig[:, cols] >= floor * (1 - 1e-9)), (sig[:, cols].min(axis=0), floor)
     assert not any("aligned" in w for w in sess.warnings), sess.warnings
 
 

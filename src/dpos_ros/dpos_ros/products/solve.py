@@ -105,9 +105,11 @@ class SubImuTask:
     antennas: tuple[tuple[str, FloatArray], ...]
     store: RowStore
     oracle_truth: object | None = None
-    #: the main POS's attitude covariance is its absolute accuracy, correlated in time (an imported
-    #: navigation solution): the filter, taking it as white, averages it down; the rows add it back
-    master_att_absolute: bool = False
+    #: the main POS's covariances are its absolute accuracy, its errors correlated in time (an
+    #: imported navigation solution): the filter, taking them as white, averages them down; the rows
+    #: add them back (position and velocity only where the filter does not model them as states,
+    #: ``settings.master_error_tau_s`` 0; with states it adds them itself)
+    master_sigma_absolute: bool = False
 
 
 # ------------------------------------------------------------------------------------ the workers
@@ -155,6 +157,8 @@ def _align_to_store(task: SubImuTask) -> dict:
     # unknown through the lever arm, a block of rows at a time (no array of them all but their stamps and flags)
     (att_cov,) = master.required("att_cov")
     att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))
+    # the rows' columns: attitude, velocity, position (ENU, as the main POS's covariances)
+    master_covs = [att_cov] + (list(master.required("vel_cov", "pos_cov")) if settings.master_error_tau_s == 0 else [])
     tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
     rates = ImuRates(imu.t_s, imu.omega_radps)
     stores = {name: task.store.child(f"ant_{name}") for name, _ in task.antennas}
@@ -167,10 +171,10 @@ def _align_to_store(task: SubImuTask) -> dict:
         k = _kept(res.t_s, i0, i1, settings.output_rate_hz)
         if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
             sigma = sigma * Q.sigma_scale(res.qc, t)
-        if task.master_att_absolute:  # (SubImuTask): the sub-IMU's attitude is known relative to the main POS's
+        if task.master_sigma_absolute:  # (SubImuTask): the sub-IMU's pose is known relative to the main POS's
             sigma = sigma.copy()
-            var_m = np.column_stack([np.interp(t, master.t_s, att_cov[:, j, j]) for j in range(3)])
-            sigma[:, 0:3] = np.sqrt(sigma[:, 0:3] ** 2 + var_m)
+            var_m = np.column_stack([np.interp(t, master.t_s, cov[:, j, j]) for cov in master_covs for j in range(3)])
+            sigma[:, :var_m.shape[1]] = np.sqrt(sigma[:, :var_m.shape[1]] ** 2 + var_m)
         C = quat_to_dcm(c["q_nb"])
         w = rates.rate_at(t + tau) if task.antennas else np.zeros((0, 3))
         w_var = rates.interpolation_var(t[k] + tau) if task.antennas else np.zeros((0, 3))
@@ -230,8 +234,8 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     store = RowStore(None if store_dir is None else Path(store_dir))
     imported = sess.custom.get(MASTER_SOURCE_KEY) == MASTER_SOURCE_SOLUTION
     if imported:
-        # an imported navigation solution (dpos-import --nav) is a finished solution: aligned throughout, its attitude
-        # sigma its accuracy (a live in-flight alignment's threshold would refuse an honest 0.1 deg: aligned_master)
+        # an imported navigation solution (dpos-import --nav) is a finished solution: aligned throughout, its sigmas
+        # its accuracy (a live in-flight alignment's threshold would refuse an honest 0.1 deg: aligned_master)
         settings = dc_replace(settings, master_aligned_sigma_deg=float("inf"))
     master = aligned_master(sess, settings.master_aligned_sigma_deg)
     release_memory()  # (what reading the main POS grew the heap to)
