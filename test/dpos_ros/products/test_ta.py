@@ -44,6 +44,34 @@ def test_a_never_aligned_main_pos_gives_no_antenna_and_says_why() -> None:
     assert any("never aligned" in w for w in sess.warnings), sess.warnings
 
 
+def test_an_imported_solution_is_aligned_and_its_attitude_sigma_kept() -> None:
+    """An imported navigation solution (``dpos.master_source: solution``) whose attitude 1-sigma is
+    0.3 deg throughout - its stated accuracy, not an in-flight alignment's state - is aligned from
+    its first epoch (the live threshold would call it never aligned), and the sub-IMUs' attitude
+    sigma does not fall below it, nor their velocity and position sigmas below the solution's (the
+    filter averages the solution as white noise; its errors are correlated in time, so the rows
+    add its covariances back).  The recorded main POS
+    (the same data without the metadata) keeps the live rule."""
+    sess = read_session(BAG)
+    m = sess.master
+    att_cov = np.repeat((np.eye(3) * np.deg2rad(0.3) ** 2)[None], m.t_s.size, axis=0)
+    sess = replace(sess, master=replace(m, att_cov=att_cov), warnings=[])
+    ac, st = load_aircraft("paper_su_pair"), TASettings(method="ukf", initial_attitude_error_deg=1.0)
+    ants, _ = solve(sess, ac, st)
+    assert {a.status for a in ants.values()} == {"not estimated: the main POS is never aligned"}
+    sess = replace(sess, custom={**sess.custom, "dpos.master_source": "solution"}, warnings=[])
+    ants, _ = solve(sess, ac, st)
+    for a in ants.values():
+        assert a.status == "estimated" and a.rows is not None
+        assert abs(a.rows.read("t_s", 0, 1)[0] - m.t_s[0]) < 0.05
+        sig = a.rows.read("sigma", 0, a.rows.n)
+        assert np.all(sig[:, 0:3] >= np.deg2rad(0.3) * (1 - 1e-9)), sig[:, 0:3].min()
+        for cols, cov in ((slice(3, 6), m.vel_cov), (slice(6, 9), m.pos_cov)):  # (velocity, position: the same)
+            floor = np.sqrt(np.diagonal(cov, axis1=1, axis2=2).min(axis=0))
+            assert np.all(sig[:, cols] >= floor * (1 - 1e-9)), (sig[:, cols].min(axis=0), floor)
+    assert not any("aligned" in w for w in sess.warnings), sess.warnings
+
+
 def test_workers_reading_the_recording_align_against_the_main_pos_they_are_sent() -> None:
     """A main POS other than the recorded one (dpos-process --master-reference forward | smoothed:
     here the recorded one made unaligned for 10 s) is sent to the workers that read their sub-IMU

@@ -40,7 +40,7 @@ from dpos_core.ta.pipeline import TASettings
 from dpos_core.ta.wingfit import SubImuTrack, fit_wing
 from dpos_core.units import FloatArray
 from dpos_ros.contract import topics as T
-from dpos_ros.io.session import RecordedSession, read_session
+from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, RecordedSession, read_session
 
 from . import rows as R
 from .antenna import AntennaSolution
@@ -105,6 +105,11 @@ class SubImuTask:
     antennas: tuple[tuple[str, FloatArray], ...]
     store: RowStore
     oracle_truth: object | None = None
+    #: the main POS's covariances are its absolute accuracy, its errors correlated in time (an
+    #: imported navigation solution): the filter, taking them as white, averages them down; the rows
+    #: add them back (position and velocity only where the filter does not model them as states,
+    #: ``settings.master_error_tau_s`` 0; with states it adds them itself)
+    master_sigma_absolute: bool = False
 
 
 # ------------------------------------------------------------------------------------ the workers
@@ -152,6 +157,8 @@ def _align_to_store(task: SubImuTask) -> dict:
     # unknown through the lever arm, a block of rows at a time (no array of them all but their stamps and flags)
     (att_cov,) = master.required("att_cov")
     att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))
+    # the rows' columns: attitude, velocity, position (ENU, as the main POS's covariances)
+    master_covs = [att_cov] + (list(master.required("vel_cov", "pos_cov")) if settings.master_error_tau_s == 0 else [])
     tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
     rates = ImuRates(imu.t_s, imu.omega_radps)
     stores = {name: task.store.child(f"ant_{name}") for name, _ in task.antennas}
@@ -164,6 +171,10 @@ def _align_to_store(task: SubImuTask) -> dict:
         k = _kept(res.t_s, i0, i1, settings.output_rate_hz)
         if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
             sigma = sigma * Q.sigma_scale(res.qc, t)
+        if task.master_sigma_absolute:  # (SubImuTask): the sub-IMU's pose is known relative to the main POS's
+            sigma = sigma.copy()
+            var_m = np.column_stack([np.interp(t, master.t_s, cov[:, j, j]) for cov in master_covs for j in range(3)])
+            sigma[:, :var_m.shape[1]] = np.sqrt(sigma[:, :var_m.shape[1]] ** 2 + var_m)
         C = quat_to_dcm(c["q_nb"])
         w = rates.rate_at(t + tau) if task.antennas else np.zeros((0, 3))
         w_var = rates.interpolation_var(t[k] + tau) if task.antennas else np.zeros((0, 3))
@@ -221,6 +232,11 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     t0 = time.perf_counter()
     source = SubImuSource.of_session(sess) if source is None else source
     store = RowStore(None if store_dir is None else Path(store_dir))
+    imported = sess.custom.get(MASTER_SOURCE_KEY) == MASTER_SOURCE_SOLUTION
+    if imported:
+        # an imported navigation solution (dpos-import --nav) is a finished solution: aligned throughout, its sigmas
+        # its accuracy (a live in-flight alignment's threshold would refuse an honest 0.1 deg: aligned_master)
+        settings = dc_replace(settings, master_aligned_sigma_deg=float("inf"))
     master = aligned_master(sess, settings.master_aligned_sigma_deg)
     release_memory()  # (what reading the main POS grew the heap to)
     present = set(sess.sub_imus if sub_imus is None else sub_imus)
@@ -233,7 +249,7 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     send_master = pool is None or not source.read_master or source.bag is None
     tasks = {s.name: SubImuTask(source.only(s.name), s.name, master if send_master else None, install(s.name), settings,
                                 tuple((a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name),
-                                store, None if oracle_truth is None else oracle_truth[s.name])
+                                store, None if oracle_truth is None else oracle_truth[s.name], imported)
              for s in aircraft.sub_imus if s.name in present and master is not None}
     futs = {name: pool.submit(align_to_store, task) for name, task in tasks.items()} if pool is not None else {}
     out: dict[str, AntennaSolution] = {}
@@ -455,7 +471,8 @@ def aligned_master(sess: RecordedSession, sigma_deg: float = 0.1) -> NavSeries |
     a navigation that the in-flight alignment has not aligned yet (design.md) - or None if it never
     is.  Transfer alignment against an unaligned main POS (e.g. a 30 deg heading error with a
     100 deg sigma) would start the sub-IMUs from a wrong attitude; their poses start when the main
-    POS is aligned instead, and a warning says so."""
+    POS is aligned instead, and a warning says so.  (An imported navigation solution is aligned
+    throughout: :func:`solve` passes ``sigma_deg`` = inf for it.)"""
     m = sess.master
     (att_cov,) = m.required("att_cov")
     sig = np.rad2deg(np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1)))

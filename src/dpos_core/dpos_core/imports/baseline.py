@@ -1,0 +1,139 @@
+"""The lever arm between two IMUs on one rigid body from their specific-force differences.
+
+Rates do not see a lever arm; specific forces do.  For two IMUs a and b on a rigid body, with
+``r`` the position of b relative to a in a's axes, ``omega`` the body rate and ``alpha`` its rate
+of change (both in a's axes, rad/s, rad/s^2) and ``C_ab`` the rotation of b's axes to a's
+(:func:`dpos_core.imports.mounting.relative_rotation`), the rigid-body kinematics give
+(e.g. Titterton and Weston 2004, "Strapdown Inertial Navigation Technology", eq. 10.10)::
+
+    C_ab f_b - f_a = ([alpha x] + [omega x][omega x]) r + d        (1)
+
+``d`` the accelerometers' bias difference (in a's axes, constant over the log).  Both logs are
+averaged over common intervals of ``interval_s`` (:func:`dpos_core.imports.clock.interval_means`:
+the airframe's vibration averaged out), ``omega`` is the mean of the two IMUs' rates, ``alpha``
+the central difference of the interval means over two intervals (a difference smoothed over
+``2 interval_s``).  (1) stacked over the K intervals is linear in the 6 unknowns ``(r, d)`` and
+solved by least squares.
+
+Observability: ``r`` is seen only where the body turns or accelerates angularly; with ``d``
+estimated, the centred design matrix's smallest singular value (rms over the intervals, 1/s^2)
+must reach ``min_excitation``, else :class:`MountingNotObservable` (no guess).
+
+Sigma: the residuals give the noise variance ``s^2`` (3K - 6 degrees of freedom); the residuals
+of neighbouring intervals are correlated (the smoothed difference shares samples, the vibration
+is coloured), so the covariance ``s^2 (A^T A)^-1`` is inflated by ``1 + 2 sum rho_j`` of the
+residuals' positive autocorrelations (K / that = the effective sample count), as for the
+mountings (:mod:`dpos_core.imports.mounting`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..attitude import skew
+from ..errors import MountingNotObservable
+from ..units import FloatArray
+from .clock import interval_means, running_integral
+from .mounting import _corr_factor
+
+
+@dataclass(frozen=True)
+class LeverArmEstimate:
+    """Position of IMU b relative to IMU a, in a's axes.
+
+    Attributes:
+        r_m: (3,) lever arm [m].
+        r_sigma_m: (3,) its 1 sigma [m] (residuals, inflated for their correlation).
+        cov_m2: (3, 3) covariance of ``r_m`` [m^2].
+        bias_diff_mps2: (3,) accelerometer bias difference ``d`` of (1) [m/s^2] and
+        bias_diff_sigma_mps2: (3,) its 1 sigma.
+        residual_mps2: rms of the residuals per axis, mean over the axes [m/s^2].
+        excitation: the centred design's singular values (3,), rms [1/s^2] (observability).
+        samples: intervals used; corr_factor: the variance inflation for correlated residuals.
+    """
+
+    r_m: FloatArray
+    r_sigma_m: FloatArray
+    cov_m2: FloatArray
+    bias_diff_mps2: FloatArray
+    bias_diff_sigma_mps2: FloatArray
+    residual_mps2: float
+    excitation: FloatArray
+    samples: int
+    corr_factor: float
+
+
+def _triangle_means(t_s: FloatArray, x: FloatArray, edges: FloatArray, h: float) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Means of ``x`` (N, C) at stamps ``t_s`` (N,) under the triangle of half-width ``2 h`` centred
+    on each interval ``[edges[k], edges[k + 1]]`` of length ``2 h`` (a box of ``2 h`` smoothed by a
+    box of ``2 h``): the second running integral at the four points ``edges +- h``, divided by
+    ``(2 h)^2``.  Returns (K - 1, C) and the mask of the intervals inside the series."""
+    th1 = running_integral(t_s, x)
+    dt = np.diff(t_s)[:, None]
+    th2 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(0.5 * (th1[1:] + th1[:-1]) * dt, axis=0)])
+
+    def at(p: FloatArray) -> FloatArray:
+        return np.column_stack([np.interp(p, t_s, th2[:, j]) for j in range(x.shape[1])])
+
+    up, lo = at(edges + h), at(edges - h)
+    box = up - lo  # (the running integral's box of 2h at each edge, times 2h)
+    out = (box[1:] - box[:-1]) / (2 * h) ** 2
+    inside = (edges[:-1] - h >= t_s[0]) & (edges[1:] + h <= t_s[-1])
+    return out, inside
+
+
+def lever_arm_from_specific_force(t_a_s: FloatArray, f_a: FloatArray, omega_a: FloatArray, t_b_s: FloatArray, f_b: FloatArray,
+                                  omega_b: FloatArray, C_ab: FloatArray, interval_s: float = 0.05, min_excitation: float = 0.5,
+                                  name: str = "IMU pair") -> LeverArmEstimate:
+    """Lever arm of IMU b from IMU a by (1) (module docstring).  Both logs on one clock: t_a_s (N,),
+    f_a, omega_a (N, 3); t_b_s (M,), f_b, omega_b (M, 3) [s, m/s^2, rad/s]; C_ab (3, 3) b's axes ->
+    a's.  ``min_excitation`` [1/s^2]: the smallest rms singular value of the centred design for
+    ``r`` to count as observable.  Raises :class:`MountingNotObservable`."""
+    lo, hi = max(t_a_s[0], t_b_s[0]), min(t_a_s[-1], t_b_s[-1])
+    h = 0.5 * interval_s
+    edges = np.arange(lo + h, hi - h + 1e-9, interval_s)
+    if edges.size < 21:
+        raise MountingNotObservable(f"{name}: the logs overlap by {max(0.0, hi - lo):.2f} s, {20 * interval_s + 2 * h:g} s needed")
+    # b's samples in a's axes: specific force, rate, and [omega x]^2 (9) per sample
+    xa = np.hstack([f_a, omega_a, (skew(omega_a) @ skew(omega_a)).reshape(-1, 9)])
+    wb = omega_b @ C_ab.T
+    xb = np.hstack([f_b @ C_ab.T, wb, (skew(wb) @ skew(wb)).reshape(-1, 9)])
+    ta, ia = _triangle_means(t_a_s, xa, edges, h)
+    tb, ib = _triangle_means(t_b_s, xb, edges, h)
+    ma, _ = interval_means(t_a_s, omega_a, edges - h, edges + h)
+    mb, _ = interval_means(t_b_s, wb, edges - h, edges + h)
+    m = 0.5 * (ma + mb)  # the rate's box means centred at the edges
+    alpha = np.diff(m, axis=0) / interval_s  # the triangle mean of alpha over each interval (exact)
+    keep = ia & ib
+    if keep.sum() < 20:
+        raise MountingNotObservable(f"{name}: {int(keep.sum())} common intervals, 20 needed")
+    d = tb[keep, 0:3] - ta[keep, 0:3]  # (K, 3)
+    W2 = 0.5 * (ta[keep, 6:15] + tb[keep, 6:15]).reshape(-1, 3, 3)
+    K = np.asarray(skew(alpha[keep]) + W2, dtype=np.float64)  # (K, 3, 3)
+    n = d.shape[0]
+    # centred design: r against the bias difference (the means of (1) over the intervals)
+    Kc = K - K.mean(axis=0)
+    dc = d - d.mean(axis=0)
+    A = Kc.reshape(3 * n, 3)
+    exc = np.linalg.svd(A, compute_uv=False) / np.sqrt(n)
+    if exc[-1] < min_excitation:
+        raise MountingNotObservable(f"{name}: lever arm not observable: the angular motion excites (1) by rms {exc[0]:.3g}, "
+                                    f"{exc[1]:.3g}, {exc[2]:.3g} 1/s^2 ({min_excitation:g} needed on all three)")
+    info = A.T @ A
+    r = np.linalg.solve(info, A.T @ dc.reshape(3 * n))
+    bias = d.mean(axis=0) - K.mean(axis=0) @ r
+    res = d - K @ r - bias
+    s2 = float((res * res).sum()) / max(1, 3 * n - 6)
+    factor = _corr_factor(res)
+    cov = s2 * factor * np.linalg.inv(info)
+    # the bias difference's variance: the mean's noise plus what r's error does to it
+    Km = K.mean(axis=0)
+    cov_d = s2 * factor / n * np.eye(3) + Km @ cov @ Km.T
+    return LeverArmEstimate(r, np.sqrt(np.diag(cov)), cov, bias, np.sqrt(np.diag(cov_d)),
+                            float(np.sqrt((res * res).mean(axis=0)).mean()), exc, n, factor)
+
+
+__all__ = ["LeverArmEstimate", "lever_arm_from_specific_force"]
