@@ -37,7 +37,7 @@ demo: $(STAMP)
 # Exit status 5 (nothing selected, e.g. PYTEST_ARGS names no test) is not a failure.
 PYTEST_WORKERS ?= 2
 test: lint
-	$(VPY) -m pytest -q -n $(PYTEST_WORKERS) --durations=20 $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(VPY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadgroup --durations=20 $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
 # The ROS tests on a busy machine: STRESS_BURNERS CPU-bound processes run beside them for the whole
 # session (test/conftest.py --cpu-burner; stopped at its end, and they exit by themselves if pytest dies).

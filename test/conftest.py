@@ -101,6 +101,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if _NODES_DIR in item.path.parents:
             item.add_marker(pytest.mark.ros)
+    # make test runs ``-n 2 --dist loadgroup``: a module whose tests share a module-scoped fixture (a
+    # simulated flight, a dpos-process run) goes to one worker, so that the fixture is built once, not
+    # once per worker; the other tests are dealt one by one
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        defs = info.name2fixturedefs.values() if info is not None else ()
+        if any(d[-1].scope in ("module", "package", "class") for d in defs if d):
+            item.add_marker(pytest.mark.xdist_group(_module_group(item)))
+
+
+def _module_group(item: pytest.Item) -> str:
+    """The xdist group of a module's tests: its path under test/."""
+    return item.path.relative_to(Path(__file__).parent).as_posix()
 
 
 @pytest.fixture(scope="session")
