@@ -442,7 +442,7 @@ def build_report(args: argparse.Namespace, imu_read: ImuLog, imu: ImuLog, sel: G
     if sel is not None:
         pos = sel.pos
         rep["gnss"] = {
-            "fixes_read": len(sel.read), "lines_skipped": _skipped(sel.read.skipped),
+            "fixes_read": len(sel.read), "lines_skipped": _skipped(sel.read.skipped), "lines_reordered": sel.read.reordered,
             "q_histogram_read": _q_hist(sel.read.quality), "has_velocity": sel.read.has_velocity,
             "gnss_rate_hz": args.gnss_rate, "kept_after_rate": len(sel.read) - sel.removed_by_rate,
             "removed_by_rate": sel.removed_by_rate, "removed_by_quality": sel.removed_by_quality,
@@ -495,6 +495,8 @@ def summary_lines(rep: dict[str, Any]) -> list[str]:
         out += [f"        line {e['line']}: {e['reason']}" for e in gs["first"]]
         if gs["count"] > len(gs["first"]):
             out.append(f"        ... and {gs['count'] - len(gs['first'])} more")
+        if g["lines_reordered"]:
+            out.append(f"      warning: {g['lines_reordered']} line(s) out of stamp order in the .pos: sorted by stamp")
         if g["gnss_rate_hz"] is not None:
             off = g["grid_offset_ms"]
             where = f"; kept fixes {off['min']:+.3f} .. {off['max']:+.3f} ms from the grid" if off else ""
