@@ -178,3 +178,29 @@ def test_atomic_path_leaves_no_partial_file(tmp_path: Path) -> None:
     with atomic_path(target) as tmp:
         tmp.write_text("whole\n")
     assert target.read_text() == "whole\n" and [p.name for p in tmp_path.iterdir()] == ["nav.csv"]
+
+
+def test_dpos_process_keeps_a_session_id_out_of_the_path_and_overwrite_off_foreign_dirs(tmp_path: Path, capsys) -> None:
+    """The issue's case end to end, up to the products: a recording whose session id is
+    ``../../escaped`` and an unrelated ``OUT/escaped/``: ``--overwrite`` refuses it, nothing is
+    written outside OUT and nothing is removed (the processing itself is not run: it is refused first)."""
+    from repo_paths import REPO
+
+    from dpos_ros.cli import process
+
+    bag = tmp_path / "rec"
+    bag.mkdir()
+    sample = REPO / "bags" / "paper_su_pair_seed1_45s"
+    for f in sample.iterdir():
+        data = f.read_bytes()
+        (bag / f.name).write_bytes(data.replace(b"dpos.session_id: paper_su_seed1", b"dpos.session_id: ../../escaped")
+                                   if f.name == "metadata.yaml" else data)
+    out = tmp_path / "a" / "b" / "out"
+    (out / "escaped").mkdir(parents=True)
+    (out / "escaped" / "thesis.tex").write_text("precious")
+    assert process.main([str(bag), "--workers", "1", "--overwrite", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "'../../escaped' is not a safe directory name: using 'escaped'" in err
+    assert "is not a dpos products directory" in err and "Traceback" not in err
+    assert (out / "escaped" / "thesis.tex").read_text() == "precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "rec"] and sorted(p.name for p in out.iterdir()) == ["escaped"]

@@ -283,6 +283,8 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         ref = master_reference(sess, aircraft, args.master_reference)
     except (SessionError, ConfigError, OSError) as e:
         return _read_error(e, args.bag)
+    for w in sess.warnings:
+        print(f"dpos-process: warning: {w}", file=sys.stderr)
     try:  # the session id is a safe name (RecordedSession); the directory must stay under --out
         final = child_dir(args.out, sess.session_id)
     except OutputError as e:
@@ -296,8 +298,6 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
               "--overwrite replaces only products dpos wrote; choose another --out", file=sys.stderr)
         return EXIT_ERROR
     err0 = _initial_error(args, sess)
-    for w in sess.warnings:
-        print(f"dpos-process: warning: {w}", file=sys.stderr)
     if ref.which != "recorded":
         _print_reference(ref, sess)
     n_read = len(sess.warnings)
