@@ -16,7 +16,7 @@ import pytest
 from repo_paths import REPO
 
 from dpos_core.errors import BagError
-from dpos_ros.cli import import_, process, sim
+from dpos_ros.cli import evaluate, import_, play, process, record, sar, sim
 from dpos_ros.cli.options import one_line_errors
 from dpos_ros.io import spill as S
 from ifa_node import offline as ifa
@@ -60,14 +60,23 @@ OPTION_CASES = [
     ("dpos-ifa", [str(SAMPLE), "--min-course-speed", "-1"], "--min-course-speed"),
     ("dpos-sim", ["--scenario", "paper_su", "--duration", "inf"], "--duration"),
     ("dpos-sim", ["--scenario", "paper_su", "--window", "nan"], "--window"),
+    ("dpos-sar", [str(SAMPLE), "--method", "pf", "--particles", "1000000000"], "--particles"),
+    ("dpos-sar", [str(SAMPLE), "--filter-rate", "1e9"], "--filter-rate"),
+    ("dpos-eval", ["--scenario", "paper_su", "--particles", "1000000000"], "--particles"),
+    ("dpos-play", [str(SAMPLE), "--rate", "inf"], "--rate"),
+    ("dpos-play", [str(SAMPLE), "--wait-subscribers", "nan"], "--wait-subscribers"),
+    ("dpos-play", [str(SAMPLE), "--flow-window", "0"], "--flow-window"),
+    ("dpos-record", ["--all", "--duration", "inf"], "--duration"),
 ]
-MAINS = {"dpos-import": import_.main, "dpos-process": process.main, "dpos-ifa": ifa.main, "dpos-sim": sim.main}
+MAINS = {"dpos-import": import_.main, "dpos-process": process.main, "dpos-ifa": ifa.main, "dpos-sim": sim.main,
+         "dpos-sar": sar.main, "dpos-eval": evaluate.main, "dpos-play": play.main, "dpos-record": record.main}
 
 
 @pytest.mark.parametrize("prog, argv, word", OPTION_CASES, ids=[f"{c[0]} {' '.join(c[1][-2:])}" for c in OPTION_CASES])
 def test_bad_option_is_one_line_and_exit_2(prog: str, argv: list[str], word: str, tmp_path: Path, capsys) -> None:
     extra = ["--params-file", str(WALK / "ifa_node.yaml")] if prog == "dpos-ifa" else []
-    assert _run(MAINS[prog], [*argv, *extra, "--out", str(tmp_path / "out")]) == 2
+    out = [] if prog == "dpos-play" else ["--out", str(tmp_path / "out")]
+    assert _run(MAINS[prog], [*argv, *extra, *out]) == 2
     assert word in _one_line(capsys, prog)
     assert not (tmp_path / "out").exists()
 

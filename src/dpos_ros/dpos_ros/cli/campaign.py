@@ -69,6 +69,7 @@ from dpos_ros.cli.campaign_tasks import (
     worker_info,
     write_summary,
 )
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.io.outdir import OutputError, probe_writable
 from dpos_ros.runtime.pool import WORKER_ENV, default_workers, numba_stats
 
@@ -422,6 +423,7 @@ def main_eval(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     return EXIT_OK if not failed_seeds else EXIT_FAILED
 
 
+@one_line_errors(PROG)
 def main(argv: list[str] | None = None) -> int:
     ap, subs, forwarded = _parsers()
     args = ap.parse_args(argv)

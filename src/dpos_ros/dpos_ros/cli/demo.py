@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from dpos_core.ta.pipeline import METHODS
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.contract import topics as T
 from dpos_ros.io.outdir import is_products_dir
 from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec, NodeSpec
@@ -42,6 +43,7 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+@one_line_errors("dpos-demo")
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     t_start = time.monotonic()

@@ -27,9 +27,14 @@ from typing import Any, TypeVar
 from dpos_core.errors import DposError
 from dpos_ros.io.outdir import os_error_text
 
-__all__ = ["EXIT_ERROR", "finite_float", "float_in", "int_in", "one_line", "one_line_errors"]
+__all__ = ["EXIT_ERROR", "MAX_PARTICLES", "MAX_RATE_HZ", "finite_float", "float_in", "int_in", "one_line", "one_line_errors"]
 
 EXIT_ERROR = 2
+#: the most particles a command accepts: a particle filter's arrays grow with them
+MAX_PARTICLES = 100_000
+#: the highest filter / output rate [Hz] a command accepts: no IMU of the product is faster, and the
+#: epochs allocated grow with the rate times the flight's length
+MAX_RATE_HZ = 1000.0
 F = TypeVar("F", bound=Callable[..., Any])
 
 

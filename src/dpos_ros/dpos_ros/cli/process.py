@@ -42,7 +42,7 @@ from pathlib import Path
 from dpos_core.config import AircraftConfig, ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
-from dpos_ros.cli.options import one_line_errors
+from dpos_ros.cli.options import MAX_PARTICLES, MAX_RATE_HZ, one_line_errors
 from dpos_ros.io.bag import topics_and_duration
 from dpos_ros.io.outdir import PRODUCTS_MARKER, OutputError, OutputTarget, child_dir, is_products_dir, os_error_text
 from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, RecordedSession, SessionError, read_session
@@ -68,11 +68,6 @@ STREAM_AUTO_S = 3600.0
 EXIT_OK = 0
 EXIT_NOT_ESTIMATED = 1
 EXIT_ERROR = 2
-#: --particles above this are refused before anything is allocated (a filter's arrays grow with it)
-MAX_PARTICLES = 100_000
-#: --filter-rate / --output-rate above this [Hz] are refused: no IMU of the product is faster,
-#: and the epochs allocated grow with the rate times the flight's length
-MAX_RATE_HZ = 1000.0
 
 
 def parser() -> argparse.ArgumentParser:
