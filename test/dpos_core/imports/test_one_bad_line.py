@@ -1,4 +1,4 @@
-"""One bad line costs one line (issue 33, part 4): an IMU log whose time column has one glitched
+"""One bad line costs one line: an IMU log whose time column has one glitched
 stamp keeps every other line (the longest increasing sequence of stamps); a .pos whose lines are
 out of order is sorted, with a count, not cut to the lines after the first reversal."""
 

@@ -1,4 +1,4 @@
-"""dpos-campaign's local Dask cluster (issue 33, part 5): TLS with a temporary certificate, so that
+"""dpos-campaign's local Dask cluster: TLS with a temporary certificate, so that
 another local process can neither run code in a worker nor talk to the scheduler, and no HTTP
 route (no dashboard, no /metrics) on the scheduler or the workers.  The TLS part needs the
 ``cryptography`` package (Dask's ``Security.temporary()``); without it the cluster runs on plain

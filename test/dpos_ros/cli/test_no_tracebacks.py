@@ -1,5 +1,5 @@
-"""No tracebacks (issue 33, part 6): every bad option, parameter file, output or spill the issue
-lists, and more of the same classes, ends in one line ``prog: error: ...`` and exit status 2,
+"""No tracebacks: every bad option, parameter file, output or spill a probe
+tried, and more of the same classes, ends in one line ``prog: error: ...`` and exit status 2,
 before anything is allocated or written.  The options are checked by the shared argparse types
 (dpos_ros.cli.options) and the commands' own checks; what escapes them as a DposError, an
 OSError (a full disk) or a MemoryError is turned into one line by ``one_line_errors``.

@@ -57,7 +57,7 @@ def test_garbage_mcap_in_the_working_directory(tmp_path: Path) -> None:
 @pytest.mark.parametrize("bad", ["/gnss fix", "/gnss/1ix", "/gnss//ix"])
 def test_bag_with_an_invalid_topic_name(tmp_path: Path, bad: str) -> None:
     """A recording whose topic rcl refuses (a space, a token starting with a digit, an empty
-    token): one line naming the topic, nothing published (issue 33's case, then ours)."""
+    token): one line naming the topic, nothing published (the probe's case, then ours)."""
     from repo_paths import REPO
 
     d = tmp_path / "bag"

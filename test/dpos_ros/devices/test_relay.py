@@ -344,7 +344,7 @@ JUMP_CASES = {
 
 @pytest.mark.parametrize("case", sorted(JUMP_CASES))
 def test_one_stamp_jump_costs_one_message(case, ros_context):
-    """A driver message stamped +1 h (issue 33, part 4): rejected alone (``jump``), the stream goes
+    """A driver message stamped +1 h: rejected alone (``jump``), the stream goes
     on; a real clock step (the stamps go on from the new time) is relayed whole.  The relay's
     callback is called directly: no DDS delivery is involved."""
     order, relayed_idx, rejected = JUMP_CASES[case]

@@ -1,4 +1,4 @@
-"""Names never become paths unchecked (issue 33, part 5): a session id from a bag, a spill or a
+"""Names never become paths unchecked: a session id from a bag, a spill or a
 ``/session/end`` publisher is one safe directory name; products stay directly under their root;
 ``--overwrite`` replaces only a directory dpos wrote; a spill.json cannot make a reader open a file
 outside its spill.  The graph's own checks are in test/dpos_ros/runtime/test_graph_trust.py."""

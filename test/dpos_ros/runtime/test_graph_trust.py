@@ -1,4 +1,4 @@
-"""What a graph file may start and set (issue 33, parts 5 and 6): only the product's executables
+"""What a graph file may start and set: only the product's executables
 unless the file lists others under ``allow_executables``; no loader variables in ``env``; wrong
 types, spaces and quotes in names and values end in one line naming the entry (GraphError, which
 dpos-graph prints with exit status 2), never a traceback.  Nothing here starts a process."""

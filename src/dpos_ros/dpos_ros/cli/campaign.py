@@ -192,8 +192,10 @@ NO_HTTP_ROUTES: dict[str, Any] = {"distributed.scheduler.http.routes": [], "dist
 
 def dist_config_set(values: dict[str, Any]) -> contextlib.AbstractContextManager[Any]:
     """``dask.config.set(values)`` (a context manager: the configuration is restored after)."""
-    import dask
-
+    try:
+        import dask
+    except ImportError as e:  # (it comes with distributed; the extra names both)
+        raise CampaignError(f"the Dask engine is not installed (no module {e.name or 'dask'!r}): {CAMPAIGN_EXTRA}") from None
     return dask.config.set(values)
 
 
