@@ -61,7 +61,7 @@ def test_other_executables_only_when_the_file_allows_them() -> None:
 
 
 @pytest.mark.parametrize("value", ["it's", 'say "hi"', "a b", "1.0", "true", "", " lead", "x: y", "#c", "[1]", "plain",
-                                   ["a b", "it's"], 3, 2.5, True])
+                                   ["a b", "it's"], [], 3, 2.5, True])
 def test_parameter_values_reach_the_node_intact(value) -> None:
     """``-p name:=TEXT`` is parsed as YAML by rcl: every string comes back as the same string."""
     assert yaml.safe_load(_param_text(value)) == value

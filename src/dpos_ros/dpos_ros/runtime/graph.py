@@ -148,9 +148,7 @@ def _is_scalar(v: Any) -> bool:
 
 def _param_problem(v: Any) -> str | None:
     """Why ``v`` cannot be a ROS parameter value from a graph file (None: it can)."""
-    if isinstance(v, (list, tuple)):
-        if not v:
-            return "an empty list has no ROS type"
+    if isinstance(v, (list, tuple)):  # (an empty list: a parameter's "unset", e.g. datum: [])
         if not all(_is_scalar(x) and not isinstance(x, (list, tuple)) for x in v):
             return "a list must hold numbers, booleans or strings"
         kinds = {bool if isinstance(x, bool) else (float if isinstance(x, (int, float)) else str) for x in v}
