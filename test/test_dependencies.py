@@ -47,6 +47,7 @@ LIBRARIES: dict[str, tuple[str, str]] = {
     "zstandard": ("python3-zstandard-pip", "zstandard"),
     "lz4": ("python3-lz4-pip", "lz4"),
     "distributed": ("python3-distributed-pip", "distributed"),
+    "dask": ("python3-dask-pip", "dask"),  # (campaign extra: dask.config for the local cluster)
 }
 #: ROS packages (rosdep key = package name); from the ros-jazzy wheels or apt, never in install_requires
 ROS_PACKAGES = {

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import yaml
 
 from dpos_core.config.sensors import IMU_PRESETS, imu_model
 from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS, PAPER_IFA_IMU, R_ESTIMATORS, IfaFilterConfig
 from dpos_core.ifa.pipeline import METHODS
-from dpos_ros.runtime.params import ParameterError, aircraft_config_param, datum_param, param, scenario_param
+from dpos_ros.runtime.params import ParameterError, aircraft_config_param, config_from_values, datum_param, param, scenario_param
 
 if TYPE_CHECKING:
     from dpos_core.config.sensors import ImuErrorModel
@@ -100,10 +100,9 @@ class IfaConfig:
             params = dict(yaml.safe_load(Path(path).read_text())["ifa_node"]["ros__parameters"])
         except (OSError, yaml.YAMLError, KeyError, TypeError) as e:
             raise ValueError(f"{path}: not an ifa_node parameter file ({type(e).__name__}: {e})") from None
-        kw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
-        try:
-            return cls(**kw)
-        except TypeError as e:
+        try:  # the node's own checks of every value (types, ranges, choices), as declare_config makes them
+            return config_from_values(cls, params)
+        except ValueError as e:
             raise ValueError(f"{path}: {e}") from None
 
     def core_config(self, master_imu: ImuErrorModel | None = None) -> IfaFilterConfig:

@@ -52,3 +52,16 @@ def test_garbage_mcap_in_the_working_directory(tmp_path: Path) -> None:
     (tmp_path / "junk.mcap").write_bytes(b"garbage\n")
     _one_error_line(_play("junk.mcap", cwd=tmp_path), "junk.mcap", "no complete message")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["junk.mcap"]  # nothing written beside it
+
+
+@pytest.mark.parametrize("bad", ["/gnss fix", "/gnss/1ix", "/gnss//ix"])
+def test_bag_with_an_invalid_topic_name(tmp_path: Path, bad: str) -> None:
+    """A recording whose topic rcl refuses (a space, a token starting with a digit, an empty
+    token): one line naming the topic, nothing published (the probe's case, then ours)."""
+    from repo_paths import REPO
+
+    d = tmp_path / "bag"
+    d.mkdir()
+    for f in (REPO / "bags" / "paper_su_pair_seed1_45s").iterdir():  # the same length: the MCAP's offsets hold
+        (d / f.name).write_bytes(f.read_bytes().replace(b"/gnss/fix", bad.encode()))
+    _one_error_line(_play(str(d)), repr(bad), "not a valid ROS topic name")

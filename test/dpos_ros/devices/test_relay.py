@@ -328,3 +328,42 @@ def test_pos_sub_node_ros_process_logs_plan_and_stops(start_node):
     proc.send_signal(signal.SIGINT)
     assert proc.wait(STOP_TIMEOUT_S) == 0, proc.output
     assert "Traceback" not in proc.output and "-> publishing" not in proc.output, proc.output
+
+
+HOUR_NS = 3600 * 1_000_000_000
+JUMP_CASES = {
+    # case: (stamps in arrival order as sample indices or (index, offset ns), expected relayed indices, rejected)
+    "one message +1 h": ([*range(40), (40, HOUR_NS), *range(41, 100)], [*range(40), *range(41, 100)], {"jump": 1}),
+    "one message -1 h": ([*range(40), (40, -HOUR_NS), *range(41, 100)], [*range(40), *range(41, 100)], {"out_of_order": 1}),
+    "two messages +1 h": ([*range(40), (40, HOUR_NS), (41, HOUR_NS), *range(42, 100)], [*range(40), *range(42, 100)], {"jump": 2}),
+    "a glitch then a repeat of it": ([*range(40), (40, HOUR_NS), (40, HOUR_NS), *range(41, 100)], [*range(40), *range(41, 100)],
+                                     {"jump": 1, "duplicate": 1}),
+    "a real clock step +1 h": ([*range(40), *((k, HOUR_NS) for k in range(40, 100))], list(range(100)), {}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(JUMP_CASES))
+def test_one_stamp_jump_costs_one_message(case, ros_context):
+    """A driver message stamped +1 h: rejected alone (``jump``), the stream goes
+    on; a real clock step (the stamps go on from the new time) is relayed whole.  The relay's
+    callback is called directly: no DDS delivery is involved."""
+    order, relayed_idx, rejected = JUMP_CASES[case]
+    host = Node("jump_host", context=ros_context)
+    relay = DeviceRelay(host, [Route("imu", "imu_in", "/sub_imu/x/imu", "sub_imu_x")], status_period_s=None)
+    out: list[int] = []
+    st = relay._states[0]
+    st.publisher = type("Pub", (), {"publish": lambda self, m: out.append(_t_ns(m))})()
+    rng = np.random.default_rng(3)
+    try:
+        stamps = []
+        for item in order:
+            k, off = (item, 0) if isinstance(item, int) else item
+            stamps.append(T0_NS + k * PERIOD_NS + off)
+            relay._on_input(st, _imu(stamps[-1], rng.normal(0, 0.1, 3), np.array([0, 0, 9.8]), np.full(3, 1e-6), np.full(3, 1e-4)))
+        step = HOUR_NS if case.startswith("a real") else 0
+        assert out == [T0_NS + k * PERIOD_NS + (step if k >= 40 else 0) for k in relayed_idx]
+        s = relay.stats["/sub_imu/x/imu"]
+        assert s.rejected == rejected and s.relayed == len(relayed_idx) and s.held == 0
+        assert s.received == s.relayed + s.rejected_total + s.held == len(order)
+    finally:
+        host.destroy_node()

@@ -13,6 +13,7 @@ Bad lines are never fatal: a cut or malformed line is skipped and counted with i
 
 from __future__ import annotations
 
+import bisect
 import calendar
 import math
 import struct
@@ -183,6 +184,37 @@ def read_tag(path: str | Path) -> TimeTag:
     return TimeTag(int(time_t) * 1_000_000_000 + int(round(frac * 1e9)), rec[:, 0].copy(), rec[:, 1].copy())
 
 
+def increasing_lines(stamps: list[float | int] | NDArray[np.int64]) -> NDArray[np.bool_]:
+    """(N,) which of the N ``stamps`` (in file order) form the longest strictly increasing
+    subsequence (the earliest such one): every other line is a glitch, a repeat or out of order.
+    One stamp far ahead (a line +1 h) drops that line only, where "drop what is not after the last
+    kept" would drop every line after it.  O(N) when the stamps already increase, else O(N log N)."""
+    n = len(stamps)
+    keep = np.zeros(n, dtype=bool)
+    if n == 0:
+        return keep
+    if all(stamps[i] < stamps[i + 1] for i in range(n - 1)):
+        keep[:] = True
+        return keep
+    tails: list[float | int] = []  # the smallest last stamp of an increasing run of each length
+    tail_idx: list[int] = []
+    parent = [-1] * n
+    for i, t in enumerate(stamps):
+        k = bisect.bisect_left(tails, t)
+        parent[i] = tail_idx[k - 1] if k else -1
+        if k == len(tails):
+            tails.append(t)
+            tail_idx.append(i)
+        elif t < tails[k]:  # (a repeat of a run's last stamp keeps the earlier line)
+            tails[k] = t
+            tail_idx[k] = i
+    i = tail_idx[-1]
+    while i >= 0:
+        keep[i] = True
+        i = parent[i]
+    return keep
+
+
 def read_imu_csv(path: str | Path, columns: ImuColumns = ImuColumns(), tag: TimeTag | None = None) -> ImuLog:
     """Read an IMU CSV log.
 
@@ -217,16 +249,18 @@ def read_imu_csv(path: str | Path, columns: ImuColumns = ImuColumns(), tag: Time
         first = f": {first_reasons(skipped)}" if skipped else ""
         raise LogFormatError(f"{p}: no usable IMU line ({len(skipped)} skipped{first}; expected columns {c})")
     a = np.array(rows)
-    # stamps must increase: drop (and name) lines whose clock does not advance
-    keep = np.ones(len(a), dtype=bool)
+    # stamps must increase: keep the longest strictly increasing sequence of the lines and drop
+    # (and name) the others, so that one glitched stamp (a line +1 h) costs that line only
+    keep = increasing_lines(clock)
     unit = "counter" if c.time is None else "time [ns]"
-    last: float | int | None = None
-    for i, tick in enumerate(clock):
-        if last is not None and tick <= last:
-            skipped.append((int(a[i, 6]), f"{unit} {tick!r} not after the previous {last!r}"))
-            keep[i] = False
-        else:
-            last = tick
+    kept = np.flatnonzero(keep)
+    for i in np.flatnonzero(~keep):
+        k = int(np.searchsorted(kept, i))  # the kept lines around line i
+        prev = clock[kept[k - 1]] if k else None
+        nxt = clock[kept[k]] if k < kept.size else None
+        why = (f"{unit} {clock[i]!r} not after the previous {prev!r}" if prev is not None and clock[i] <= prev
+               else f"{unit} {clock[i]!r} not before the next {nxt!r} (a glitched stamp)")
+        skipped.append((int(a[i, 6]), why))
     a = a[keep]
     scale = 1.0
     if c.time is not None:
@@ -264,6 +298,7 @@ class PosLog:
         vel_n_mps: (M, 3) ENU velocity, NaN when the file has none.
         vel_cov_enu: (M, 3, 3) velocity covariance [m^2/s^2] (NaN when none).
         skipped: (line number, reason) of the lines not used.
+        reordered: lines whose stamp was before the previous line's (the solution is sorted by stamp).
     """
 
     t_ns: NDArray[np.int64]
@@ -274,6 +309,7 @@ class PosLog:
     vel_n_mps: FloatArray
     vel_cov_enu: FloatArray
     skipped: list[tuple[int, str]] = field(default_factory=list)
+    reordered: int = 0
 
     def __len__(self) -> int:
         return int(self.t_ns.size)
@@ -292,7 +328,7 @@ class PosLog:
 
     def select(self, keep: NDArray[np.bool_]) -> PosLog:
         return PosLog(self.t_ns[keep], self.llh[keep], self.quality[keep], self.n_sat[keep], self.pos_cov_enu_m2[keep],
-                      self.vel_n_mps[keep], self.vel_cov_enu[keep], list(self.skipped))
+                      self.vel_n_mps[keep], self.vel_cov_enu[keep], list(self.skipped), self.reordered)
 
 
 def _decimal_ns(text: str) -> int | None:
@@ -384,12 +420,13 @@ def read_pos(path: str | Path) -> PosLog:
     if not rows:
         first = f": {first_reasons(skipped)}" if skipped else ""
         raise LogFormatError(f"{p}: no usable solution line ({len(skipped)} skipped{first})")
-    # strictly increasing stamps (duplicates and reversals named, not used)
+    # lines out of stamp order are sorted (counted in PosLog.reordered); a repeated stamp is named, not used
+    reordered = sum(1 for k in range(1, len(rows)) if rows[k][1] < rows[k - 1][1])
     out_t: list[int] = []
     out_v: list[list[float]] = []
-    for lineno, t_ns, vals in rows:
+    for lineno, t_ns, vals in sorted(rows, key=lambda r: (r[1], r[0])):
         if out_t and t_ns <= out_t[-1]:
-            skipped.append((lineno, f"stamp {t_ns} ns not after the previous {out_t[-1]} ns"))
+            skipped.append((lineno, f"stamp {t_ns} ns not after the previous {out_t[-1]} ns (a repeated stamp)"))
             continue
         out_t.append(t_ns)
         out_v.append(vals)
@@ -409,7 +446,7 @@ def read_pos(path: str | Path) -> PosLog:
             vel[i] = (ve, vn, vu)
             vc[i] = _cov_enu(*v[16:22])
     skipped.sort()
-    return PosLog(t, llh, q, ns, pc, vel, vc, skipped)
+    return PosLog(t, llh, q, ns, pc, vel, vc, skipped, reordered)
 
 
 def outage_mask(t_ns: NDArray[np.int64], outages_s: list[tuple[float, float]], origin_ns: int) -> NDArray[np.bool_]:

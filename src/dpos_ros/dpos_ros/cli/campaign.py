@@ -21,7 +21,11 @@ records.
 
 Engine: ``--scheduler tcp://HOST:8786`` uses an existing Dask scheduler (its workers must have the
 same dpos packages and see the recordings and OUT at the same paths: docs/campaign.md); without it
-a LocalCluster of ``--workers`` processes (default one per core), one thread each, no dashboard.
+a LocalCluster of ``--workers`` processes (default one per core), one thread each, on 127.0.0.1:
+its scheduler and workers talk TLS with a temporary certificate made for this run (Dask's
+``Security.temporary()``, which needs the ``cryptography`` package: without it the cluster runs on
+plain TCP and a warning says so), and serve no HTTP route (no dashboard, no ``/metrics``: Dask's
+HTTP server still listens on a port of 127.0.0.1 and answers 404 to everything).
 A task that fails is retried ``--retries`` times (default 1), then reported, not fatal.
 
 Exit status: 0 every task ok; 1 some task failed (or a recording is partial); 2 unusable input
@@ -65,6 +69,7 @@ from dpos_ros.cli.campaign_tasks import (
     worker_info,
     write_summary,
 )
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.io.outdir import OutputError, probe_writable
 from dpos_ros.runtime.pool import WORKER_ENV, default_workers, numba_stats
 
@@ -180,6 +185,32 @@ class Engine:
     info: dict
 
 
+#: Dask configuration of the local cluster: no HTTP route on the scheduler and the workers (no
+#: dashboard, no /metrics, no JSON API)
+NO_HTTP_ROUTES: dict[str, Any] = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+
+
+def dist_config_set(values: dict[str, Any]) -> contextlib.AbstractContextManager[Any]:
+    """``dask.config.set(values)`` (a context manager: the configuration is restored after)."""
+    try:
+        import dask
+    except ImportError as e:  # (it comes with distributed; the extra names both)
+        raise CampaignError(f"the Dask engine is not installed (no module {e.name or 'dask'!r}): {CAMPAIGN_EXTRA}") from None
+    return dask.config.set(values)
+
+
+def local_security(dist: Any) -> Any:
+    """The local cluster's TLS: ``Security.temporary()`` (a certificate made for this run, held
+    in memory, encryption required), or None with a warning on stderr when the ``cryptography``
+    package it needs is not installed."""
+    try:
+        return dist.security.Security.temporary()  # (encryption required)
+    except ImportError:
+        print(f"{PROG}: warning: the local Dask cluster runs without TLS (plain TCP on 127.0.0.1): "
+              "install the 'cryptography' package for a temporary certificate", file=sys.stderr)
+        return None
+
+
 @contextlib.contextmanager
 def dask_engine(scheduler: str | None, workers: int, connect_timeout_s: float) -> Iterator[Engine]:
     """A Dask client: connected to ``scheduler`` (raises :class:`CampaignError` when it cannot be
@@ -203,12 +234,16 @@ def dask_engine(scheduler: str | None, workers: int, connect_timeout_s: float) -
             info: dict[str, Any] = {"cluster": "remote", "scheduler": scheduler}
         else:
             n = workers or default_workers()
+            security = local_security(dist)
+            stack.enter_context(dist_config_set(NO_HTTP_ROUTES))  # the scheduler, the nannies and (passed on) the workers
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", scheduler_port=0,
-                                   dashboard_address=None, silence_logs=logging.CRITICAL, env=dict(WORKER_ENV))
+                                   dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False},
+                                   silence_logs=logging.CRITICAL, env=dict(WORKER_ENV),
+                                   **({} if security is None else {"security": security, "protocol": "tls://"}))
             stack.callback(cluster.close)
-            client = Client(cluster, set_as_default=False)
+            client = Client(cluster, set_as_default=False, **({} if security is None else {"security": security}))
             stack.callback(client.close)
-            info = {"cluster": "local", "scheduler": cluster.scheduler_address}
+            info = {"cluster": "local", "scheduler": cluster.scheduler_address, "tls": security is not None}
         info["workers"] = len(client.scheduler_info(n_workers=-1)["workers"])
         yield Engine(client, info)
 
@@ -390,6 +425,7 @@ def main_eval(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     return EXIT_OK if not failed_seeds else EXIT_FAILED
 
 
+@one_line_errors(PROG)
 def main(argv: list[str] | None = None) -> int:
     ap, subs, forwarded = _parsers()
     args = ap.parse_args(argv)

@@ -20,7 +20,9 @@ import time
 from pathlib import Path
 
 from dpos_core.ta.pipeline import METHODS
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.contract import topics as T
+from dpos_ros.io.outdir import is_products_dir
 from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec, NodeSpec
 
 
@@ -41,6 +43,7 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+@one_line_errors("dpos-demo")
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     t_start = time.monotonic()
@@ -65,7 +68,10 @@ def main(argv: list[str] | None = None) -> int:
 
     sid = f"paper_su_seed{args.seed}"
     status = out / sid / "status.json"
-    if (out / sid).exists():  # the node writes a session's products only into a new directory
+    if (out / sid).exists() or (out / sid).is_symlink():  # the node writes a session's products only into a new directory
+        if not is_products_dir(out / sid):  # only what dpos wrote is ever removed
+            print(f"dpos-demo: error: {out / sid} exists and is not a dpos products directory: not removing it", file=sys.stderr)
+            return 2
         print(f"dpos-demo: removing the previous demo products {out / sid}", flush=True)
         shutil.rmtree(out / sid)
     print(f"dpos-demo: paper_su ({args.duration:.0f} s, both wings) through the live graph on ROS_DOMAIN_ID {domain}", flush=True)

@@ -48,6 +48,7 @@ from dpos_core.sim.session import SimulatedSession
 from dpos_core.ta import metrics as M
 from dpos_core.ta.pipeline import METHODS, ORACLE, ORACLE_FILTER, ORACLE_WING, TASettings
 from dpos_ros.cli.mismatch import main_mismatch
+from dpos_ros.cli.options import MAX_PARTICLES, one_line_errors
 from dpos_ros.cli.sar_eval import main_sar
 from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_streams
 from dpos_ros.io.bag import topics_and_duration, write_stream_batches
@@ -128,6 +129,8 @@ def check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None
         ap.error(f"--runs must be >= 1, got {args.runs}")
     if args.particles < 1:
         ap.error(f"--particles must be >= 1, got {args.particles}")
+    if args.particles > MAX_PARTICLES:
+        ap.error(f"--particles must be <= {MAX_PARTICLES} (the filter's arrays grow with it), got {args.particles}")
     if args.seed < 0:
         ap.error(f"--seed must be >= 0, got {args.seed}")
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
@@ -138,6 +141,7 @@ def check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None
             ap.error(f"--{name.replace('_', '-')} must be a finite number of degrees, got {v:g}")
 
 
+@one_line_errors("dpos-eval")
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     args = ap.parse_args(argv)

@@ -15,19 +15,23 @@ import time
 from importlib import resources
 from pathlib import Path
 
+from dpos_ros.cli.options import float_in, int_in, one_line_errors
 from dpos_ros.runtime.graph import Graph, GraphError, GraphSpec
 from dpos_ros.runtime.node_main import install_stop_handlers
 
 
+@one_line_errors("dpos-graph")
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="dpos-graph", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("graph", nargs="?", type=Path, help="graph YAML file")
-    ap.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for every node (overrides the file)")
+    ap.add_argument("--domain-id", type=int_in(0, 232), help="ROS_DOMAIN_ID for every node (overrides the file)")
     ap.add_argument("--until-exit", metavar="NODE", help="stop the graph when this node exits")
-    ap.add_argument("--timeout", type=float, help="stop the graph after this many seconds")
+    ap.add_argument("--timeout", type=float_in(0.0, lo_open=True, unit=" s"), help="stop the graph after this many seconds")
     ap.add_argument("--example", metavar="NAME", help="print a packaged example graph and exit")
     args = ap.parse_args(argv)
     if args.example:
+        if not args.example.replace("_", "").isalnum():
+            ap.error(f"--example {args.example!r}: an example's name (letters, digits, '_')")
         res = resources.files("dpos_ros").joinpath("graphs", f"{args.example}.yaml")
         if not res.is_file():
             known = sorted(f.name[:-5] for f in resources.files("dpos_ros").joinpath("graphs").iterdir() if f.name.endswith(".yaml"))

@@ -40,19 +40,26 @@ from dpos_core.ifa.smoother import as_result, smooth
 from dpos_core.ifa.time_offset import estimate_time_offset
 from dpos_core.imports.logs import LogFormatError, read_pos
 from dpos_core.units import DEG, FloatArray
+from dpos_ros.cli.options import finite_float, float_in, one_line_errors
 from dpos_ros.contract import conversions as cv
 from dpos_ros.devices.relay import rotation_from_rpy_deg
 from dpos_ros.io.bag import read_raw
 from dpos_ros.io.gnss_ins import DRIVER_TOPICS, PRODUCT_TOPICS, InputError, _topics, deserialize, read_recording
+from dpos_ros.io.outdir import atomic_path
+
+#: --gnss-time-offset and --estimate-time-offset bounds [ms]: a receiver's clock is off the IMU's by
+#: far less than a minute; the candidates are one IFA run each
+MAX_OFFSET_MS = 60_000.0
+MAX_OFFSET_CANDIDATES = 2001
 
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="dpos-ifa", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", type=Path, help="rosbag2 directory")
     ap.add_argument("--params-file", type=Path, required=True, help="ifa_node's ROS parameter file (ifa_node: ros__parameters:)")
-    ap.add_argument("--min-course-speed", type=float, default=5.0, metavar="MPS",
+    ap.add_argument("--min-course-speed", type=float_in(0.0, unit=" m/s"), default=5.0, metavar="MPS",
                     help="pos_master_node's min_course_speed_mps: the start is the first fix at least this fast (default 5)")
-    ap.add_argument("--initial-heading", type=float, metavar="DEG", help="pos_master_node's initial_state heading below that speed")
+    ap.add_argument("--initial-heading", type=finite_float, metavar="DEG", help="pos_master_node's initial_state heading below that speed")
     ap.add_argument("--input-rotation-rpy-deg", metavar="R,P,Y", default="0,0,0",
                     help="pos_master_node's input_rotation_rpy_deg: the driver's IMU axes in the body's FLU axes")
     ap.add_argument("--imu-topic")
@@ -67,7 +74,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--estimate-time-offset", metavar="MIN:MAX:STEP",
                     help="estimate the GNSS-IMU time offset [ms] over these candidates (dpos_core.ifa.time_offset: the "
                          "fixed-noise filter's innovations; says when the data do not make it observable)")
-    ap.add_argument("--gnss-time-offset", type=float, metavar="MS",
+    ap.add_argument("--gnss-time-offset", type=float_in(-MAX_OFFSET_MS, MAX_OFFSET_MS, unit=" ms"), metavar="MS",
                     help="override the parameter file's gnss_time_offset_s [ms]: GNSS stamps minus the IMU time of the same "
                          "instant (a receiver stamping 50 ms late: +50); the value --estimate-time-offset prints is this one")
     ap.add_argument("--start-level", choices=("raw", "auto"), default="auto",
@@ -93,7 +100,8 @@ def _write_nav(path: Path, res: IfaResult, origin_ns: int, title: str | None = N
             "s_attE_deg,s_attN_deg,s_attU_deg")
     if title is not None:
         head = f"# {title}\n{head}"
-    np.savetxt(path, cols, delimiter=",", header=head, comments="", fmt=["%d", "%.6f", "%.9f", "%.9f"] + ["%.6f"] * 16)
+    with atomic_path(path) as tmp:  # a full disk leaves no partial nav.csv
+        np.savetxt(tmp, cols, delimiter=",", header=head, comments="", fmt=["%d", "%.6f", "%.9f", "%.9f"] + ["%.6f"] * 16)
 
 
 #: the title line of nav_smoothed.csv
@@ -107,11 +115,12 @@ def _write_smoothed(out: Path, res: IfaResult, smoothed: IfaResult, origin_ns: i
     P = np.array([p for _, p in smoothed.track])
     q, ns, age = gnss_support(smoothed.t_s, res.epochs_s, predict_interval_s, smoothed=True)
     t_ns = origin_ns + np.round(smoothed.t_s * 1e9).astype(np.int64)
-    write_pos(out / "nav_smoothed.pos", t_ns, smoothed.llh, P[:, 0:3, 0:3], smoothed.vel_n_mps, P[:, 3:6, 3:6], q, ns, age,
-              comments=[f"dpos-ifa --smooth: {what}", "forward-backward (RTS) smoothed main POS at the IMU, IMU rate; "
-                        f"Q 1: a GNSS update within {predict_interval_s:g} s on both sides, Q 5: bridged across a longer gap; "
-                        "ns: GNSS updates within that time (0-2); age: time to the nearest one [s]",
-                        "columns: dpos_core.ifa.pos_file"])
+    with atomic_path(out / "nav_smoothed.pos") as tmp:  # a full disk leaves no partial file
+        write_pos(tmp, t_ns, smoothed.llh, P[:, 0:3, 0:3], smoothed.vel_n_mps, P[:, 3:6, 3:6], q, ns, age,
+                  comments=[f"dpos-ifa --smooth: {what}", "forward-backward (RTS) smoothed main POS at the IMU, IMU rate; "
+                            f"Q 1: a GNSS update within {predict_interval_s:g} s on both sides, Q 5: bridged across a longer gap; "
+                            "ns: GNSS updates within that time (0-2); age: time to the nearest one [s]",
+                            "columns: dpos_core.ifa.pos_file"])
 
 
 def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float] | None, smoothed: IfaResult | None = None) -> None:
@@ -161,6 +170,7 @@ def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float
 ConfigLoader = Callable[[Path, str | None], tuple[IfaFilterConfig, AircraftConfig, str, FloatArray]]
 
 
+@one_line_errors("dpos-ifa")
 def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
     """Run ``dpos-ifa`` with ``argv`` (None: the command line), the parameter file read by
     ``load_config``; the exit status (2: unusable input).  The console script is ``ifa_node.offline:main``."""
@@ -178,17 +188,22 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
             a, b = (float(v) for v in args.outage.split(":"))
         except ValueError:
             ap.error(f"--outage takes START:END [s], got {args.outage!r}")
-        if not b > a:
-            ap.error(f"--outage END must be after START, got {args.outage!r}")
+        if not (np.isfinite(a) and np.isfinite(b) and b > a):
+            ap.error(f"--outage END must be after START (finite seconds), got {args.outage!r}")
         outage = (a, b)
+    if args.out.exists() and not args.out.is_dir():
+        ap.error(f"--out {args.out} is a file, not a directory")
     offsets = None
     if args.estimate_time_offset:
         try:
             lo, hi, step = (float(v) for v in args.estimate_time_offset.split(":"))
         except ValueError:
             ap.error(f"--estimate-time-offset takes MIN:MAX:STEP [ms], got {args.estimate_time_offset!r}")
-        if not (step > 0 and hi >= lo + 2 * step):
-            ap.error(f"--estimate-time-offset needs STEP > 0 and at least 3 candidates, got {args.estimate_time_offset!r}")
+        if not (np.isfinite([lo, hi, step]).all() and step > 0 and hi >= lo + 2 * step):
+            ap.error(f"--estimate-time-offset needs finite values, STEP > 0 and at least 3 candidates, got {args.estimate_time_offset!r}")
+        if max(abs(lo), abs(hi)) > MAX_OFFSET_MS or (hi - lo) / step > MAX_OFFSET_CANDIDATES:
+            ap.error(f"--estimate-time-offset allows offsets within +-{MAX_OFFSET_MS:g} ms and at most "
+                     f"{MAX_OFFSET_CANDIDATES} candidates (one IFA run each), got {args.estimate_time_offset!r}")
         offsets = np.arange(lo, hi + 0.5 * step, step) * 1e-3
 
     try:

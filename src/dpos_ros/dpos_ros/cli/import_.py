@@ -65,6 +65,7 @@ from dpos_core.imports.logs import (
 )
 from dpos_core.imports.timescales import to_gpst_ns
 from dpos_ros.cli import import_install as install
+from dpos_ros.cli.options import finite_float, int_in, one_line_errors
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.bag import typestore, write_streams
@@ -73,6 +74,8 @@ from dpos_ros.io.streams import TopicStream
 PROG = "dpos-import"
 EXIT_OK = 0
 EXIT_ERROR = 2
+#: largest column index of a log's line accepted on the command line
+MAX_COLUMN = 10_000
 REPORT_NAME = "import_report.json"
 #: skipped lines listed by name in the summary and the report
 SHOWN_SKIPPED = 5
@@ -99,6 +102,8 @@ def _int_triple(text: str) -> tuple[int, int, int]:
         raise argparse.ArgumentTypeError(f"expected three column indices like 0,1,2, got {text!r}") from None
     if len(vals) != 3:
         raise argparse.ArgumentTypeError(f"expected three column indices like 0,1,2, got {text!r}")
+    if not all(0 <= v <= MAX_COLUMN for v in vals):
+        raise argparse.ArgumentTypeError(f"column indices must be in [0, {MAX_COLUMN}], got {text!r}")
     return vals[0], vals[1], vals[2]
 
 
@@ -143,15 +148,15 @@ def add_layout(col: Any, suppress: bool = False) -> None:
 
     col.add_argument("--accel-cols", type=_int_triple, default=d((0, 1, 2)), metavar="X,Y,Z", help="specific force columns (default 0,1,2)")
     col.add_argument("--gyro-cols", type=_int_triple, default=d((3, 4, 5)), metavar="X,Y,Z", help="angular rate columns (default 3,4,5)")
-    col.add_argument("--counter-col", type=int, default=d(None), metavar="N", help="IMU clock counter column (default 6; none with --time-col)")
+    col.add_argument("--counter-col", type=int_in(0, MAX_COLUMN), default=d(None), metavar="N", help="IMU clock counter column (default 6; none with --time-col)")
     col.add_argument("--counter-unit-s", type=_positive, default=d(1e-3), metavar="S", help="seconds per counter unit (default 0.001)")
-    col.add_argument("--time-col", type=int, default=d(None), metavar="N",
+    col.add_argument("--time-col", type=int_in(0, MAX_COLUMN), default=d(None), metavar="N",
                      help="column of GPS time [s on the Unix calendar; --time-scale utc: UTC] (instead of counter + --tag)")
     col.add_argument("--tag", type=Path, default=d(None), metavar="TAG",
                      help="RTKLIB time tag of the IMU log: the IMU counter is mapped onto its GPS-time span (or give --time-col)")
     col.add_argument("--accel-unit", choices=sorted(ACCEL_UNITS), default=d("g"), help="specific force unit (default g = 9.80665 m/s^2)")
     col.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS), default=d("deg_s"), help="angular rate unit (default deg_s)")
-    col.add_argument("--skip-header", type=int, default=d(0), metavar="N", help="leading lines to ignore (default 0)")
+    col.add_argument("--skip-header", type=int_in(0), default=d(0), metavar="N", help="leading lines to ignore (default 0)")
     col.add_argument("--delimiter", default=d(","), help="field separator (default ','; ' ' = any whitespace)")
     col.add_argument("--gyro-sigma-radps", type=_non_negative, default=d(0.0), metavar="SIGMA",
                      help="per-sample gyro noise [rad/s] for angular_velocity_covariance (default 0 = unknown)")
@@ -178,8 +183,8 @@ def parser() -> argparse.ArgumentParser:
                      help="keep fixes with RTKLIB Q <= this (1 fix, 2 float, 3 sbas, 4 dgps, 5 single, 6 ppp); default: all")
     sel.add_argument("--outage", type=_interval, action="append", default=[], metavar="START:END",
                      help="GNSS outage: no fix in [START, END) seconds after the first IMU sample (repeatable)")
-    sel.add_argument("--start", type=float, metavar="S", help="crop: drop IMU samples and fixes before START seconds after the first IMU sample")
-    sel.add_argument("--end", type=float, metavar="S", help="crop: drop IMU samples and fixes after END seconds after the first IMU sample")
+    sel.add_argument("--start", type=finite_float, metavar="S", help="crop: drop IMU samples and fixes before START seconds after the first IMU sample")
+    sel.add_argument("--end", type=finite_float, metavar="S", help="crop: drop IMU samples and fixes after END seconds after the first IMU sample")
 
     names = ap.add_argument_group("topics and frames (defaults like common drivers)")
     names.add_argument("--imu-topic", default="/imu/data", help="sensor_msgs/Imu topic (default /imu/data)")
@@ -437,7 +442,7 @@ def build_report(args: argparse.Namespace, imu_read: ImuLog, imu: ImuLog, sel: G
     if sel is not None:
         pos = sel.pos
         rep["gnss"] = {
-            "fixes_read": len(sel.read), "lines_skipped": _skipped(sel.read.skipped),
+            "fixes_read": len(sel.read), "lines_skipped": _skipped(sel.read.skipped), "lines_reordered": sel.read.reordered,
             "q_histogram_read": _q_hist(sel.read.quality), "has_velocity": sel.read.has_velocity,
             "gnss_rate_hz": args.gnss_rate, "kept_after_rate": len(sel.read) - sel.removed_by_rate,
             "removed_by_rate": sel.removed_by_rate, "removed_by_quality": sel.removed_by_quality,
@@ -490,6 +495,8 @@ def summary_lines(rep: dict[str, Any]) -> list[str]:
         out += [f"        line {e['line']}: {e['reason']}" for e in gs["first"]]
         if gs["count"] > len(gs["first"]):
             out.append(f"        ... and {gs['count'] - len(gs['first'])} more")
+        if g["lines_reordered"]:
+            out.append(f"      warning: {g['lines_reordered']} line(s) out of stamp order in the .pos: sorted by stamp")
         if g["gnss_rate_hz"] is not None:
             off = g["grid_offset_ms"]
             where = f"; kept fixes {off['min']:+.3f} .. {off['max']:+.3f} ms from the grid" if off else ""
@@ -608,6 +615,7 @@ def run_installation(ap: argparse.ArgumentParser, args: argparse.Namespace) -> d
     return report
 
 
+@one_line_errors(PROG)
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     argv = list(sys.argv[1:] if argv is None else argv)

@@ -14,6 +14,7 @@ carries the bag's log time so that nodes with use_sim_time follow the bag. /dpos
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -23,6 +24,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.io.flow import use_device_fastdds_profile
 from dpos_ros.io.play import BagError, BagPlayer
 from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
@@ -46,15 +48,18 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--flow-window", type=int, default=None, metavar="N",
                     help="unacknowledged messages over all topics (default 1000, see dpos_ros.io.play)")
     args = ap.parse_args(argv)
-    if not args.rate >= 0:
-        ap.error("--rate must be >= 0")
-    if not args.clock_hz > 0:
-        ap.error("--clock-hz must be > 0")
-    if args.min_subscribers < 0 or args.wait_subscribers < 0:
-        ap.error("--min-subscribers and --wait-subscribers must be >= 0")
+    if not (args.rate >= 0 and math.isfinite(args.rate)):
+        ap.error("--rate must be >= 0 (and finite)")
+    if not (args.clock_hz > 0 and math.isfinite(args.clock_hz)):
+        ap.error("--clock-hz must be > 0 (and finite)")
+    if args.min_subscribers < 0 or not (args.wait_subscribers >= 0 and math.isfinite(args.wait_subscribers)):
+        ap.error("--min-subscribers and --wait-subscribers must be >= 0 (and finite)")
+    if args.flow_window is not None and args.flow_window < 1:
+        ap.error(f"--flow-window must be >= 1, got {args.flow_window}")
     return args
 
 
+@one_line_errors("dpos-play")
 def main(argv: list[str] | None = None) -> int:
     full = list(sys.argv if argv is None else ["dpos-play", *argv])
     args = _parse(remove_ros_args(full)[1:])

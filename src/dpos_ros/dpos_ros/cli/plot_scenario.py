@@ -16,8 +16,10 @@ from dpos_core.attitude import attitude_error, mount_dcm
 from dpos_core.config import ConfigError
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
+from dpos_ros.cli.options import one_line_errors
 
 
+@one_line_errors("dpos-plot-scenario")
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="dpos-plot-scenario", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", required=True)

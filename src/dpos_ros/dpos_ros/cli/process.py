@@ -42,8 +42,9 @@ from pathlib import Path
 from dpos_core.config import AircraftConfig, ConfigError, load_aircraft
 from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
+from dpos_ros.cli.options import MAX_PARTICLES, MAX_RATE_HZ, one_line_errors
 from dpos_ros.io.bag import topics_and_duration
-from dpos_ros.io.outdir import OutputError, OutputTarget, os_error_text
+from dpos_ros.io.outdir import PRODUCTS_MARKER, OutputError, OutputTarget, child_dir, is_products_dir, os_error_text
 from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, RecordedSession, SessionError, read_session
 from dpos_ros.products.antenna import AntennaSolution
 from dpos_ros.products.evaluate import evaluate
@@ -59,7 +60,7 @@ from dpos_ros.products.master_reference import (
 from dpos_ros.products.rows import scratch_dir
 from dpos_ros.products.solve import SubImuSource, solve
 from dpos_ros.products.write import ProductsExistError, write
-from dpos_ros.runtime.pool import default_workers, warm_pool
+from dpos_ros.runtime.pool import default_workers, max_workers, warm_pool
 
 #: --stream auto: the rows spilled to disk for recordings longer than this [s]
 STREAM_AUTO_S = 3600.0
@@ -149,14 +150,18 @@ def _initial_error(args: argparse.Namespace, sess: RecordedSession) -> float:
 def _check_numbers(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.particles < 1:
         ap.error(f"--particles must be >= 1, got {args.particles}")
+    if args.particles > MAX_PARTICLES:
+        ap.error(f"--particles must be <= {MAX_PARTICLES} (the filter's arrays grow with it), got {args.particles}")
     if args.seed < 0:
         ap.error(f"--seed must be >= 0, got {args.seed}")
     if args.workers < 0:
         ap.error(f"--workers must be >= 0 (0 = one per core), got {args.workers}")
-    if not (math.isfinite(args.filter_rate) and args.filter_rate > 0):
-        ap.error(f"--filter-rate must be > 0 Hz, got {args.filter_rate:g}")
-    if not (math.isfinite(args.output_rate) and args.output_rate >= 0):
-        ap.error(f"--output-rate must be >= 0 Hz (0 = the sub-IMU rate), got {args.output_rate:g}")
+    if args.workers > max_workers():
+        ap.error(f"--workers must be <= {max_workers()} (4 per core), got {args.workers}")
+    if not (math.isfinite(args.filter_rate) and 0 < args.filter_rate <= MAX_RATE_HZ):
+        ap.error(f"--filter-rate must be > 0 and <= {MAX_RATE_HZ:g} Hz, got {args.filter_rate:g}")
+    if not (math.isfinite(args.output_rate) and 0 <= args.output_rate <= MAX_RATE_HZ):
+        ap.error(f"--output-rate must be >= 0 (0 = the sub-IMU rate) and <= {MAX_RATE_HZ:g} Hz, got {args.output_rate:g}")
     if args.initial_attitude_error is not None and not math.isfinite(args.initial_attitude_error):
         ap.error(f"--initial-attitude-error must be a finite number of degrees, got {args.initial_attitude_error:g}")
 
@@ -178,6 +183,7 @@ def not_estimated(antennas: dict[str, AntennaSolution], aircraft_name: str, sub_
     return text
 
 
+@one_line_errors("dpos-process")
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     args = ap.parse_args(argv)
@@ -272,13 +278,21 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         ref = master_reference(sess, aircraft, args.master_reference)
     except (SessionError, ConfigError, OSError) as e:
         return _read_error(e, args.bag)
-    final = args.out / sess.session_id
-    had_products = final.exists()
-    if had_products and not args.overwrite:
-        return _refuse_existing(final)
-    err0 = _initial_error(args, sess)
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
+    try:  # the session id is a safe name (RecordedSession); the directory must stay under --out
+        final = child_dir(args.out, sess.session_id)
+    except OutputError as e:
+        print(f"dpos-process: error: --out {e}", file=sys.stderr)
+        return EXIT_ERROR
+    had_products = final.exists() or final.is_symlink()
+    if had_products and not args.overwrite:
+        return _refuse_existing(final)
+    if had_products and not is_products_dir(final):
+        print(f"dpos-process: error: {final} exists and is not a dpos products directory (no {PRODUCTS_MARKER}): "
+              "--overwrite replaces only products dpos wrote; choose another --out", file=sys.stderr)
+        return EXIT_ERROR
+    err0 = _initial_error(args, sess)
     if ref.which != "recorded":
         _print_reference(ref, sess)
     n_read = len(sess.warnings)

@@ -15,6 +15,7 @@ the bag is still written); 2 on bad arguments or when the bag cannot be written.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import threading
 import time
@@ -25,6 +26,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.io.record import BagRecorder
 from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
 
@@ -55,8 +57,8 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     bad = [t for t in args.topics if not t.startswith("/")]
     if bad:
         ap.error(f"topic names must be absolute (start with '/'): {', '.join(bad)}")
-    if args.duration is not None and not args.duration > 0:
-        ap.error("--duration must be > 0")
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        ap.error("--duration must be > 0 (and finite)")
     if args.drain < 0 or args.drain_idle < 0 or args.wait_topics < 0:
         ap.error("--drain, --drain-idle and --wait-topics must be >= 0")
     meta = {}
@@ -71,6 +73,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     return args
 
 
+@one_line_errors("dpos-record")
 def main(argv: list[str] | None = None) -> int:
     full = list(sys.argv if argv is None else ["dpos-record", *argv])
     args = _parse(remove_ros_args(full)[1:])

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,6 +31,7 @@ from dpos_core.frames import hpr_from_C_nb
 from dpos_core.sar.navigate import SarNavSettings
 from dpos_core.sar.pipeline import METHODS
 from dpos_core.units import DEG
+from dpos_ros.cli.options import MAX_PARTICLES, MAX_RATE_HZ, one_line_errors
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.bag import read_raw
@@ -56,12 +58,18 @@ def _fail(msg: str) -> int:
     return 2
 
 
+@one_line_errors("dpos-sar")
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     if args.particles < 2 and args.method not in ("ekf", "ukf"):
         return _fail(f"--particles must be >= 2 for {args.method}, got {args.particles}")
     if args.seed < 0 or not args.bandwidth_scale > 0 or not args.filter_rate > 0:
         return _fail("--seed must be >= 0, --bandwidth-scale and --filter-rate > 0")
+    if args.particles > MAX_PARTICLES or not args.filter_rate <= MAX_RATE_HZ:
+        return _fail(f"--particles must be <= {MAX_PARTICLES} and --filter-rate <= {MAX_RATE_HZ:g} Hz "
+                     f"(the filter's arrays grow with them), got {args.particles} and {args.filter_rate:g}")
+    if not (math.isfinite(args.bandwidth_scale) and math.isfinite(args.baro_height_offset)):
+        return _fail("--bandwidth-scale and --baro-height-offset must be finite")
 
     wanted = (*INPUT_TOPICS, T.DATUM, T.TRUTH_MASTER)
     try:

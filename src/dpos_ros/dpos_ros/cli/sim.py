@@ -16,6 +16,7 @@ The same scenario and seed give the same samples as the ``device: sim`` nodes pu
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -26,6 +27,7 @@ import yaml
 from dpos_core.config import ConfigError, config_text
 from dpos_core.sim.scenario import builtin_scenarios, load_scenario
 from dpos_core.sim.session import SimulatedSession
+from dpos_ros.cli.options import one_line_errors
 from dpos_ros.cli.progress import Progress
 from dpos_ros.devices.sim_streams import chunked_session_streams, session_custom_data, session_id, session_streams
 from dpos_ros.io.bag import write_stream_batches, write_streams
@@ -33,6 +35,7 @@ from dpos_ros.io.outdir import OutputError, OutputTarget
 from dpos_ros.runtime.params import datum_problem
 
 
+@one_line_errors("dpos-sim")
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="dpos-sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", required=True, help=f"built-in {builtin_scenarios()} or a scenario YAML file")
@@ -48,10 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.seed < 0:
         ap.error("--seed must be >= 0")
-    if args.duration is not None and not args.duration > 0:
-        ap.error("--duration must be > 0")
-    if args.window is not None and not args.window > 0:
-        ap.error("--window must be > 0")
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        ap.error("--duration must be > 0 (and finite)")
+    if args.window is not None and not (args.window > 0 and math.isfinite(args.window)):
+        ap.error("--window must be > 0 (and finite)")
     if args.datum is not None and (problem := datum_problem(*args.datum)) is not None:
         ap.error(f"--datum: {problem}")
     if args.out.exists():

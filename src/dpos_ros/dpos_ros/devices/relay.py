@@ -21,6 +21,12 @@ Per message (one :class:`Route` = one driver input -> one contract output)
       outside [-180, 180] deg).
       An all-zero Imu covariance ("unknown" per sensor_msgs/Imu) is accepted: the transfer
       alignment uses the aircraft configuration's sensor error model, not the message's.
+    - Stamp jumps: a stamp more than ``JUMP_S`` ahead of the last accepted one is held, not
+      relayed at once. When the next message goes on from the old stamps, the held one(s) were a
+      glitch (one message stamped +1 h): rejected (``jump``), and the stream goes on - one bad
+      stamp costs that message only, where accepting it made every later message ``out_of_order``.
+      When ``JUMP_CONFIRM`` messages in a row go on from the new stamps, the jump was real (a long
+      gap, a clock step): the held ones are relayed in order.
     - Gaps: an accepted stamp step larger than ``GAP_FACTOR`` (1.75, dpos_core.series) times the median of the last
       ``PERIOD_WINDOW`` steps (once ``MIN_PERIODS`` steps are known) is counted as a gap, with the
       estimated number of missing samples, and warned about. The message itself is relayed.
@@ -91,7 +97,11 @@ __all__ = [
 KINDS: dict[str, type] = {"imu": Imu, "fix": NavSatFix, "vel": TwistWithCovarianceStamped}
 #: Reasons a message is rejected (see the module docstring).
 REASONS = ("nan", "zero_stamp", "duplicate", "out_of_order", "unavailable", "no_fix", "zero_cov", "negative_cov",
-           "out_of_range")
+           "out_of_range", "jump")
+#: A stamp this far [s] ahead of the last accepted one is held until the stream confirms it.
+JUMP_S = 60.0
+#: Messages in a row (the held one included) on the new stamps that confirm a jump as real.
+JUMP_CONFIRM = 3
 #: Values of the nodes' ``input_reliability`` parameter.
 INPUT_RELIABILITIES = ("best_effort", "reliable")
 #: A stamp step larger than this times the median step is a gap.
@@ -132,7 +142,8 @@ class Route:
 class RouteStats:
     """Counts of one route (a snapshot when read through :attr:`DeviceRelay.stats`).
 
-    ``received == relayed + sum(rejected.values())``; ``gaps`` stamp steps larger than
+    ``received == relayed + sum(rejected.values()) + held`` (``held``: messages after a stamp jump
+    that wait for the stream to confirm it, module docstring); ``gaps`` stamp steps larger than
     ``GAP_FACTOR`` x ``period_s``, missing about ``missing`` samples; ``last_stamp_ns`` of the
     last accepted message.
     """
@@ -145,6 +156,7 @@ class RouteStats:
     largest_gap_s: float = 0.0
     period_s: float | None = None
     last_stamp_ns: int | None = None
+    held: int = 0
 
     @property
     def rejected_total(self) -> int:
@@ -285,6 +297,7 @@ class _RouteState:
         self.warned_at: dict[str, float] = {}
         self.publisher: Any = None
         self.subscription: Any = None
+        self.held: list[tuple[int, Any]] = []  # (stamp [ns], message) held after a stamp jump
 
     @property
     def input_name(self) -> str:
@@ -367,7 +380,10 @@ class DeviceRelay:
     def stats(self) -> dict[str, RouteStats]:
         """A snapshot of the counts, keyed by output topic."""
         with self._lock:
-            return {s.route.output_topic: copy.deepcopy(s.stats) for s in self._states}
+            snap = {s.route.output_topic: copy.deepcopy(s.stats) for s in self._states}
+            for s in self._states:
+                snap[s.route.output_topic].held = len(s.held)
+            return snap
 
     def diagnostics(self) -> list[DiagnosticStatus]:
         """One DiagnosticStatus per route: OK, or WARN with no input yet / rejections / gaps."""
@@ -428,15 +444,57 @@ class DeviceRelay:
         t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         with self._lock:
             s.stats.received += 1
-            reason = _CHECKS[s.route.kind](msg) or self._check_stamp(s, t_ns)
+            reason = _CHECKS[s.route.kind](msg)
+            glitches: list[int] = []
+            if reason is None:
+                reason, release, glitches = self._order(s, t_ns, msg)
+            if glitches:
+                s.stats.rejected["jump"] = s.stats.rejected.get("jump", 0) + len(glitches)
+                jumps = s.stats.rejected["jump"]
             if reason is not None:
                 s.stats.rejected[reason] = s.stats.rejected.get(reason, 0) + 1
                 count = s.stats.rejected[reason]
-                last = s.stats.last_stamp_ns
+            last = s.stats.last_stamp_ns
+        if glitches:
+            self._warn(s, "jump", f"{s.route.kind} on {s.input_name}: {len(glitches)} message(s) stamped "
+                       f"{(glitches[0] - (last or glitches[0])) * 1e-9:.6g} s ahead of the stream rejected (jump: a glitched "
+                       f"stamp; the stream goes on from {last} ns); {jumps} rejected for jump so far")
         if reason is not None:
             self._warn(s, reason, f"{s.route.kind} on {s.input_name} rejected ({reason}): stamp {t_ns} ns"
                        f"{'' if last is None else f', previous accepted {last} ns'}; {count} rejected for {reason} so far")
             return
+        for m in release:
+            self._relay(s, m)
+
+    def _order(self, s: _RouteState, t_ns: int, msg: Any) -> tuple[str | None, list[Any], list[int]]:
+        """The stamp checks of a good message (under the lock; module docstring, "Stamp jumps"):
+        ``(reason it is rejected or None, the messages to relay now in order, the stamps of held
+        messages found to be glitches)``."""
+        if t_ns <= 0:
+            return "zero_stamp", [], []
+        glitches: list[int] = []
+        last = s.stats.last_stamp_ns
+        if s.held:
+            if t_ns > s.held[-1][0]:  # on the new stamps
+                s.held.append((t_ns, msg))
+                if len(s.held) < JUMP_CONFIRM:
+                    return None, [], []
+                held, s.held = s.held, []
+                for t, _ in held:  # a real jump: the bookkeeping of each, in order
+                    self._check_stamp(s, t)
+                return None, [m for _, m in held], []
+            if last is None or not last < t_ns < s.held[0][0]:
+                return ("duplicate" if t_ns == last or any(t_ns == t for t, _ in s.held) else "out_of_order"), [], []
+            glitches = [t for t, _ in s.held]  # the old stamps go on: the held ones were glitches
+            s.held = []
+        if last is not None and t_ns - last > JUMP_S * 1e9:
+            s.held = [(t_ns, msg)]
+            return None, [], glitches
+        reason = self._check_stamp(s, t_ns)
+        return reason, ([msg] if reason is None else []), glitches
+
+    def _relay(self, s: _RouteState, msg: Any) -> None:
+        """Publish one accepted message on the route's contract topic."""
         msg.header.frame_id = s.route.frame_id
         if s.route.kind == "imu":
             if self.R_out_in is not None:

@@ -56,6 +56,7 @@ from pathlib import Path
 from typing import Any
 
 from rclpy.duration import Duration
+from rclpy.exceptions import InvalidTopicNameException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.highlevel import AnyReader
 
@@ -253,7 +254,11 @@ class BagPlayer:
             p = qos_profile(t.qos)
             qos = QoSProfile(history=p.history, depth=p.depth if t.latched else depth,
                              reliability=p.reliability, durability=p.durability)
-            self.publishers.append(self.node.create_publisher(cls, t.topic, qos))
+            try:
+                self.publishers.append(self.node.create_publisher(cls, t.topic, qos))
+            except (InvalidTopicNameException, ValueError) as exc:  # a name rcl refuses (a space, a leading digit, ...)
+                raise BagError(f"{self.bag}: topic {t.topic!r} is not a valid ROS topic name "
+                               f"({' '.join(str(exc).split())[:200]}); play the others with --topics") from None
         self.clock_publisher = None
         if self.clock:
             from rosgraph_msgs.msg import Clock

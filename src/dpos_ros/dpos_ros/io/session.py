@@ -26,6 +26,7 @@ from dpos_ros.contract import topics as T
 from dpos_ros.io import _mcap, bag
 from dpos_ros.io import spill as S
 from dpos_ros.io.messages import Messages, RawTopic
+from dpos_ros.io.outdir import safe_name
 
 #: metadata key (rosbag2 ``custom_data``, a spill's ``custom_data``) naming the source of /master/nav:
 #: ``mechanized`` = pos_master_node's GNSS/INS mechanization (transfer_align_node writes it into its
@@ -70,6 +71,13 @@ class RecordedSession:
     warnings: list[str] = field(default_factory=list)
     master_mechanized: bool = False
     master_error_model: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # a session id names the products' directory: never a path (dpos_ros.io.outdir.safe_name)
+        sid = safe_name(self.session_id)
+        if sid != self.session_id:
+            self.warnings.append(f"session id {self.session_id!r} is not a safe directory name: using {sid!r}")
+            self.session_id = sid
 
     def imaging_segments(self) -> dict[str, tuple[float, float]]:
         segs = json.loads(self.custom.get("dpos.imaging_segments", "{}") or "{}")

@@ -189,11 +189,37 @@ def spill_meta(path: Path) -> tuple[dict[str, tuple[str, Path]], dict[str, str],
     (its ``spill.json``, topics in the order they appeared); ValueError when it is not a spill of
     this format and version, OSError when it cannot be read."""
     path = Path(path)
-    meta = json.loads((path / "spill.json").read_text())
-    if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+    try:
+        meta = json.loads((path / "spill.json").read_text())
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path / 'spill.json'}: not text ({e.reason})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("version") != VERSION:
         raise ValueError(f"{path}: not a {FORMAT} v{VERSION} directory")
-    topics = {topic: (str(info["msgtype"]), path / info["file"]) for topic, info in meta["topics"].items()}
-    return topics, dict(meta.get("custom_data") or {}), str(meta.get("session_id", path.name))
+    where = path / "spill.json"
+    entries = meta.get("topics")
+    if not isinstance(entries, dict):
+        raise ValueError(f"{where}: 'topics' is missing or not a mapping")
+    custom = meta.get("custom_data") or {}
+    if not isinstance(custom, dict):
+        raise ValueError(f"{where}: 'custom_data' is not a mapping")
+    topics = {}
+    for topic, info in entries.items():
+        if not isinstance(info, dict) or not isinstance(info.get("msgtype"), str) or not isinstance(info.get("file"), str):
+            raise ValueError(f"{where}: topic {topic!r} needs a 'msgtype' and a 'file' (strings)")
+        topics[str(topic)] = (info["msgtype"], _log_file(path, info["file"]))
+    return topics, {str(k): str(v) for k, v in custom.items()}, str(meta.get("session_id", path.name))
+
+
+def _log_file(spill_dir: Path, name: str) -> Path:
+    """``spill_dir/name`` for the ``file`` of a topic in spill.json: a plain file name (no separator,
+    not hidden) whose resolved path is directly in the spill (no symbolic link out of it);
+    ValueError otherwise: a spill.json never makes a reader open a file outside its spill."""
+    f = spill_dir / name
+    if not name or Path(name).name != name or name.startswith(".") or "\\" in name or "\0" in name:
+        raise ValueError(f"{spill_dir / 'spill.json'}: topic log file {name!r} is not a file name in the spill")
+    if f.resolve().parent != spill_dir.resolve():
+        raise ValueError(f"{spill_dir / 'spill.json'}: topic log file {name!r} resolves outside the spill ({f.resolve()})")
+    return f
 
 
 def cut_short_warning(topic: str, file: Path, n_bytes: int) -> str:

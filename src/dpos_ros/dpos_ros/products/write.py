@@ -40,6 +40,7 @@ from dpos_core.units import FloatArray
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.bag import EncodedBatch, abort_writer, encode_streams, new_writer, write_stream_batches
+from dpos_ros.io.outdir import PRODUCTS_MARKER, child_dir, is_products_dir, mark_products, safe_name
 from dpos_ros.io.session import RecordedSession
 from dpos_ros.io.streams import TopicStream
 
@@ -68,7 +69,7 @@ def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolu
     there while this process writes them to the file in order.  ``evaluation``:
     :func:`dpos_ros.products.evaluate.evaluate`'s result, written (metrics.json, report.md, error
     figures) before status.json."""
-    return write_complete(Path(out_root) / sess.session_id, overwrite,
+    return write_complete(child_dir(Path(out_root), safe_name(sess.session_id)), overwrite,
                           lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation))
 
 
@@ -88,20 +89,27 @@ def write_complete(final: Path, overwrite: bool, fill: Callable[[Path], None]) -
 
 
 def new_products_dir(final: Path, overwrite: bool) -> Path:
-    """The new directory to write the products into: ``final`` itself when it does not exist,
-    else (``overwrite``) a temporary sibling; :class:`ProductsExistError` otherwise."""
+    """The new directory to write the products into, marked as dpos's (:func:`mark_products`):
+    ``final`` itself when it does not exist, else (``overwrite``) a temporary sibling;
+    :class:`ProductsExistError` otherwise, and also with ``overwrite`` when ``final`` is not a dpos
+    products directory (:func:`is_products_dir`: only what dpos wrote is ever replaced)."""
 
     final.parent.mkdir(parents=True, exist_ok=True)
-    if not final.exists():
+    if not final.exists() and not final.is_symlink():
         final.mkdir()
+        mark_products(final)
         return final
     if not overwrite:
         raise ProductsExistError(errno.EEXIST, "products of an earlier run exist (they are not mixed with new ones; "
                                  "overwrite replaces them)", str(final))
+    if not is_products_dir(final):
+        raise ProductsExistError(errno.EEXIST, "exists and is not a dpos products directory (no "
+                                 f"{PRODUCTS_MARKER}): not replacing it", str(final))
     tmp = final.with_name(f".{final.name}.new-{os.getpid()}")
     if tmp.exists():  # left by a killed run of the same pid
         shutil.rmtree(tmp)
     tmp.mkdir()
+    mark_products(tmp)
     return tmp
 
 

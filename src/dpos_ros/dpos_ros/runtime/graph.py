@@ -9,7 +9,8 @@ Graph file::
     ros_domain_id: 42            # optional; default: inherit the environment's
     ready_timeout_s: 30          # optional
     stop_timeout_s: 10           # optional: SIGINT -> SIGTERM after this, SIGKILL after twice
-    env: {RMW_IMPLEMENTATION: rmw_fastrtps_cpp}
+    env: {RMW_IMPLEMENTATION: rmw_fastrtps_cpp}   # loader variables (LD_*, PYTHONPATH, ...) are refused
+    allow_executables: [my_driver]   # optional: executables other than the product's that this file may start
     nodes:
       - name: master             # node name (-r __node:=NAME) and log prefix
         executable: pos_master_node      # console script beside this Python, or on PATH
@@ -26,11 +27,19 @@ Readiness is checked through the ROS graph by a private probe node: a node is re
 visible and every topic it should publish (subscribe) has it as a publisher (subscriber).  Each
 process runs in its own session (process group), its stdout/stderr are streamed line by line
 with a ``[name]`` prefix and kept for inspection.
+
+What a graph file may start is checked before anything runs (:meth:`GraphSpec.from_yaml`): an
+``executable`` is one of the product's (:data:`PRODUCT_EXECUTABLES`) unless the file lists it under
+``allow_executables``; ``env`` cannot set a variable that changes what a process loads
+(:func:`env_problem`: ``LD_PRELOAD``, ``PYTHONPATH``, ...); names, parameters, remaps and the
+numbers have the types and the characters ROS accepts (one line naming the entry otherwise).
 """
 
 from __future__ import annotations
 
+import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -46,6 +55,29 @@ from typing import Any
 import yaml
 
 from dpos_core.errors import GraphError
+
+#: the executables of the product a graph file may start without listing them in ``allow_executables``
+PRODUCT_EXECUTABLES = frozenset({"pos_master_node", "ifa_node", "pos_sub_node", "transfer_align_node", "sar_nav_node",
+                                 "dpos-record", "dpos-play"})
+#: environment variables that change what a process loads or runs before its own code: never from a graph file
+LOADER_ENV = frozenset({"PYTHONPATH", "PYTHONHOME", "PYTHONSTARTUP", "PYTHONUSERBASE", "PYTHONEXECUTABLE",
+                        "PYTHONINSPECT", "PYTHONSAFEPATH", "PYTHONPLATLIBDIR", "BASH_ENV", "ENV", "PATH",
+                        "AMENT_PREFIX_PATH", "RMW_IMPLEMENTATION_WRAPPER", "GCONV_PATH", "HOSTALIASES", "NLSPATH"})
+_LOADER_PREFIXES = ("LD_", "DYLD_", "MALLOC_", "GLIBC_")
+_ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")  # rcl's node name rule
+_PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*\Z")
+_TOPIC = re.compile(r"~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*\Z")
+_EXE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*\Z")
+
+
+def env_problem(name: str) -> str | None:
+    """Why a graph file may not set the environment variable ``name`` (None: it may)."""
+    if not _ENV_NAME.match(name):
+        return "not a variable name"
+    if name.upper().startswith(_LOADER_PREFIXES) or name.upper() in LOADER_ENV:
+        return "it changes what a process loads (set it outside dpos-graph if you must)"
+    return None
 
 
 @dataclass(frozen=True)
@@ -73,6 +105,10 @@ class NodeSpec:
 
 
 def _resolve(exe: str) -> str:
+    if Path(exe).name != exe:  # a path: only from allow_executables (GraphSpec.from_yaml), run as written
+        if not (Path(exe).is_file() and os.access(exe, os.X_OK)):
+            raise GraphError(f"executable {exe!r} is not an executable file")
+        return exe
     local = Path(sys.executable).parent / exe
     if local.is_file():
         return str(local)
@@ -92,9 +128,39 @@ def _param_text(v: Any) -> str:
         return "true" if v else "false"
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_param_text(x) for x in v) + "]"
-    if isinstance(v, str) and (v == "" or any(c in v for c in " :,[]{}#")):
-        return "'" + v.replace("'", "\\'") + "'"
+    if isinstance(v, str) and _needs_quotes(v):  # a YAML single-quoted string: ' doubled
+        return "'" + v.replace("'", "''") + "'"
     return str(v)
+
+
+def _needs_quotes(v: str) -> bool:
+    if v == "" or v != v.strip() or any(c in v for c in ":,[]{}#'\"&*!|>%@`?"):
+        return True
+    try:
+        return yaml.safe_load(v) != v
+    except yaml.YAMLError:
+        return True
+
+
+def _is_scalar(v: Any) -> bool:
+    return isinstance(v, (bool, int, str)) or isinstance(v, float) and math.isfinite(v)
+
+
+def _param_problem(v: Any) -> str | None:
+    """Why ``v`` cannot be a ROS parameter value from a graph file (None: it can)."""
+    if isinstance(v, (list, tuple)):  # (an empty list: a parameter's "unset", e.g. datum: [])
+        if not all(_is_scalar(x) and not isinstance(x, (list, tuple)) for x in v):
+            return "a list must hold numbers, booleans or strings"
+        kinds = {bool if isinstance(x, bool) else (float if isinstance(x, (int, float)) else str) for x in v}
+        if len(kinds) > 1:
+            return "a list must hold values of one type"
+        v = list(v)
+    elif not _is_scalar(v):
+        return f"a {type(v).__name__} is not a parameter value (a number, a boolean, a string or a list of one of them)"
+    for x in v if isinstance(v, list) else [v]:
+        if isinstance(x, str) and any(ord(c) < 32 for c in x):
+            return "a control character (a line break?) in a string"
+    return None
 
 
 @dataclass
@@ -108,28 +174,23 @@ class GraphSpec:
 
     @classmethod
     def from_yaml(cls, path: str | Path, text: str | None = None) -> GraphSpec:
+        """The graph of the YAML file ``path`` (or of ``text``); :class:`GraphError` naming the entry
+        that is wrong (module docstring: what a graph file may start and set)."""
         p = Path(path)
         label = str(p)
         try:
             d = yaml.safe_load(text if text is not None else p.read_text())
-        except (OSError, yaml.YAMLError) as e:
-            raise GraphError(f"{label}: cannot read the graph file: {e}") from None
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+            raise GraphError(f"{label}: cannot read the graph file: {' '.join(str(e).split())}") from None
         if not isinstance(d, dict) or not isinstance(d.get("nodes"), list) or not d["nodes"]:
             raise GraphError(f"{label}: needs a non-empty 'nodes' list")
-        unknown = set(d) - {"nodes", "ros_domain_id", "env", "ready_timeout_s", "stop_timeout_s"}
+        unknown = set(d) - {"nodes", "ros_domain_id", "env", "ready_timeout_s", "stop_timeout_s", "allow_executables"}
         if unknown:
-            raise GraphError(f"{label}: unknown key(s) {sorted(unknown)}")
-        nodes = []
-        for i, n in enumerate(d["nodes"]):
-            if not isinstance(n, dict) or not n.get("name") or not n.get("executable"):
-                raise GraphError(f"{label}: nodes[{i}] needs a name and an executable")
-            bad = set(n) - {"name", "executable", "parameters", "params_file", "remaps", "ready", "args"}
-            if bad:
-                raise GraphError(f"{label}: nodes[{i}] ({n['name']}): unknown key(s) {sorted(bad)}")
-            ready = n.get("ready") or {}
-            nodes.append(NodeSpec(str(n["name"]), str(n["executable"]), dict(n.get("parameters") or {}), n.get("params_file"),
-                                  dict(n.get("remaps") or {}), tuple(ready.get("publishes") or ()), tuple(ready.get("subscribes") or ()),
-                                  tuple(str(a) for a in n.get("args") or ())))
+            raise GraphError(f"{label}: unknown key(s) {sorted(map(str, unknown))}")
+        allowed = d.get("allow_executables") or []
+        if not (isinstance(allowed, list) and all(isinstance(x, str) and x for x in allowed)):
+            raise GraphError(f"{label}: allow_executables must be a list of executable names or paths, got {allowed!r}")
+        nodes = [_node_spec(label, i, n, frozenset(allowed)) for i, n in enumerate(d["nodes"])]
         unset = [f"{n.name}: {where} {key!r} = {value}" for n in nodes for where, values in (("parameter", n.parameters), ("remap", n.remaps))
                  for key, value in values.items() if _is_placeholder(value)]
         if unset:
@@ -139,10 +200,71 @@ class GraphSpec:
         if len(set(names)) != len(names):
             raise GraphError(f"{label}: duplicate node names {names}")
         dom = d.get("ros_domain_id")
-        if dom is not None and not (isinstance(dom, int) and 0 <= dom <= 232):
+        if dom is not None and not (isinstance(dom, int) and not isinstance(dom, bool) and 0 <= dom <= 232):
             raise GraphError(f"{label}: ros_domain_id must be an integer in 0..232, got {dom!r}")
-        return cls(nodes, dom, {str(k): str(v) for k, v in (d.get("env") or {}).items()},
-                   float(d.get("ready_timeout_s", 30.0)), float(d.get("stop_timeout_s", 10.0)), p.parent)
+        env = d.get("env") or {}
+        if not isinstance(env, dict):
+            raise GraphError(f"{label}: env must be a mapping of variable names to values, got {env!r}")
+        for k, v in env.items():
+            why = env_problem(str(k)) or (None if _is_scalar(v) and "\0" not in str(v) else "its value must be a string or a number")
+            if why:
+                raise GraphError(f"{label}: env {k!r}: refused: {why}")
+        times = {}
+        for key, default in (("ready_timeout_s", 30.0), ("stop_timeout_s", 10.0)):
+            t = d.get(key, default)
+            if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and 0 < t <= 86400):
+                raise GraphError(f"{label}: {key} must be a number of seconds in (0, 86400], got {t!r}")
+            times[key] = float(t)
+        return cls(nodes, dom, {str(k): str(v) for k, v in env.items()}, times["ready_timeout_s"], times["stop_timeout_s"], p.parent)
+
+
+def _node_spec(label: str, i: int, n: Any, allowed: frozenset[str]) -> NodeSpec:
+    """The ``i``-th entry ``n`` of a graph file's ``nodes``, checked (:meth:`GraphSpec.from_yaml`)."""
+    if not isinstance(n, dict) or not n.get("name") or not n.get("executable"):
+        raise GraphError(f"{label}: nodes[{i}] needs a name and an executable")
+    name = n["name"]
+    if not isinstance(name, str) or not _NODE_NAME.match(name):
+        raise GraphError(f"{label}: nodes[{i}]: name {name!r} is not a ROS node name (letters, digits, '_'; not a digit first)")
+    where = f"{label}: nodes[{i}] ({name})"
+    bad = set(n) - {"name", "executable", "parameters", "params_file", "remaps", "ready", "args"}
+    if bad:
+        raise GraphError(f"{where}: unknown key(s) {sorted(map(str, bad))}")
+    exe = n["executable"]
+    if not isinstance(exe, str):
+        raise GraphError(f"{where}: executable must be a name, got {exe!r}")
+    if exe not in allowed and (exe not in PRODUCT_EXECUTABLES or not _EXE_NAME.match(exe)):
+        raise GraphError(f"{where}: executable {exe!r} is not one of the product's {sorted(PRODUCT_EXECUTABLES)}; "
+                         "a graph file that means to start it lists it under allow_executables")
+    params = n.get("parameters") or {}
+    if not isinstance(params, dict):
+        raise GraphError(f"{where}: parameters must be a mapping, got {params!r}")
+    for k, v in params.items():
+        if not isinstance(k, str) or not _PARAM_NAME.match(k):
+            raise GraphError(f"{where}: parameter name {k!r} is not a ROS parameter name")
+        if (why := _param_problem(v)) is not None:
+            raise GraphError(f"{where}: parameter {k!r} = {v!r}: {why}")
+    remaps = n.get("remaps") or {}
+    if not isinstance(remaps, dict):
+        raise GraphError(f"{where}: remaps must be a mapping of topic names, got {remaps!r}")
+    for a, b in remaps.items():
+        if not (isinstance(a, str) and isinstance(b, str) and _TOPIC.match(a) and (_TOPIC.match(b) or _is_placeholder(b))):
+            raise GraphError(f"{where}: remap {a!r}: {b!r}: both must be topic names")
+    ready = n.get("ready") or {}
+    if not isinstance(ready, dict) or set(ready) - {"publishes", "subscribes"}:
+        raise GraphError(f"{where}: ready must be a mapping with publishes and/or subscribes, got {ready!r}")
+    topics = {}
+    for key in ("publishes", "subscribes"):
+        ts = ready.get(key) or []
+        if not (isinstance(ts, list) and all(isinstance(t, str) and _TOPIC.match(t) for t in ts)):
+            raise GraphError(f"{where}: ready {key} must be a list of topic names, got {ts!r}")
+        topics[key] = tuple(ts)
+    pf = n.get("params_file")
+    if pf is not None and not (isinstance(pf, str) and pf and "\0" not in pf):
+        raise GraphError(f"{where}: params_file must be a file name, got {pf!r}")
+    args = n.get("args") or []
+    if not (isinstance(args, list) and all(_is_scalar(a) and "\0" not in str(a) for a in args)):
+        raise GraphError(f"{where}: args must be a list of strings, got {args!r}")
+    return NodeSpec(name, exe, dict(params), pf, dict(remaps), topics["publishes"], topics["subscribes"], tuple(str(a) for a in args))
 
 
 class _Proc:

@@ -62,6 +62,16 @@ def process_pool(n_workers: int) -> cf.ProcessPoolExecutor:
 WORKERS_ENV = "DPOS_WORKERS"
 
 
+def max_workers() -> int:
+    """The most worker processes a command accepts: 4 per core this process may use (each worker
+    is a Python process holding a filter; more only thrash the machine)."""
+    try:
+        cores = max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # (no affinity on this platform)
+        cores = os.cpu_count() or 1
+    return 4 * cores
+
+
 def default_workers() -> int:
     """The worker processes that ``0`` (one per core) means: :data:`WORKERS_ENV` when set to a
     positive integer (anything else is an error naming it), else the CPUs this process may use."""
@@ -71,8 +81,8 @@ def default_workers() -> int:
             n = int(text)
         except ValueError:
             n = 0
-        if n < 1:
-            raise ValueError(f"{WORKERS_ENV}={text!r}: expected a positive number of worker processes")
+        if not 1 <= n <= max_workers():
+            raise ValueError(f"{WORKERS_ENV}={text!r}: expected a number of worker processes in 1..{max_workers()}")
         return n
     try:
         return max(1, len(os.sched_getaffinity(0)))
