@@ -48,31 +48,48 @@ def test_rows_in_small_blocks_with_the_per_epoch_arrays_in_files(tmp_path: Path,
     _compare(tmp_path / "on", tmp_path / "off")
 
 
-def test_spilled_rows_with_the_wing_fit(tmp_path: Path) -> None:
-    rec = tmp_path / "wing"
-    assert sim_cli.main(["--scenario", "paper_wing", "--duration", "20", "--window", "10", "--out", str(rec)]) == 0
-    args = [str(rec), "--method", "urtss", "--workers", "1"]
-    assert process_cli.main([*args, "--stream", "on", "--out", str(tmp_path / "on")]) == 0
-    assert process_cli.main([*args, "--stream", "off", "--out", str(tmp_path / "off")]) == 0
-    _compare(tmp_path / "on", tmp_path / "off")
+@pytest.fixture(scope="module")
+def wing(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A 10 s paper_wing recording (its fit antennas) and its products with the rows spilled, on
+    one worker, the wing fit in 4 s windows (3 windows, more than FIT_IN_FLIGHT 2 on the workers)."""
+    d = tmp_path_factory.mktemp("wing")
+    rec = d / "wing"
+    assert sim_cli.main(["--scenario", "paper_wing", "--duration", "10", "--window", "5", "--out", str(rec)]) == 0
+    with pytest.MonkeyPatch.context() as mp:
+        _small_fit_windows(mp)
+        assert process_cli.main([*_wing_args(rec), "--workers", "1", "--stream", "on", "--out", str(d / "on_1")]) == 0
+    return rec, d / "on_1"
 
 
-def test_wing_fit_windows_on_the_workers(tmp_path: Path, monkeypatch) -> None:
+def _small_fit_windows(mp: pytest.MonkeyPatch) -> None:
+    mp.setattr(solve, "FIT_WINDOW_S", 4.0)
+    mp.setattr(solve, "FIT_IN_FLIGHT", 2)
+
+
+def _wing_args(rec: Path) -> list[str]:
+    return [str(rec), "--method", "urtss"]
+
+
+def test_spilled_rows_with_the_wing_fit(wing: tuple[Path, Path], tmp_path: Path, monkeypatch) -> None:
+    rec, on = wing
+    _small_fit_windows(monkeypatch)
+    assert process_cli.main([*_wing_args(rec), "--workers", "1", "--stream", "off", "--out", str(tmp_path / "off")]) == 0
+    _compare(on, tmp_path / "off")
+
+
+def test_wing_fit_windows_on_the_workers(wing: tuple[Path, Path], tmp_path: Path, monkeypatch) -> None:
     """The wing fit's windows fitted on the workers (a few in flight, taken in order) give the
     products of the windows fitted one after the other in this process, byte for byte."""
-    rec = tmp_path / "wing"
-    assert sim_cli.main(["--scenario", "paper_wing", "--duration", "20", "--window", "10", "--out", str(rec)]) == 0
-    monkeypatch.setattr(solve, "FIT_WINDOW_S", 4.0)  # 5 windows, more than FIT_IN_FLIGHT
-    monkeypatch.setattr(solve, "FIT_IN_FLIGHT", 2)
-    for workers in ("1", "2"):
-        assert process_cli.main([str(rec), "--method", "urtss", "--workers", workers, "--stream", "on", "--out", str(tmp_path / workers)]) == 0
-    (sid,) = [p.name for p in (tmp_path / "1").iterdir()]
-    a, b = tmp_path / "1" / sid, tmp_path / "2" / sid
+    rec, on_1 = wing
+    _small_fit_windows(monkeypatch)
+    assert process_cli.main([*_wing_args(rec), "--workers", "2", "--stream", "on", "--out", str(tmp_path / "2")]) == 0
+    (sid,) = [p.name for p in on_1.iterdir()]
+    a, b = on_1 / sid, tmp_path / "2" / sid
     csvs = sorted(p.name for p in a.glob("*.csv"))
     assert len(csvs) == 12 and csvs == sorted(p.name for p in b.glob("*.csv"))
     for name in csvs:
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
     sa, sb = json.loads((a / "status.json").read_text()), json.loads((b / "status.json").read_text())
-    assert [f["windows"] for f in sa["wing_fit"].values()] == [5] * len(sa["wing_fit"])
+    assert [f["windows"] for f in sa["wing_fit"].values()] == [3] * len(sa["wing_fit"])
     sa.pop("timing"), sb.pop("timing")
     assert sa == sb
