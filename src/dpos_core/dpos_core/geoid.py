@@ -1,6 +1,7 @@
 """Geoid undulation N from a grid file the user gives: height above the geoid H = h - N (h the
 WGS-84 ellipsoidal height).  No model is built in: without a file the products say their heights
-are ellipsoidal (docs/design.md "Session products", docs/geoid.md).
+are ellipsoidal (docs/design.md "Session products"; docs/transfer_alignment.md "Heights above
+the geoid").
 
 Two common grid formats, read as they are distributed (the file is memory-mapped: an EGM2008 1'
 grid of 0.5 GB costs only the pages the track touches):
