@@ -12,11 +12,13 @@ import termios
 import threading
 
 
-def on_pty(argv: list[str], timeout: float = 600.0) -> tuple[int, str, str]:
-    """Run ``argv`` with its stderr on a pseudo-terminal (120 columns), stdout on a pipe; returns
-    (exit status, stdout, what the terminal received)."""
+def on_pty(argv: list[str], timeout: float = 600.0, size: tuple[int, int] | None = (120, 40)) -> tuple[int, str, str]:
+    """Run ``argv`` with its stderr on a pseudo-terminal of ``size`` (columns, rows; None: the 0 x 0
+    a terminal-less ``script`` gives), stdout on a pipe; returns (exit status, stdout, what the
+    terminal received)."""
     master, slave = pty.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    if size is not None:
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", size[1], size[0], 0, 0))
     p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=slave, stdin=subprocess.DEVNULL)
     os.close(slave)
     chunks: list[bytes] = []

@@ -14,6 +14,7 @@ commands' ``--quiet``: then nothing at all is written by this module, and the co
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from types import TracebackType
@@ -32,6 +33,20 @@ def on_terminal(stream: TextIO, quiet: bool = False) -> bool:
         return False
 
 
+#: the terminal's columns and rows when it does not tell its own (a pseudo-terminal of 0 x 0, e.g.
+#: under ``script``: tqdm would draw bars of no width, hidden below a screen of no rows)
+DEFAULT_SIZE = (100, 24)
+
+
+def screen(stream: TextIO) -> dict[str, int]:
+    """tqdm's ``ncols`` and ``nrows`` of the terminal ``stream`` is on (:data:`DEFAULT_SIZE` for a 0 or unknown one)."""
+    try:
+        cols, rows = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError):
+        cols = rows = 0
+    return {"ncols": cols if cols > 0 else DEFAULT_SIZE[0], "nrows": rows if rows > 0 else DEFAULT_SIZE[1]}
+
+
 class Progress:
     """A bar of ``done`` / ``total`` (called as the writers' ``progress(done, total)``), made at the
     first call; closed when ``done`` reaches ``total`` (or by :meth:`close`)."""
@@ -46,7 +61,7 @@ class Progress:
         if not self.enabled or total <= 0:
             return
         if self._bar is None:
-            self._bar = tqdm(total=total, desc=self.label, file=self.stream, leave=True, dynamic_ncols=True,
+            self._bar = tqdm(total=total, desc=self.label, file=self.stream, leave=True, **screen(self.stream),
                              bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]")
         self._bar.total = total
         self._bar.update(min(done, total) - self._bar.n)
@@ -66,12 +81,17 @@ class Items:
 
     def __init__(self, what: str, total: int, stream: TextIO, enabled: bool) -> None:
         self.what = what
-        self.bar = tqdm(total=total, desc=what, unit=what, file=stream, leave=False, dynamic_ncols=True, disable=not enabled)
+        self.bar = tqdm(total=total, desc=what, unit=what, file=stream, leave=False, disable=not enabled,
+                        **(screen(stream) if enabled else {}))
 
     def done(self, name: str, text: str = "done") -> None:
         """Item ``name`` finished (``text``: its outcome, one line)."""
         if not self.bar.disable:
             self.bar.write(f"  {self.what} {name}: {text}", file=self.bar.fp)
+        self.bar.update(1)
+
+    def advance(self) -> None:
+        """An item finished, its line written elsewhere (e.g. the command's result line on stdout)."""
         self.bar.update(1)
 
     def close(self) -> None:
@@ -108,5 +128,9 @@ class Stages:
         return Progress(label, self.stream, self.enabled)
 
     def print(self, text: str) -> None:
-        """A line on stdout while a bar may be drawn on the terminal (the bar is redrawn below it)."""
-        tqdm.write(text, file=sys.stdout)
+        """A line on stdout (flushed) while a bar may be drawn on the terminal (the bar is redrawn below it)."""
+        if self.enabled:
+            tqdm.write(text, file=sys.stdout)
+        else:
+            print(text)
+        sys.stdout.flush()
