@@ -212,9 +212,10 @@ def test_dpos_process_options_are_passed_on(tmp_path: Path, monkeypatch: pytest.
     """The options that differ from dpos-process's defaults, an aircraft file made absolute."""
     monkeypatch.chdir(tmp_path)
     Path("my_aircraft.yaml").write_text(config_text("aircraft", "paper_su_pair"))
+    Path("egm.pgm").write_bytes(b"P5\n")
     ap, subs, forwarded = campaign._parsers()
     args = ap.parse_args(["process", "r1", "r2", "--out", "o", "--method", "ukf", "--no-sigma-inflation", "--particles", "100",
-                          "--aircraft", "my_aircraft.yaml", "--workers", "3", "--quiet"])
+                          "--aircraft", "my_aircraft.yaml", "--workers", "3", "--quiet", "--geoid", "egm.pgm"])
     assert args.recordings == [Path("r1"), Path("r2")] and args.workers == 3 and args.quiet  # (the campaign's own, not passed on)
     assert campaign.forwarded_argv(args, forwarded) == ["--method", "ukf", "--no-sigma-inflation", "--aircraft",
-                                                        str(tmp_path.resolve() / "my_aircraft.yaml")]
+                                                        str(tmp_path.resolve() / "my_aircraft.yaml"), "--geoid", str(tmp_path.resolve() / "egm.pgm")]

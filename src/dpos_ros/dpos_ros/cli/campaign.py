@@ -132,13 +132,13 @@ def _parsers() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentPars
 
 def forwarded_argv(args: argparse.Namespace, actions: Sequence[argparse.Action]) -> list[str]:
     """The dpos-process command-line options of ``args`` that differ from dpos-process's defaults
-    (an ``--aircraft`` file as an absolute path: the workers do not run in this directory)."""
+    (an ``--aircraft`` or ``--geoid`` file as an absolute path: the workers do not run in this directory)."""
     argv: list[str] = []
     for a in actions:
         v = getattr(args, a.dest)
         if v == a.default:
             continue
-        if a.dest == "aircraft" and Path(v).is_file():
+        if a.dest in ("aircraft", "geoid") and Path(v).is_file():
             v = Path(v).resolve()
         if isinstance(a, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
             argv.append(a.option_strings[-1])

@@ -19,7 +19,7 @@ that does not grow with the flight), ``auto`` (the default) ``on`` for a recordi
 an hour; the products are the same either way.
 
 ``--geoid FILE``: a geoid grid (GeographicLib ``.pgm``, e.g. egm96-5.pgm, or NOAA/PROJ ``.gtx``;
-docs/geoid.md): each antenna CSV gains ``h_geoid_m``, the height above that geoid, and its first
+docs/transfer_alignment.md "Heights above the geoid"): each antenna CSV gains ``h_geoid_m``, the height above that geoid, and its first
 line names the model; without it the CSV says its heights are ellipsoidal.  A file that is not
 such a grid, or a grid that does not cover the main POS's track, is exit 2 before any work.
 
@@ -320,9 +320,11 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             st.stage(f"aligning {n_subs} sub-IMU(s) with {args.method} on {getattr(pool, 'n_workers', 1)} worker(s)")
             with st.items("sub-IMU", n_subs) as bar:
                 fit = st.bar("wing fit")
-                antennas, timing = solve(sess, aircraft, ta, source=source, store_dir=Path(tmp) if spill else None, pool=pool,
-                                         sub_imus=subs, on_sub_imu=bar.done, on_fit_window=fit)
-                fit.close()
+                try:
+                    antennas, timing = solve(sess, aircraft, ta, source=source, store_dir=Path(tmp) if spill else None, pool=pool,
+                                             sub_imus=subs, on_sub_imu=bar.done, on_fit_window=fit)
+                finally:
+                    fit.close()
             if topics is None or any(tp.startswith("/truth/") for tp in topics):
                 st.stage("evaluating against the recorded truth")
             ev = evaluate(sess, antennas, topics)  # against the truth, a part at a time (none without it)
