@@ -333,8 +333,12 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             n_est = sum(a.rows is not None for a in antennas.values())
             st.stage(f"writing the products of {n_est} antenna(s) (CSV, QC, antenna bag, tracks)")
             with st.items("antenna", n_est) as bar:
-                out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool,
-                            on_antenna=bar.done, geoid=args.geoid_grid)
+                bag = st.bar("antenna bag")
+                try:
+                    out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool,
+                                on_antenna=bar.done, geoid=args.geoid_grid, on_bag=bag)
+                finally:
+                    bag.close()
             st.stage("done")
     except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
         return _write_error(e, target, final, had_products)

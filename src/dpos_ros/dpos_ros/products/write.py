@@ -55,7 +55,8 @@ from .track import TrackWriter
 
 def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
           evaluation: dict[str, dict] | None = None, *, overwrite: bool = False, pool: cf.Executor | None = None,
-          on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None) -> Path:
+          on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None,
+          on_bag: Callable[[int, int], None] | None = None) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring) from the antennas'
     rows, a block of rows at a time; returns that directory.
 
@@ -69,9 +70,12 @@ def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolu
     workers, and the antenna bag's batches (:data:`BAG_BATCH_S` of poses each) made and compressed
     there while this process writes them to the file in order.  ``evaluation``:
     :func:`dpos_ros.products.evaluate.evaluate`'s result, written (metrics.json, report.md, error
-    figures) before status.json.  ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`)."""
+    figures) before status.json.  ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`).
+    Progress: ``on_antenna(name)`` as each antenna's files are written, ``on_bag(done, total)`` after
+    each batch of the antenna bag."""
     return write_complete(Path(out_root) / sess.session_id, overwrite,
-                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, on_antenna, geoid))
+                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, on_antenna, geoid,
+                                                          on_bag))
 
 
 def write_complete(final: Path, overwrite: bool, fill: Callable[[Path], None]) -> Path:
@@ -146,9 +150,10 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
 
 def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
                     pool: cf.Executor | None, evaluation: dict[str, dict] | None = None,
-                    on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None) -> None:
+                    on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None,
+                    on_bag: Callable[[int, int], None] | None = None) -> None:
     """The products (module docstring) into the new, empty directory ``out``; ``on_antenna(name)``
-    (progress) as each estimated antenna's files are written."""
+    and ``on_bag(done, total)``: :func:`write`'s progress."""
     est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
@@ -156,7 +161,7 @@ def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, Antenn
     summ: dict[str, dict] = {}
     with drained(lambda: [f for f in files.values() if f is not None]):  # (they write into out)
         if est:
-            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool)
+            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool, on_bag)
         for name, a in antennas.items():
             f = files.get(name)
             summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method, geoid))
@@ -262,12 +267,6 @@ def antenna_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution
         yield [antenna_stream(sess, name, a.block(*ranges[name])) for name, a in est.items()]
 
 
-def bag_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution], batch_s: float | None = None):
-    """The antenna bag's batches (:func:`bag_channels`; for :func:`dpos_ros.io.bag.write_stream_batches`)."""
-    for ranges in bag_ranges(est, batch_s):
-        yield _bag_streams(sess, est, ranges)
-
-
 def bag_channels(est: dict[str, AntennaSolution]) -> list[tuple[str, str]]:
     """The antenna bag's channels, in the order of every batch's streams: each antenna's
     ``/antenna/<name>/odom`` and ``/antenna/<name>/fix``, then ``/dpos/datum``."""
@@ -308,22 +307,39 @@ def _light(sess: RecordedSession, est: dict[str, AntennaSolution]) -> tuple[Reco
 
 
 def _write_bag(path: Path, sess: RecordedSession, est: dict[str, AntennaSolution], custom_data: dict[str, str],
-               pool: cf.Executor | None) -> None:
+               pool: cf.Executor | None, on_bag: Callable[[int, int], None] | None = None) -> None:
     """The antenna bag of ``est``: batches made and compressed on ``pool`` (:data:`BAG_IN_FLIGHT` at
-    a time, appended in order: the same file as made here) or in this process."""
+    a time, appended in order: the same file as made here) or in this process; ``on_bag(done,
+    total)`` after each batch written."""
+    batches = list(bag_ranges(est))  # (a few hundred dicts of row ranges for hours of flight)
+    written = 0
+
+    def tick() -> None:
+        nonlocal written
+        written += 1
+        if on_bag is not None:
+            on_bag(written, len(batches))
+
     if pool is None:
-        write_stream_batches(path, bag_stream_batches(sess, est), custom_data=custom_data)
+        def streams() -> Iterator[list]:
+            for ranges in batches:
+                yield _bag_streams(sess, est, ranges)
+                tick()
+
+        write_stream_batches(path, streams(), custom_data=custom_data)
         return
     w = new_writer(path, bag_channels(est), custom_data)
     s_l, e_l = _light(sess, est)
     pending: deque[cf.Future] = deque()
     try:
-        for k, ranges in enumerate(bag_ranges(est)):
+        for k, ranges in enumerate(batches):
             pending.append(pool.submit(encode_bag_batch, s_l, e_l, ranges, w.prefix if k == 0 else b""))
             while len(pending) > BAG_IN_FLIGHT:
                 w.add_encoded(pending.popleft().result())
+                tick()
         while pending:
             w.add_encoded(pending.popleft().result())
+            tick()
         w.close()
     except BaseException:
         for f in pending:
