@@ -41,6 +41,7 @@ LIBRARIES: dict[str, tuple[str, str]] = {
     "yaml": ("python3-yaml", "pyyaml"),
     "matplotlib": ("python3-matplotlib", "matplotlib"),
     "ruamel": ("python3-ruamel.yaml", "ruamel.yaml"),
+    "tqdm": ("python3-tqdm", "tqdm"),
     # not in rosdistro's python.yaml: pip keys, tools/rosdep.yaml
     "rosbags": ("python3-rosbags-pip", "rosbags"),
     "mcap": ("python3-mcap-pip", "mcap"),

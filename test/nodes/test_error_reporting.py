@@ -268,7 +268,7 @@ def test_ta_failing_sub_imu_smoother_is_an_error_and_the_other_antenna_is_estima
         spin_until(executor, fut.done, 30.0, "the finalize reply")
         assert fut.result().success, fut.result().message
         spin_until(executor, lambda: bool(status_files()) and not ta._finalizing, 120.0, lambda: f"products; {ta._progress}")
-        n_r = sum(1 for _ in (status_files()[0].parent / "ant_r.csv").open()) - 1
+        n_r = sum(1 for _ in (status_files()[0].parent / "ant_r.csv").open()) - 2
         spin_until(executor, lambda: len(odoms["ant_r"]) == n_r, 30.0, lambda: f"{n_r} ant_r poses ({len(odoms['ant_r'])} so far)")
         tap = StatusTap()
         ta._status_pub = tap

@@ -79,8 +79,8 @@ def test_replay_through_the_graph_equals_dpos_process(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     for ant in ("ant_r", "ant_l"):
-        a = np.loadtxt(out / "paper_su_seed3" / f"{ant}.csv", delimiter=",", skiprows=1)
-        o = np.loadtxt(tmp_path / "off" / "paper_su_seed3" / f"{ant}.csv", delimiter=",", skiprows=1)
+        a = np.loadtxt(out / "paper_su_seed3" / f"{ant}.csv", delimiter=",", skiprows=2)
+        o = np.loadtxt(tmp_path / "off" / "paper_su_seed3" / f"{ant}.csv", delimiter=",", skiprows=2)
         assert a.shape == o.shape == (6000, 23)
         np.testing.assert_allclose(a, o, rtol=0, atol=1e-12)
 

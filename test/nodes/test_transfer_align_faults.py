@@ -127,8 +127,8 @@ def test_second_session_with_the_same_stamps_and_a_datum_latched_once(node, msgs
         st = json.loads((tmp_path / "out" / sid / "status.json").read_text())
         assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, st
         assert len(st["warnings"]) == len(set(st["warnings"])), st["warnings"]
-    a = np.loadtxt(tmp_path / "out" / "first" / "ant_r.csv", delimiter=",", skiprows=1)
-    b = np.loadtxt(tmp_path / "out" / "second" / "ant_r.csv", delimiter=",", skiprows=1)
+    a = np.loadtxt(tmp_path / "out" / "first" / "ant_r.csv", delimiter=",", skiprows=2)
+    b = np.loadtxt(tmp_path / "out" / "second" / "ant_r.csv", delimiter=",", skiprows=2)
     assert a.shape == b.shape and np.allclose(a, b)  # the same data give the same poses
     s = _status(ta)
     assert s["sessions_done"] == "3" and not any(k.endswith("late_after_finalize") for k in s), s
@@ -145,7 +145,7 @@ def test_mid_flight_finalize_leaves_the_rest_of_the_flight_processable(node, msg
     for sid, dur in (("part1", 12.0), ("part2", SECONDS - 12.0)):
         st = json.loads((tmp_path / "out" / sid / "status.json").read_text())
         assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, (sid, st)
-        t = np.loadtxt(tmp_path / "out" / sid / "ant_l.csv", delimiter=",", skiprows=1, usecols=0)
+        t = np.loadtxt(tmp_path / "out" / sid / "ant_l.csv", delimiter=",", skiprows=2, usecols=0)
         assert t[-1] - t[0] > dur - 1.5, (sid, t[0], t[-1])
 
 

@@ -308,7 +308,7 @@ def products_vs_reference(products: Path, nav_file: Path, columns: NavColumns, m
     out: dict[str, dict[str, float]] = {}
     for name, rpy in mounts.items():
         with (products / f"{name}.csv").open() as fh:
-            rows = [r for r in csv.DictReader(fh)]
+            rows = list(csv.DictReader(ln for ln in fh if not ln.startswith("#")))
         t = np.array([float(r["stamp_s"]) for r in rows])
         get = lambda k: np.array([float(r[k]) for r in rows])  # noqa: E731
         C = C_nb_from_hpr(np.deg2rad(get("heading_deg")), np.deg2rad(get("pitch_deg")), np.deg2rad(get("roll_deg")))

@@ -72,6 +72,7 @@ def test_process_campaign_on_a_local_cluster(recordings: list[Path], tmp_path: P
     assert any("failed  rec_broken" in ln and "not a rosbag2 directory" in ln for ln in lines), r.stdout
     assert "local Dask cluster" in r.stdout and "2 worker(s)" in r.stdout
     assert "3 recording(s): 2 ok, 0 partial, 1 failed" in r.stdout
+    assert "%|" not in r.stderr and "\r" not in r.stderr  # no progress bar: stderr is not a terminal
 
     s = json.loads((out / "campaign.json").read_text())
     assert (s["kind"], s["tasks"], s["ok"], s["partial"], s["failed"]) == ("process", 3, 2, 0, 1)
@@ -211,9 +212,10 @@ def test_dpos_process_options_are_passed_on(tmp_path: Path, monkeypatch: pytest.
     """The options that differ from dpos-process's defaults, an aircraft file made absolute."""
     monkeypatch.chdir(tmp_path)
     Path("my_aircraft.yaml").write_text(config_text("aircraft", "paper_su_pair"))
+    Path("egm.pgm").write_bytes(b"P5\n")
     ap, subs, forwarded = campaign._parsers()
     args = ap.parse_args(["process", "r1", "r2", "--out", "o", "--method", "ukf", "--no-sigma-inflation", "--particles", "100",
-                          "--aircraft", "my_aircraft.yaml", "--workers", "3"])
-    assert args.recordings == [Path("r1"), Path("r2")] and args.workers == 3
+                          "--aircraft", "my_aircraft.yaml", "--workers", "3", "--quiet", "--geoid", "egm.pgm"])
+    assert args.recordings == [Path("r1"), Path("r2")] and args.workers == 3 and args.quiet  # (the campaign's own, not passed on)
     assert campaign.forwarded_argv(args, forwarded) == ["--method", "ukf", "--no-sigma-inflation", "--aircraft",
-                                                        str(tmp_path.resolve() / "my_aircraft.yaml")]
+                                                        str(tmp_path.resolve() / "my_aircraft.yaml"), "--geoid", str(tmp_path.resolve() / "egm.pgm")]

@@ -194,3 +194,21 @@ def test_imu_time_column_in_utc_of_2016(tmp_path: Path) -> None:
     assert import_.main(["--imu", str(csv), "--time-col", "6", "--time-scale", "utc", "--out", str(out)]) == 0
     rep = json.loads((out / "import_report.json").read_text())
     assert rep["imu"]["span"]["first_ns"] == (t0 + 17) * NS
+
+
+def test_progress_on_a_terminal_only(installation: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    """On a terminal: the stages, a line per sub-IMU (its clock and mounting), the bag's bar; --quiet: nothing."""
+    import sys
+
+    from terminal import on_pty  # test/support/terminal.py
+
+    nav, sub, aircraft = installation
+    exe = str(Path(sys.executable).parent / "dpos-import")
+    rc, out, term = on_pty([exe, *_argv(nav, sub, tmp_path / "a", "--aircraft", str(aircraft))])
+    assert rc == 0, term
+    for line in ("dpos-import: [", "reading the main navigation solution", "1 sub-IMU log(s)", "sub-IMU left: ",
+                 "clock counter only", "mounting ", "writing "):
+        assert line in term, term
+    assert "%|" in term and "wrote " in out and "sub-IMU left: " not in out
+    rc, out, term = on_pty([exe, *_argv(nav, sub, tmp_path / "b", "--aircraft", str(aircraft), "--quiet")])
+    assert rc == 0 and term.strip() == "" and "wrote " in out

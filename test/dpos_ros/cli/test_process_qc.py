@@ -94,8 +94,8 @@ def test_a_main_pos_unaligned_mid_session_is_flagged(bags, tmp_path: Path) -> No
     m.att_cov[bad] = np.eye(3) * np.deg2rad(0.5) ** 2
     ants, timing = solve(sess, load_aircraft("paper_su"), TASettings(method="ukf"))
     out = write(tmp_path, sess, ants, "ukf", timing)
-    rows = np.loadtxt(out / "ant_r.csv", delimiter=",", skiprows=1)
-    flags_col = (out / "ant_r.csv").open().readline().strip().split(",").index("flags")
+    rows = np.loadtxt(out / "ant_r.csv", delimiter=",", skiprows=2)
+    flags_col = (out / "ant_r.csv").read_text().splitlines()[1].split(",").index("flags")
     t, fl = rows[:, 0] - sess.t0_ns * 1e-9, rows[:, flags_col].astype(int)
     hit = (fl & F.MASTER_UNALIGNED) != 0
     assert np.all(hit[(t > 12.01) & (t < 14.99)]) and not np.any(hit[(t < 11.9) | (t > 15.1)])

@@ -28,6 +28,9 @@ plain TCP and a warning says so), and serve no HTTP route (no dashboard, no ``/m
 HTTP server still listens on a port of 127.0.0.1 and answers 404 to everything).
 A task that fails is retried ``--retries`` times (default 1), then reported, not fatal.
 
+Progress: the line per task on stdout, and a bar of the tasks done (with the time left) on stderr
+when it is a terminal, not with ``--quiet`` nor into a file or a pipe.
+
 Exit status: 0 every task ok; 1 some task failed (or a recording is partial); 2 unusable input
 (a bad option, a missing recording, an unwritable OUT, an unreachable scheduler or one without
 workers, the engine not installed) - nothing has run then.
@@ -70,6 +73,7 @@ from dpos_ros.cli.campaign_tasks import (
     write_summary,
 )
 from dpos_ros.cli.options import one_line_errors
+from dpos_ros.cli.progress import Stages
 from dpos_ros.io.outdir import OutputError, probe_writable
 from dpos_ros.runtime.pool import WORKER_ENV, default_workers, numba_stats
 
@@ -81,7 +85,7 @@ PROG = "dpos-campaign"
 CAMPAIGN_EXTRA = "pip install 'dpos_ros[campaign]'"
 
 #: dpos-process's options the campaign does not pass on (its own --out and --workers)
-_PROCESS_OWN = {"help", "bag", "out", "workers"}
+_PROCESS_OWN = {"help", "bag", "out", "workers", "quiet"}
 #: dpos-eval's options of a transfer-alignment evaluation (the IFA and mismatch ones are not campaigns yet)
 _EVAL_TA = {"scenario", "aircraft", "methods", "runs", "seed", "particles", "duration", "initial_attitude_error", "position_matching"}
 
@@ -95,6 +99,7 @@ def _engine_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--retries", type=int, default=1, metavar="N", help="retries of a failed task (default 1)")
     g.add_argument("--connect-timeout", type=float, default=20.0, metavar="S",
                    help="--scheduler: seconds to connect and to wait for a first worker (default 20)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar on the terminal (none is shown when stderr is not one)")
 
 
 def _copy_options(src: argparse.ArgumentParser, dst: argparse.ArgumentParser, keep: Callable[[str], bool]) -> list[argparse.Action]:
@@ -132,13 +137,13 @@ def _parsers() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentPars
 
 def forwarded_argv(args: argparse.Namespace, actions: Sequence[argparse.Action]) -> list[str]:
     """The dpos-process command-line options of ``args`` that differ from dpos-process's defaults
-    (an ``--aircraft`` file as an absolute path: the workers do not run in this directory)."""
+    (an ``--aircraft`` or ``--geoid`` file as an absolute path: the workers do not run in this directory)."""
     argv: list[str] = []
     for a in actions:
         v = getattr(args, a.dest)
         if v == a.default:
             continue
-        if a.dest == "aircraft" and Path(v).is_file():
+        if a.dest in ("aircraft", "geoid") and Path(v).is_file():
             v = Path(v).resolve()
         if isinstance(a, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
             argv.append(a.option_strings[-1])
@@ -332,12 +337,16 @@ def main_process(ap: argparse.ArgumentParser, args: argparse.Namespace, forwarde
             records: list[dict] = [{} for _ in tasks]
             width = max(len(t.name) for t in tasks)
 
+            st = Stages(PROG, quiet=args.quiet)
+
             def done(i: int, rec: dict | None, err: BaseException | None) -> None:
                 records[i] = rec if err is None and rec is not None else failed_record(tasks[i], err or RuntimeError("no result"), args.retries)
                 n, failed = count.tick(records[i]["status"] == "failed")
-                print(result_line(n, len(tasks), records[i], width) + (f"   [{failed} failed]" if failed else ""), flush=True)
+                st.print(result_line(n, len(tasks), records[i], width) + (f"   [{failed} failed]" if failed else ""))
+                bar.advance()
 
-            run_tasks(engine, run_process_task, tasks, [f"process-{t.name}-{campaign_id}" for t in tasks], args.retries, done)
+            with st.items("recording", len(tasks)) as bar:
+                run_tasks(engine, run_process_task, tasks, [f"process-{t.name}-{campaign_id}" for t in tasks], args.retries, done)
             print(_numba_line(engine))
             info = engine.info
     except CampaignError as e:
@@ -394,16 +403,20 @@ def main_eval(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             count = _Counter(len(tasks))
             records: list[dict] = [{} for _ in tasks]
 
+            st = Stages(PROG, quiet=args.quiet)
+
             def done(i: int, res: dict | None, err: BaseException | None) -> None:
                 records[i] = _eval_record(tasks[i], res, err, args.retries)
                 n, failed = count.tick(records[i]["status"] == "failed")
                 head = f"[{n:>{len(str(len(tasks)))}}/{len(tasks)}] {records[i]['status']:<7} {records[i]['name']}"
                 if err is not None:
-                    print(f"{head}  {records[i]['error']}   [{failed} failed]", flush=True)
+                    st.print(f"{head}  {records[i]['error']}   [{failed} failed]")
                 else:
-                    print(f"{head}  {records[i]['time_s']:.1f} s" + "".join(f"\n    {ln}" for ln in records[i]["lines"]), flush=True)
+                    st.print(f"{head}  {records[i]['time_s']:.1f} s" + "".join(f"\n    {ln}" for ln in records[i]["lines"]))
+                bar.advance()
 
-            results = run_tasks(engine, run_eval_task, tasks, [f"eval-{t.seeds[0]}-{campaign_id}" for t in tasks], args.retries, done)
+            with st.items("task", len(tasks)) as bar:
+                results = run_tasks(engine, run_eval_task, tasks, [f"eval-{t.seeds[0]}-{campaign_id}" for t in tasks], args.retries, done)
             print(_numba_line(engine))
             info = engine.info
     except CampaignError as e:

@@ -29,6 +29,9 @@ each on its own clock -> /master/nav, /dpos/datum, /sub_imu/<name>/imu, one reco
 takes as it is; clocks and mountings estimated from the data): dpos_ros.cli.import_install,
 docs/import.md "An installation".
 
+Progress (stages, a line per sub-IMU, the bag being written) is drawn on stderr when it is a
+terminal, not with --quiet nor into a file or a pipe.
+
 Prints a summary and writes it to <out>/import_report.json. Exit status 0; 2 on bad options, an
 unreadable log or an existing --out (without --overwrite); nothing is left behind on error.
 """
@@ -66,6 +69,7 @@ from dpos_core.imports.logs import (
 from dpos_core.imports.timescales import to_gpst_ns
 from dpos_ros.cli import import_install as install
 from dpos_ros.cli.options import finite_float, int_in, one_line_errors
+from dpos_ros.cli.progress import Stages
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.bag import typestore, write_streams
@@ -170,6 +174,7 @@ def parser() -> argparse.ArgumentParser:
     io.add_argument("--pos", type=Path, metavar="POS", help="RTKLIB .pos solution (llh, degrees); without it the bag holds the IMU only")
     io.add_argument("--out", type=Path, required=True, metavar="DIR", help="rosbag2 directory to write (must not exist)")
     io.add_argument("--overwrite", action="store_true", help="replace --out when it is an existing rosbag2 directory")
+    io.add_argument("--quiet", action="store_true", help="no progress on the terminal (none is shown when stderr is not one)")
 
     col = ap.add_argument_group("IMU CSV layout (0-based column indices; every --sub log's too)")
     add_layout(col)
@@ -529,14 +534,20 @@ def _check_out(out: Path, overwrite: bool) -> None:
         raise ImportFailure(f"--out {out} exists and is not a rosbag2 directory: not replacing it")
 
 
-def write_bag(out: Path, streams: list[TopicStream], custom_data: dict[str, str], report: dict[str, Any], overwrite: bool) -> int:
+def write_bag(out: Path, streams: list[TopicStream], custom_data: dict[str, str], report: dict[str, Any], overwrite: bool,
+              stages: Stages | None = None) -> int:
     """Write the bag and its report into a temporary directory next to ``out`` and rename it to
-    ``out`` at the end (replacing an existing one with ``overwrite``); nothing is left on failure."""
+    ``out`` at the end (replacing an existing one with ``overwrite``); nothing is left on failure.
+    ``stages``: the progress (a stage line and a bar of the messages written)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    bar = None
+    if stages is not None:
+        stages.stage(f"writing {sum(len(s) for s in streams)} messages on {len(streams)} topics to {out}")
+        bar = stages.bar("writing")
     try:
         bag_dir = tmp / out.name  # the bag's file names follow its directory name
-        n = write_streams(bag_dir, streams, custom_data=custom_data)
+        n = write_streams(bag_dir, streams, progress=bar, custom_data=custom_data)
         (bag_dir / REPORT_NAME).write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
         replaced = None
         if out.exists():
@@ -550,6 +561,8 @@ def write_bag(out: Path, streams: list[TopicStream], custom_data: dict[str, str]
                 replaced.rename(out)  # put the old bag back
             raise
     finally:
+        if bar is not None:
+            bar.close()
         shutil.rmtree(tmp, ignore_errors=True)
     return n
 
@@ -584,6 +597,9 @@ def _read_logs(args: argparse.Namespace) -> tuple[ImuLog, PosLog | None]:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Read, select, write; returns the report. Raises :class:`ImportFailure`, LogFormatError, OSError."""
     _check_out(args.out, args.overwrite)
+    st: Stages | None = getattr(args, "stages", None)
+    if st is not None:
+        st.stage(f"reading {args.imu}" + (f" and {args.pos}" if args.pos is not None else ""))
     imu_read, pos_read = _read_logs(args)
     origin_ns = int(imu_read.t_ns[0])
     imu = crop_imu(imu_read, origin_ns, args.start, args.end)
@@ -602,7 +618,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     report = build_report(args, imu_read, imu, sel, streams)
     custom = {"dpos.import_sources": json.dumps(report["inputs"]),
               "dpos.import_command": " ".join([PROG, *getattr(args, "argv", [])])}
-    write_bag(args.out, list(streams.values()), custom, report, args.overwrite)
+    write_bag(args.out, list(streams.values()), custom, report, args.overwrite, st)
     return report
 
 
@@ -611,7 +627,7 @@ def run_installation(ap: argparse.ArgumentParser, args: argparse.Namespace) -> d
     _check_out(args.out, args.overwrite)
     streams, custom, report = install.run_installation(args)
     custom["dpos.import_command"] = " ".join([PROG, *getattr(args, "argv", [])])
-    write_bag(args.out, streams, custom, report, args.overwrite)
+    write_bag(args.out, streams, custom, report, args.overwrite, getattr(args, "stages", None))
     return report
 
 
@@ -622,6 +638,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     _check_args(ap, args)
     args.argv = argv
+    args.stages = Stages(PROG, quiet=args.quiet)  # the progress (stderr, on a terminal)
     try:
         if args.nav is not None:
             args.layouts = install.sub_layouts(ap, layout_parser(), args)

@@ -22,6 +22,7 @@ sub_imu_<name>); stamps GPST on the Unix calendar [ns].
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shlex
 from pathlib import Path
 from typing import Any
@@ -251,6 +252,53 @@ def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, Mountin
     return text, replaced
 
 
+def _import_sub(name: str, path: Path, ns: argparse.Namespace, nav: NavSolution, tm: np.ndarray, t0: int, settings: ClockSettings,
+                streams: list[TopicStream], rep_subs: dict[str, Any], mounts: dict[str, MountingEstimate]) -> None:
+    """One --sub log (:func:`run_installation`): read, placed on GPS time, its mounting estimated;
+    its stream appended to ``streams``, its report entry to ``rep_subs``, its mounting to ``mounts``."""
+    log, kind, n_zero = read_sub(name, path, ns)
+    entry: dict[str, Any] = {"file": str(path), "samples_read": len(log) + n_zero, "lines_skipped": len(log.skipped),
+                             "skipped_first": [{"line": n, "reason": why} for n, why in log.skipped[:5]],
+                             "repeated_samples": log.repeated,
+                             "removed_all_zero": n_zero,  # all six values 0: a placeholder, not a measurement
+                             "clock": {"source": kind}}
+    if kind.startswith("counter only"):
+        td = np.asarray(log.t_ns * 1e-9, dtype=np.float64)
+        try:
+            c = estimate_clock(tm, nav.C_nb, td, log.omega_radps, settings, name=f"--sub {name} ({path})")
+        except ClockNotObservable as exc:
+            raise ImportFailure(str(exc)) from None
+        log.t_ns = c.to_gpst_ns(td, t0)
+        entry["clock"].update(_clock_dict(c))
+    t_sub = np.asarray((log.t_ns - t0) * 1e-9, dtype=np.float64)
+    inside = (t_sub >= tm[0]) & (t_sub <= tm[-1])
+    entry["samples_outside_nav"] = int((~inside).sum())  # removed: the transfer alignment needs the main solution
+    if not inside.any():
+        raise ImportFailure(f"--sub {name} ({path}): no sample within the main solution's span ({tm[-1]:.3f} s)")
+    if not inside.all():
+        log = ImuLog(log.t_ns[inside], log.omega_radps[inside], log.f_mps2[inside], log.skipped, log.repeated, log.clock_scale)
+        t_sub = t_sub[inside]
+    try:
+        m = estimate_mounting(tm, nav.C_nb, t_sub, log.omega_radps, name=f"--sub {name}")
+        mounts[name] = m
+        entry["mounting"] = _mount_dict(m)
+    except MountingNotObservable as exc:
+        entry["mounting"] = {"not_observable": str(exc)}
+    entry["samples_written"] = len(log)
+    rep_subs[name] = entry
+    streams.append(TopicStream(T.sub_imu(name), T.IMU, log.t_ns.copy(),
+                               rows=cv.imu_rows(cv.sub_imu_frame(name), log.t_ns, log.omega_radps, log.f_mps2,
+                                                ns.gyro_sigma_radps, ns.accel_sigma_mps2)))
+
+
+def _sub_line(entry: dict[str, Any]) -> str:
+    """A sub-IMU's progress line: samples, clock, mounting."""
+    c, m = entry["clock"], entry.get("mounting", {})
+    clock = c["source"] + (f", offset {c['offset_s']:+.4f} s +- {c['offset_sigma_ms']:.1f} ms" if "offset_s" in c else "")
+    mount = ("mounting " + "/".join(f"{v:.2f}" for v in m["rpy_deg"]) + " deg") if "rpy_deg" in m else "mounting not observable"
+    return f"{entry['samples_written']} samples, clock {clock}, {mount}"
+
+
 def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[str, str], dict[str, Any]]:
     """Read the navigation solution and the sub-IMU logs, place the logs on GPS time, estimate the
     mountings; returns (streams, custom metadata, report).  Raises ImportFailure, LogFormatError."""
@@ -261,6 +309,9 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
         cols = nav_columns(args)
     except ValueError as exc:
         raise ImportFailure(f"--nav columns: {exc}") from None
+    st = getattr(args, "stages", None)  # the progress (dpos_ros.cli.progress.Stages), when dpos-import runs
+    if st is not None:
+        st.stage(f"reading the main navigation solution {args.nav}")
     nav = read_nav_csv(args.nav, cols)
     if len(nav) < 3:
         raise ImportFailure(f"--nav {args.nav}: {len(nav)} usable line(s), at least 3 needed")
@@ -270,40 +321,14 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
     rep_subs: dict[str, Any] = {}
     mounts: dict[str, MountingEstimate] = {}
     settings = ClockSettings(min_peak=args.clock_min_peak)
-    for name, (path, ns) in subs.items():
-        log, kind, n_zero = read_sub(name, path, ns)
-        entry: dict[str, Any] = {"file": str(path), "samples_read": len(log) + n_zero, "lines_skipped": len(log.skipped),
-                                 "skipped_first": [{"line": n, "reason": why} for n, why in log.skipped[:5]],
-                                 "repeated_samples": log.repeated,
-                                 "removed_all_zero": n_zero,  # all six values 0: a placeholder, not a measurement
-                                 "clock": {"source": kind}}
-        if kind.startswith("counter only"):
-            td = np.asarray(log.t_ns * 1e-9, dtype=np.float64)
-            try:
-                c = estimate_clock(tm, nav.C_nb, td, log.omega_radps, settings, name=f"--sub {name} ({path})")
-            except ClockNotObservable as exc:
-                raise ImportFailure(str(exc)) from None
-            log.t_ns = c.to_gpst_ns(td, t0)
-            entry["clock"].update(_clock_dict(c))
-        t_sub = np.asarray((log.t_ns - t0) * 1e-9, dtype=np.float64)
-        inside = (t_sub >= tm[0]) & (t_sub <= tm[-1])
-        entry["samples_outside_nav"] = int((~inside).sum())  # removed: the transfer alignment needs the main solution
-        if not inside.any():
-            raise ImportFailure(f"--sub {name} ({path}): no sample within the main solution's span ({tm[-1]:.3f} s)")
-        if not inside.all():
-            log = ImuLog(log.t_ns[inside], log.omega_radps[inside], log.f_mps2[inside], log.skipped, log.repeated, log.clock_scale)
-            t_sub = t_sub[inside]
-        try:
-            m = estimate_mounting(tm, nav.C_nb, t_sub, log.omega_radps, name=f"--sub {name}")
-            mounts[name] = m
-            entry["mounting"] = _mount_dict(m)
-        except MountingNotObservable as exc:
-            entry["mounting"] = {"not_observable": str(exc)}
-        entry["samples_written"] = len(log)
-        rep_subs[name] = entry
-        streams.append(TopicStream(T.sub_imu(name), T.IMU, log.t_ns.copy(),
-                                   rows=cv.imu_rows(cv.sub_imu_frame(name), log.t_ns, log.omega_radps, log.f_mps2,
-                                                    ns.gyro_sigma_radps, ns.accel_sigma_mps2)))
+    if st is not None:
+        st.stage(f"{len(subs)} sub-IMU log(s): reading, clocks, mountings")
+    with contextlib.ExitStack() as stack:
+        bar = stack.enter_context(st.items("sub-IMU", len(subs))) if st is not None else None
+        for name, (path, ns) in subs.items():
+            _import_sub(name, path, ns, nav, tm, t0, settings, streams, rep_subs, mounts)
+            if bar is not None:
+                bar.done(name, _sub_line(rep_subs[name]))
     text, replaced = aircraft_text(args.aircraft, list(subs), mounts, args.sub_imu_preset)
     report: dict[str, Any] = {
         "out": str(args.out),

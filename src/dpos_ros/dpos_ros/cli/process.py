@@ -8,6 +8,7 @@ transfer_align_node; writes the session products (design.md) and metrics when tr
     dpos-process BAG --out DIR --workers 1                            # the sub-IMUs one after the other
     dpos-process BAG --out DIR --master-reference smoothed            # main POS: the IFA re-run and RTS-smoothed
     dpos-process BAG --out DIR --stream on                            # a long flight: the rows spilled to disk
+    dpos-process BAG --out DIR --geoid egm96-5.pgm                    # the antenna CSVs' heights above the geoid too
 
 The recording is read, aligned and written a part of the flight at a time (docs/long_flights.md):
 each worker reads its own sub-IMU's topic and the main POS only; the wing fit is made over
@@ -16,6 +17,14 @@ each worker reads its own sub-IMU's topic and the main POS only; the wing fit is
 the alignment and the products: ``off`` in memory, ``on`` in files beside the products (memory
 that does not grow with the flight), ``auto`` (the default) ``on`` for a recording of more than
 an hour; the products are the same either way.
+
+``--geoid FILE``: a geoid grid (GeographicLib ``.pgm``, e.g. egm96-5.pgm, or NOAA/PROJ ``.gtx``;
+docs/transfer_alignment.md "Heights above the geoid"): each antenna CSV gains ``h_geoid_m``, the height above that geoid, and its first
+line names the model; without it the CSV says its heights are ellipsoidal.  A file that is not
+such a grid, or a grid that does not cover the main POS's track, is exit 2 before any work.
+
+Progress (stages, a line per sub-IMU and per antenna) is drawn on stderr when it is a terminal,
+not with ``--quiet`` nor into a file or a pipe; the results (stdout) are the same either way.
 
 ``--master-reference``: the main-POS reference of the transfer alignment - ``recorded`` (default,
 the recording's /master/nav), ``forward`` (the in-flight alignment re-run from /master/imu,
@@ -39,10 +48,15 @@ import sys
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+
 from dpos_core.config import AircraftConfig, ConfigError, load_aircraft
+from dpos_core.errors import InputError
+from dpos_core.geoid import GeoidGrid, load_geoid
 from dpos_core.ta.pipeline import METHODS, TASettings
 from dpos_core.ta.warmup import warm_up
 from dpos_ros.cli.options import MAX_PARTICLES, MAX_RATE_HZ, one_line_errors
+from dpos_ros.cli.progress import Stages
 from dpos_ros.io.bag import topics_and_duration
 from dpos_ros.io.outdir import PRODUCTS_MARKER, OutputError, OutputTarget, child_dir, is_products_dir, os_error_text
 from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, RecordedSession, SessionError, read_session
@@ -102,6 +116,10 @@ def parser() -> argparse.ArgumentParser:
                     help="where the rows are held: on = spilled to files beside the products (long flights), off = in memory; "
                          f"auto (default) = on above {STREAM_AUTO_S / 3600:g} h of recording; the products are the same")
     ap.add_argument("--out", type=Path, required=True, help="output directory (products go to OUT/<session id>/, a new directory)")
+    ap.add_argument("--geoid", type=Path, metavar="FILE",
+                    help="geoid grid (GeographicLib .pgm or NOAA/PROJ .gtx): the antenna CSVs get h_geoid_m, the height above it "
+                         "(default: none; the CSV says its heights are ellipsoidal, WGS-84)")
+    ap.add_argument("--quiet", action="store_true", help="no progress on the terminal (none is shown when stderr is not one)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
                          "(the old ones are kept if the run fails)")
@@ -189,6 +207,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     _check_numbers(ap, args)
     try:
+        args.geoid_grid = None if args.geoid is None else load_geoid(args.geoid)
+    except InputError as e:
+        print(f"dpos-process: error: --geoid {e}", file=sys.stderr)
+        return EXIT_ERROR
+    try:
         target = OutputTarget(args.out)
     except OutputError as e:
         print(f"dpos-process: error: --out {e}", file=sys.stderr)
@@ -260,6 +283,8 @@ def _summary(antennas: dict, timing: dict[str, float], out: Path) -> None:
 def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor | None) -> int:
     """:func:`main` once the output target is checked: read the main POS, align the sub-IMUs (each
     worker of ``pool`` reading its own from the recording), evaluate, write."""
+    st = Stages("dpos-process", quiet=args.quiet)
+    st.stage(f"reading the main POS of {args.bag}")
     try:
         meta = topics_and_duration(args.bag)
         source: SubImuSource | None = None
@@ -278,6 +303,9 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         ref = master_reference(sess, aircraft, args.master_reference)
     except (SessionError, ConfigError, OSError) as e:
         return _read_error(e, args.bag)
+    if args.geoid_grid is not None and (why := _geoid_gap(args.geoid_grid, sess)) is not None:
+        print(f"dpos-process: error: --geoid {args.geoid}: {why}", file=sys.stderr)
+        return EXIT_ERROR
     for w in sess.warnings:
         print(f"dpos-process: warning: {w}", file=sys.stderr)
     try:  # the session id is a safe name (RecordedSession); the directory must stay under --out
@@ -301,12 +329,31 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
           f"method {args.method}, initial attitude error {err0:g} deg{' (rows spilled to disk)' if spill else ''}")
     try:
         with scratch_dir(args.out) as tmp:
-            antennas, timing = solve(sess, aircraft, settings(args, sess, _master_error(args, sess, ref.which)), source=source,
-                                     store_dir=Path(tmp) if spill else None, pool=pool, sub_imus=subs)
+            ta = settings(args, sess, _master_error(args, sess, ref.which))
+            n_subs = sum(s.name in subs for s in aircraft.sub_imus)
+            st.stage(f"aligning {n_subs} sub-IMU(s) with {args.method} on {getattr(pool, 'n_workers', 1)} worker(s)")
+            with st.items("sub-IMU", n_subs) as bar:
+                fit = st.bar("wing fit")
+                try:
+                    antennas, timing = solve(sess, aircraft, ta, source=source, store_dir=Path(tmp) if spill else None, pool=pool,
+                                             sub_imus=subs, on_sub_imu=bar.done, on_fit_window=fit)
+                finally:
+                    fit.close()
+            if topics is None or any(tp.startswith("/truth/") for tp in topics):
+                st.stage("evaluating against the recorded truth")
             ev = evaluate(sess, antennas, topics)  # against the truth, a part at a time (none without it)
             for w in sess.warnings[n_read:]:  # (the workers' reading of the sub-IMUs, the alignment, the evaluation)
                 print(f"dpos-process: warning: {w}", file=sys.stderr)
-            out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool)
+            n_est = sum(a.rows is not None for a in antennas.values())
+            st.stage(f"writing the products of {n_est} antenna(s) (CSV, QC, antenna bag, tracks)")
+            with st.items("antenna", n_est) as bar:
+                bag = st.bar("antenna bag")
+                try:
+                    out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool,
+                                on_antenna=bar.done, geoid=args.geoid_grid, on_bag=bag)
+                finally:
+                    bag.close()
+            st.stage("done")
     except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
         return _write_error(e, target, final, had_products)
     _summary(antennas, timing, out)
@@ -317,6 +364,18 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
         print(f"dpos-process: {problem}", file=sys.stderr)
         return EXIT_NOT_ESTIMATED
     return EXIT_OK
+
+
+def _geoid_gap(geoid: GeoidGrid, sess: RecordedSession) -> str | None:
+    """Why ``geoid`` cannot give the heights above it along the main POS's track (one line), or None."""
+    llh = sess.master.llh
+    bad = ~np.isfinite(geoid.undulation(llh[:, 0], llh[:, 1]))
+    if not bad.any():
+        return None
+    k = int(np.flatnonzero(bad)[0])
+    return (f"the grid ({geoid.extent_text()}) does not cover the track: {int(bad.sum())} of {bad.size} main-POS epochs "
+            f"outside it or on nodes without value, the first at latitude {np.rad2deg(llh[k, 0]):.4f}, longitude "
+            f"{np.rad2deg(llh[k, 1]):.4f} deg")
 
 
 def _print_reference(ref, sess: RecordedSession) -> None:

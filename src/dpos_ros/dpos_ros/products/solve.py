@@ -20,6 +20,7 @@ import concurrent.futures as cf
 import shutil
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -205,7 +206,9 @@ def _kept(t_s: FloatArray, i0: int, i1: int, rate_hz: float) -> NDArray[np.bool_
 
 def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings, *, source: SubImuSource | None = None,
           store_dir: Path | None = None, pool: cf.Executor | None = None, sub_imus: list[str] | None = None,
-          oracle_truth: dict | None = None, known_wing: dict | None = None) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
+          oracle_truth: dict | None = None, known_wing: dict | None = None,
+          on_sub_imu: Callable[[str, str], None] | None = None,
+          on_fit_window: Callable[[int, int], None] | None = None) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording from the first epoch at
     which the main POS is aligned (:func:`aligned_master`); carry the solutions to their antennas
     (module docstring).  Returns the antennas (the aircraft's order) and the timing (processing and
@@ -228,7 +231,10 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     innovations' variance factor where they say the filter is optimistic (docs/qc.md).
 
     ``oracle_truth`` / ``known_wing`` (evaluation only, the oracle methods): per sub-IMU the
-    simulation's truth, or the true wing set as ``Installation.known_wing``."""
+    simulation's truth, or the true wing set as ``Installation.known_wing``.
+
+    ``on_sub_imu(name, outcome)`` (progress, dpos_ros.cli.progress): called as each sub-IMU's result
+    arrives, ``outcome`` one line; ``on_fit_window(done, total)``: after each window of the wing fit."""
     t0 = time.perf_counter()
     source = SubImuSource.of_session(sess) if source is None else source
     store = RowStore(None if store_dir is None else Path(store_dir))
@@ -268,14 +274,20 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
             if "rejected" in r:
                 unusable[s.name] = f"sub-IMU {s.name}: {r['rejected']}"
                 sess.warnings.append(f"sub-IMU {s.name}: {r['rejected']}; its antennas are not estimated")
+                if on_sub_imu is not None:
+                    on_sub_imu(s.name, f"not estimated: {r['rejected']}")
                 continue
             if "missing" in r:
+                if on_sub_imu is not None:
+                    on_sub_imu(s.name, "no data")
                 continue
             n_done += 1
             if r["not_estimated"]:
                 sess.warnings.append(f"sub-IMU {s.name}: no pose over {spans_text(r['not_estimated'])}; each part after a gap "
                                      f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
             status = f"estimated (not estimated over {spans_text(r['not_estimated'])})" if r["not_estimated"] else "estimated"
+            if on_sub_imu is not None:
+                on_sub_imu(s.name, status)
             for a in aircraft.antennas:
                 if a.sub_imu == s.name:
                     out[a.name] = AntennaSolution(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
@@ -291,7 +303,7 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
             why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
             out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
     if any(a.sub_imu is None for a in aircraft.antennas):
-        out.update(_fit_windows(sess, aircraft, carriers, store, pool))
+        out.update(_fit_windows(sess, aircraft, carriers, store, pool, on_fit_window))
     release_memory()
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
 
@@ -396,7 +408,8 @@ def fit_window(master: NavSeries, aircraft: AircraftConfig, carriers: dict[str, 
 
 
 def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
-                 store: RowStore, pool: cf.Executor | None = None) -> dict[str, AntennaSolution]:
+                 store: RowStore, pool: cf.Executor | None = None,
+                 on_window: Callable[[int, int], None] | None = None) -> dict[str, AntennaSolution]:
     """The ``fit`` antennas by :func:`fit_antennas` over consecutive windows of :data:`FIT_WINDOW_S`
     (module docstring), their rows appended window by window; the windows fitted on ``pool`` when
     given (a few at a time, taken in order)."""
@@ -442,6 +455,8 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
                         stores[a.name].extend(rows)
                 if store.path is not None:
                     shutil.rmtree(store.path / f"fit_window{w_done:05d}", ignore_errors=True)
+                if on_window is not None:
+                    on_window(w_done + 1, n_win)
     out: dict[str, AntennaSolution] = {}
     for a in fits:
         if a.name not in first:

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from dpos_core.errors import ProductsExistError
 from dpos_core.frames import hpr_from_C_nb
+from dpos_core.geoid import GeoidGrid
 from dpos_core.imports.timescales import GPS_EPOCH_UNIX_S, WEEK_S, gpst_to_utc_ns
 from dpos_core.series import NavSeries
 from dpos_core.ta import flags as ta_flags
@@ -54,7 +55,9 @@ from .track import TrackWriter
 
 
 def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
-          evaluation: dict[str, dict] | None = None, *, overwrite: bool = False, pool: cf.Executor | None = None) -> Path:
+          evaluation: dict[str, dict] | None = None, *, overwrite: bool = False, pool: cf.Executor | None = None,
+          on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None,
+          on_bag: Callable[[int, int], None] | None = None) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring) from the antennas'
     rows, a block of rows at a time; returns that directory.
 
@@ -68,9 +71,12 @@ def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolu
     workers, and the antenna bag's batches (:data:`BAG_BATCH_S` of poses each) made and compressed
     there while this process writes them to the file in order.  ``evaluation``:
     :func:`dpos_ros.products.evaluate.evaluate`'s result, written (metrics.json, report.md, error
-    figures) before status.json."""
+    figures) before status.json.  ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`).
+    Progress: ``on_antenna(name)`` as each antenna's files are written, ``on_bag(done, total)`` after
+    each batch of the antenna bag."""
     return write_complete(child_dir(Path(out_root), safe_name(sess.session_id)), overwrite,
-                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation))
+                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, on_antenna, geoid,
+                                                      on_bag))
 
 
 def write_complete(final: Path, overwrite: bool, fill: Callable[[Path], None]) -> Path:
@@ -151,19 +157,24 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
 
 
 def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
-                    pool: cf.Executor | None, evaluation: dict[str, dict] | None = None) -> None:
-    """The products (module docstring) into the new, empty directory ``out``."""
+                    pool: cf.Executor | None, evaluation: dict[str, dict] | None = None,
+                    on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None,
+                    on_bag: Callable[[int, int], None] | None = None) -> None:
+    """The products (module docstring) into the new, empty directory ``out``; ``on_antenna(name)``
+    and ``on_bag(done, total)``: :func:`write`'s progress."""
     est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
-    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method) if pool is not None else None) for name, a in est.items()}
+    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method, geoid) if pool is not None else None) for name, a in est.items()}
     summ: dict[str, dict] = {}
     with drained(lambda: [f for f in files.values() if f is not None]):  # (they write into out)
         if est:
-            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool)
+            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool, on_bag)
         for name, a in antennas.items():
             f = files.get(name)
-            summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method))
+            summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method, geoid))
+            if a.rows is not None and on_antenna is not None:
+                on_antenna(name)
     _write_tracks(out / "tracks.geojson", sess, est)
     doc = status_doc(sess, antennas, method, timing, set(est))
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))  # never reads truth
@@ -188,17 +199,17 @@ def _write_tracks(path: Path, sess: RecordedSession, est: dict[str, AntennaSolut
     w.write(path)
 
 
-def _antenna_files(out: Path, a: AntennaSolution, t0_ns: int, method: str) -> dict:
+def _antenna_files(out: Path, a: AntennaSolution, t0_ns: int, method: str, geoid: GeoidGrid | None = None) -> dict:
     """One estimated antenna's CSV and QC figure; returns its QC summary (a worker's task)."""
     try:
-        return _antenna_files_in(out, a, t0_ns, method)
+        return _antenna_files_in(out, a, t0_ns, method, geoid)
     finally:
         release_memory()
 
 
-def _antenna_files_in(out: Path, a: AntennaSolution, t0_ns: int, method: str) -> dict:
+def _antenna_files_in(out: Path, a: AntennaSolution, t0_ns: int, method: str, geoid: GeoidGrid | None = None) -> dict:
     assert a.rows is not None
-    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows)
+    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows, geoid)
     rows = a.rows
     t, flags = rows.read("t_s"), rows.read("flags")
     s = Q.summarize(t, lambda j: rows.column("sigma", j), flags, a.qc, a.wing_fit)  # (a column of the sigmas at a time)
@@ -209,16 +220,21 @@ def _antenna_files_in(out: Path, a: AntennaSolution, t0_ns: int, method: str) ->
     return s
 
 
-def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore) -> None:
-    """The antenna CSV (design.md "Session products"): per row stamp, position, velocity, attitude,
-    their 1-sigma and flags (:data:`CSV_HEADER`), ROW_BLOCK rows at a time."""
-    text = CsvRows(CSV_FORMATS)  # one buffer for every block's text
+def _write_csv_blocks(path: Path, t0_ns: int, rows: RowStore, geoid: GeoidGrid | None = None) -> None:
+    """The antenna CSV (design.md "Session products"): its header (:func:`csv_header`), then per
+    row stamp, position, velocity, attitude, their 1-sigma, flags, the time scales and, with a
+    ``geoid``, the height above it (``h_m`` - N), ROW_BLOCK rows at a time."""
+    text = CsvRows(CSV_FORMATS + ((GEOID_FORMAT,) if geoid is not None else ()))  # one buffer for every block's text
     with path.open("wb") as f:
-        f.write(CSV_HEADER.encode() + b"\n")
+        f.write(csv_header(geoid).encode() + b"\n")
         for i0 in range(0, rows.n, R.ROW_BLOCK):
             c = rows.rows(i0, i0 + R.ROW_BLOCK)
             t_ns = t0_ns + np.round(c["t_s"] * 1e9).astype(np.int64)
-            text.write(f, t_ns, csv_columns(nav_of(c), c["sigma"], c["flags"], t_ns))
+            cols = csv_columns(nav_of(c), c["sigma"], c["flags"], t_ns)
+            if geoid is not None:
+                llh = c["llh"]
+                cols = np.column_stack([cols, llh[:, 2] - geoid.undulation(llh[:, 0], llh[:, 1])])
+            text.write(f, t_ns, cols)
 
 
 _NS = 1_000_000_000
@@ -257,12 +273,6 @@ def antenna_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution
     stream, empty where it has no row): what transfer_align_node publishes."""
     for ranges in bag_ranges(est, batch_s):
         yield [antenna_stream(sess, name, a.block(*ranges[name])) for name, a in est.items()]
-
-
-def bag_stream_batches(sess: RecordedSession, est: dict[str, AntennaSolution], batch_s: float | None = None):
-    """The antenna bag's batches (:func:`bag_channels`; for :func:`dpos_ros.io.bag.write_stream_batches`)."""
-    for ranges in bag_ranges(est, batch_s):
-        yield _bag_streams(sess, est, ranges)
 
 
 def bag_channels(est: dict[str, AntennaSolution]) -> list[tuple[str, str]]:
@@ -305,22 +315,39 @@ def _light(sess: RecordedSession, est: dict[str, AntennaSolution]) -> tuple[Reco
 
 
 def _write_bag(path: Path, sess: RecordedSession, est: dict[str, AntennaSolution], custom_data: dict[str, str],
-               pool: cf.Executor | None) -> None:
+               pool: cf.Executor | None, on_bag: Callable[[int, int], None] | None = None) -> None:
     """The antenna bag of ``est``: batches made and compressed on ``pool`` (:data:`BAG_IN_FLIGHT` at
-    a time, appended in order: the same file as made here) or in this process."""
+    a time, appended in order: the same file as made here) or in this process; ``on_bag(done,
+    total)`` after each batch written."""
+    batches = list(bag_ranges(est))  # (a few hundred dicts of row ranges for hours of flight)
+    written = 0
+
+    def tick() -> None:
+        nonlocal written
+        written += 1
+        if on_bag is not None:
+            on_bag(written, len(batches))
+
     if pool is None:
-        write_stream_batches(path, bag_stream_batches(sess, est), custom_data=custom_data)
+        def streams() -> Iterator[list]:
+            for ranges in batches:
+                yield _bag_streams(sess, est, ranges)
+                tick()
+
+        write_stream_batches(path, streams(), custom_data=custom_data)
         return
     w = new_writer(path, bag_channels(est), custom_data)
     s_l, e_l = _light(sess, est)
     pending: deque[cf.Future] = deque()
     try:
-        for k, ranges in enumerate(bag_ranges(est)):
+        for k, ranges in enumerate(batches):
             pending.append(pool.submit(encode_bag_batch, s_l, e_l, ranges, w.prefix if k == 0 else b""))
             while len(pending) > BAG_IN_FLIGHT:
                 w.add_encoded(pending.popleft().result())
+                tick()
         while pending:
             w.add_encoded(pending.popleft().result())
+            tick()
         w.close()
     except BaseException:
         for f in pending:
@@ -372,6 +399,25 @@ CSV_HEADER = ("stamp_s,lat_deg,lon_deg,h_m,vel_e_mps,vel_n_mps,vel_u_mps,heading
               "sigma_north_m,sigma_east_m,sigma_h_m,sigma_vel_e_mps,sigma_vel_n_mps,sigma_vel_u_mps,"
               "sigma_heading_deg,sigma_rot_e_deg,sigma_rot_n_deg,flags,gps_week,gps_sow_s,utc_unix_s")
 
+
+#: the column of the height above the geoid (``--geoid``), after :data:`CSV_HEADER`'s
+GEOID_COLUMN = "h_geoid_m"
+#: what the first line of the antenna CSV says without a geoid model
+NO_GEOID_TEXT = "no geoid model given: heights are ellipsoidal (WGS-84)"
+
+
+def csv_header(geoid: GeoidGrid | None = None) -> str:
+    """The antenna CSV's header: a comment line (``#``) naming the datum, the time scales and the
+    geoid model (its file name, or :data:`NO_GEOID_TEXT`), then the column names (:data:`CSV_HEADER`,
+    and :data:`GEOID_COLUMN` with a ``geoid``)."""
+    model = NO_GEOID_TEXT if geoid is None else f"geoid model {geoid.name}: {GEOID_COLUMN} = h_m - N, N bilinear in its grid"
+    return (f"# dpos antenna poses; datum WGS-84 (the GNSS frame), h_m ellipsoidal; stamp_s GPS time on the Unix calendar "
+            f"(no leap seconds), gps_week/gps_sow_s GPS time, utc_unix_s UTC; {model}\n"
+            + CSV_HEADER + ("," + GEOID_COLUMN if geoid is not None else ""))
+
+
+#: the format of :data:`GEOID_COLUMN`
+GEOID_FORMAT = ("f", 4)
 
 #: the antenna CSV's columns after the stamp (``%.10f`` = ("f", 10), ``%.4e`` = ("e", 4), ``%d`` = ("d", 0))
 CSV_FORMATS: tuple[tuple[str, int], ...] = (
