@@ -25,6 +25,7 @@ from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.reference import start
 from dpos_core.ifa.smoother import as_result, smooth
+from dpos_core.ifa.standstill import detect_standstill
 from dpos_core.series import GnssSeries, ImuSeries
 
 MAT = REPO / "data" / "real" / "thor_flight75" / "thor_flight75_WaypointTracker_150squareWaypointNew_2012_10_10.mat"
@@ -211,3 +212,36 @@ def test_honest_covariance_before_during_after_each_outage(thor):
         print(f"{label} inside 3 sigma before / during / after each outage: {np.round(fr, 2).tolist()}, flight "
               f"{_inside_3sigma(res, gnss, 211.0, 577.0):.3f}")
         assert np.min(fr) >= 0.95, (label, fr)
+
+
+def test_standstill_on_the_ground_before_take_off(thor):
+    """#31 part 2's figures (docs/ifa.md): one-second windows from the first fix (22 s) to take-off
+    (211 s).  With the ``automotive_mems`` white noise none is at rest (this unit standing is
+    noisier than the class: median T 67 against the threshold 11.5); with ``consumer_mems``'s 58 of
+    189 are, and their mean rate, the gyro bias from the rest, is (-1.179, +0.016, -0.017) deg/s
+    FLU, the onboard EKF's mean over the ground phase (-1.189, +0.015, -0.310): the level axes agree
+    to 0.01 deg/s, the heading axis (unobservable at rest for the EKF too) does not."""
+    imu, gnss, t, _, _, _, _ = thor
+    import scipy.io
+
+    d = scipy.io.loadmat(MAT, squeeze_me=True, struct_as_record=False)["flight_data"]
+    onboard_bias = np.degrees(np.column_stack([d.p_bias, -np.asarray(d.q_bias), -np.asarray(d.r_bias)]).astype(float))
+    onboard_bias = onboard_bias[(t > 22.0) & (t < 211.0)].mean(axis=0)
+    dt = float(np.median(np.diff(imu.t_s)))
+    found = {}
+    for preset in ("automotive_mems", "consumer_mems"):
+        model = imu_model({"preset": preset}, "thor_flight75")
+        rest, rates = [], []
+        for a in np.arange(22.0, 211.0, 1.0):
+            w = (imu.t_s > a) & (imu.t_s <= a + 1.0)
+            k = max(int(np.searchsorted(gnss.t_s, a + 1.0)) - 1, 0)
+            rest.append(detect_standstill(imu.omega_radps[w], imu.f_mps2[w], model, dt, gnss.vel_n_mps[k]).at_rest)
+            rates.append(imu.omega_radps[w].mean(axis=0))
+        found[preset] = (np.array(rest), np.degrees(np.array(rates)))
+    assert not found["automotive_mems"][0].any()
+    rest, rates = found["consumer_mems"]
+    bias = rates[rest].mean(axis=0)
+    print(f"at rest (consumer_mems noise) {rest.sum()} of {rest.size} windows; gyro bias from the rest {np.round(bias, 3)} deg/s, "
+          f"onboard EKF {np.round(onboard_bias, 3)}")
+    assert rest.sum() >= 30
+    assert np.all(np.abs(bias[:2] - onboard_bias[:2]) < 0.03), (bias, onboard_bias)
