@@ -3,7 +3,8 @@ Minnesota "Thor", 50 Hz MEMS IMU, 1 Hz GPS, the onboard 15-state EKF as a compar
 truth; MIT licence, data/real/thor_flight75/README.md and LICENSE).
 
 The run as #31 sets it (the peer's settings): the IMU samples with the onboard biases added back, every new GPS fix from the first at 22 s, sigmas
-3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet), the start
+3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet) and
+``gyro_axis_errors: noise`` - the settings of walk_0827, only the installation differs - the start
 at the first fix on the ground (``start(level="auto")``); attitude scored 271-577 s against the
 onboard EKF; three 30 s outages 200, 350 and 500 s after the first fix, scored against the
 withheld fixes.  Figures (docs/ifa.md, beside the peer's) are printed with ``-s``."""
@@ -24,6 +25,7 @@ from dpos_core.ifa.model import IfaFilterConfig
 from dpos_core.ifa.pipeline import run
 from dpos_core.ifa.reference import start
 from dpos_core.ifa.smoother import as_result, smooth
+from dpos_core.ifa.standstill import detect_standstill
 from dpos_core.series import GnssSeries, ImuSeries
 
 MAT = REPO / "data" / "real" / "thor_flight75" / "thor_flight75_WaypointTracker_150squareWaypointNew_2012_10_10.mat"
@@ -53,24 +55,32 @@ def _sel(g: GnssSeries, m: np.ndarray) -> GnssSeries:
     return GnssSeries(g.t_s[m], g.llh[m], g.pos_sigma_m[m], g.vel_n_mps[m], g.vel_sigma_mps[m])
 
 
+def _config(**kw) -> IfaFilterConfig:
+    """The filter settings of every real automotive MEMS recording (data/real/walk_0827/ifa_node.yaml:
+    the preset, ``gyro_axis_errors: noise``) with this receiver's sigmas."""
+    return IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"), gnss_pos_sigma_m=(3.0, 3.0, 6.0),
+                           gnss_vel_sigma_mps=(0.5, 0.5, 1.0), gyro_axis_errors="noise", **kw)
+
+
 @pytest.fixture(scope="module")
 def thor():
     imu, gnss, t, onboard = _load()
-    cfg = IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"),
-                          gnss_pos_sigma_m=(3.0, 3.0, 6.0), gnss_vel_sigma_mps=(0.5, 0.5, 1.0))
+    cfg = _config()
     t0 = float(gnss.t_s[0])
     outages = [(t0 + s, t0 + s + 30.0) for s in (200.0, 350.0, 500.0)]
     keep = np.ones(gnss.t_s.size, dtype=bool)
     for a, b in outages:
         keep &= ~((gnss.t_s >= a) & (gnss.t_s < b))
-    out = {}
+    out, smoothed = {}, {}
     for name, g in (("all", gnss), ("outages", _sel(gnss, keep))):
         init, lv = start(imu, g, 0.0, heading_rad=0.0, level="auto", imu_model=cfg.imu)
         c = cfg if lv is None or lv.sigma_rad is None else replace(cfg, level_sigma_deg=max(cfg.level_sigma_deg, np.degrees(lv.sigma_rad)))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            out[name] = run(imu, g, np.zeros(3), c, "add2", init, record_smoother=True)
-    return imu, gnss, t, onboard, outages, out
+            res = run(imu, g, np.zeros(3), c, "add2", init, record_smoother=True)
+        out[name] = res
+        smoothed[name] = as_result(res, smooth(res, imu).nav)
+    return imu, gnss, t, onboard, outages, out, smoothed
 
 
 def _attitude_minus_onboard(res, t, onboard):
@@ -81,15 +91,16 @@ def _attitude_minus_onboard(res, t, onboard):
 
 
 def test_attitude_against_the_onboard_ekf(thor):
-    _, _, t, onboard, _, out = thor
+    _, _, t, onboard, _, out, _ = thor
     for name, res in out.items():
         assert res.aligned_t_s is not None and res.restarts == 0 and not res.rejected
         d = _attitude_minus_onboard(res, t, onboard)
         p95 = np.percentile(np.abs(d), 95, axis=0)
         print(f"{name}: aligned at {res.aligned_t_s:.1f} s; heading, pitch, roll minus onboard: mean "
               f"{np.round(d.mean(axis=0), 2)}, std {np.round(d.std(axis=0), 2)}, p95 |.| {np.round(p95, 2)} deg")
-        # the peer (NavEKF15, default): heading +11.74 / 1.63 / 14.33, pitch 0.00 / 0.47 / 0.93, roll -1.22 / 0.92 / 2.62
-        assert p95[0] < 4.0 and p95[1] < 1.5 and p95[2] < 3.0, p95
+        # the peer (NavEKF15, default): heading +11.74 / 1.63 / 14.33, pitch 0.00 / 0.47 / 0.93, roll -1.22 / 0.92 / 2.62;
+        # measured p95 1.52 / 0.52 / 1.37 (all GPS), 1.41 / 0.67 / 1.44 deg (with the outages), ALIGNED at 220.8 s
+        assert p95[0] < 2.2 and p95[1] < 1.0 and p95[2] < 2.0, p95
 
 
 def _outage_figures(res, gnss, outages, label: str) -> list[tuple[float, float, float, float]]:
@@ -114,26 +125,27 @@ def _outage_figures(res, gnss, outages, label: str) -> list[tuple[float, float, 
 
 
 def test_outages_in_flight_against_the_withheld_fixes(thor):
-    _, gnss, _, _, outages, out = thor
+    _, gnss, _, _, outages, out, _ = thor
     figs = _outage_figures(out["outages"], gnss, outages, "forward")
     ends, afters = [f[0] for f in figs], [f[2] for f in figs]
-    # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m (docs/ifa.md has ours beside)
-    assert ends[0] < 150.0 and ends[1] < 150.0 and ends[2] < 127.2, ends
-    assert max(afters) < 6.0, afters
+    # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m (docs/ifa.md has ours beside);
+    # measured 95.0 / 0.20, 57.9 / 3.53, 33.2 / 0.42 m, every withheld fix inside 3 sigma
+    assert ends[0] < 125.0 and ends[1] < 90.1 and ends[2] < 60.0, ends
+    assert max(afters) < 5.0, afters
+    assert min(f[3] for f in figs) >= 0.95, figs
 
 
 def test_started_in_flight_with_a_30_deg_heading_error(thor):
     """Started at the first fix after 300 s (flying, 20-26 m/s) with the onboard heading + 30 deg:
     the heading comes within 2 deg of the onboard EKF's and stays there (the peer: after 4 s,
     staying from 9 s; [12 s with its fixed-wing configuration])."""
-    imu, gnss, t, onboard, _, _ = thor
+    imu, gnss, t, onboard, _, _, _ = thor
     m = gnss.t_s >= 300.0
     g = _sel(gnss, m)
     j = int(np.searchsorted(t, g.t_s[0]))
     init, _ = start(imu, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto",
                     imu_model=imu_model({"preset": "automotive_mems"}, "thor_flight75"))
-    c = IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"),
-                        gnss_pos_sigma_m=(3.0, 3.0, 6.0), gnss_vel_sigma_mps=(0.5, 0.5, 1.0), level_sigma_deg=5.8)  # a level from flight
+    c = _config(level_sigma_deg=5.8)  # a level from flight
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = run(imu, g, np.zeros(3), c, "add2", init)
@@ -150,29 +162,86 @@ def test_started_in_flight_with_a_30_deg_heading_error(thor):
     print(f"30 deg start at {init.t_s:.1f} s: within 2 deg of onboard after {first:.1f} s, stays within 2 deg from "
           f"{stays(2.0):.1f} s, within 5 deg from {stays(5.0):.1f} s; aligned "
           f"{None if res.aligned_t_s is None else round(res.aligned_t_s - init.t_s, 1)} s after the start")
-    # measured: 7.0 s; staying within 2 deg of a comparison that is itself no truth (std 1.9 deg in
-    # the all-GPS run) only from 175 s
-    assert res.aligned_t_s is not None and first < 15.0 and stays(5.0) < 120.0
+    # measured: 7.0 s, staying within 5 deg from 7.0 s and within 2 deg of a comparison that is itself
+    # no truth from 48.2 s; aligned 27.0 s after the start
+    assert res.aligned_t_s is not None and first < 15.0 and stays(5.0) < 60.0 and stays(2.0) < 120.0
 
 
 def test_smoothed_bridges_the_outages_and_follows_the_onboard_attitude(thor):
     """The forward-backward (RTS) main POS (dpos-ifa --smooth) of the same runs.  Measured: at the
-    outages' ends 2.9 / 2.9 / 0.7 m, max in them 25.2 / 2.9 / 1.8 m, 10 s after 0.96 / 2.93 / 0.37 m
-    (forward 97.0 / 103.8 / 80.0 m at the ends; the peer's forward 242.9 / 90.1 / 127.2 m, 10 s after
-    0.67 / 3.47 / 1.53 m: within the fixes' 3 m sigma).  The first outage (222-252 s) falls in the
-    alignment's coarse phase (the fine phase restarts at 280.8 s), whose heading is several degrees
-    off with a sigma that does not say so: its smoothed errors are inside 3 sigma at 0.31 of the
-    withheld fixes (the others 1.00), docs/ifa.md.  Attitude minus onboard, p95 of |.|, all GPS
-    2.24 / 0.72 / 2.20 deg (heading, pitch, roll; forward 2.89 / 0.94 / 2.56)."""
-    imu, gnss, t, onboard, outages, out = thor
-    for name, res in out.items():
-        srs = as_result(res, smooth(res, imu).nav)
+    outages' ends 0.7 / 2.2 / 0.7 m, max in them 10.4 / 2.2 / 1.8 m, 10 s after 0.50 / 3.01 / 0.09 m
+    (forward 95.0 / 57.9 / 33.2 m at the ends; the peer's forward 242.9 / 90.1 / 127.2 m, 10 s after
+    0.67 / 3.47 / 1.53 m: within the fixes' 3 m sigma), every withheld fix inside 3 sigma.  Attitude
+    minus onboard, p95 of |.|, all GPS 1.19 / 0.83 / 1.57 deg (heading, pitch, roll; forward
+    1.52 / 0.52 / 1.37)."""
+    imu, gnss, t, onboard, outages, out, smoothed = thor
+    for name, srs in smoothed.items():
         d = _attitude_minus_onboard(srs, t, onboard)
         p95 = np.percentile(np.abs(d), 95, axis=0)
         print(f"smoothed {name}: heading, pitch, roll minus onboard: mean {np.round(d.mean(axis=0), 2)}, std "
               f"{np.round(d.std(axis=0), 2)}, p95 |.| {np.round(p95, 2)} deg")
-        assert p95[0] < 2.6 and p95[1] < 0.9 and p95[2] < 2.5, p95
+        assert p95[0] < 1.8 and p95[1] < 1.0 and p95[2] < 2.0, p95
         if name == "outages":
             figs = _outage_figures(srs, gnss, outages, "smoothed")
-            assert all(f[0] < 10.0 and f[1] < 40.0 and f[2] < 4.0 for f in figs), figs
-            assert figs[1][3] > 0.95 and figs[2][3] > 0.95, figs
+            assert all(f[0] < 5.0 and f[1] < 20.0 and f[2] < 4.0 for f in figs), figs
+            assert min(f[3] for f in figs) >= 0.95, figs
+
+
+def _inside_3sigma(res, gnss, a: float, b: float) -> float:
+    """Fraction of the fixes in [a, b) (withheld in an outage) whose error (E, N, U) is inside 3 sigma
+    of the run's reported covariance (its track) and the fix's own sigma."""
+    w = (gnss.t_s >= a) & (gnss.t_s < b)
+    tt = gnss.t_s[w]
+    q = np.clip(np.searchsorted(res.t_s, tt), 0, res.t_s.size - 1)
+    enu = np.array([earth.enu_between(x, y) for x, y in zip(res.llh[q], gnss.llh[w])])
+    tt_, P = np.array([x for x, _ in res.track]), np.array([p for _, p in res.track])
+    j = np.clip(np.searchsorted(tt_, tt, side="right") - 1, 0, tt_.size - 1)
+    sig = np.sqrt(np.diagonal(P[j], axis1=1, axis2=2))[:, :3]
+    return float(np.all(np.abs(enu) <= 3.0 * np.sqrt(sig**2 + gnss.pos_sigma_m[w] ** 2), axis=1).mean())
+
+
+def test_honest_covariance_before_during_after_each_outage(thor):
+    """#31 part 6: at least 0.95 of the errors inside 3 sigma in the 30 s before, the 30 s of and the
+    30 s after each outage, forward and smoothed, with the preset alone.  Measured: 1.00 in every
+    window, both (before the preset's in-motion accelerometer instability, 2 mg / 30 s: smoothed 0.31
+    in the first outage, which falls in the alignment's coarse phase; docs/ifa.md)."""
+    _, gnss, _, _, outages, out, smoothed = thor
+    for label, res in (("forward", out["outages"]), ("smoothed", smoothed["outages"])):
+        fr = [[_inside_3sigma(res, gnss, a - 30.0, a), _inside_3sigma(res, gnss, a, b), _inside_3sigma(res, gnss, b, b + 30.0)]
+              for a, b in outages]
+        print(f"{label} inside 3 sigma before / during / after each outage: {np.round(fr, 2).tolist()}, flight "
+              f"{_inside_3sigma(res, gnss, 211.0, 577.0):.3f}")
+        assert np.min(fr) >= 0.95, (label, fr)
+
+
+def test_standstill_on_the_ground_before_take_off(thor):
+    """#31 part 2's figures (docs/ifa.md): one-second windows from the first fix (22 s) to take-off
+    (211 s).  With the ``automotive_mems`` white noise none is at rest (this unit standing is
+    noisier than the class: median T 67 against the threshold 11.5); with ``consumer_mems``'s 58 of
+    189 are, and their mean rate, the gyro bias from the rest, is (-1.179, +0.016, -0.017) deg/s
+    FLU, the onboard EKF's mean over the ground phase (-1.189, +0.015, -0.310): the level axes agree
+    to 0.01 deg/s, the heading axis (unobservable at rest for the EKF too) does not."""
+    imu, gnss, t, _, _, _, _ = thor
+    import scipy.io
+
+    d = scipy.io.loadmat(MAT, squeeze_me=True, struct_as_record=False)["flight_data"]
+    onboard_bias = np.degrees(np.column_stack([d.p_bias, -np.asarray(d.q_bias), -np.asarray(d.r_bias)]).astype(float))
+    onboard_bias = onboard_bias[(t > 22.0) & (t < 211.0)].mean(axis=0)
+    dt = float(np.median(np.diff(imu.t_s)))
+    found = {}
+    for preset in ("automotive_mems", "consumer_mems"):
+        model = imu_model({"preset": preset}, "thor_flight75")
+        rest, rates = [], []
+        for a in np.arange(22.0, 211.0, 1.0):
+            w = (imu.t_s > a) & (imu.t_s <= a + 1.0)
+            k = max(int(np.searchsorted(gnss.t_s, a + 1.0)) - 1, 0)
+            rest.append(detect_standstill(imu.omega_radps[w], imu.f_mps2[w], model, dt, gnss.vel_n_mps[k]).at_rest)
+            rates.append(imu.omega_radps[w].mean(axis=0))
+        found[preset] = (np.array(rest), np.degrees(np.array(rates)))
+    assert not found["automotive_mems"][0].any()
+    rest, rates = found["consumer_mems"]
+    bias = rates[rest].mean(axis=0)
+    print(f"at rest (consumer_mems noise) {rest.sum()} of {rest.size} windows; gyro bias from the rest {np.round(bias, 3)} deg/s, "
+          f"onboard EKF {np.round(onboard_bias, 3)}")
+    assert rest.sum() >= 30
+    assert np.all(np.abs(bias[:2] - onboard_bias[:2]) < 0.03), (bias, onboard_bias)

@@ -89,3 +89,20 @@ def test_smoothed_beats_the_peers_post_processed_runs(walk):
     assert e["after"]["rms"] < 0.024 and e["after"]["max"] < 0.08
     assert e["during"]["max"] < 0.2 * f["during"]["max"]  # bridged from both ends (forward: 2.00 m)
     assert min(srep.inside_3sigma.values()) >= 0.95
+
+
+def test_honest_covariance_before_during_after_the_outage(walk):
+    """#31 part 6: at least 0.95 of the errors inside 3 sigma (E, N, U together, with the reference's
+    own sigma) before, during and after the outage, forward and smoothed, with the preset alone (the
+    parameter file sets the installation, the receiver's sigmas and ``gyro_axis_errors: noise``, the
+    setting of every real automotive MEMS recording).  Measured: forward 0.97 / 1.00 / 1.00,
+    smoothed 1.00 / 1.00 / 1.00."""
+    res, rep, imu, ref = walk
+    for label, r in (("forward", res), ("smoothed", as_result(res, smooth(res, imu).nav))):
+        full = compare(r, ref, OUTAGE_S)
+        for phase in ("before", "during", "after"):
+            a, b = full.phases[phase]
+            m = (ref.t_s >= a) & (ref.t_s < b)
+            part = compare(r, Reference(ref.t_s[m], ref.llh[m], ref.vel_n_mps[m], ref.pos_sigma_m[m]), None)
+            print(f"{label} {phase}: inside 3 sigma {part.inside_3sigma['all']:.3f}")
+            assert part.inside_3sigma["all"] >= 0.95, (label, phase, part.inside_3sigma)

@@ -139,7 +139,8 @@ class IfaFilterConfig:
         lever_arm_coupling: include the attitude error's lever-arm term in h (module docstring).
         gnss_pos_sigma_m, gnss_vel_sigma_mps: nominal (E, N, U) GNSS noise of the filter's R.
         use_reported_sigma: take R from each fix's own sigmas instead of the nominal ones.
-        position_sigma_m, velocity_sigma_mps, level_sigma_deg, heading_sigma_deg: prior 1 sigma.
+        position_sigma_m, velocity_sigma_mps, level_sigma_deg, heading_sigma_deg: prior 1 sigma (the
+            level's at least the accelerometer bias's tilt, :attr:`level_sigma_rad`).
         imu: the main IMU's datasheet model (:class:`~dpos_core.config.sensors.ImuErrorModel`;
             default: [Fang2012] Table 1, 0.02 deg/h + 0.01 deg/h, 100 ug + 50 ug).  Turn-on biases
             are the prior sigma of the bias states; white noise (``*_noise_*`` and ARW / VRW) the
@@ -274,6 +275,16 @@ class IfaFilterConfig:
         MEMS filter overconfident: attitude NEES 20-80 instead of 3 on scenario mems_vehicle)."""
         tilt = 2.0 * float(np.arcsin(min(self.imu.accel_bias_ug * 1e-6, 0.5)))
         return max(self.fine_level_sigma_deg * DEG, tilt)
+
+    @property
+    def level_sigma_rad(self) -> float:
+        """The prior level 1 sigma [rad]: ``level_sigma_deg``, at least the tilt the accelerometer
+        turn-on bias leaves in any levelling from specific force (``2 asin(b / g)``, 2.3 deg for a
+        20 mg MEMS unit, as :attr:`fine_level_sigma_rad`): a level from accelerations is not better
+        than that at rest, and a tighter prior is a per-recording guess (walk_0827 needed 3 deg
+        with the former 1 deg default, #31)."""
+        tilt = 2.0 * float(np.arcsin(min(self.imu.accel_bias_ug * 1e-6, 0.5)))
+        return max(self.level_sigma_deg * DEG, tilt)
 
     @property
     def reachable_heading_sigma_rad(self) -> float:
@@ -555,7 +566,7 @@ class IfaModel:
         d = np.zeros(N_EXT)
         d[DP] = cfg.position_sigma_m**2
         d[DV] = cfg.velocity_sigma_mps**2
-        d[PHI] = np.array([cfg.level_sigma_deg, cfg.level_sigma_deg, cfg.heading_sigma_deg]) ** 2 * DEG**2
+        d[PHI] = np.array([cfg.level_sigma_rad, cfg.level_sigma_rad, cfg.heading_sigma_deg * DEG]) ** 2
         if fine_from is not None:
             cur = self.full(np.diag(fine_from))
             d[DP], d[DV] = cur[DP], cur[DV]
