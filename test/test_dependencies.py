@@ -62,7 +62,7 @@ OPTIONAL_FALLBACK = {
 #: the dev tools: in requirements-dev.in, not in the runtime locks' inputs
 DEV_TOOLS = {"pytest", "pytest-timeout", "pytest-xdist", "ruff", "mypy", "types-pyyaml"}
 #: the optional extras' distributions
-EXTRAS = {"campaign": {"dask", "distributed"}, "plot": {"matplotlib"}}
+EXTRAS = {"campaign": {"dask", "distributed", "cryptography"}, "plot": {"matplotlib"}}
 
 
 def canonical(name: str) -> str:
