@@ -92,6 +92,17 @@ def test_extrapolation_widens_the_gate_for_a_stamp_ahead() -> None:
     np.testing.assert_allclose(gates.extrapolation_var(0.0), 0.0)
 
 
+# ---------------------------------------------------------------------------------------------- biases
+def test_gross_or_nonfinite_bias_estimates_are_refused() -> None:
+    assert gates.check_bias(np.full(3, 0.01 * DEG / 3600.0), np.full(3, 1e-3)) is None
+    r = gates.check_bias(np.array([0.0, 0.0, 1.0]), np.zeros(3))  # 1 rad/s = 57 deg/s
+    assert r is not None and r.reason == "size"
+    r = gates.check_bias(np.zeros(3), np.array([9.81, 0.0, 0.0]))  # 1 g
+    assert r is not None and r.reason == "size"
+    r = gates.check_bias(np.array([np.nan, 0.0, 0.0]), np.zeros(3))
+    assert r is not None and r.reason == "nonfinite"
+
+
 # ---------------------------------------------------------------------------------------------- aligned
 @pytest.mark.parametrize("sigma", [100.0, "100", 1.5, "nan", "none", None, "-1", "inf"])
 def test_an_aligned_claim_without_a_supporting_heading_sigma_is_refused(sigma: object) -> None:
@@ -141,3 +152,5 @@ def test_a_second_publisher_is_reported_once_a_restarted_one_is_not() -> None:
     assert w.update("/master/nav", [(b"b", "/pos_master_node"), (b"c", "/graph_b/pos_master_node")]) == []  # once
     assert w.values() == {"publishers_extra/master/nav": 1, "publishers_replaced/master/nav": 1}
     assert w.update("/other", [(b"x", "n"), (b"y", "m")]) != []  # unknown topics: one expected
+    assert w.update("/other", [(b"x", "n"), (b"y", "m"), (b"z", "o")]) != []  # a third one: reported
+    assert w.extra["/other"] == 2  # the most beyond the one expected at once

@@ -19,6 +19,9 @@ The checks (docs/design.md, "Gates"):
     consistent filter has a covariance below ``P_prior``, which the sum bounds with the floor
     covering the process noise between two epochs); the correction's covariance must be
     finite, symmetric and positive semi-definite.
+:func:`check_bias`
+    an ``/ifa/imu_bias`` estimate must be finite and within ``MAX_GYRO_BIAS_DEG_S`` /
+    ``MAX_ACCEL_BIAS_MPS2`` (far above any IMU a POS carries: only gross values are refused).
 :func:`check_aligned`
     a status that claims ALIGNED must carry a heading sigma at most ``max_heading_sigma_deg``.
 :func:`check_datum`
@@ -45,7 +48,7 @@ from dpos_core.units import DEG, FloatArray
 
 __all__ = ["Refusal", "GateCounts", "PublisherWatch", "check_stamp", "check_correction", "correction_difference",
            "check_aligned", "check_datum", "CORRECTION_FLOOR_SIGMA", "CORRECTION_P_FALSE", "FUTURE_TOL_S",
-           "MAX_ALIGNED_HEADING_SIGMA_DEG", "DATUM_TOL_M", "WARN_INTERVAL_S", "EXTRAPOLATION_ACCEL_MPS2"]
+           "MAX_ALIGNED_HEADING_SIGMA_DEG", "check_bias", "MAX_GYRO_BIAS_DEG_S", "MAX_ACCEL_BIAS_MPS2", "DATUM_TOL_M", "WARN_INTERVAL_S", "EXTRAPOLATION_ACCEL_MPS2"]
 
 #: 1 sigma floors [position m, velocity m/s, attitude deg] added to the sum of covariances: the
 #: process noise between two epochs and the linearization (a legitimate correction never needs more)
@@ -56,6 +59,9 @@ CORRECTION_P_FALSE = 1e-9
 FUTURE_TOL_S = 2.0
 #: an ALIGNED status with a heading sigma above this [deg] is refused (the ifa_node declares it at 0.1 deg)
 MAX_ALIGNED_HEADING_SIGMA_DEG = 1.0
+#: an IMU bias estimate above these is refused [deg/s], [m/s^2]
+MAX_GYRO_BIAS_DEG_S = 10.0
+MAX_ACCEL_BIAS_MPS2 = 2.0
 #: a datum within this distance [m] of the first is the same datum
 DATUM_TOL_M = 0.01
 #: a refusal of one reason is logged at most this often [s] after the first
@@ -163,6 +169,21 @@ def extrapolation_var(dt_s: float, accel_mps2: float = EXTRAPOLATION_ACCEL_MPS2)
     return np.array([(0.5 * accel_mps2 * dt * dt) ** 2] * 3 + [(accel_mps2 * dt) ** 2] * 3 + [(0.1 * dt) ** 2] * 3)
 
 
+def check_bias(gyro_radps: ArrayLike, accel_mps2: ArrayLike, max_gyro_deg_s: float = MAX_GYRO_BIAS_DEG_S,
+               max_accel_mps2: float = MAX_ACCEL_BIAS_MPS2) -> Refusal | None:
+    """An IMU bias estimate (gyro [rad/s] (3,), accel [m/s^2] (3,)): ``nonfinite`` or ``size`` (a
+    component above the bounds), else None."""
+    gb = np.asarray(gyro_radps, dtype=float).reshape(3)
+    ab = np.asarray(accel_mps2, dtype=float).reshape(3)
+    if not (np.all(np.isfinite(gb)) and np.all(np.isfinite(ab))):
+        return Refusal("nonfinite", "its bias is not finite")
+    g_max, a_max = float(np.max(np.abs(gb))) / DEG, float(np.max(np.abs(ab)))
+    if g_max > max_gyro_deg_s or a_max > max_accel_mps2:
+        return Refusal("size", f"a gyro bias of {g_max:.4g} deg/s / an accelerometer bias of {a_max:.4g} m/s^2 is not an "
+                               f"IMU's (at most {max_gyro_deg_s:g} deg/s, {max_accel_mps2:g} m/s^2)")
+    return None
+
+
 def check_aligned(claims_aligned: bool, heading_sigma_deg: str | float | None,
                   max_heading_sigma_deg: float = MAX_ALIGNED_HEADING_SIGMA_DEG) -> Refusal | None:
     """An aligned claim (ALIGNED / DEGRADED) against the heading sigma [deg] the status carries (a
@@ -246,9 +267,10 @@ class PublisherWatch:
     """Topics that should have one publisher each (besides the node's own, when it publishes them).
 
     :meth:`update` takes the current endpoints of a topic (``(gid, node name)``) and returns a
-    sentence for each endpoint that makes more than ``expected`` at once (a second graph on the
-    domain, a stray process), once per GID. ``extra`` counts them per topic; ``replaced`` counts
-    single publishers whose GID changed (a restarted publisher: not a second one).
+    sentence when a new endpoint makes more than ``expected`` at once (a second graph on the
+    domain, a stray process). ``extra`` is, per topic, the most publishers seen at once beyond
+    ``expected``; ``replaced`` counts single publishers whose GID changed (a restarted publisher:
+    not a second one).
     """
 
     expected: dict[str, int]
@@ -265,9 +287,10 @@ class PublisherWatch:
         out: list[str] = []
         limit = self.expected.get(topic, 1)
         new = gids - seen
+        if len(gids) > limit:
+            self.extra[topic] = max(self.extra.get(topic, 0), len(gids) - limit)
         if len(gids) > limit and new:
             names = sorted({n for _, n in eps})
-            self.extra[topic] = self.extra.get(topic, 0) + len(new)
             out.append(f"{len(gids)} publishers on {topic} (expected {limit}): {', '.join(names)}; "
                        "a second graph on this ROS domain or a stray process? (use another ROS_DOMAIN_ID, or DDS Security)")
         elif new and before and not (before & gids) and len(gids) <= limit:

@@ -304,6 +304,7 @@ class RelaySource:
             self._imu_wall_s = time.monotonic()
             self._imu_arrival.add(t_ns, self._imu_wall_s)
             self._newest_imu_ns = t_ns if self._newest_imu_ns is None else max(self._newest_imu_ns, t_ns)
+            self.navigator.note_imu(t_ns)  # the future bound of the feedback stamps (dpos_core.gates)
         elif topic == T.GNSS_FIX:
             self._fix_marks.append(t_ns)
             llh = np.array([msg.latitude * DEG, msg.longitude * DEG, msg.altitude])
