@@ -1,4 +1,4 @@
-"""dpos_core.gates: the pure checks of the contract topics' inputs (issue #33 part 1)."""
+"""dpos_core.gates: the pure checks of the contract topics' inputs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""pos_master_node's gates on the ifa_node's topics (issue #33 part 1, dpos_core.gates): a foreign
+"""pos_master_node's gates on the ifa_node's topics (dpos_core.gates): a foreign
 publisher sends /ifa/correction and /ifa/status that fail them; the node refuses each, counts it in
 /pos_master/status and keeps its navigation; a second publisher of /ifa/correction is counted.
 

@@ -1,4 +1,4 @@
-"""Gates on the contract topics: what a node is told, checked against what it knows (issue #33).
+"""Gates on the contract topics: what a node is told, checked against what it knows.
 
 Every check here is pure (no ROS, no clock of its own): a node hands it the message's values and
 its own state and gets ``None`` (pass) or a :class:`Refusal` (a short ``reason`` code for the
@@ -53,7 +53,7 @@ __all__ = ["Refusal", "GateCounts", "PublisherWatch", "check_stamp", "check_corr
 #: 1 sigma floors [position m, velocity m/s, attitude deg] added to the sum of covariances: the
 #: process noise between two epochs and the linearization (a legitimate correction never needs more)
 CORRECTION_FLOOR_SIGMA = (3.0, 1.0, 2.0)
-#: false-alarm probability of the correction gate (9 dof: threshold ~ 55.3, i.e. ~7.4 sigma)
+#: false-alarm probability of the correction gate (9 dof: threshold 60.7, about 7.8 sigma)
 CORRECTION_P_FALSE = 1e-9
 #: a feedback stamp may lead the node's newest IMU stamp by this much [s]
 FUTURE_TOL_S = 2.0

@@ -263,7 +263,7 @@ class Mechanizer(ABC):
         self.correction_accepted_ns: int | None = None
         self.bias_accepted_ns: int | None = None
         self.newest_imu_ns: int | None = None
-        self.publishers = gates.PublisherWatch({t: 1 for t in SINGLE_PUBLISHER_TOPICS})
+        self.publisher_watch = gates.PublisherWatch({t: 1 for t in SINGLE_PUBLISHER_TOPICS})
         #: the last /ifa/status claims the alignment (and passed its gate)
         self.ifa_claims_aligned = False
 
@@ -335,7 +335,7 @@ class Mechanizer(ABC):
         for topic in SINGLE_PUBLISHER_TOPICS:
             eps = [(bytes(i.endpoint_gid), f"{i.node_namespace.rstrip('/')}/{i.node_name}")
                    for i in self.node.get_publishers_info_by_topic(topic)]
-            for text in self.publishers.update(topic, eps):
+            for text in self.publisher_watch.update(topic, eps):
                 self.log.warning(text)
                 changed = True
         if changed:
@@ -631,7 +631,7 @@ class Mechanizer(ABC):
         if self._status_pub is None:  # before attach(): not wired yet
             return
         lost = self.mech is not None and (self.mech.corrections_lost > 0 or self.mech.biases_lost > 0)
-        foreign = self.gates.total > 0 or bool(self.publishers.extra)
+        foreign = self.gates.total > 0 or bool(self.publisher_watch.extra)
         level = DiagnosticStatus.OK if self.aligned and not lost and not foreign else DiagnosticStatus.WARN
         message = self.status_message()
         with self._lock:
@@ -657,7 +657,7 @@ class Mechanizer(ABC):
                 "nav_t_s": "none" if mech is None else f"{mech.t_s:.3f}",
                 "heading_sigma_deg": f"{np.sqrt(self.nav_cov[1][2, 2]) / DEG:.6g}",
                 **self.gates.values(),
-                **self.publishers.values(),
+                **self.publisher_watch.values(),
             }
         self._status_pub.publish(cv.diagnostic_array(self.node.get_clock().now().to_msg(), NODE_NAME, STATUS_HARDWARE_ID,
                                                       level, message, values))
