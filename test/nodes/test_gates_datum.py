@@ -1,5 +1,5 @@
-"""The /dpos/datum gate (dpos_core.gates.check_datum) in transfer_align_node: a datum that changes
-within a session is refused (warned, counted in the status), the first is kept and spilled; the next
+"""The /dpos/datum gate (dpos_core.gates.check_datum) in transfer_align_node and ifa_node: a datum
+that changes within a session is refused (warned, counted in the status), the first is kept and spilled; the next
 session may have another. In-process: the subscription callbacks are called directly with the
 sample bag's serialized messages (as test_transfer_align_faults.py); every wait is bounded.
 """
@@ -98,3 +98,38 @@ def test_a_datum_that_changes_within_a_session_is_refused_and_the_first_kept(ros
         assert now[0] == pytest.approx(first[0] + np.deg2rad(1.0), abs=1e-12)
     finally:
         ta.destroy_node()
+
+
+def test_ifa_node_keeps_its_first_datum_and_counts_a_second_publisher(ros_context, ros_executor) -> None:
+    """ifa_node: another /dpos/datum after the first is refused and counted; a second publisher of
+    /master/nav (a second graph on the domain) is warned about and counted."""
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from ros_wait import spin_until  # test/support/ros_wait.py
+
+    from dpos_ros.contract.qos import NAV_QOS
+    from ifa_node.node import IfaNode
+
+    ifa = IfaNode(context=ros_context, parameter_overrides=[Parameter("aircraft_config", value="paper_ifa")])
+    graphs = [Node(f"pos_master_node_{k}", context=ros_context) for k in "ab"]
+    try:
+        m = NavSatFix()
+        m.latitude, m.longitude, m.altitude = 40.0, 116.0, 1000.0
+        ifa._on_datum(m)
+        first = ifa.datum_llh.copy()
+        for lat, h in ((50.0, 1000.0), (40.0, 1010.0), (float("inf"), 0.0)):
+            bad = NavSatFix()
+            bad.latitude, bad.longitude, bad.altitude = lat, 116.0, h
+            ifa._on_datum(bad)
+        ifa._on_datum(m)  # the same one again: not a refusal
+        np.testing.assert_array_equal(ifa.datum_llh, first)
+        assert ifa.gates.by_reason == {"datum/changed": 2, "datum/nonfinite": 1}
+        for g in graphs:
+            g.create_publisher(Odometry, T.MASTER_NAV, NAV_QOS)
+        ros_executor.add_node(ifa)
+        spin_until(ros_executor, lambda: ifa.publisher_watch.extra.get(T.MASTER_NAV) == 1, 30.0,
+                   lambda: f"the second /master/nav publisher counted ({ifa.publisher_watch.values()})")
+    finally:
+        ros_executor.remove_node(ifa)
+        for n in [*graphs, ifa]:
+            n.destroy_node()
