@@ -154,3 +154,14 @@ def test_a_second_publisher_is_reported_once_a_restarted_one_is_not() -> None:
     assert w.update("/other", [(b"x", "n"), (b"y", "m")]) != []  # unknown topics: one expected
     assert w.update("/other", [(b"x", "n"), (b"y", "m"), (b"z", "o")]) != []  # a third one: reported
     assert w.extra["/other"] == 2  # the most beyond the one expected at once
+
+
+def test_two_interleaving_sources_are_detected_an_isolated_glitch_is_not() -> None:
+    w = gates.InterleaveWatch(window=200, min_back=10)
+    assert not any(w.add(k in (50, 51)) for k in range(1000))  # two glitches
+    assert w.episodes == 0
+    # two graphs: every other sample goes back (a second device's stamps, offset)
+    starts = [w.add(k % 2 == 1) for k in range(400)]
+    assert starts.count(True) == 1 and w.episodes == 1 and starts.index(True) == 19
+    assert not any(w.add(False) for _ in range(200))  # it ends ...
+    assert any(w.add(True) for _ in range(10)) and w.episodes == 2  # ... and a new episode is reported

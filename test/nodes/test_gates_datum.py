@@ -100,9 +100,10 @@ def test_a_datum_that_changes_within_a_session_is_refused_and_the_first_kept(ros
         ta.destroy_node()
 
 
-def test_ifa_node_keeps_its_first_datum_and_counts_a_second_publisher(ros_context, ros_executor) -> None:
-    """ifa_node: another /dpos/datum after the first is refused and counted; a second publisher of
-    /master/nav (a second graph on the domain) is warned about and counted."""
+def test_ifa_node_keeps_its_first_datum_and_detects_a_second_graph(ros_context, ros_executor) -> None:
+    """ifa_node: another /dpos/datum after the first is refused and counted; /master/imu stamps from two
+    sources interleaving and a second publisher of /master/nav (a second graph on the domain) are
+    warned about and counted."""
     from nav_msgs.msg import Odometry
     from rclpy.node import Node
     from ros_wait import spin_until  # test/support/ros_wait.py
@@ -126,6 +127,15 @@ def test_ifa_node_keeps_its_first_datum_and_counts_a_second_publisher(ros_contex
         assert ifa.gates.by_reason == {"datum/changed": 2, "datum/nonfinite": 1}
         for g in graphs:
             g.create_publisher(Odometry, T.MASTER_NAV, NAV_QOS)
+        # /master/imu from two devices interleaving (stamps 10 ms apart each, offset 5 s): detected once
+        from dpos_ros.contract import cdr
+        lay = cdr.layout("imu", cv.MASTER_FRAME)
+        vals = cv.imu_bias_values(np.zeros(3), np.array([0.0, 0.0, 9.8]), np.eye(3) * 1e-8, np.eye(3) * 1e-6)
+        t0 = 1_700_000_000 * 10**9
+        for k in range(100):
+            for offset in (0, 5 * 10**9):  # graph B's device is 5 s ahead
+                ifa._on_imu(bytes(cdr.encode(lay, np.array([t0 + offset + k * 10**7], dtype=np.int64), vals)[0]))
+        assert ifa.imu_interleave.episodes == 1 and ifa.imu_dropped == 99  # graph A's samples after B's first
         ros_executor.add_node(ifa)
         spin_until(ros_executor, lambda: ifa.publisher_watch.extra.get(T.MASTER_NAV) == 1, 30.0,
                    lambda: f"the second /master/nav publisher counted ({ifa.publisher_watch.values()})")

@@ -29,11 +29,15 @@ The checks (docs/design.md, "Gates"):
 :class:`PublisherWatch`
     topics that should have one publisher: a second endpoint (a different GID) is reported once,
     with the nodes (a second graph on the domain, a stray process).
+:class:`InterleaveWatch`
+    a stream whose stamps keep going back (two sources interleaving on one topic: a second graph
+    on the domain) is reported, once per episode.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -46,7 +50,7 @@ from dpos_core import earth
 from dpos_core.attitude import attitude_error, quat_to_dcm
 from dpos_core.units import DEG, FloatArray
 
-__all__ = ["Refusal", "GateCounts", "PublisherWatch", "check_stamp", "check_correction", "correction_difference",
+__all__ = ["Refusal", "GateCounts", "PublisherWatch", "InterleaveWatch", "check_stamp", "check_correction", "correction_difference",
            "check_aligned", "check_datum", "CORRECTION_FLOOR_SIGMA", "CORRECTION_P_FALSE", "FUTURE_TOL_S",
            "MAX_ALIGNED_HEADING_SIGMA_DEG", "check_bias", "MAX_GYRO_BIAS_DEG_S", "MAX_ACCEL_BIAS_MPS2", "DATUM_TOL_M", "WARN_INTERVAL_S", "EXTRAPOLATION_ACCEL_MPS2"]
 
@@ -304,3 +308,39 @@ class PublisherWatch:
         out = {f"publishers_extra{t}": n for t, n in sorted(self.extra.items())}
         out.update({f"publishers_replaced{t}": n for t, n in sorted(self.replaced.items())})
         return out
+
+
+@dataclass
+class InterleaveWatch:
+    """Two sources interleaving on one stream: of the last ``window`` samples, at least
+    ``min_back`` had a stamp at or before the newest one (an isolated glitch is one or two).
+
+    :meth:`add` returns True when an episode starts (report it); ``episodes`` counts them; an
+    episode ends after ``window`` samples in order.
+    """
+
+    window: int = 200
+    min_back: int = 10
+    episodes: int = 0
+    _flags: deque[bool] = field(default_factory=deque)
+    _n: int = 0
+    _active: bool = False
+
+    def add(self, back: bool) -> bool:
+        """One sample: ``back`` = its stamp was at or before the newest one seen (O(1))."""
+        self._flags.append(bool(back))
+        self._n += bool(back)
+        if len(self._flags) > self.window:
+            self._n -= self._flags.popleft()
+        n = self._n
+        if not self._active and n >= self.min_back:
+            self._active = True
+            self.episodes += 1
+            return True
+        if self._active and n == 0:
+            self._active = False
+        return False
+
+    @property
+    def back_in_window(self) -> int:
+        return self._n

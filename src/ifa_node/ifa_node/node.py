@@ -247,6 +247,7 @@ class IfaNode(Node):
         self._warned_unknown_cov = False
         self.gates = gates.GateCounts()  # refused inputs (dpos_core.gates): /dpos/datum changes
         self.publisher_watch = gates.PublisherWatch({t: 1 for t in SINGLE_PUBLISHER_TOPICS})
+        self.imu_interleave = gates.InterleaveWatch()  # /master/imu stamps from two sources (a second graph)
 
         self.pub_correction = self.create_publisher(Odometry, T.IFA_CORRECTION, NAV_QOS)
         self.pub_bias = self.create_publisher(Imu, T.IFA_IMU_BIAS, NAV_QOS)
@@ -322,6 +323,10 @@ class IfaNode(Node):
         t_ns = cv.raw_stamp_ns(raw)
         log = self.get_logger()
         last = self._last_imu_ns
+        if self.imu_interleave.add(last is not None and t_ns <= last):
+            log.warning(f"/master/imu: {self.imu_interleave.back_in_window} of the last {self.imu_interleave.window} stamps went "
+                        "back: two sources interleave on it (a second graph on this ROS domain, a second device?); the "
+                        "samples out of order are dropped (status imu_interleaved, imu_dropped)")
         if last is not None and t_ns <= last:
             self.imu_dropped += 1
             log.warning(f"{'duplicate' if t_ns == last else 'out-of-order'} /master/imu stamp {t_ns} ns (last {last} ns): dropped")
@@ -744,7 +749,7 @@ class IfaNode(Node):
         st_name, level, message = STATUS_NAME, _LEVELS[name], name
         if self._failed:  # the last epoch failed numerically (the filter kept its previous state)
             level = DiagnosticStatus.ERROR
-        elif level == DiagnosticStatus.OK and (self.gates.total or self.publisher_watch.extra):
+        elif level == DiagnosticStatus.OK and (self.gates.total or self.publisher_watch.extra or self.imu_interleave.episodes):
             level = DiagnosticStatus.WARN  # refused inputs, or a second publisher (the message still says the state)
         values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected}
         values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
@@ -758,6 +763,8 @@ class IfaNode(Node):
                        "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
         values.update(self.gates.values())
         values.update(self.publisher_watch.values())
+        if self.imu_interleave.episodes:
+            values["imu_interleaved"] = self.imu_interleave.episodes
         al, rec = self.al, self.last_record
         if al is not None:
             values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs,
