@@ -188,3 +188,32 @@ def test_pos_master_refuses_foreign_feedback_and_counts_it(ros_context, ros_exec
         for n in [x for x in (stray, foreign) if x is not None] + g.nodes[::-1]:
             ros_executor.remove_node(n)
             n.destroy_node()
+
+
+def test_a_restarted_pos_master_takes_the_datum_of_the_running_ifa_node(ros_context, ros_executor) -> None:
+    """``device: ros`` without ``datum``: when an ifa_node runs (this node was restarted mid-session), the
+    session's datum is the one of its /ifa/status (``datum_deg``), not this node's first fix: the
+    ifa_node's corrections are in that frame (without it, all of them would be refused by the gate)."""
+    foreign = Node("running_ifa", context=ros_context)
+    foreign.create_publisher(Odometry, "/ifa/correction", NAV_QOS)  # an ifa_node is in the graph
+    status_pub = foreign.create_publisher(DiagnosticArray, "/ifa/status", STATUS_QOS)
+    ss = load_sim_session("paper_ifa", "", 1, DURATION_S)
+    first_fix = ss.gnss().llh[0]
+    session = first_fix + np.array([0.01 * DEG, -0.02 * DEG, -3.0])  # the session's datum, set before the restart
+    status_pub.publish(cv.diagnostic_array(Time(), "ifa_node", "master_imu", DiagnosticStatus.OK, "ALIGNED", {
+        "aligned": "true", "heading_sigma_deg": "0.02", "fixes_done_ns": str(2**62),
+        "datum_deg": f"{session[0] / DEG:.10f} {session[1] / DEG:.10f} {session[2]:.4f}"}))
+    ros_executor.add_node(foreign)
+    g = Graph(ros_context, ros_executor)
+    try:
+        g.play()
+        spin_until(ros_executor, lambda: bool(g.datum), TIMEOUT_S, "/dpos/datum")
+        got = cv.datum_from_msg(g.datum[-1])
+        np.testing.assert_allclose(got[:2], session[:2], rtol=0, atol=1e-11)  # (the status has 1e-10 deg, 0.1 mm)
+        assert got[2] == pytest.approx(session[2], abs=1e-4)
+        st = g.wait_status(lambda s: s.get("started") == "True", "the start")
+        assert st["message"] == "UNALIGNED"  # the latched ALIGNED is not this node's: its covariance is initial_sigma's
+    finally:
+        for n in [foreign] + g.nodes[::-1]:
+            ros_executor.remove_node(n)
+            n.destroy_node()

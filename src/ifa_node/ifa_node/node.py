@@ -761,6 +761,9 @@ class IfaNode(Node):
                        "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
                        "imu_start_gap_s": f"{self.imu_start_gap_s:.6g}",
                        "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
+        if self.datum_llh is not None:  # the session's frame: a restarted pos_master_node takes it (its sources module)
+            d = self.datum_llh
+            values["datum_deg"] = f"{d[0] / DEG:.10f} {d[1] / DEG:.10f} {d[2]:.4f}"
         values.update(self.gates.values())
         values.update(self.publisher_watch.values())
         if self.imu_interleave.episodes:

@@ -266,6 +266,9 @@ class Mechanizer(ABC):
         self.publisher_watch = gates.PublisherWatch({t: 1 for t in SINGLE_PUBLISHER_TOPICS})
         #: the last /ifa/status claims the alignment (and passed its gate)
         self.ifa_claims_aligned = False
+        #: the datum [lat_rad, lon_rad, h_m] the ifa_node uses (its /ifa/status ``datum_deg``), once known:
+        #: ``device: ros`` without ``datum`` takes it (sources.RelaySource: a restart keeps the session's frame)
+        self.graph_datum_llh: FloatArray | None = None
 
     # ------------------------------------------------------------------ state
     @property
@@ -605,6 +608,9 @@ class Mechanizer(ABC):
                     claims = False
                 self.ifa_claims_aligned = claims
                 self.update_flag()
+                datum = _datum_or_none(values.get("datum_deg"))
+                if datum is not None:
+                    self.graph_datum_llh = datum
                 self.ifa_fixes_done_ns = _int_or_none(values.get("fixes_done_ns"))
                 self.ifa_last_correction_ns = _int_or_none(values.get("last_correction_ns"))
                 self.ifa_last_bias_ns = _int_or_none(values.get("last_bias_ns"))
@@ -846,6 +852,19 @@ def _int_or_none(text: str | None) -> int | None:
         return None if text is None else int(text)
     except ValueError:
         return None
+
+
+def _datum_or_none(text: str | None) -> FloatArray | None:
+    """A ``datum_deg`` status value ("lat_deg lon_deg h_m") as [lat_rad, lon_rad, h_m] (None when
+    missing or not a position: dpos_core.gates.check_datum)."""
+    try:
+        v = np.array([float(x) for x in (text or "").split()], dtype=float)
+    except ValueError:
+        return None
+    if v.size != 3:
+        return None
+    llh = np.array([v[0] * DEG, v[1] * DEG, v[2]])
+    return None if gates.check_datum(None, llh) is not None else llh
 
 
 def _float_or_none(text: str | None) -> float | None:
