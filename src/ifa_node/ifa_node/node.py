@@ -108,6 +108,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 from std_msgs.msg import Header
 
+from dpos_core import gates
 from dpos_core.attitude import attitude_error, quat_to_dcm
 from dpos_core.config import ConfigError, load_aircraft, scenario_aircraft
 from dpos_core.earth import geodetic_to_enu
@@ -138,6 +139,11 @@ MAX_PRESTART_IMU = 20000
 START_GAP_WARN_S = 0.1
 #: period of the check for due outage time updates when no message comes [s]
 OUTAGE_CHECK_S = 0.05
+#: the graph is checked for second publishers this often [s] (dpos_core.gates.PublisherWatch)
+PUBLISHER_CHECK_S = 2.0
+#: topics with one publisher in a graph: a second one (a second graph on the domain, a stray
+#: process) is warned about and counted (``publishers_extra/<topic>``)
+SINGLE_PUBLISHER_TOPICS = (T.MASTER_NAV, T.MASTER_IMU, T.GNSS_FIX, T.GNSS_VEL, T.DATUM, T.IFA_CORRECTION, T.IFA_STATUS)
 #: /master/nav messages kept for the epoch comparison
 NAV_CACHE = 2000
 #: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
@@ -239,6 +245,9 @@ class IfaNode(Node):
         self.last_correction_ns: int | None = None
         self.last_bias_ns: int | None = None  # the stamp of the newest /ifa/imu_bias
         self._warned_unknown_cov = False
+        self.gates = gates.GateCounts()  # refused inputs (dpos_core.gates): /dpos/datum changes
+        self.publisher_watch = gates.PublisherWatch({t: 1 for t in SINGLE_PUBLISHER_TOPICS})
+        self.imu_interleave = gates.InterleaveWatch()  # /master/imu stamps from two sources (a second graph)
 
         self.pub_correction = self.create_publisher(Odometry, T.IFA_CORRECTION, NAV_QOS)
         self.pub_bias = self.create_publisher(Imu, T.IFA_IMU_BIAS, NAV_QOS)
@@ -252,8 +261,10 @@ class IfaNode(Node):
                             TwistWithCovarianceStamped, self._on_vel)]
         self._in_outage_check = False
         self.create_subscription(Header, T.SESSION_END, self._on_session_end, NAV_QOS)
-        if self.datum_llh is None:
+        self._datum_from_topic = self.datum_llh is None
+        if self._datum_from_topic:  # (the datum parameter wins: /dpos/datum is not read then)
             self.create_subscription(NavSatFix, T.DATUM, self._on_datum, DATUM_QOS)
+        self.create_timer(PUBLISHER_CHECK_S, self._check_publishers)
         self.get_logger().info(
             f"{NODE_NAME}: {format_config(cfg, ('method', 'window', 'use_reported_sigma', 'aligned_heading_sigma_deg'))}"
             f" aircraft={aircraft.name} lever_arm_m={list(self.lever_arm_m)}: subscribing /master/nav, /master/imu,"
@@ -264,9 +275,34 @@ class IfaNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_datum(self, msg: NavSatFix) -> None:
+        """/dpos/datum: the first valid one is kept for the node's life (its session); another one is
+        refused, warned about and counted (dpos_core.gates.check_datum)."""
+        refusal = gates.check_datum(self.datum_llh, cv.datum_from_msg(msg))
+        if refusal is not None:
+            self._refuse(f"datum/{refusal.reason}", f"{T.DATUM}: {refusal.text}")
+            return
         if self.datum_llh is None:
             self.datum_llh = cv.datum_from_msg(msg)
             self._maybe_start()
+
+    def _refuse(self, reason: str, text: str) -> None:
+        """Count a refused input (``gate/<reason>``); log it (the first of its reason, then at a bounded rate)."""
+        line = self.gates.refuse(reason, text, time.monotonic())
+        if line is not None:
+            self.get_logger().warning(line)
+        self._publish_status()
+
+    def _check_publishers(self) -> None:
+        """Warn about (and count) a second publisher on a topic that should have one."""
+        changed = False
+        for topic in SINGLE_PUBLISHER_TOPICS:
+            eps = [(bytes(i.endpoint_gid), f"{i.node_namespace.rstrip('/')}/{i.node_name}")
+                   for i in self.get_publishers_info_by_topic(topic)]
+            for text in self.publisher_watch.update(topic, eps):
+                self.get_logger().warning(text)
+                changed = True
+        if changed:
+            self._publish_status()
 
     def _on_nav(self, raw: bytes) -> None:
         if self.al is None:
@@ -287,6 +323,10 @@ class IfaNode(Node):
         t_ns = cv.raw_stamp_ns(raw)
         log = self.get_logger()
         last = self._last_imu_ns
+        if self.imu_interleave.add(last is not None and t_ns <= last):
+            log.warning(f"/master/imu: {self.imu_interleave.back_in_window} of the last {self.imu_interleave.window} stamps went "
+                        "back: two sources interleave on it (a second graph on this ROS domain, a second device?); the "
+                        "samples out of order are dropped (status imu_interleaved, imu_dropped)")
         if last is not None and t_ns <= last:
             self.imu_dropped += 1
             log.warning(f"{'duplicate' if t_ns == last else 'out-of-order'} /master/imu stamp {t_ns} ns (last {last} ns): dropped")
@@ -709,6 +749,8 @@ class IfaNode(Node):
         st_name, level, message = STATUS_NAME, _LEVELS[name], name
         if self._failed:  # the last epoch failed numerically (the filter kept its previous state)
             level = DiagnosticStatus.ERROR
+        elif level == DiagnosticStatus.OK and (self.gates.total or self.publisher_watch.extra or self.imu_interleave.episodes):
+            level = DiagnosticStatus.WARN  # refused inputs, or a second publisher (the message still says the state)
         values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected}
         values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
         values.update({"fixes_done_ns": "none" if self.fixes_done_ns is None else str(self.fixes_done_ns),
@@ -719,6 +761,13 @@ class IfaNode(Node):
                        "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
                        "imu_start_gap_s": f"{self.imu_start_gap_s:.6g}",
                        "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
+        if self.datum_llh is not None:  # the session's frame: a restarted pos_master_node takes it (its sources module)
+            d = self.datum_llh
+            values["datum_deg"] = f"{d[0] / DEG:.10f} {d[1] / DEG:.10f} {d[2]:.4f}"
+        values.update(self.gates.values())
+        values.update(self.publisher_watch.values())
+        if self.imu_interleave.episodes:
+            values["imu_interleaved"] = self.imu_interleave.episodes
         al, rec = self.al, self.last_record
         if al is not None:
             values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs,

@@ -88,7 +88,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from numpy.typing import NDArray
 from rclpy.node import Node
 
-from dpos_core import earth
+from dpos_core import earth, gates
 from dpos_core.errors import RejectedInput
 from dpos_core.frames import C_nb_from_hpr
 from dpos_core.ifa.mechanization import (
@@ -128,6 +128,11 @@ WARN_THROTTLE_S = 5.0
 LEVEL_WINDOW_S = 1.0
 #: ``hardware_id`` of the /pos_master/status entry
 STATUS_HARDWARE_ID = "master_imu"
+#: the graph is checked for second publishers this often [s] (dpos_core.gates.PublisherWatch)
+PUBLISHER_CHECK_S = 2.0
+#: topics this node expects one publisher on (the ifa_node's; its own): a second one is warned
+#: about and counted (``publishers_extra/<topic>``)
+SINGLE_PUBLISHER_TOPICS = (T.IFA_CORRECTION, T.IFA_IMU_BIAS, T.IFA_STATUS, T.MASTER_IMU, T.MASTER_NAV, T.DATUM)
 
 #: a relayed IMU sample: (stamp [ns], omega [rad/s] (3), f [m/s^2] (3)), body axes
 ImuSample = tuple[int, tuple[float, ...], tuple[float, ...]]
@@ -251,6 +256,19 @@ class Mechanizer(ABC):
         self.bias_seen_ns: int | None = None
         #: ``device: ros``: holds of the IMU after a fix released after LEAD_WAIT_S without the ifa_node's answer
         self.hold_timeouts = 0
+        #: the gates (dpos_core.gates): refusals by reason, the last accepted /ifa/correction stamp
+        #: [ns], the newest IMU stamp seen [ns] (integrated, or relayed: :meth:`note_imu`), the
+        #: second publishers seen
+        self.gates = gates.GateCounts()
+        self.correction_accepted_ns: int | None = None
+        self.bias_accepted_ns: int | None = None
+        self.newest_imu_ns: int | None = None
+        self.publisher_watch = gates.PublisherWatch({t: 1 for t in SINGLE_PUBLISHER_TOPICS})
+        #: the last /ifa/status claims the alignment (and passed its gate)
+        self.ifa_claims_aligned = False
+        #: the datum [lat_rad, lon_rad, h_m] the ifa_node uses (its /ifa/status ``datum_deg``), once known:
+        #: ``device: ros`` without ``datum`` takes it (sources.RelaySource: a restart keeps the session's frame)
+        self.graph_datum_llh: FloatArray | None = None
 
     # ------------------------------------------------------------------ state
     @property
@@ -310,7 +328,32 @@ class Mechanizer(ABC):
         subscribe_draining(node, T.message_class(T.IMU), T.IFA_IMU_BIAS, self.on_bias, keep_all(NAV_QOS), raw=True)
         subscribe_draining(node, DiagnosticArray, T.IFA_STATUS, self.on_ifa_status, STATUS_QOS)
         self._status_pub = node.create_publisher(DiagnosticArray, T.POS_MASTER_STATUS, STATUS_QOS)
+        node.create_timer(PUBLISHER_CHECK_S, self.check_publishers)
         self.publish_status()
+
+    def check_publishers(self) -> None:
+        """Warn about (and count) a second publisher on a topic that should have one (a second graph
+        on the domain, a stray process: dpos_core.gates.PublisherWatch)."""
+        changed = False
+        for topic in SINGLE_PUBLISHER_TOPICS:
+            eps = [(bytes(i.endpoint_gid), f"{i.node_namespace.rstrip('/')}/{i.node_name}")
+                   for i in self.node.get_publishers_info_by_topic(topic)]
+            for text in self.publisher_watch.update(topic, eps):
+                self.log.warning(text)
+                changed = True
+        if changed:
+            self.publish_status()
+
+    def refuse(self, reason: str, text: str) -> None:
+        """Count a refused input (``gate/<reason>``), log it (the first of its reason, then at a bounded rate)."""
+        line = self.gates.refuse(reason, text, time.monotonic())
+        if line is not None:
+            self.log.warning(line)
+        self.publish_status()
+
+    def note_imu(self, t_ns: int) -> None:
+        """An IMU sample stamped ``t_ns`` [ns] was relayed (the future bound of the feedback's stamps)."""
+        self.newest_imu_ns = t_ns if self.newest_imu_ns is None else max(self.newest_imu_ns, int(t_ns))
 
     # ------------------------------------------------------------------ start
     def start(self, initial: NavState, origin_ns: int, datum_llh: FloatArray, initial_text: str) -> None:
@@ -397,6 +440,9 @@ class Mechanizer(ABC):
             first = run.head_due
             run.head_due = False
             counts = (mech.corrections, mech.corrections_lost)
+            if len(t_ns):
+                newest = int(np.max(t_ns))
+                self.newest_imu_ns = newest if self.newest_imu_ns is None else max(self.newest_imu_ns, newest)
             nav, keep, warnings = mech.add(stamp_s(t_ns, run.origin_ns), om, fb)
             changed = counts != (mech.corrections, mech.corrections_lost)  # pending corrections applied (or lost)
             gyro = np.array([mech.bias_at(t)[0] for t in nav.t_s]).reshape(-1, 3)
@@ -456,18 +502,35 @@ class Mechanizer(ABC):
     def on_correction(self, raw: bytes) -> None:
         """/ifa/correction: reset the state at its stamp and re-integrate; its covariance is the nav's from now on."""
         t_ns, v = cv.decode_raw(raw, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
-        self.correction_seen_ns = t_ns if self.correction_seen_ns is None else max(self.correction_seen_ns, t_ns)
+        refusal = gates.check_stamp(t_ns, self.correction_accepted_ns, self.newest_imu_ns)
+        if refusal is None or refusal.reason != "future":  # (a stamp from the future would release the holds)
+            self.correction_seen_ns = t_ns if self.correction_seen_ns is None else max(self.correction_seen_ns, t_ns)
         run = self._started
         if run is None:
             self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns before the mechanization started: ignored")
+            return
+        if refusal is not None:
+            self.refuse(f"ifa_correction/{refusal.reason}", f"{T.IFA_CORRECTION}: {refusal.text}")
             return
         blk = cv.odometry_from_values(np.array([t_ns]), v[None], run.datum_llh)
         pos, att, vel = cv.odometry_cov_n(blk, run.datum_llh)
         try:
             state = NavState(float(stamp_s(t_ns, run.origin_ns)), blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0])
         except RejectedInput as e:
-            self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {e}: ignored")
+            self.refuse("ifa_correction/nonfinite", f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {e}")
             return
+        with self._lock:
+            own = self._own_at(run.mech, state.t_s)
+            own_cov = self.nav_cov
+        if own is not None:
+            (o_llh, o_vel, o_q), extra = own
+            diff = gates.correction_difference(state.llh, state.vel_n_mps, state.q_nb, o_llh, o_vel, o_q)
+            refusal = gates.check_correction(diff, (own_cov[0], own_cov[2], own_cov[1]), (pos[0], vel[0], att[0]),
+                                             extra_var=extra)
+            if refusal is not None:
+                self.refuse(f"ifa_correction/{refusal.reason}", f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {refusal.text}")
+                return
+        self.correction_accepted_ns = t_ns
         with self._lock:
             warning = run.mech.correct(state)  # pending until its sample is integrated, or applied now, or lost
             if warning is None:
@@ -478,17 +541,54 @@ class Mechanizer(ABC):
             self._corrected.notify_all()
         if warning is not None:
             self.log.warning(f"{T.IFA_CORRECTION} at stamp {t_ns} ns: {warning}")
+        self.update_flag()
         self.publish_status()
+
+    @staticmethod
+    def _own_at(mech: MasterMechanization, t_s: float) -> tuple[tuple[FloatArray, FloatArray, FloatArray], FloatArray] | None:
+        """The node's own state at ``t_s`` [s] for the correction gate: ``((llh, vel ENU, q_nb), extra
+        variances (9,))``: the stored sample at or before it (carried to ``t_s`` at constant velocity,
+        with dpos_core.gates.extrapolation_var), the current state for a stamp after it, the initial
+        state at its stamp; None when older than what is stored (the mechanization loses it anyway).
+        Under the lock."""
+        r = mech.ring
+        if len(r) and t_s >= r.t_s[0] - STAMP_TOL_S:
+            j = int(np.searchsorted(r.t_s, t_s + STAMP_TOL_S, side="right")) - 1
+            j = max(j, 0)
+            t0, llh, vel, q = float(r.t_s[j]), r.llh[j], r.vel[j], r.q_nb[j]
+        elif abs(t_s - mech.initial.t_s) <= STAMP_TOL_S or (not len(r) and t_s >= mech.initial.t_s):
+            s = mech.initial
+            t0, llh, vel, q = float(s.t_s), s.llh, s.vel_n_mps, s.q_nb
+        else:
+            return None
+        dt = t_s - t0
+        if abs(dt) > STAMP_TOL_S:
+            llh = earth.offset_llh(llh, np.asarray(vel, dtype=float) * dt)
+        return (np.asarray(llh, dtype=float), np.asarray(vel, dtype=float), np.asarray(q, dtype=float)), gates.extrapolation_var(dt)
+
+    def update_flag(self) -> None:
+        """Set the flag from the last /ifa/status claim and the own covariance (:meth:`aligned_by`), logging a change."""
+        was = self.aligned
+        self.aligned = self.aligned_by(self.ifa_status, "true" if self.ifa_claims_aligned else "false")
+        if self.aligned != was:
+            self.log.info(f"{T.IFA_STATUS} {self.ifa_status}: {T.MASTER_NAV} is {'aligned' if self.aligned else 'UNALIGNED'}")
 
     def on_bias(self, raw: bytes) -> None:
         """/ifa/imu_bias: remove the estimate from the samples after its stamp."""
         t_ns, v = cv.decode_raw(raw, "imu", cv.MASTER_FRAME)
-        self.bias_seen_ns = t_ns if self.bias_seen_ns is None else max(self.bias_seen_ns, t_ns)
+        refusal = gates.check_stamp(t_ns, self.bias_accepted_ns, self.newest_imu_ns)
+        if refusal is None or refusal.reason != "future":
+            self.bias_seen_ns = t_ns if self.bias_seen_ns is None else max(self.bias_seen_ns, t_ns)
         run = self._started
         if run is None:
             self.log.warning(f"{T.IFA_IMU_BIAS} at stamp {t_ns} ns before the mechanization started: ignored")
             return
         g, a, _, _ = cv.imu_bias_from_values(v[None])
+        refusal = refusal or gates.check_bias(g[0], a[0])
+        if refusal is not None:
+            self.refuse(f"ifa_imu_bias/{refusal.reason}", f"{T.IFA_IMU_BIAS} at stamp {t_ns} ns: {refusal.text}")
+            return
+        self.bias_accepted_ns = t_ns
         with self._lock:
             warning = run.mech.set_bias(float(stamp_s(t_ns, run.origin_ns)), g[0], a[0])
         if warning is not None:
@@ -499,19 +599,29 @@ class Mechanizer(ABC):
         """/ifa/status: the ifa_node's state; :meth:`aligned_by` sets the flag."""
         for st in msg.status:
             if st.name.startswith("ifa_node"):
-                was = self.aligned
                 self.ifa_status = st.message
                 values = {kv.key: kv.value for kv in st.values}
-                self.aligned = self.aligned_by(st.message, values.get("aligned"))
+                claims = AlignmentState.message_is_aligned(st.message, values.get("aligned"))
+                refusal = self.aligned_gate(claims, values.get("heading_sigma_deg"))
+                if refusal is not None:
+                    self.refuse(f"ifa_status/{refusal.reason}", f"{T.IFA_STATUS} {st.message}: {refusal.text}")
+                    claims = False
+                self.ifa_claims_aligned = claims
+                self.update_flag()
+                datum = _datum_or_none(values.get("datum_deg"))
+                if datum is not None:
+                    self.graph_datum_llh = datum
                 self.ifa_fixes_done_ns = _int_or_none(values.get("fixes_done_ns"))
                 self.ifa_last_correction_ns = _int_or_none(values.get("last_correction_ns"))
                 self.ifa_last_bias_ns = _int_or_none(values.get("last_bias_ns"))
                 self.ifa_predict_due_ns = _int_or_none(values.get("predict_due_ns"))
                 offset_s = _float_or_none(values.get("gnss_time_offset_s"))
                 self.ifa_offset_ns = 0 if offset_s is None else int(round(offset_s * 1e9))
-                if self.aligned != was:
-                    self.log.info(f"{T.IFA_STATUS} {st.message}: {T.MASTER_NAV} is {'aligned' if self.aligned else 'UNALIGNED'}")
                 self.publish_status()
+
+    def aligned_gate(self, claims: bool, heading_sigma_deg: str | None) -> gates.Refusal | None:
+        """The gate of an /ifa/status aligned claim (``alignment: given`` ignores the flag: no gate)."""
+        return None
 
     @abstractmethod
     def aligned_by(self, ifa_message: str, aligned_key: str | None = None) -> bool:
@@ -527,7 +637,8 @@ class Mechanizer(ABC):
         if self._status_pub is None:  # before attach(): not wired yet
             return
         lost = self.mech is not None and (self.mech.corrections_lost > 0 or self.mech.biases_lost > 0)
-        level = DiagnosticStatus.OK if self.aligned and not lost else DiagnosticStatus.WARN
+        foreign = self.gates.total > 0 or bool(self.publisher_watch.extra)
+        level = DiagnosticStatus.OK if self.aligned and not lost and not foreign else DiagnosticStatus.WARN
         message = self.status_message()
         with self._lock:
             mech = self.mech
@@ -551,6 +662,8 @@ class Mechanizer(ABC):
                 "imu_before_start": self.imu_before_start,
                 "nav_t_s": "none" if mech is None else f"{mech.t_s:.3f}",
                 "heading_sigma_deg": f"{np.sqrt(self.nav_cov[1][2, 2]) / DEG:.6g}",
+                **self.gates.values(),
+                **self.publisher_watch.values(),
             }
         self._status_pub.publish(cv.diagnostic_array(self.node.get_clock().now().to_msg(), NODE_NAME, STATUS_HARDWARE_ID,
                                                       level, message, values))
@@ -716,7 +829,14 @@ class IfaNavigator(Mechanizer):
                              f"of {f.shape[0]} IMU samples over the {LEVEL_WINDOW_S:g} s before the fix")
 
     def aligned_by(self, ifa_message: str, aligned_key: str | None = None) -> bool:
-        return AlignmentState.message_is_aligned(ifa_message, aligned_key)
+        """Aligned while the ifa_node claims it (past its gate) and the own covariance supports it:
+        the heading sigma of the accepted corrections at most ``aligned_max_heading_sigma_deg`` (a
+        restarted node, whose covariance is ``initial_sigma``, is not aligned by a latched ALIGNED)."""
+        own_deg = float(np.sqrt(max(self.nav_cov[1][2, 2], 0.0))) / DEG
+        return self.ifa_claims_aligned and own_deg <= self.config.aligned_max_heading_sigma_deg
+
+    def aligned_gate(self, claims: bool, heading_sigma_deg: str | None) -> gates.Refusal | None:
+        return gates.check_aligned(claims, heading_sigma_deg, self.config.aligned_max_heading_sigma_deg)
 
     def status_message(self) -> str:
         return "ALIGNED" if self.aligned else "UNALIGNED"
@@ -732,6 +852,19 @@ def _int_or_none(text: str | None) -> int | None:
         return None if text is None else int(text)
     except ValueError:
         return None
+
+
+def _datum_or_none(text: str | None) -> FloatArray | None:
+    """A ``datum_deg`` status value ("lat_deg lon_deg h_m") as [lat_rad, lon_rad, h_m] (None when
+    missing or not a position: dpos_core.gates.check_datum)."""
+    try:
+        v = np.array([float(x) for x in (text or "").split()], dtype=float)
+    except ValueError:
+        return None
+    if v.size != 3:
+        return None
+    llh = np.array([v[0] * DEG, v[1] * DEG, v[2]])
+    return None if gates.check_datum(None, llh) is not None else llh
 
 
 def _float_or_none(text: str | None) -> float | None:

@@ -77,6 +77,11 @@ class PosMasterConfig:
             ifa_node's correction, and every /master/nav message has every correction before it
             (pos_master_node.sources). 0 = as soon as relayed: the samples between a fix's stamp
             and its arrival lack its correction (counted, ``late_samples``).
+        aligned_max_heading_sigma_deg: ``alignment: ifa``: an /ifa/status ALIGNED (or DEGRADED)
+            carrying a heading sigma above this [deg] is refused (dpos_core.gates.check_aligned,
+            counted ``gate/ifa_status/unsupported``), and /master/nav is flagged aligned only while
+            its own covariance (the accepted corrections') has a heading sigma at most this; keep it
+            at or above the ifa_node's ``aligned_heading_sigma_deg``.
 
     ``device: ros`` ignores ``scenario``, ``seed``, ``duration``, ``rate_factor``,
     ``publish_truth``, ``min_subscribers``, ``wait_subscribers_s``, ``initial_heading_error_deg``
@@ -113,3 +118,6 @@ class PosMasterConfig:
         0.2, "device ros with an ifa_node aligning: integrate a relayed IMU sample once IMU data this much [s] newer came "
         "(or the IMU was silent for 2 s), so that late GNSS fixes arrive first and /master/nav has every correction before it",
         minimum=0.0)
+    aligned_max_heading_sigma_deg: float = param(
+        1.0, "alignment ifa: heading 1 sigma [deg] above which an ALIGNED /ifa/status (and /master/nav's own covariance) "
+        "does not support the aligned flag", minimum=0.0, exclusive_minimum=True)

@@ -85,7 +85,7 @@ from sensor_msgs.msg import NavSatFix
 
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.ifa.mechanization import stamp_s
-from dpos_core.units import DEG
+from dpos_core.units import DEG, FloatArray
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
@@ -119,6 +119,9 @@ FIX_MARKS_KEEP = 10000
 #: ``device: ros``: the IMU silent this long [s, wall clock] = the end of the data (or an outage): the
 #: samples kept back by ``nav_delay_s`` are integrated
 NAV_FLUSH_S = 2.0
+#: ``device: ros`` without ``datum``: fixes that wait for the /ifa/status of an ifa_node in the graph
+#: (its ``datum_deg``: the session's datum after a restart) before the first fix is the datum
+DATUM_WAIT_FIXES = 5
 
 
 class SimSource:
@@ -267,6 +270,8 @@ class RelaySource:
         self._imu_wall_s = time.monotonic()  # when the newest IMU sample was relayed (nav_delay_s)
         self._imu_arrival = ArrivalAge()  # the IMU stamps by relay wall time (nav_delay_s)
         self._newest_imu_ns: int | None = None
+        self._datum_waits = 0  # fixes that waited for the ifa_node's datum (_choose_datum)
+        self._first_fix: tuple[int, FloatArray] | None = None  # the first valid fix (stamp, llh)
         self._prediction_held: tuple[int, float] | None = None  # (stamp [ns], monotonic [s]) of an outage hold
         self._prediction_released: int | None = None  # an outage hold released after LEAD_WAIT_S
         self._tick_timer = node.create_timer(RELAY_TICK_S, self._tick)
@@ -304,20 +309,36 @@ class RelaySource:
             self._imu_wall_s = time.monotonic()
             self._imu_arrival.add(t_ns, self._imu_wall_s)
             self._newest_imu_ns = t_ns if self._newest_imu_ns is None else max(self._newest_imu_ns, t_ns)
+            self.navigator.note_imu(t_ns)  # the future bound of the feedback stamps (dpos_core.gates)
         elif topic == T.GNSS_FIX:
             self._fix_marks.append(t_ns)
             llh = np.array([msg.latitude * DEG, msg.longitude * DEG, msg.altitude])
             if inp.datum_llh is None:
-                inp.datum_llh = llh
-                self.datum_pub.publish(cv.datum_msg(t_ns, llh))
-                self.log.info(
-                    f"{T.DATUM} = the first valid fix: lat {msg.latitude:.8f} lon {msg.longitude:.8f} deg, "
-                    f"h {msg.altitude:.3f} m (stamp {t_ns} ns)")
+                self._choose_datum(t_ns, llh)
             if not self.navigator.started:
                 inp.fixes.append((t_ns, llh))
         elif not self.navigator.started:  # /gnss/vel (ENU)
             v = msg.twist.twist.linear
             inp.vels.append((t_ns, np.array([v.x, v.y, v.z])))
+
+    def _choose_datum(self, t_ns: int, llh: FloatArray) -> None:
+        """No ``datum`` parameter: the session's datum is the one the running ifa_node uses (its
+        /ifa/status ``datum_deg``: this node was restarted mid-session, and the graph's navigation is
+        in that frame), else the first valid fix. While an ifa_node is in the graph but its status
+        has not come yet, up to ``DATUM_WAIT_FIXES`` fixes wait for it."""
+        nav, inp = self.navigator, self.input
+        graph = nav.graph_datum_llh
+        if self._first_fix is None:
+            self._first_fix = (t_ns, llh)
+        if graph is None and nav.ifa_present() and nav.ifa_status == "none" and self._datum_waits < DATUM_WAIT_FIXES:
+            self._datum_waits += 1
+            return
+        t_ns, llh = self._first_fix
+        inp.datum_llh = llh if graph is None else graph
+        self.datum_pub.publish(cv.datum_msg(t_ns, inp.datum_llh))
+        d = inp.datum_llh
+        where = "the first valid fix" if graph is None else f"the running ifa_node's ({T.IFA_STATUS} datum_deg: a restart)"
+        self.log.info(f"{T.DATUM} = {where}: lat {d[0] / DEG:.8f} lon {d[1] / DEG:.8f} deg, h {d[2]:.3f} m (stamp {t_ns} ns)")
 
     def _hold_ns(self, origin_ns: int) -> int | None:
         """The stamp [ns] after which the queued IMU samples wait for the ifa_node (module docstring):

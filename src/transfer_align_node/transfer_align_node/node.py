@@ -11,7 +11,11 @@ Buffering
 Sessions
     A session is what arrives between two finalizes.  The latched ``/dpos/datum`` is kept and
     written into every session's spill (a publisher that latched it once serves every session);
-    without one the ``datum`` parameter is used.  After a session is closed, a message that
+    without one the ``datum`` parameter is used.  A datum may not change within a session: the
+    first accepted since the last session closed is kept, another one (more than
+    ``dpos_core.gates.DATUM_TOL_M`` away; or not a position) is refused with a warning (the first,
+    then at most every ``gates.WARN_INTERVAL_S``) and counted (status ``gate_refused``,
+    ``gate/datum/changed``, ``last_gate``; level WARN).  After a session is closed, a message that
     continues its topic's stream of that session (stamp after the topic's last one there, at or
     before the session's end) is late: it goes into ``<spill>/late/`` (counted in the status as
     ``<topic>/late_after_finalize`` and in the session's ``status.json``; ``dpos-process
@@ -87,11 +91,12 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from dpos_core import gates
 from dpos_core.config import ConfigError, config_text, load_aircraft
 from dpos_core.errors import RejectedInput
 from dpos_core.ta.warmup import warm_up
@@ -338,6 +343,10 @@ class TransferAlignNode(Node):
         self._closed: _Closed | None = None  # the last closed session (late messages)
         self._end_on_shutdown = False
         self._datum: tuple[int, bytes] | None = None  # the latest /dpos/datum (stamp, CDR): spilled into every session
+        # the datum accepted since the last session closed [lat_rad, lon_rad, h_m]: another one is refused until
+        # that session is finalized (dpos_core.gates.check_datum), counted in the status (gate/datum/<reason>)
+        self._session_datum: np.ndarray | None = None
+        self._gates = gates.GateCounts()
         self._frames: dict[str, tuple[bytes, cdr.Layout | None]] = {}  # topic -> frame_id bytes of its first message (Imu: layout)
         self._rejected: dict[str, dict[str, int]] = {}  # topic -> reason -> messages the session reader rejects
         self._disk: BufferedSpill | None = None  # a closing spill waiting for the disk (finalize)
@@ -376,6 +385,15 @@ class TransferAlignNode(Node):
             data = bytes(data)
             with self._lock:
                 if topic == T.DATUM:  # latched once, valid for every session until a new one comes
+                    llh = cv.datum_from_msg(deserialize_message(data, NavSatFix))
+                    refusal = gates.check_datum(self._session_datum, llh)
+                    if refusal is not None:
+                        line = self._gates.refuse(f"datum/{refusal.reason}", f"{T.DATUM} stamped {t} ns: {refusal.text}",
+                                                  time.monotonic())
+                        if line is not None:
+                            self.get_logger().warning(line)
+                        return
+                    self._session_datum = llh
                     self._datum = (t, data)
                     if self._spill is not None:
                         self._spill.write(topic, msgtype, t, data)
@@ -509,6 +527,7 @@ class TransferAlignNode(Node):
                 if sp is not None and T.DATUM not in self._streams and cfg.datum:
                     self._spill_datum(sp)
                 self._spill = None  # new messages (stamped after the end) start the next session
+                self._session_datum = None  # the next session may have another datum (the latest is kept for it)
                 self._spill_dir = None
                 streams = self._streams
                 self._streams = {}
@@ -772,6 +791,11 @@ class TransferAlignNode(Node):
         for topic, by_reason in sorted(rejected.items()):
             st.values.append(KeyValue(key=f"{topic}/rejected", value=str(sum(by_reason.values()))))
             st.values += [KeyValue(key=f"{topic}/rejected/{why}", value=str(n)) for why, n in sorted(by_reason.items())]
+            st.level = max(st.level, DiagnosticStatus.WARN)
+        with self._lock:
+            gate_values = self._gates.values()
+        st.values += [KeyValue(key=k, value=str(v)) for k, v in gate_values.items()]
+        if self._gates.total:
             st.level = max(st.level, DiagnosticStatus.WARN)
         for topic, (c, g, _last) in sorted(streams.items()):
             st.values.append(KeyValue(key=f"{topic}/count", value=str(c)))
