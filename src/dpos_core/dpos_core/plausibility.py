@@ -110,9 +110,9 @@ def check_specific_force(what: str, t_s: NDArray[np.float64], f_mps2: NDArray[np
     if F_RATIO_RANGE[0] <= r <= F_RATIO_RANGE[1]:
         return None
     stat = f"median |f| over the {len(quiet)} quietest second(s) is {med:.4g} m/s^2 ({r:.3g} g), not near g"
-    if abs(math.log(max(r, 1e-300) / G0_MPS2)) < math.log(2.0):
+    if abs(math.log(max(r, 1e-300) / G0_MPS2)) < math.log(1.5):
         why = "looks like m/s^2 read as g (x 9.81)"
-    elif abs(math.log(max(r, 1e-300) * G0_MPS2)) < math.log(2.0):
+    elif abs(math.log(max(r, 1e-300) * G0_MPS2)) < math.log(1.5):
         why = "looks like g read as m/s^2 (/ 9.81)"
     elif med == 0.0:
         why = "the accelerometer columns are all zero: wrong columns?"
@@ -144,7 +144,9 @@ def check_angular_rate(what: str, t_s: NDArray[np.float64], omega_radps: NDArray
     if len(quiet) < 2:
         return None
     dt = np.diff(t_s, prepend=t_s[0])
-    cum = np.cumsum(w * dt)  # int |omega| dt [rad]
+    gap = dt > max(0.1, 5.0 * float(np.median(dt[1:])))  # what happened in a gap is not measured
+    cum = np.cumsum(np.where(gap, 0.0, w * dt))  # int |omega| dt [rad]
+    segment = np.cumsum(gap)
     mids = np.array([(a + b - 1) // 2 for a, b in quiet])
     u = np.array([np.mean(f_mps2[a:b], axis=0) for a, b in quiet])
     nu = np.linalg.norm(u, axis=1, keepdims=True)
@@ -153,7 +155,8 @@ def check_angular_rate(what: str, t_s: NDArray[np.float64], omega_radps: NDArray
     u = u / nu
     tilt = np.arccos(np.clip(u @ u.T, -1.0, 1.0))  # (K, K) [rad]
     turned = np.abs(cum[mids][:, None] - cum[mids][None, :])
-    bad = (tilt > TILT_MIN_RAD) & (tilt > TILT_RATIO_MAX * turned)
+    same = segment[mids][:, None] == segment[mids][None, :]
+    bad = same & (tilt > TILT_MIN_RAD) & (tilt > TILT_RATIO_MAX * turned)
     if not np.any(bad):
         return None
     i, j = np.unravel_index(int(np.argmax(np.where(bad, tilt, -1.0))), tilt.shape)
@@ -183,7 +186,7 @@ def check_lever_arm(what: str, arm_m: tuple[float, float, float] | NDArray[np.fl
     n = float(np.linalg.norm(np.asarray(arm_m, dtype=np.float64)))
     if not math.isfinite(n) or n <= bound_m:
         return None
-    why = ("looks like millimetres given as metres (/ 1000)" if n / 1000.0 <= bound_m
+    why = ("longer than the aircraft: looks like millimetres given as metres (/ 1000)" if n / 1000.0 <= bound_m
            else "longer than the aircraft: a typing or unit mistake")
     return Finding(what, f"length {n:.6g} m exceeds the aircraft's size bound {bound_m:.3g} m", why)
 
@@ -250,17 +253,19 @@ def course_rate_radps(t_s: NDArray[np.float64], llh: NDArray[np.float64], step_s
     return np.asarray(np.abs(d[fast[1:] & fast[:-1]]) / step_s, dtype=np.float64)
 
 
-def check_rate_scale(what: str, omega_radps: NDArray[np.float64], ref_rate_radps: NDArray[np.float64], ref: str) -> Finding | None:
+def check_rate_scale(what: str, omega_radps: NDArray[np.float64], ref_rate_radps: NDArray[np.float64], ref: str,
+                     min_turn_radps: float = TURNING_MIN_RADPS) -> Finding | None:
     """The gyro's |omega| (N, 3) [rad/s] against the turn rates of another record of the same
-    vehicle (``ref_rate_radps`` (M,) [rad/s]: the GNSS course rate, the main system's body rates):
-    the 90th percentiles 57.3 apart flag deg/s and rad/s swapped.  Needs the vehicle to have
-    turned (the reference's 90th percentile >= 3 deg/s); else no finding."""
+    vehicle over the same span (``ref_rate_radps`` (M,) [rad/s]: the GNSS course rate, the main
+    system's body rates): the 90th percentiles 57.3 apart flag deg/s and rad/s swapped.  Needs the
+    vehicle to have turned (the reference's 90th percentile >= ``min_turn_radps``, 3 deg/s for the
+    noisy GNSS course); else no finding."""
     w = np.linalg.norm(omega_radps[np.all(np.isfinite(omega_radps), axis=1)], axis=1)
     r = ref_rate_radps[np.isfinite(ref_rate_radps)]
     if w.size < 10 or r.size < 10:
         return None
     pr, pw = float(np.percentile(r, 90.0)), float(np.percentile(w, 90.0))
-    if pr < TURNING_MIN_RADPS:
+    if pr < min_turn_radps:
         return None
     ratio = pw / pr
     if RATE_RATIO_RANGE[0] <= ratio <= RATE_RATIO_RANGE[1]:

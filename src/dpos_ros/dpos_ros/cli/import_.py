@@ -609,7 +609,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                            (pos_read.t_ns[0] * 1e-9, pos_read.t_ns[-1] * 1e-9))
         if apart is not None:
             raise ImportFailure(str(apart))
-        course = plausibility.course_rate_radps(np.asarray((pos_read.t_ns - origin_ns) * 1e-9, dtype=np.float64), pos_read.llh)
+        within = (pos_read.t_ns >= imu_read.t_ns[0]) & (pos_read.t_ns <= imu_read.t_ns[-1])  # the course while the IMU logged
+        course = plausibility.course_rate_radps(np.asarray((pos_read.t_ns[within] - origin_ns) * 1e-9, dtype=np.float64),
+                                                pos_read.llh[within])
         scale = plausibility.check_rate_scale(f"--imu {args.imu}", imu_read.omega_radps, course, f"the course of --pos {args.pos}")
         if scale is not None:
             raise ImportFailure(f"{scale} (read with --gyro-unit {args.gyro_unit})")

@@ -289,7 +289,7 @@ def _import_sub(name: str, path: Path, ns: argparse.Namespace, nav: NavSolution,
     if not inside.all():
         log = ImuLog(log.t_ns[inside], log.omega_radps[inside], log.f_mps2[inside], log.skipped, log.repeated, log.clock_scale)
         t_sub = t_sub[inside]
-    rates = np.linalg.norm(_rates_at(tm, nav.C_nb), axis=1)
+    rates = np.linalg.norm(_rates_at(tm, nav.C_nb), axis=1)[(tm >= t_sub[0]) & (tm <= t_sub[-1])]  # over the log's span
     scale = plausibility.check_rate_scale(f"--sub {name} ({path})", log.omega_radps, rates, "the --nav solution's attitude")
     if scale is not None:
         raise ImportFailure(f"{scale} (read with --gyro-unit {ns.gyro_unit})")

@@ -349,6 +349,10 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
     return check_plausible(_read_session(path, include_late, keep, batch_bytes))
 
 
+#: /master/nav's 90th percentile body rate that shows the aircraft turned (its rates are smooth) [rad/s]
+MASTER_TURN_RADPS = 1.0 * np.pi / 180.0
+
+
 def check_plausible(sess: RecordedSession) -> RecordedSession:
     """``sess``, or a SessionError naming the first gross mistake (dpos_core.plausibility): a
     sub-IMU in g or deg/s read as m/s^2 or rad/s (and the reverse), a datum far from the first
@@ -357,7 +361,11 @@ def check_plausible(sess: RecordedSession) -> RecordedSession:
     if sess.master.omega_eb_b_radps is not None:
         ref = np.linalg.norm(sess.master.omega_eb_b_radps, axis=1)
         for name, s in sess.sub_imus.items():
-            scale = plausibility.check_rate_scale(f"{sess.path}: sub-IMU {name}", s.omega_radps, ref, "/master/nav's body rates")
+            if s.t_s.size == 0:
+                continue
+            span = (sess.master.t_s >= s.t_s[0]) & (sess.master.t_s <= s.t_s[-1])  # the same part of the flight
+            scale = plausibility.check_rate_scale(f"{sess.path}: sub-IMU {name}", s.omega_radps, ref[span],
+                                                  "/master/nav's body rates", min_turn_radps=MASTER_TURN_RADPS)
             found += [scale] if scale is not None else []
     llh = sess.master.llh
     if llh.shape[0]:
