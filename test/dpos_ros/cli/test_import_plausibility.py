@@ -104,3 +104,34 @@ def test_fixes_of_another_day_are_refused(tmp_path, capsys):
     rc, err = _run(capsys, tmp_path, pos=pos)
     line = _one_line(err)
     assert rc == 2 and "do not overlap" in line and "another day" in line
+
+
+def _install_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("test_import_install_helpers", Path(__file__).parent / "test_import_install.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize(("col", "scale", "says"), [
+    (slice(1, 4), DEG, r"--sub left \(.*\): 90th percentile of \|omega\| .* of the --nav solution's attitude .*looks like rad/s read as deg/s"),
+    (slice(1, 4), 1.0 / DEG, r"looks like deg/s read as rad/s"),
+    (slice(4, 7), 1.0 / G0_MPS2, r"--sub left \(.*\): median \|f\| .*looks like g read as m/s\^2"),
+])
+def test_sub_log_in_the_wrong_unit_is_refused_in_one_line(tmp_path, capsys, col, scale, says):
+    mod = _install_module()
+    nav, sub = tmp_path / "nav.csv", tmp_path / "left.csv"
+    mod._write_nav(nav)
+    mod._write_sub(sub)
+    lines = sub.read_text().splitlines()
+    for i in range(1, len(lines)):
+        p = lines[i].split(",")
+        p[col] = [f"{float(x) * scale:.7g}" for x in p[col]]
+        lines[i] = ",".join(p)
+    sub.write_text("\n".join(lines) + "\n")
+    rc = import_.main(mod._argv(nav, sub, tmp_path / "out", "--quiet"))
+    err = capsys.readouterr().err
+    assert rc == 2 and re.search(says, _one_line(err)), err

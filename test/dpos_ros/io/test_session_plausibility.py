@@ -75,8 +75,13 @@ def test_a_straight_flight_cannot_tell_the_gyro_unit(sample):
     assert check_plausible(_with_sub(sample, name, DEG)) is not None
 
 
-def test_datum_ten_degrees_away_is_refused(sample):
-    far = dataclasses.replace(sample, datum_llh=np.asarray(sample.datum_llh) + np.array([10.0 * DEG, 0.0, 0.0]),
-                              warnings=list(sample.warnings))
-    with pytest.raises(SessionError, match=r"/dpos/datum: 111\d km from the first fix"):
+@pytest.mark.parametrize("how", ["lat +10 deg", "lon +10 deg", "lat and lon swapped"])
+def test_datum_far_from_the_first_fix_is_refused(sample, how):
+    d = np.asarray(sample.datum_llh, dtype=float).copy()
+    if how == "lat and lon swapped":
+        d[[0, 1]] = d[[1, 0]]
+    else:
+        d[0 if how.startswith("lat") else 1] += 10.0 * DEG
+    far = dataclasses.replace(sample, datum_llh=d, warnings=list(sample.warnings))
+    with pytest.raises(SessionError, match=r"/dpos/datum: [\d.]+ km from the first fix .*: the datum of another place"):
         check_plausible(far)
