@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import yaml
 
+from dpos_core import plausibility
 from dpos_core.config.sensors import IMU_PRESETS, imu_model
 from dpos_core.ifa.model import BIAS_FEEDBACK, GYRO_AXIS_ERRORS, PAPER_IFA_IMU, R_ESTIMATORS, IfaFilterConfig
 from dpos_core.ifa.pipeline import METHODS
@@ -17,6 +18,12 @@ if TYPE_CHECKING:
     from dpos_core.config.sensors import ImuErrorModel
     from dpos_core.ifa.model import IfaFilterConfig
 
+
+
+def _plausible_offset(v: float) -> str | None:
+    """A GNSS-IMU time offset within +-60 s (dpos_core.plausibility.check_time_offset)."""
+    found = plausibility.check_time_offset("gnss_time_offset_s", v)
+    return None if found is None else f"{found.statistic}: {found.mistake}"
 
 @dataclass(frozen=True)
 class IfaConfig:
@@ -78,7 +85,7 @@ class IfaConfig:
     imu_preset: str = param("", "main IMU model: a grade preset (dpos_core.config.sensors.IMU_PRESETS); '' = the aircraft's master_imu, else [Fang2012] Table 1",
                             choices=("", *IMU_PRESETS))
     level_sigma_deg: float = param(1.0, "prior pitch / roll 1 sigma [deg] (the levelling of the initial state)", minimum=0.0, exclusive_minimum=True)
-    gnss_time_offset_s: float = param(0.0, "GNSS stamps minus the IMU time of the same instant [s]")
+    gnss_time_offset_s: float = param(0.0, "GNSS stamps minus the IMU time of the same instant [s]", check=_plausible_offset)
     max_fix_bridge_s: float = param(0.05, "a fix may lie this far [s] from the last IMU sample (bridged with the velocity)",
                                     minimum=0.0, exclusive_minimum=True)
     predict_interval_s: float = param(1.5, "time update alone after this long [s] without a fix (outages)", minimum=0.0, exclusive_minimum=True)

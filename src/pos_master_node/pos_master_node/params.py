@@ -107,7 +107,7 @@ class PosMasterConfig:
         check=_check_len(0, 9))
     initial_sigma: tuple[float, ...] = param(
         (5.0, 0.5, 100.0, 1.0, 1.0), "1 sigma [pos_m, vel_mps, heading_deg, pitch_deg, roll_deg] of /master/nav before the first correction",
-        minimum=0.0, length=5)
+        minimum=0.0, exclusive_minimum=True, length=5)
     max_lead_s: float = param(2.0, "rate_factor 0 with an ifa_node: stay at most this many seconds ahead of its corrections (0 = no limit)", minimum=0.0)
     ring_s: float = param(60.0, "seconds of IMU samples kept for re-integration after an IFA correction", minimum=1.0)
     input_reliability: str = input_reliability_param()

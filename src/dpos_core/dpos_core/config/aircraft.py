@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .. import plausibility
 from .files import ConfigError, build, parse_yaml, read_yaml, vec3
 from .flexure import FlexureModel, ModalWing, WingMode
 from .sensors import ImuErrorModel, imu_model
@@ -156,9 +157,11 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         for what, span in [(f"sub-IMU {x.name!r}", x.span_m) for x in subs] + [(f"antenna {x.name!r}", x.span_m) for x in ants]:
             if abs(span) > wing.semi_span_m:
                 raise ConfigError(f"{label}: {what} at span {span:g} m is beyond the wing's semi_span_m {wing.semi_span_m:g} m")
+    gnss_arm = vec3(d.get("gnss_lever_arm_m", [0, 0, 0]), f"{label}: gnss_lever_arm_m")
+    _check_sizes(label, gnss_arm, subs, ants, wing)
     return AircraftConfig(
         name=str(d.get("name", Path(str(name_or_path)).stem)),
-        gnss_lever_arm_m=vec3(d.get("gnss_lever_arm_m", [0, 0, 0]), f"{label}: gnss_lever_arm_m"),
+        gnss_lever_arm_m=gnss_arm,
         flexure=flex,
         sub_imus=tuple(subs),
         antennas=tuple(ants),
@@ -191,6 +194,28 @@ def _flexure(d: object, where: str) -> tuple[FlexureModel, ModalWing | None]:
     flex = build(FlexureModel, {"tau_s": ta.get("tau_s", [5.0, 2.0, 2.0]), "span_exponent": ta.get("span_exponent", 1.0),
                                 "reference_span_m": wing.reference_span_m, "variance_deg2": list(wing.variance_deg2())}, where)
     return flex, wing
+
+
+def _check_sizes(label: str, gnss_arm: tuple[float, float, float], subs: list[SubImuConfig], ants: list[AntennaConfig],
+                 wing: ModalWing | None) -> None:
+    """Every lever arm (and span) within the aircraft's size (dpos_core.plausibility.size_bound_m:
+    its largest span position, or its wing's semi-span, + 30 m, at least 60 m): a ConfigError
+    naming the first one that is not (1000 m, or millimetres given as metres)."""
+    if wing is not None:
+        found = plausibility.check_lever_arm(f"{label}: flexure semi_span_m", (wing.semi_span_m, 0.0, 0.0), plausibility.MAX_SEMI_SPAN_M)
+        if found is not None:
+            raise ConfigError(str(found))
+    bound = plausibility.size_bound_m([], wing.semi_span_m if wing is not None else None)
+    items: list[tuple[str, tuple[float, float, float]]] = [(f"{label}: gnss_lever_arm_m", gnss_arm)]
+    items += [(f"{label}: sub-IMU {x.name!r} span_m", (x.span_m, 0.0, 0.0)) for x in subs]
+    items += [(f"{label}: antenna {x.name!r} span_m", (x.span_m, 0.0, 0.0)) for x in ants]
+    items += [(f"{label}: sub-IMU {x.name!r} lever_arm_m", x.lever_arm_m) for x in subs]
+    items += [(f"{label}: antenna {x.name!r} lever_arm_m", x.lever_arm_m) for x in ants]
+    items += [(f"{label}: sub-IMU {x.name!r} lever_arm_sigma_m", (x.lever_arm_sigma_m, 0.0, 0.0)) for x in subs]
+    for what, arm in items:
+        found = plausibility.check_lever_arm(what, arm, bound)
+        if found is not None:
+            raise ConfigError(str(found))
 
 
 def _side(y: float) -> str:

@@ -413,7 +413,16 @@ def read_pos(path: str | Path) -> PosLog:
             if not (-90.0 <= vals[0] <= 90.0 and -180.0 <= vals[1] <= 180.0):
                 skipped.append((lineno, f"latitude {vals[0]:g} / longitude {vals[1]:g} deg out of range (not an llh solution in degrees?)"))
                 continue
+            if not (vals[3] == int(vals[3]) and 1 <= vals[3] <= 6):
+                skipped.append((lineno, f"Q {vals[3]:g} is not an RTKLIB quality 1-6 (a dms solution without its header?)"))
+                continue
+            if not all(v > 0.0 for v in vals[5:8]):
+                skipped.append((lineno, f"sigma sdn/sde/sdu {vals[5]:g}/{vals[6]:g}/{vals[7]:g} m not > 0 (an exact fix claimed)"))
+                continue
             rows.append((lineno, t_ns, vals))
+    if not header_seen and len(rows) >= 3 and all(v[0] == int(v[0]) and v[1] == int(v[1]) for _, _, v in rows):
+        raise LogFormatError(f"{p}: every latitude and longitude is a whole number of degrees: looks like a dms solution "
+                             "(deg min sec) without its header read as degrees (write RTKLIB out-degform=deg, keep the header)")
     if not header_seen and not rows:
         first = f"; {len(skipped)} skipped: {first_reasons(skipped)}" if skipped else ""
         raise LogFormatError(f"{p}: not an RTKLIB .pos solution (no header, no usable solution line{first})")

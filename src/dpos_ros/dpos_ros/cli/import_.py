@@ -51,6 +51,7 @@ from typing import Any, NoReturn
 import numpy as np
 from numpy.typing import NDArray
 
+from dpos_core import plausibility
 from dpos_core.errors import ImportFailure
 from dpos_core.imports.logs import (
     ACCEL_UNITS,
@@ -588,6 +589,7 @@ def _read_logs(args: argparse.Namespace) -> tuple[ImuLog, PosLog | None]:
         raise ImportFailure(f"IMU columns: {exc}") from None
     tag = None if args.tag is None else read_tag(args.tag)
     imu = read_imu_csv(args.imu, columns, tag)
+    install.refuse_implausible_imu(f"--imu {args.imu}", imu, columns)
     if args.time_col is not None and args.time_scale == "utc":
         imu.t_ns = to_gpst_ns(imu.t_ns, "utc")  # the leap seconds of the date
     pos = None if args.pos is None else read_pos(args.pos)
@@ -602,6 +604,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         st.stage(f"reading {args.imu}" + (f" and {args.pos}" if args.pos is not None else ""))
     imu_read, pos_read = _read_logs(args)
     origin_ns = int(imu_read.t_ns[0])
+    if pos_read is not None:
+        apart = plausibility.check_overlap(f"--imu {args.imu} and --pos {args.pos}", (imu_read.t_ns[0] * 1e-9, imu_read.t_ns[-1] * 1e-9),
+                                           (pos_read.t_ns[0] * 1e-9, pos_read.t_ns[-1] * 1e-9))
+        if apart is not None:
+            raise ImportFailure(str(apart))
+        within = (pos_read.t_ns >= imu_read.t_ns[0]) & (pos_read.t_ns <= imu_read.t_ns[-1])  # the course while the IMU logged
+        course = plausibility.course_rate_radps(np.asarray((pos_read.t_ns[within] - origin_ns) * 1e-9, dtype=np.float64),
+                                                pos_read.llh[within])
+        scale = plausibility.check_rate_scale(f"--imu {args.imu}", imu_read.omega_radps, course, f"the course of --pos {args.pos}")
+        if scale is not None:
+            raise ImportFailure(f"{scale} (read with --gyro-unit {args.gyro_unit})")
     imu = crop_imu(imu_read, origin_ns, args.start, args.end)
     if len(imu) == 0:
         raise ImportFailure(f"no IMU sample within --start/--end (the log spans {(imu_read.t_ns[-1] - origin_ns) * 1e-9:.3f} s)")

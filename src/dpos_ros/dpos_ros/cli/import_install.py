@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from dpos_core import plausibility
 from dpos_core.attitude import dcm_to_quat
 from dpos_core.config import ConfigError, load_aircraft
 from dpos_core.config.aircraft import MOUNT_ESTIMATE
@@ -172,6 +173,15 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
     return streams, sources
 
 
+def refuse_implausible_imu(what: str, log: ImuLog, cols: ImuColumns) -> None:
+    """ImportFailure in one line when the log's values show a unit mistake (dpos_core.plausibility):
+    specific force not near g in the quietest seconds, angular rates no vehicle has."""
+    found = plausibility.check_imu(what, np.asarray((log.t_ns - log.t_ns[0]) * 1e-9, dtype=np.float64), log.omega_radps, log.f_mps2)
+    if found:
+        units = f"(read with --accel-unit {cols.accel_unit} --gyro-unit {cols.gyro_unit})"
+        raise ImportFailure(f"{found[0]} {units}")
+
+
 def read_sub(name: str, path: Path, ns: argparse.Namespace) -> tuple[ImuLog, str, int]:
     """Read one sub-IMU log; returns the log (stamps: GPST, or device seconds from 0 for a counter only),
     its clock kind and the count of samples removed because all six values were 0."""
@@ -188,6 +198,7 @@ def read_sub(name: str, path: Path, ns: argparse.Namespace) -> tuple[ImuLog, str
     zero = np.all(log.omega_radps == 0.0, axis=1) & np.all(log.f_mps2 == 0.0, axis=1)
     if zero.any():  # a logger's placeholder (e.g. an Xsens DOT's first line): no specific force is 0 under gravity
         log = ImuLog(log.t_ns[~zero], log.omega_radps[~zero], log.f_mps2[~zero], log.skipped, log.repeated, log.clock_scale)
+    refuse_implausible_imu(f"--sub {name} ({path})", log, cols)
     if ns.time_col is not None:
         if ns.time_scale == "utc":
             log.t_ns = to_gpst_ns(log.t_ns, "utc")
@@ -278,6 +289,10 @@ def _import_sub(name: str, path: Path, ns: argparse.Namespace, nav: NavSolution,
     if not inside.all():
         log = ImuLog(log.t_ns[inside], log.omega_radps[inside], log.f_mps2[inside], log.skipped, log.repeated, log.clock_scale)
         t_sub = t_sub[inside]
+    rates = np.linalg.norm(_rates_at(tm, nav.C_nb), axis=1)[(tm >= t_sub[0]) & (tm <= t_sub[-1])]  # over the log's span
+    scale = plausibility.check_rate_scale(f"--sub {name} ({path})", log.omega_radps, rates, "the --nav solution's attitude")
+    if scale is not None:
+        raise ImportFailure(f"{scale} (read with --gyro-unit {ns.gyro_unit})")
     try:
         m = estimate_mounting(tm, nav.C_nb, t_sub, log.omega_radps, name=f"--sub {name}")
         mounts[name] = m

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from dpos_core import plausibility
 from dpos_core.errors import SessionError
 from dpos_core.series import GAP_FACTOR, ImuSeries, NavSeries
 from dpos_core.units import FloatArray
@@ -342,6 +343,42 @@ STREAM_BATCH_BYTES = 2**24
 
 def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None,
                  batch_bytes: int = STREAM_BATCH_BYTES) -> RecordedSession:
+    """A recording or a spill as a :class:`RecordedSession` (:func:`_read_session`), refused with a
+    SessionError in one line when its values show a unit or installation mistake
+    (:func:`check_plausible`)."""
+    return check_plausible(_read_session(path, include_late, keep, batch_bytes))
+
+
+#: /master/nav's 90th percentile body rate that shows the aircraft turned (its rates are smooth) [rad/s]
+MASTER_TURN_RADPS = 1.0 * np.pi / 180.0
+
+
+def check_plausible(sess: RecordedSession) -> RecordedSession:
+    """``sess``, or a SessionError naming the first gross mistake (dpos_core.plausibility): a
+    sub-IMU in g or deg/s read as m/s^2 or rad/s (and the reverse), a datum far from the first
+    main-system position."""
+    found = [f for name, s in sess.sub_imus.items() for f in plausibility.check_imu(f"{sess.path}: sub-IMU {name}", s.t_s, s.omega_radps, s.f_mps2)]
+    if sess.master.omega_eb_b_radps is not None:
+        ref = np.linalg.norm(sess.master.omega_eb_b_radps, axis=1)
+        for name, s in sess.sub_imus.items():
+            if s.t_s.size == 0:
+                continue
+            span = (sess.master.t_s >= s.t_s[0]) & (sess.master.t_s <= s.t_s[-1])  # the same part of the flight
+            scale = plausibility.check_rate_scale(f"{sess.path}: sub-IMU {name}", s.omega_radps, ref[span],
+                                                  "/master/nav's body rates", min_turn_radps=MASTER_TURN_RADPS)
+            found += [scale] if scale is not None else []
+    llh = sess.master.llh
+    if llh.shape[0]:
+        d = plausibility.check_datum(f"{sess.path}: /dpos/datum", float(sess.datum_llh[0]), float(sess.datum_llh[1]),
+                                     float(llh[0, 0]), float(llh[0, 1]))
+        found += [d] if d is not None else []
+    if found:
+        raise SessionError(str(found[0]))
+    return sess
+
+
+def _read_session(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None,
+                  batch_bytes: int = STREAM_BATCH_BYTES) -> RecordedSession:
     """Read a recording made by dpos-sim, dpos-record or the graph, or a spill of
     transfer_align_node (see module docstring), with memory for one part of it: ``keep``: read
     only the topics it accepts (/master/nav and /dpos/datum are always read); ``include_late``: a
