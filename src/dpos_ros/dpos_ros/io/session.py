@@ -362,20 +362,23 @@ def read_session(path: Path, include_late: bool = True, keep: Callable[[str], bo
     if not (path / "metadata.yaml").is_file():
         return _read_whole(path, include_late, keep)
     file = bag._single_mcap(path)
+    if file is not None and _mcap.damage(file) is not None:
+        return _read_whole(path, include_late, keep)  # recovered from its start first (bag.readable_bag)
     wanted = (lambda t: t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)) if keep is None else \
         (lambda t: t == T.MASTER_NAV or (t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) and keep(t)))  # noqa: E731
-    parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes)
+    lost: list[str] = []  # the chunks skipped (corrupt), said once each
+    parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes, lost)
     if parts is None:
         return _read_whole(path, include_late, keep)
     custom = bag.custom_data(path)
     try:
-        small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
-    except (ValueError, OSError) as e:  # a chunk that cannot be decompressed or parsed, a file cut short
+        small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS], notes=lost)  # (only the chunks that hold them)
+    except (ValueError, OSError) as e:  # a file that cannot be read at all
         raise SessionError(f"{path}: cannot read the recording: {e}") from None
     if T.DATUM not in small or not small[T.DATUM][2]:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
     datum = _datum(small[T.DATUM][2][0])
-    warnings: list[str] = []
+    warnings: list[str] = lost
     counts = message_counts(path)
     acc: dict[str, _Rows] = {}  # topic -> its stamps and numbers so far
     failed: set[str] = set()
