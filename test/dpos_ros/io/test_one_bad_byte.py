@@ -182,6 +182,50 @@ def test_a_header_declaring_8_gib_allocates_nothing_of_it(src: Path, tmp_path: P
     assert "past the end of the file" in notes[0] and f"bytes skipped at byte {first.chunk_start_offset}" in notes[0]
 
 
+def _spill(tmp_path: Path, n: int = 2000) -> tuple[Path, list[tuple[int, bytes]]]:
+    w = spill.SpillWriter(tmp_path / "sp", "s1")
+    rng = np.random.default_rng(1)
+    cdr = b"\x00\x01\x00\x00"  # (a serialized message's encapsulation header, as every spilled message has)
+    recs = [(1_700_000_000_000_000_000 + k * 5_000_000, cdr + rng.integers(0, 256, 296, dtype=np.uint8).tobytes()) for k in range(n)]
+    for t, d in recs:
+        w.write("/sub_imu/a/imu", "sensor_msgs/msg/Imu", t, d)
+    w.close()
+    return tmp_path / "sp", recs
+
+
+@pytest.mark.parametrize("bad_size", [0xFFFFFFFF, 301, 100_000, 0])
+def test_one_corrupt_record_size_in_a_spill_costs_one_record(tmp_path: Path, bad_size: int) -> None:
+    """Record 40 of 2000 gets a wrong size (huge, one byte more, past the end, zero): that record is
+    skipped and said with the bytes skipped, the other 1999 are read (before: 40 kept, the rest
+    reported as "cut short (crash)"), whole and block by block."""
+    d, recs = _spill(tmp_path)
+    log = d / "0.log"
+    raw = bytearray(log.read_bytes())
+    step = 12 + 300
+    raw[40 * step + 8 : 40 * step + 12] = struct.pack("<I", bad_size)
+    log.write_bytes(bytes(raw))
+    got, _, _, warns = spill.read_spill(d)
+    want = recs[:40] + recs[41:]
+    t = got["/sub_imu/a/imu"].times
+    assert t == [r[0] for r in want] and list(got["/sub_imu/a/imu"].blobs) == [r[1] for r in want]
+    assert len(warns) == 1 and f"{step} corrupt byte(s) of 0.log skipped ({step} at byte {40 * step}" in warns[0]
+    assert "cut short" not in warns[0]
+    blocks = spill.LogBlocks(log, block_bytes=4096)
+    t_b = np.concatenate([b[0] for b in blocks]).tolist()
+    assert t_b == t and blocks.skipped == [(40 * step, step)] and blocks.cut_short == 0
+
+
+def test_a_spill_cut_short_is_still_cut_short(tmp_path: Path) -> None:
+    """A crash while writing the last record is not mistaken for a corrupt size: dropped, said as before."""
+    d, recs = _spill(tmp_path, 50)
+    log = d / "0.log"
+    with log.open("r+b") as f:
+        f.truncate(log.stat().st_size - 100)
+    got, _, _, warns = spill.read_spill(d)
+    assert got["/sub_imu/a/imu"].times == [r[0] for r in recs[:49]]
+    assert len(warns) == 1 and "cut short (212 bytes" in warns[0]
+
+
 def test_damage_is_told_from_the_footer_and_summary(src: Path, tmp_path: Path) -> None:
     assert _mcap.damage(src / "b.mcap") is None
     b, mcap = _copy(src, tmp_path, "d")

@@ -494,7 +494,7 @@ def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_
     custom.setdefault("dpos.session_id", sid)
     small_topics = (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)
     wanted = [t for t in dict.fromkeys([*topics, *late]) if keep is None or t in small_topics or keep(t)]
-    cut: dict[tuple[int, str], str] = {}  # (0 the spill | 1 late/, topic) -> its cut-short warning
+    cut: dict[tuple[int, str, int], str] = {}  # (0 the spill | 1 late/, topic, 0 skipped | 1 cut short) -> its warning
     n_late: dict[str, int] = {}
 
     def blocks(topic: str):
@@ -504,8 +504,10 @@ def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_
                 continue
             reader = S.LogBlocks(src[topic][1], batch_bytes)
             yield from reader
+            if reader.skipped:  # (a corrupt record size: the reading resynchronized)
+                cut[(which, topic, 0)] = prefix + S.skipped_warning(topic, src[topic][1], reader.skipped)
             if reader.cut_short:
-                cut[(which, topic)] = prefix + S.cut_short_warning(topic, src[topic][1], reader.cut_short)
+                cut[(which, topic, 1)] = prefix + S.cut_short_warning(topic, src[topic][1], reader.cut_short)
             if which == 1 and reader.count:
                 n_late[topic] = reader.count
 
@@ -566,7 +568,7 @@ def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_
             cols[topic] = _clean(topic, t_all, v_all, warnings)
     except OSError as e:
         raise SessionError(f"{path}: cannot read the spill: {e}") from None
-    notes = [cut[k] for k in sorted(cut, key=lambda k: (k[0], list((topics, late)[k[0]]).index(k[1])))]
+    notes = [cut[k] for k in sorted(cut, key=lambda k: (k[0], list((topics, late)[k[0]]).index(k[1]), k[2]))]
     notes += [S.late_note(t, n_late[t]) for t in late if t in n_late]
     sess = _session_from_cols(path, custom, datum, cols, small, warnings)
     sess.warnings[:0] = notes
