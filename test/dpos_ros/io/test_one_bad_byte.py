@@ -232,3 +232,23 @@ def test_damage_is_told_from_the_footer_and_summary(src: Path, tmp_path: Path) -
     with mcap.open("r+b") as f:
         f.truncate(mcap.stat().st_size - 10)
     assert "no footer" in (_mcap.damage(mcap) or "")
+
+
+def test_status_counts_what_was_lost(src: Path, tmp_path: Path, index) -> None:
+    """dpos-process's session counts the messages of a skipped chunk once (status.json ``data_lost``),
+    however often the chunk is read, and so does a recovery; a spill's skipped bytes too."""
+    from dpos_ros.products.write import status_doc
+
+    b, mcap = _copy(src, tmp_path, "flip")
+    ch = index[2]
+    n = sum(_messages_of(ch, mcap).values())
+    raw = bytearray(mcap.read_bytes())
+    raw[ch.chunk_start_offset + ch.chunk_length // 2] ^= 0x10
+    mcap.write_bytes(bytes(raw))
+    sess = read_session(b)
+    assert sess.data_lost == {"messages": n}
+    assert sum(f"the chunk at byte {ch.chunk_start_offset}" in w for w in sess.warnings) == 1
+    assert status_doc(sess, {}, "ta", {}, set())["data_lost"] == {"messages": n}
+    (b / "metadata.yaml").unlink()  # the same without its metadata: recovered, the count kept
+    assert read_session(b).data_lost == {"messages": n}
+    assert read_session(src).data_lost == {}

@@ -102,6 +102,16 @@ class _Cursor:
 MAX_CHUNK_BYTES = 2**28
 
 
+class Notes(list[str]):
+    """Warnings about skipped chunks, with :attr:`lost_messages` the messages they held (counted
+    from their message indexes); a chunk is said and counted once however often it is read."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lost_messages = 0
+        self.seen: set[tuple[str, int]] = set()  # (file, chunk start) said
+
+
 class Damaged(ValueError):
     """The file's layout cannot be trusted (no footer, a summary or chunk index pointing past the
     end of the file): read it record by record from the start instead (:func:`scan`)."""
@@ -321,6 +331,11 @@ class _Reading:
             why = str(e).removeprefix(f"{self.file}: the chunk at byte {ch.start}").lstrip(": ")
             n, lost = _lost(self.f, self.size, ch, self.names)
             self.lost += n
+            if isinstance(self.notes, Notes):
+                if (str(self.file), ch.start) in self.notes.seen:
+                    return
+                self.notes.seen.add((str(self.file), ch.start))
+                self.notes.lost_messages += n
             self.notes.append(_skipped(self.file, ch, why, lost))
 
 

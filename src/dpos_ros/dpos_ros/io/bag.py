@@ -163,6 +163,8 @@ def write_streams_rosbags(
     return n
 
 
+#: custom_data key of a recovery (:func:`readable_bag`): the messages lost in the chunks it skipped
+RECOVERY_LOST_KEY = "dpos.recovery_lost_messages"
 #: suffix of the directory a bag without metadata is recovered into (:func:`readable_bag`)
 RECOVERED_SUFFIX = ".recovered"
 
@@ -242,7 +244,7 @@ def _recover_mcap(src: Path, out: Path, custom: dict[str, str] | None = None) ->
         w.set_custom_data(key, value)
     w.set_custom_data("dpos.recovered_from", str(src))
     if got.lost:
-        w.set_custom_data("dpos.recovery_lost_messages", str(got.lost))
+        w.set_custom_data(RECOVERY_LOST_KEY, str(got.lost))
     w.open()
     try:
         conns = {cid: w.add_connection(topic, schemas[sid][0], typestore=ts)
@@ -277,9 +279,9 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
         wanted = set(topics).__contains__
     file = _single_mcap(path)
     if file is not None:
-        bad: list[str] = []
-        fast = _mcap.read(file, wanted, bad)  # a bad chunk is skipped and said
-        if bad:
+        bad = notes if isinstance(notes, _mcap.Notes) else _mcap.Notes()
+        fast = _mcap.read(file, wanted, bad)  # a bad chunk is skipped and said (once in a Notes, and counted)
+        if bad is not notes and bad:
             if notes is None:
                 for w in bad:
                     warnings.warn(w, stacklevel=2)

@@ -182,6 +182,20 @@ def _plausible(raw: bytes, o: int, final: bool, cdr: bool = True) -> bool | None
     return not cdr or _cdr(raw, nxt + h)  # (the next one's size is checked in its turn)
 
 
+def _chain(raw: bytes, o: int, final: bool, cdr: bool, k: int = 3) -> bool | None:
+    """:func:`_plausible` for ``k`` records in a row from ``o`` (fewer when the ``final`` buffer
+    ends right after them; None when a buffer that is not ``final`` ends first)."""
+    h = _HEAD.size
+    for _ in range(k):
+        ok = _plausible(raw, o, final, cdr)
+        if ok is not True:
+            return ok
+        o += h + _HEAD.unpack_from(raw, o)[1]
+        if o == len(raw):
+            return True if final else None
+    return True
+
+
 def _records(buf: NDArray[np.uint8], final: bool = True, skipped: list[tuple[int, int]] | None = None,
              cdr: bool | None = None) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], int]:
     """Records ``int64 t_ns | uint32 size | data`` back to back in ``buf``: ``(t_ns, data offset,
@@ -231,8 +245,8 @@ def _records(buf: NDArray[np.uint8], final: bool = True, skipped: list[tuple[int
             if final and o + h <= len(raw) and _HEAD.unpack_from(raw, o)[1] <= MAX_RECORD_BYTES \
                     and o + h + _HEAD.unpack_from(raw, o)[1] > len(raw) and not _resync_after(raw, o, cdr):
                 break  # the last record cut short (a crash while writing): dropped by the caller
-            p = _resync(buf, raw, o, final, cdr)
-            if p + h > len(raw) or _plausible(raw, p, final, cdr) is None:
+            p = _resync(buf, raw, o, final, cdr, sizes_l[-1] if sizes_l else None)
+            if p + h > len(raw) or _chain(raw, p, final, cdr) is None:
                 if not final:
                     break
                 if skipped is not None:
@@ -261,10 +275,14 @@ def is_cdr_log(buf: NDArray[np.uint8]) -> bool:
     return bool(_plausible(buf[: h + n0 + h + 4].tobytes(), 0, True))
 
 
-def _resync(buf: NDArray[np.uint8], raw: bytes, o: int, final: bool, cdr: bool) -> int:
-    """The first offset after ``o`` where :func:`_plausible` is not False (``len(raw)`` when none):
-    the candidates (a serialized message's first bytes 12 bytes on, when ``cdr``) found at once."""
+def _resync(buf: NDArray[np.uint8], raw: bytes, o: int, final: bool, cdr: bool, usual: int | None = None) -> int:
+    """Where the reading goes on after a corrupt record at ``o`` (``len(raw)``: nowhere): the record
+    after it if it had the ``usual`` size and 4 plausible records follow from there (:func:`_chain`:
+    a size field alone was damaged), else the first offset after ``o`` with 4 (the candidates: a
+    serialized message's first bytes 12 bytes on, found at once)."""
     h = _HEAD.size
+    if usual is not None and cdr and _chain(raw, o + h + usual, final, cdr, 4) is not False:
+        return o + h + usual
     if cdr:
         d = buf[o + 1 + h :]
         m = d.size - 3
@@ -273,7 +291,7 @@ def _resync(buf: NDArray[np.uint8], raw: bytes, o: int, final: bool, cdr: bool) 
     else:  # (sizes alone: not enough to resynchronize on)
         return len(raw)
     for p in cand.tolist():
-        if _plausible(raw, p, final, cdr) is not False:
+        if _chain(raw, p, final, cdr, 4) is not False:
             return int(p)
     return len(raw)
 
