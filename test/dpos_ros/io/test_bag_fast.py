@@ -6,6 +6,7 @@ gives the same messages record by record; :class:`Messages` behaves as a list of
 
 from __future__ import annotations
 
+import re
 import shutil
 import struct
 from pathlib import Path
@@ -119,9 +120,10 @@ def test_the_bag_names_its_writer_and_stores_the_design_qos(written: tuple[Path,
     assert "durability: transient_local" in datum.metadata["offered_qos_profiles"]
 
 
-def test_chunks_carry_their_crc_and_a_flipped_byte_is_an_error_naming_the_chunk(written: tuple[Path, Path], tmp_path: Path) -> None:
+def test_chunks_carry_their_crc_and_a_flipped_byte_skips_the_chunk_naming_it(written: tuple[Path, Path], tmp_path: Path) -> None:
     """Every chunk's uncompressed CRC-32 is written (the mcap library validates it); a byte flipped
-    inside a chunk's compressed records is found by the reader, not read as data."""
+    inside a chunk's compressed records is found by the reader, not read as data: the chunk is
+    skipped and named (test_one_bad_byte.py: the rest is read)."""
     import zlib
 
     fast, _ = written
@@ -138,8 +140,9 @@ def test_chunks_carry_their_crc_and_a_flipped_byte_is_an_error_naming_the_chunk(
     assert start > 0
     raw[start + len(chunks[1].data) // 2] ^= 0x01
     (bad / "b.mcap").write_bytes(bytes(raw))
-    with pytest.raises(ValueError, match=r"chunk at byte \d+"):
-        bag.read_raw(bad)
+    notes: list[str] = []
+    bag.read_raw(bad, notes=notes)
+    assert len(notes) == 1 and re.search(r"chunk at byte \d+ .* is skipped: CRC mismatch", notes[0])
 
 
 def test_fast_and_rosbags_read_the_same_messages(streams: list[TopicStream], written: tuple[Path, Path]) -> None:
@@ -185,7 +188,7 @@ def test_out_of_order_and_duplicate_log_times_come_in_rosbags_order(tmp_path: Pa
         assert list(fast[topic].blobs) == [d for _, d in sorted(mine, key=lambda m: m[0])]  # ... ties in file order
 
 
-def test_a_corrupt_chunk_is_an_error_naming_it(written: tuple[Path, Path], tmp_path: Path) -> None:
+def test_a_corrupt_chunk_is_skipped_naming_it(written: tuple[Path, Path], tmp_path: Path) -> None:
     b = tmp_path / "corrupt"
     shutil.copytree(written[0], b)
     mcap = b / "b.mcap"
@@ -197,9 +200,10 @@ def test_a_corrupt_chunk_is_an_error_naming_it(written: tuple[Path, Path], tmp_p
     assert buf[data : data + 4] == b"\x28\xb5\x2f\xfd"  # a zstd frame
     buf[data : data + 4] = b"\x00\x00\x00\x00"
     mcap.write_bytes(bytes(buf))
-    with pytest.raises(ValueError, match=f"b.mcap: the chunk at byte {start} cannot be decompressed"):
-        bag.read_raw(b)
-    with pytest.raises(SessionError, match="chunk at byte"):
+    notes: list[str] = []
+    bag.read_raw(b, notes=notes)
+    assert len(notes) == 1 and f"b.mcap: the chunk at byte {start} (" in notes[0] and "is skipped: cannot be decompressed" in notes[0]
+    with pytest.raises(SessionError, match="no /dpos/datum"):  # (the first chunk holds the latched datum)
         read_session(b)
 
 
@@ -219,12 +223,14 @@ def test_bags_the_fast_path_does_not_read_go_through_rosbags(written: tuple[Path
     calls: list[Path] = []
     monkeypatch.setattr(bag, "read_raw_rosbags", lambda p, wanted=None: calls.append(p) or ref)
     assert bag.read_raw(db) is ref and calls == [db]
-    # an MCAP without its summary (footer cut off) but with metadata.yaml
+    # an MCAP without its summary (footer cut off) but with metadata.yaml: recovered from its start, not rosbags'
     cut = tmp_path / "cut"
     shutil.copytree(written[0], cut)
     with (cut / "b.mcap").open("r+b") as f:
         f.truncate((cut / "b.mcap").stat().st_size - 20)
-    assert bag.read_raw(cut) is ref and calls == [db, cut]
+    notes: list[str] = []
+    assert bag.read_raw(cut, notes=notes) == ref and calls == [db]
+    assert "is damaged: b.mcap: no footer at its end" in notes[0]
 
 
 def test_spill_records_are_read_back_as_written(tmp_path: Path) -> None:

@@ -100,6 +100,29 @@ def test_last_record_cut_short_is_dropped_with_a_warning(tmp_path: Path, raw) ->
     assert b.sub_imus["sub_r"].t_s.size == len(raw[SUB_R][1]) - 2  # the two cut records only
 
 
+@pytest.mark.parametrize("bad", [2**31, 8, 100_000])
+def test_one_corrupt_record_size_costs_one_sample_and_is_counted(tmp_path: Path, raw, bad: int) -> None:
+    """The sub-IMU log's record 500 gets a wrong size (2**31, 8 bytes more, 100 kB): that sample is
+    lost alone (before: the rest of the topic, reported as cut short), said with the bytes skipped
+    and counted in ``data_lost``, the same read whole and block by block."""
+    d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R})
+    f = spill.spill_meta(d)[0][SUB_R][1]
+    buf = bytearray(f.read_bytes())
+    o = 0
+    for _ in range(500):
+        o += 12 + int.from_bytes(buf[o + 8 : o + 12], "little")
+    size = int.from_bytes(buf[o + 8 : o + 12], "little")
+    buf[o + 8 : o + 12] = (bad if bad != 8 else size + 8).to_bytes(4, "little")
+    f.write_bytes(bytes(buf))
+    a = read_whole(d)
+    b = read_session(d, batch_bytes=10_000)
+    same_session(a, b)
+    assert b.sub_imus["sub_r"].t_s.size == len(raw[SUB_R][1]) - 1
+    assert b.data_lost == {"spill_bytes_skipped": 12 + size}
+    assert any(f"{12 + size} corrupt byte(s) of {f.name} skipped" in w for w in b.warnings)
+    assert not any("cut short" in w for w in b.warnings)
+
+
 def test_log_blocks_are_read_spills_records(tmp_path: Path, raw) -> None:
     d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R})
     whole = spill.read_spill(d)[0]

@@ -23,6 +23,7 @@ while the next ones are built, and written in order.
 
 from __future__ import annotations
 
+import mmap
 import struct
 import threading
 import zlib
@@ -36,7 +37,7 @@ from typing import BinaryIO
 
 import numpy as np
 import zstandard
-from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]  # (rosbags' dependency)
+from lz4.frame import LZ4FrameDecompressor  # type: ignore[import-untyped]  # (rosbags' dependency)
 from numpy.typing import NDArray
 from rosbags.interfaces import Qos
 from rosbags.rosbag2.metadata import dump_qos_v9
@@ -96,6 +97,26 @@ class _Cursor:
         return self.raw(self.u32()).decode("utf-8")
 
 
+#: the largest chunk (compressed or not) a reader allocates for: a header declaring more is damage
+#: (dpos and rosbag2 write chunks of about 1 MiB; rosbag2's ``chunk_size`` setting is far below this)
+MAX_CHUNK_BYTES = 2**28
+
+
+class Notes(list[str]):
+    """Warnings about skipped chunks, with :attr:`lost_messages` the messages they held (counted
+    from their message indexes); a chunk is said and counted once however often it is read."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lost_messages = 0
+        self.seen: set[tuple[str, int]] = set()  # (file, chunk start) said
+
+
+class Damaged(ValueError):
+    """The file's layout cannot be trusted (no footer, a summary or chunk index pointing past the
+    end of the file): read it record by record from the start instead (:func:`scan`)."""
+
+
 @dataclass(frozen=True)
 class _ChunkIndex:
     start: int  # chunk record's offset in the file
@@ -104,9 +125,12 @@ class _ChunkIndex:
     compression: str
     compressed_size: int
     uncompressed_size: int
+    t0: int = 0  # log time range of its messages [ns]
+    t1: int = 0
+    index_offsets: tuple[tuple[int, int], ...] = ()  # (channel, offset of its message index record)
 
 
-def _records(buf: bytes) -> list[tuple[int, _Cursor, int]]:
+def _records(buf: bytes | memoryview) -> list[tuple[int, _Cursor, int]]:
     """(opcode, cursor at its body, end of body) of the records back to back in ``buf``."""
     out = []
     o = 0
@@ -144,7 +168,7 @@ class _Buffers:
         if compression == "":
             return data
         if compression == "lz4":
-            return memoryview(lz4_decompress(data))
+            return memoryview(LZ4FrameDecompressor().decompress(bytes(data), max_length=size + 1))
         if compression != "zstd":
             raise ValueError(f"unsupported chunk compression {compression!r}")
 
@@ -164,29 +188,55 @@ class _Buffers:
         return view[:total]
 
 
-def _summary(f: BufferedReader, size: int,
-             wanted: Callable[[str], bool] | None) -> tuple[dict[int, tuple[str, str]], list[_ChunkIndex], dict[int, int]] | None:
-    """The wanted channels ``{id: (topic, type)}``, the chunk indexes and the messages per channel
-    from the file's summary, or None when this path does not read the file (module docstring)."""
-    if size < 2 * len(MAGIC) + _FOOTER or f.read(len(MAGIC)) != MAGIC:
+def _summary(f: BufferedReader, size: int, wanted: Callable[[str], bool] | None,
+             ) -> tuple[dict[int, tuple[str, str]], list[_ChunkIndex], dict[int, int], dict[int, str]] | None:
+    """The wanted channels ``{id: (topic, type)}``, the chunk indexes, the messages per channel
+    and every channel's topic from the file's summary, or None when this path does not read the
+    file (module docstring).  :class:`Damaged` when the footer is missing (a file cut short) or
+    the summary or a chunk index points past the end of the data: nothing in the summary is
+    trusted then."""
+    if size < len(MAGIC) or f.read(len(MAGIC)) != MAGIC:
         return None
+    if size < 2 * len(MAGIC) + _FOOTER:
+        raise Damaged(f"the file ends after {size} bytes, before any footer")
     f.seek(size - len(MAGIC) - _FOOTER)
     foot = f.read(_FOOTER + len(MAGIC))
     op, n, summary_start, summary_offset_start, _crc = struct.unpack_from("<BQQQI", foot)
-    if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC or summary_start == 0:
-        return None
+    if op != OP_FOOTER or n != 20 or foot[_FOOTER:] != MAGIC:
+        raise Damaged("no footer at its end (a file cut short)")
+    if summary_start == 0:
+        return None  # no summary: rosbags reads it
     end = summary_offset_start or size - len(MAGIC) - _FOOTER
     if not 0 < summary_start <= end <= size:
-        return None
+        raise Damaged(f"its footer points past the end of the file (summary at byte {summary_start} of {size})")
     f.seek(summary_start)
     try:
         summary = _records(f.read(end - summary_start))
-    except ValueError:
-        return None
+    except ValueError as e:
+        raise Damaged(f"its summary is damaged ({e})") from None
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, int]] = {}
     chunks: list[_ChunkIndex] = []
     counts: dict[int, int] = {}  # messages per channel (the statistics record), to size the buffers
+    try:
+        _parse_summary(summary, summary_start, schemas, channels, chunks, counts)
+    except (ValueError, struct.error, UnicodeDecodeError) as e:
+        if isinstance(e, Damaged):
+            raise
+        raise Damaged(f"its summary is damaged ({e})") from None
+    if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
+        return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
+    names = {cid: topic for cid, (topic, _) in channels.items()}
+    sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
+           if sid in schemas and (wanted is None or wanted(topic))}
+    if len({t for t, _ in sel.values()}) != len(sel):
+        return None  # a topic on several channels
+    return sel, sorted(chunks, key=lambda x: x.start), counts, names
+
+
+def _parse_summary(summary: list[tuple[int, _Cursor, int]], summary_start: int, schemas: dict[int, str],
+                   channels: dict[int, tuple[str, int]], chunks: list[_ChunkIndex], counts: dict[int, int]) -> None:
+    """Fill the schemas, channels, chunk indexes and counts of :func:`_summary` from its records."""
     for op, c, _ in summary:
         if op == OP_SCHEMA:
             sid = c.u16()
@@ -195,28 +245,24 @@ def _summary(f: BufferedReader, size: int,
             cid, sid = c.u16(), c.u16()
             channels[cid] = (c.str(), sid)
         elif op == OP_CHUNK_INDEX:
-            c.u64(), c.u64()
+            t0, t1 = c.u64(), c.u64()
             start, length = c.u64(), c.u64()
-            m, idx = c.u32(), set()
+            m, offs = c.u32(), []
             stop = c.o + m
             while c.o < stop:
-                idx.add(c.u16())
-                c.u64()
+                offs.append((c.u16(), c.u64()))
             c.u64()
-            chunks.append(_ChunkIndex(start, length, frozenset(idx), c.str(), c.u64(), c.u64()))
+            ch = _ChunkIndex(start, length, frozenset(k for k, _ in offs), c.str(), c.u64(), c.u64(), t0, t1, tuple(offs))
+            if not (0 < start and start + length <= summary_start):
+                raise Damaged(f"the chunk index points past the data (a chunk at byte {start} of {length} bytes, "
+                              f"the data end at byte {summary_start})")
+            chunks.append(ch)
         elif op == OP_STATISTICS:
             c.raw(8 + 2 + 4 + 4 + 4 + 4 + 8 + 8)
             stop = c.u32() + c.o
             while c.o < stop:
                 cid = c.u16()
                 counts[cid] = c.u64()
-    if not chunks or any(ch.compression not in ("", "zstd", "lz4") for ch in chunks):
-        return None  # unchunked (or an unknown compression): rosbags reads it, or says why not
-    sel = {cid: (topic, schemas[sid]) for cid, (topic, sid) in channels.items()
-           if sid in schemas and (wanted is None or wanted(topic))}
-    if len({t for t, _ in sel.values()}) != len(sel):
-        return None  # a topic on several channels
-    return sel, sorted(chunks, key=lambda x: x.start), counts
 
 
 def _results(sel: dict[int, tuple[str, str]], bufs: dict[int, _Growing]) -> dict[str, RawTopic]:
@@ -230,50 +276,117 @@ def _results(sel: dict[int, tuple[str, str]], bufs: dict[int, _Growing]) -> dict
     return out
 
 
-def read(file: Path, wanted: Callable[[str], bool] | None) -> dict[str, RawTopic] | None:
+def damage(file: Path) -> str | None:
+    """Why the MCAP ``file``'s layout cannot be trusted (no footer: a file cut short; a summary or
+    chunk index pointing past the end of its data), or None when it is intact or not one this
+    path reads.  Reads the footer and the summary only."""
+    try:
+        with file.open("rb") as f:
+            _summary(f, file.stat().st_size, None)
+    except Damaged as e:
+        return str(e)
+    return None
+
+
+def _lost(f: BufferedReader, size: int, ch: _ChunkIndex, names: dict[int, str]) -> tuple[int, str]:
+    """(messages, what they are) in the chunk ``ch``, from its message index records (each read only
+    when it lies within the file)."""
+    per: list[tuple[str, int]] = []
+    for cid, off in ch.index_offsets:
+        if not 0 < off <= size - 15:
+            continue
+        f.seek(off)
+        head = f.read(15)
+        op, _n, c, m = struct.unpack_from("<BQHI", head)
+        if op == OP_MESSAGE_INDEX and c == cid:
+            per.append((names.get(cid, f"channel {cid}"), m // 16))
+    n = sum(k for _, k in per)
+    what = ", ".join(f"{t} {k}" for t, k in per) if per else "not indexed"
+    return n, f"{n} message(s) ({what})"
+
+
+def _skipped(file: Path, ch: _ChunkIndex, why: str, lost: str) -> str:
+    """The warning about the chunk ``ch`` skipped because ``why``."""
+    span = f"log time {ch.t0 * 1e-9:.3f} to {ch.t1 * 1e-9:.3f} s" if ch.t1 >= ch.t0 > 0 else "log time unknown"
+    return f"{file}: the chunk at byte {ch.start} ({span}) is skipped: {why}; lost {lost}; the other chunks are read"
+
+
+class _Reading:
+    """The chunks of one file read into per-channel buffers; a bad chunk is skipped, said in
+    :attr:`notes` and counted in :attr:`lost` (messages)."""
+
+    def __init__(self, file: Path, f: BufferedReader, size: int, names: dict[int, str], notes: list[str] | None) -> None:
+        self.file, self.f, self.size, self.names = file, f, size, names
+        self.notes = notes if notes is not None else []
+        self.lost = 0
+        self.reuse = _Buffers()
+
+    def chunk(self, ch: _ChunkIndex, mask: NDArray[np.bool_], bufs: dict[int, _Growing]) -> None:
+        try:
+            if ch.uncompressed_size > MAX_CHUNK_BYTES or ch.length > MAX_CHUNK_BYTES + 256:
+                raise ValueError(f"it declares {max(ch.uncompressed_size, ch.length)} bytes, more than the "
+                                 f"{MAX_CHUNK_BYTES} a chunk may have (nothing allocated)")
+            _chunk_messages(self.file, ch, self.reuse.read(self.f, ch.start, ch.length), mask, bufs, self.reuse)
+        except ValueError as e:
+            why = str(e).removeprefix(f"{self.file}: the chunk at byte {ch.start}").lstrip(": ")
+            n, lost = _lost(self.f, self.size, ch, self.names)
+            self.lost += n
+            if isinstance(self.notes, Notes):
+                if (str(self.file), ch.start) in self.notes.seen:
+                    return
+                self.notes.seen.add((str(self.file), ch.start))
+                self.notes.lost_messages += n
+            self.notes.append(_skipped(self.file, ch, why, lost))
+
+
+def read(file: Path, wanted: Callable[[str], bool] | None, notes: list[str] | None = None) -> dict[str, RawTopic] | None:
     """``{topic: RawTopic}`` of the channels whose topic ``wanted`` accepts (all when None), or None
-    when the file is not one this path reads (see module docstring).  Raises :class:`ValueError`
-    naming the file and the chunk for a chunk that is corrupt (cut short, not decompressible, a
-    CRC mismatch, records that do not fill it)."""
+    when the file is not one this path reads (see module docstring).  A chunk that is corrupt (cut
+    short, not decompressible, a CRC mismatch, records that do not fill it, a size past
+    :data:`MAX_CHUNK_BYTES`) is skipped: a warning naming it, its log time range and the messages
+    lost is appended to ``notes``, the other chunks are read.  :class:`Damaged` when the file's
+    layout cannot be trusted (:func:`damage`)."""
     size = file.stat().st_size
     with file.open("rb") as f:
         found = _summary(f, size, wanted)
         if found is None:
             return None
-        sel, chunks, counts = found
+        sel, chunks, counts, names = found
         mask = np.zeros(65536, dtype=np.bool_)
         mask[list(sel)] = True
-        bufs = {cid: _Growing(counts.get(cid, 0)) for cid in sel}
-        reuse = _Buffers()
+        bufs = {cid: _Growing(counts.get(cid, 0), 64 * size) for cid in sel}
+        reading = _Reading(file, f, size, names, notes)
         for ch in chunks:
             if ch.channels and not any(mask[c] for c in ch.channels):
                 continue
-            _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+            reading.chunk(ch, mask, bufs)
     return _results(sel, bufs)
 
 
-def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: int = 2**26) -> Iterator[dict[str, RawTopic]] | None:
+def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: int = 2**26,
+                 notes: list[str] | None = None) -> Iterator[dict[str, RawTopic]] | None:
     """:func:`read` a part at a time: ``{topic: RawTopic}`` of the wanted messages of consecutive
     chunks (in file order, each part sorted by log time), a part once it holds about
     ``batch_bytes`` of messages; every wanted topic in each part.  None when :func:`read` would
-    return None.  Memory holds one part."""
+    return None; a corrupt chunk is skipped and said in ``notes`` as :func:`read` does.  Memory
+    holds one part."""
     size = file.stat().st_size
     with file.open("rb") as f:
         found = _summary(f, size, wanted)
     if found is None:
         return None
-    sel, chunks, _ = found
+    sel, chunks, _, names = found
 
     def parts() -> Iterator[dict[str, RawTopic]]:
         mask = np.zeros(65536, dtype=np.bool_)
         mask[list(sel)] = True
-        reuse = _Buffers()
         with file.open("rb") as f:
+            reading = _Reading(file, f, size, names, notes)
             bufs = {cid: _Growing(0) for cid in sel}
             for ch in chunks:
                 if ch.channels and not any(mask[c] for c in ch.channels):
                     continue
-                _chunk_messages(file, ch, reuse.read(f, ch.start, ch.length), mask, bufs, reuse)
+                reading.chunk(ch, mask, bufs)
                 if sum(b.used for b in bufs.values()) >= batch_bytes:
                     yield _results(sel, bufs)
                     bufs = {cid: _Growing(0) for cid in sel}
@@ -282,12 +395,196 @@ def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: 
     return parts()
 
 
+@dataclass
+class Scanned:
+    """What :func:`scan` read: schemas ``{id: (name, encoding, data)}``, channels ``{id: (topic,
+    schema id)}``, the messages ``(channel id, log time [ns], data)`` in file order, the messages
+    known lost in skipped chunks, and the warnings (:attr:`notes`, the last one where the reading
+    stopped)."""
+
+    schemas: dict[int, tuple[str, str, bytes]]
+    channels: dict[int, tuple[str, int]]
+    messages: list[tuple[int, int, bytes]]
+    lost: int
+    notes: list[str]
+
+
+#: a chunk record's compression field "zstd", 37 bytes after its start: where :func:`scan` resynchronizes
+_ZSTD_FIELD = b"\x04\x00\x00\x00zstd"
+
+
+def _records_in(buf: memoryview | bytes, out: Scanned, top: bool) -> int:
+    """Read the schema, channel and message records back to back in ``buf`` into ``out``; returns
+    where the records stop (``len(buf)`` when all are whole).  ``top``: the file's own records
+    (stop at the end of the data)."""
+    o, n = 0, len(buf)
+    while o + 9 <= n:
+        op, length = struct.unpack_from("<BQ", buf, o)
+        if length > n - o - 9:
+            return o
+        body = o + 9
+        if op == OP_MESSAGE:
+            if length < K.MESSAGE_HEAD - 9:
+                return o
+            cid, = struct.unpack_from("<H", buf, body)
+            t, = struct.unpack_from("<Q", buf, body + 6)
+            out.messages.append((cid, t, bytes(buf[body + K.MESSAGE_HEAD - 9 : body + length])))
+        elif op == OP_SCHEMA:
+            c = _Cursor(buf, body)
+            sid, name, enc = c.u16(), c.str(), c.str()
+            out.schemas[sid] = (name, enc, c.raw(c.u32()))
+        elif op == OP_CHANNEL:
+            c = _Cursor(buf, body)
+            cid, sid = c.u16(), c.u16()
+            out.channels[cid] = (c.str(), sid)
+        o = body + length
+    return o
+
+
+def scan(file: Path) -> Scanned:
+    """Every readable record of the MCAP ``file`` read from its start, without its summary (a
+    recording cut short, or whose summary cannot be trusted: :func:`damage`).  A chunk that is
+    corrupt (see :func:`read`) is skipped, its lost messages counted from the message indexes that
+    follow it, and said; a record whose declared length runs past the end of the file is either
+    the end (a file cut short: what it held is lost, said) or, when a whole chunk follows it,
+    damage skipped up to that chunk.  No allocation is larger than a chunk (at most
+    :data:`MAX_CHUNK_BYTES`): the file is mapped, not read."""
+    out = Scanned({}, {}, [], 0, [])
+    size = file.stat().st_size
+    reuse = _Buffers()
+    with file.open("rb") as f:
+        if size < len(MAGIC) or f.read(len(MAGIC)) != MAGIC:
+            raise ValueError(f"{file}: not an MCAP file (no magic)")
+        if size <= len(MAGIC) + 9:
+            out.notes.append(f"{file}: no record after the magic")
+            return out
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            buf = memoryview(mm)
+            try:
+                _scan(file, mm, buf, size, out, reuse)
+                _summary_channels(buf, size, out)
+            finally:
+                buf.release()
+    return out
+
+
+def _summary_channels(buf: memoryview, size: int, out: Scanned) -> None:
+    """Add to ``out`` the schemas and channels of the file's summary that the records did not give
+    (those of a skipped chunk), when the footer and the summary are whole."""
+    if size < 2 * len(MAGIC) + _FOOTER:
+        return
+    op, n, start, offsets, _ = struct.unpack_from("<BQQQI", buf, size - len(MAGIC) - _FOOTER)
+    end = offsets or size - len(MAGIC) - _FOOTER
+    if op != OP_FOOTER or n != 20 or bytes(buf[size - len(MAGIC):]) != MAGIC or not 0 < start <= end <= size:
+        return
+    found = Scanned({}, {}, [], 0, [])
+    try:
+        for op, c, _ in _records(buf[start:end]):
+            if op in (OP_SCHEMA, OP_CHANNEL):
+                _records_in(buf[start + c.o - 9 : start + c.o - 9 + 9 + struct.unpack_from("<Q", buf, start + c.o - 8)[0]],
+                            found, True)
+    except (ValueError, struct.error, UnicodeDecodeError):
+        return
+    for k, v in found.schemas.items():
+        out.schemas.setdefault(k, v)
+    for k, ch in found.channels.items():
+        out.channels.setdefault(k, ch)
+
+
+def _scan(file: Path, mm: mmap.mmap, buf: memoryview, size: int, out: Scanned, reuse: _Buffers) -> None:
+    o = len(MAGIC)
+    bad: list[str] | None = None  # the skipped chunk's warning, waiting for its message indexes
+    bad_n: list[int] = [0]
+
+    def close_bad() -> None:
+        nonlocal bad
+        if bad is not None:
+            out.lost += bad_n[0]
+            out.notes.append(bad[0].replace("{lost}", f"{bad_n[0]} message(s)" if bad_n[0] else "its messages (not indexed)"))
+            bad = None
+
+    while True:
+        if o + 9 > size:
+            close_bad()
+            if o < size:
+                out.notes.append(f"the file ends in an incomplete record at byte {o} of {size}; what was not in a complete chunk is lost")
+            else:
+                out.notes.append("read to the end")
+            return
+        op, length = struct.unpack_from("<BQ", buf, o)
+        if op == OP_MESSAGE_INDEX and bad is not None and length >= 6 and o + 15 <= size:
+            bad_n[0] += struct.unpack_from("<I", buf, o + 11)[0] // 16
+            o += 9 + length
+            continue
+        close_bad()
+        if op in (OP_DATA_END, OP_FOOTER):
+            out.notes.append("read to the end")
+            return
+        if length > size - o - 9:
+            nxt = mm.find(_ZSTD_FIELD, o + 9 + 37)
+            if nxt < 0 or buf[nxt - 37] != OP_CHUNK:
+                out.notes.append(f"the file ends in an incomplete record at byte {o} of {size} (one of {length} bytes "
+                                 f"declared); what was not in a complete chunk is lost")
+                return
+            out.notes.append(f"{file}: {nxt - 37 - o} bytes skipped at byte {o} (a record declaring {length} bytes, "
+                             f"past the end of the file: damage); reading on from the chunk at byte {nxt - 37}")
+            o = nxt - 37
+            continue
+        if op == OP_CHUNK:
+            why = _scan_chunk(buf[o : o + 9 + length], out, reuse)
+            if why is not None:
+                t0, t1 = struct.unpack_from("<QQ", buf, o + 9) if length >= 16 else (0, 0)
+                ch = _ChunkIndex(o, 9 + length, frozenset(), "", 0, 0, t0, t1)
+                bad = [_skipped(file, ch, why, "{lost}")]
+                bad_n[0] = 0
+        elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE):
+            try:
+                _records_in(buf[o : o + 9 + length], out, True)
+            except (ValueError, struct.error, UnicodeDecodeError) as e:
+                out.notes.append(f"{file}: the record at byte {o} is skipped ({e})")
+        o += 9 + length
+
+
+def _scan_chunk(rec: memoryview, out: Scanned, reuse: _Buffers) -> str | None:
+    """Read one chunk record into ``out`` (all or nothing); why it is skipped, or None."""
+    try:
+        if len(rec) > MAX_CHUNK_BYTES + 256:
+            raise ValueError(f"it declares {len(rec)} bytes, more than the {MAX_CHUNK_BYTES} a chunk may have")
+        c = _Cursor(rec, 9)
+        c.u64(), c.u64()
+        usize, crc = c.u64(), c.u32()
+        comp = c.str()
+        n = c.u64()
+        if usize > MAX_CHUNK_BYTES:
+            raise ValueError(f"it declares {usize} bytes of records, more than the {MAX_CHUNK_BYTES} a chunk may have (nothing allocated)")
+        if c.o + n > len(rec):
+            raise ValueError(f"its records run past it ({n} bytes declared)")
+        try:
+            data = reuse.decompress(rec[c.o : c.o + n], comp, usize)
+        except Exception as e:  # noqa: BLE001 - zstandard / lz4 raise their own errors
+            raise ValueError(f"cannot be decompressed ({comp}: {type(e).__name__}: {e})") from None
+        if len(data) != usize:
+            raise ValueError(f"decompresses to {len(data)} bytes, not {usize}")
+        if crc and zlib.crc32(data) != crc:
+            raise ValueError("CRC mismatch of its records")
+        part = Scanned({}, {}, [], 0, [])
+        if _records_in(data, part, False) != len(data):
+            raise ValueError("its records end in an incomplete record")
+    except (ValueError, struct.error, UnicodeDecodeError) as e:
+        return str(e)
+    out.schemas.update(part.schemas)
+    out.channels.update(part.channels)
+    out.messages.extend(part.messages)
+    return None
+
+
 class _Growing:
     """One channel's messages as they are read: a buffer grown by doubling (first sized for
     ``expected`` messages of the size of the first), the messages' offsets and log times."""
 
-    def __init__(self, expected: int) -> None:
+    def __init__(self, expected: int, limit: int = 0) -> None:
         self.expected = expected
+        self.limit = limit  # most bytes ``expected`` may ask for at once (a count in the file is not trusted)
         self.data = np.zeros(0, dtype=np.uint8)
         self.used = 0
         self.sizes: list[NDArray[np.int64]] = []
@@ -297,7 +594,7 @@ class _Growing:
         """Append the messages ``src[start[i]:start[i] + sizes[i]]`` (K,) with log times ``t`` (K,)."""
         need = self.used + int(sizes.sum())
         if need > self.data.size:
-            cap = max(need, 2 * self.data.size, self.expected * int(sizes[0]) if not self.sizes else 0)
+            cap = max(need, 2 * self.data.size, min(self.expected * int(sizes[0]), self.limit) if not self.sizes else 0)
             grown = np.empty(cap, dtype=np.uint8)
             grown[: self.used] = self.data[: self.used]
             self.data = grown

@@ -20,8 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import Writer
@@ -165,79 +163,98 @@ def write_streams_rosbags(
     return n
 
 
+#: custom_data key of a recovery (:func:`readable_bag`): the messages lost in the chunks it skipped
+RECOVERY_LOST_KEY = "dpos.recovery_lost_messages"
 #: suffix of the directory a bag without metadata is recovered into (:func:`readable_bag`)
 RECOVERED_SUFFIX = ".recovered"
 
 
-def readable_bag(path: Path) -> tuple[Path, str | None]:
+def readable_bag(path: Path, verify: bool = False) -> tuple[Path, str | None]:
     """The bag to read for ``path``, and what was done to make it readable (None: nothing).
 
     A recorder killed before it closed its bag (SIGKILL, power loss, a full disk) leaves a
     directory with an MCAP file but no ``metadata.yaml``, and an MCAP without its summary; rosbags
-    reads neither. Such a bag is recovered into the new directory ``<path>.recovered``: the MCAP is
-    read record by record (:mod:`mcap`'s stream reader) up to the first incomplete record, and every
-    complete message is written with its channel and log time into a rosbag2 there; the original is
-    not touched. A recovered directory that exists already is reused. Raises :class:`ValueError`
-    naming the path when there is nothing to recover (no .mcap, several, or no complete message).
+    reads neither. A bag whose MCAP has no footer (cut short, with or without its metadata.yaml),
+    or whose summary or chunk index points past the end of its data (:func:`dpos_ros.io._mcap.damage`),
+    is no better. Such a bag is recovered into the new directory ``<path>.recovered``: the MCAP is
+    read record by record from its start (:func:`dpos_ros.io._mcap.scan`: bad chunks skipped and
+    said, allocations bounded by the file), and every complete message is written with its channel
+    and log time into a rosbag2 there; the original is not touched. ``verify``: also decompress
+    every chunk and check its CRC (for readers that do not check them, e.g. rosbags' behind
+    dpos-play): a bad chunk makes a recovery too. A recovered directory that exists already is
+    reused. Raises :class:`ValueError` naming the path when there is nothing to recover (no .mcap,
+    several, or no complete message).
     """
     path = Path(path)
     if path.is_file() and path.suffix == ".mcap":
         path = path.parent
     if path.name in ("", ".."):  # "." or "..": its recovery <name>.recovered needs a real name
         path = path.resolve()
-    if not path.is_dir() or (path / "metadata.yaml").is_file():
+    if not path.is_dir():
         return path, None
-    files = sorted(path.glob("*.mcap"))
-    if len(files) != 1:
-        return path, None  # not ours to guess: the reader says what is missing
+    why: str | None = None
+    if (path / "metadata.yaml").is_file():
+        file = _single_mcap(path)
+        if file is None:
+            return path, None
+        why = _mcap.damage(file)
+        if why is None and verify:
+            bad: list[str] = []
+            _verify(file, bad)
+            why = f"{len(bad)} bad chunk(s)" if bad else None
+        if why is None:
+            return path, None
+        files = [file]
+    else:
+        files = sorted(path.glob("*.mcap"))
+        if len(files) != 1:
+            return path, None  # not ours to guess: the reader says what is missing
     out = path.with_name(path.name + RECOVERED_SUFFIX)
     if (out / "metadata.yaml").is_file():
-        return out, f"{path} has no metadata.yaml: reading its recovery {out} (made earlier)"
-    n, topics, stop = _recover_mcap(files[0], out)
-    return out, (f"{path} has no metadata.yaml (a recording that was not closed): recovered {n} messages on {topics} topics "
-                 f"from {files[0].name} into {out}; {stop}")
+        return out, f"{path} {'has no metadata.yaml' if why is None else f'is damaged ({why})'}: reading its recovery {out} (made earlier)"
+    n, topics, stop = _recover_mcap(files[0], out, custom_data(path))
+    what = "has no metadata.yaml (a recording that was not closed)" if why is None else f"is damaged: {files[0].name}: {why}"
+    return out, f"{path} {what}: recovered {n} messages on {topics} topics from {files[0].name} into {out}; {stop}"
 
 
-def _recover_mcap(src: Path, out: Path) -> tuple[int, int, str]:
+def _verify(file: Path, bad: list[str]) -> None:
+    """Append to ``bad`` a warning per chunk of ``file`` that cannot be read (every chunk decompressed, its CRC checked)."""
+    _mcap.read(file, None, bad)
+
+
+def _recover_mcap(src: Path, out: Path, custom: dict[str, str] | None = None) -> tuple[int, int, str]:
     """Copy the complete messages of the MCAP ``src`` into a new rosbag2 ``out`` (:func:`readable_bag`):
-    (messages, topics, where the reading stopped)."""
+    (messages, topics, what was lost and where the reading stopped)."""
     ts = typestore()
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    msgs: list[tuple[int, int, bytes]] = []
-    stop = "read to the end"
-    size = src.stat().st_size
-    with src.open("rb") as f:
-        try:
-            for rec in StreamReader(f, validate_crcs=False).records:
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Message) and rec.channel_id in channels:
-                    msgs.append((rec.channel_id, rec.log_time, bytes(rec.data)))
-        except Exception as e:  # noqa: BLE001 - the truncated tail: EndOfFile, a short chunk, a zstd frame cut off
-            stop = (f"the file ends in an incomplete record at or before byte {f.tell()} of {size} ({type(e).__name__}: {e}); "
-                    "what was not in a complete chunk is lost")
+    got = _mcap.scan(src)
+    stop = "; ".join(got.notes)
+    if got.lost:
+        stop = f"{got.lost} message(s) lost in skipped chunks; {stop}"
+    channels, schemas = got.channels, got.schemas
+    msgs = [m for m in got.messages if m[0] in channels and channels[m[0]][1] in schemas]
     if not msgs:
-        raise ValueError(f"{src}: no metadata.yaml and no complete message in the MCAP ({stop})")
-    for ch in channels.values():
-        sc = schemas.get(ch.schema_id)
-        if sc is not None and sc.name not in ts.fielddefs and sc.encoding == "ros2msg":
-            ts.register(get_types_from_msg(sc.data.decode(), sc.name))
+        raise ValueError(f"{src}: no complete message in the MCAP ({stop})")
+    for _, sid in channels.values():
+        name, enc, data = schemas.get(sid, ("", "", b""))
+        if name and name not in ts.fielddefs and enc == "ros2msg":
+            ts.register(get_types_from_msg(data.decode(), name))
     w = Writer(out, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
     w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    for key, value in (custom or {}).items():  # (the metadata.yaml of a damaged bag that has one)
+        w.set_custom_data(key, value)
     w.set_custom_data("dpos.recovered_from", str(src))
+    if got.lost:
+        w.set_custom_data(RECOVERY_LOST_KEY, str(got.lost))
     w.open()
     try:
-        conns = {cid: w.add_connection(ch.topic, schemas[ch.schema_id].name, typestore=ts)
-                 for cid, ch in channels.items() if ch.schema_id in schemas}
+        conns = {cid: w.add_connection(topic, schemas[sid][0], typestore=ts)
+                 for cid, (topic, sid) in channels.items() if sid in schemas}
         for cid, t, data in sorted(msgs, key=lambda m: m[1]):
             if cid in conns:
                 w.write(conns[cid], t, data)
     finally:
         w.close()
-    return len(msgs), len({channels[c].topic for c, _, _ in msgs}), stop
+    return len(msgs), len({channels[c][0] for c, _, _ in msgs}), stop
 
 
 def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = None,
@@ -245,8 +262,9 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
     """Every message of a bag as ``{topic: (msgtype, log times [ns], raw CDR)}`` (:class:`RawTopic`,
     the messages a :class:`Messages`), in log-time order (ties in file order).  A bag without
     metadata is recovered first (:func:`readable_bag`); what was recovered is appended to
-    ``notes`` (or warned about when it is None).  Raises :class:`ValueError` naming the file and
-    chunk for a corrupt chunk (rosbags' own errors for what the fast path leaves to it)."""
+    ``notes`` (or warned about when it is None), and so is each corrupt chunk, skipped (naming
+    the file, the chunk, its log time range and the messages lost); rosbags' own errors for what
+    the fast path leaves to it."""
     path, note = readable_bag(Path(path))
     if note is not None:
         if notes is None:
@@ -261,7 +279,14 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
         wanted = set(topics).__contains__
     file = _single_mcap(path)
     if file is not None:
-        fast = _mcap.read(file, wanted)
+        bad = notes if isinstance(notes, _mcap.Notes) else _mcap.Notes()
+        fast = _mcap.read(file, wanted, bad)  # a bad chunk is skipped and said (once in a Notes, and counted)
+        if bad is not notes and bad:
+            if notes is None:
+                for w in bad:
+                    warnings.warn(w, stacklevel=2)
+            else:
+                notes.extend(bad)
         if fast is not None:
             return fast
     return read_raw_rosbags(path, wanted)

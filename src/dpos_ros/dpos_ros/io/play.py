@@ -120,7 +120,7 @@ def open_bag(path: Path, log: Callable[[str], None] | None = None) -> Any:
     if problem is not None:
         raise BagError(problem)
     try:
-        path, note = readable_bag(path)
+        path, note = readable_bag(path, verify=True)  # (rosbags checks no CRC: a bad chunk is skipped in a recovery)
     except (ValueError, OSError) as exc:
         raise BagError(f"cannot read bag {_data_files(path)}: {exc}") from exc
     if note is not None and log is not None:

@@ -72,6 +72,9 @@ class RecordedSession:
     warnings: list[str] = field(default_factory=list)
     master_mechanized: bool = False
     master_error_model: dict[str, Any] = field(default_factory=dict)
+    #: data of the recording that could not be read (status.json ``data_lost``): ``messages`` in
+    #: skipped MCAP chunks, ``spill_bytes_skipped`` of corrupt spill records; empty when none
+    data_lost: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         # a session id names the products' directory: never a path (dpos_ros.io.outdir.safe_name)
@@ -268,15 +271,24 @@ def _read_whole(path: Path, include_late: bool = True, keep: Callable[[str], boo
         return sess
     if not (path / "metadata.yaml").is_file() and not any(path.glob("*.mcap")):
         raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml) nor a dpos spill (no spill.json)")
-    notes: list[str] = []
+    notes = _mcap.Notes()
     try:
         raw = bag.read_raw(path, keep, notes=notes)  # a recording without metadata is recovered (noted)
         meta_path, _ = bag.readable_bag(path)
     except Exception as e:  # rosbags raises its own errors for truncated or broken files
         raise SessionError(f"{path}: cannot read the recording: {e}") from None
-    sess = session_from_raw(raw, bag.custom_data(meta_path), path)
+    custom = bag.custom_data(meta_path)
+    sess = session_from_raw(raw, custom, path)
     sess.warnings[:0] = notes
+    _count_lost(sess, notes.lost_messages + int(custom.get(bag.RECOVERY_LOST_KEY, "0") or 0))
     return sess
+
+
+def _count_lost(sess: RecordedSession, messages: int = 0, spill_bytes: int = 0) -> None:
+    """Add what could not be read to ``sess.data_lost`` (only what is not zero)."""
+    for key, n in (("messages", messages), ("spill_bytes_skipped", spill_bytes)):
+        if n:
+            sess.data_lost[key] = sess.data_lost.get(key, 0) + int(n)
 
 
 def session_from_streams(streams, custom: dict[str, str], name: str = "memory") -> RecordedSession:
@@ -399,20 +411,23 @@ def _read_session(path: Path, include_late: bool = True, keep: Callable[[str], b
     if not (path / "metadata.yaml").is_file():
         return _read_whole(path, include_late, keep)
     file = bag._single_mcap(path)
+    if file is not None and _mcap.damage(file) is not None:
+        return _read_whole(path, include_late, keep)  # recovered from its start first (bag.readable_bag)
     wanted = (lambda t: t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)) if keep is None else \
         (lambda t: t == T.MASTER_NAV or (t not in (T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) and keep(t)))  # noqa: E731
-    parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes)
+    lost = _mcap.Notes()  # the chunks skipped (corrupt), said once each and counted
+    parts = None if file is None else _mcap.read_batches(file, wanted, batch_bytes, lost)
     if parts is None:
         return _read_whole(path, include_late, keep)
     custom = bag.custom_data(path)
     try:
-        small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS])  # (only the chunks that hold them are read)
-    except (ValueError, OSError) as e:  # a chunk that cannot be decompressed or parsed, a file cut short
+        small = bag.read_raw(path, [T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS], notes=lost)  # (only the chunks that hold them)
+    except (ValueError, OSError) as e:  # a file that cannot be read at all
         raise SessionError(f"{path}: cannot read the recording: {e}") from None
     if T.DATUM not in small or not small[T.DATUM][2]:
         raise SessionError(f"{path}: no /dpos/datum: the enu frame of /master/nav is undefined")
     datum = _datum(small[T.DATUM][2][0])
-    warnings: list[str] = []
+    warnings: list[str] = lost
     counts = message_counts(path)
     acc: dict[str, _Rows] = {}  # topic -> its stamps and numbers so far
     failed: set[str] = set()
@@ -429,7 +444,9 @@ def _read_session(path: Path, include_late: bool = True, keep: Callable[[str], b
     cols: dict[str, tuple[NDArray[np.int64], FloatArray | list[FloatArray]]] = {}
     for topic in sorted(acc):
         cols[topic] = _clean_groups(topic, *acc.pop(topic).arrays(), warnings)
-    return _session_from_cols(path, custom, datum, cols, small, warnings)
+    sess = _session_from_cols(path, custom, datum, cols, small, warnings)
+    _count_lost(sess, lost.lost_messages)
+    return sess
 
 
 
@@ -528,8 +545,9 @@ def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_
     custom.setdefault("dpos.session_id", sid)
     small_topics = (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS)
     wanted = [t for t in dict.fromkeys([*topics, *late]) if keep is None or t in small_topics or keep(t)]
-    cut: dict[tuple[int, str], str] = {}  # (0 the spill | 1 late/, topic) -> its cut-short warning
+    cut: dict[tuple[int, str, int], str] = {}  # (0 the spill | 1 late/, topic, 0 skipped | 1 cut short) -> its warning
     n_late: dict[str, int] = {}
+    skipped_bytes: dict[tuple[int, str], int] = {}
 
     def blocks(topic: str):
         """(stamps, messages) of ``topic``'s log then its late log, a block at a time."""
@@ -538,8 +556,11 @@ def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_
                 continue
             reader = S.LogBlocks(src[topic][1], batch_bytes)
             yield from reader
+            if reader.skipped:  # (a corrupt record size: the reading resynchronized)
+                skipped_bytes[(which, topic)] = sum(n for _, n in reader.skipped)
+                cut[(which, topic, 0)] = prefix + S.skipped_warning(topic, src[topic][1], reader.skipped)
             if reader.cut_short:
-                cut[(which, topic)] = prefix + S.cut_short_warning(topic, src[topic][1], reader.cut_short)
+                cut[(which, topic, 1)] = prefix + S.cut_short_warning(topic, src[topic][1], reader.cut_short)
             if which == 1 and reader.count:
                 n_late[topic] = reader.count
 
@@ -600,10 +621,11 @@ def _read_spill_streaming(path: Path, keep: Callable[[str], bool] | None, batch_
             cols[topic] = _clean(topic, t_all, v_all, warnings)
     except OSError as e:
         raise SessionError(f"{path}: cannot read the spill: {e}") from None
-    notes = [cut[k] for k in sorted(cut, key=lambda k: (k[0], list((topics, late)[k[0]]).index(k[1])))]
+    notes = [cut[k] for k in sorted(cut, key=lambda k: (k[0], list((topics, late)[k[0]]).index(k[1]), k[2]))]
     notes += [S.late_note(t, n_late[t]) for t in late if t in n_late]
     sess = _session_from_cols(path, custom, datum, cols, small, warnings)
     sess.warnings[:0] = notes
+    _count_lost(sess, spill_bytes=sum(skipped_bytes.values()))
     return sess
 
 

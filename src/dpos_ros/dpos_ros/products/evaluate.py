@@ -201,6 +201,8 @@ def _spill_blocks(path: Path, topics: list[str], block_bytes: int, warnings: lis
         _, i, topic = heapq.heappop(heap)
         block = next(its[topic], None)
         if block is None:
+            if readers[topic].skipped:
+                warnings.append(S.skipped_warning(topic, readers[topic].file, readers[topic].skipped))
             if readers[topic].cut_short:
                 warnings.append(S.cut_short_warning(topic, readers[topic].file, readers[topic].cut_short))
             continue

@@ -153,6 +153,8 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
         doc["installation_states"] = inst
     if sess.master_error_model:
         doc["master_error_model"] = sess.master_error_model
+    if sess.data_lost:  # what the recording held that could not be read (skipped chunks, corrupt spill records)
+        doc["data_lost"] = dict(sess.data_lost)
     return doc
 
 
