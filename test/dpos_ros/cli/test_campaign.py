@@ -149,7 +149,7 @@ def test_engine_retries_and_reports(tmp_path: Path) -> None:
 
     done: list[int] = []
     with campaign.dask_engine(None, 2, 20.0) as engine:
-        assert engine.info["workers"] == 2 and engine.info["scheduler"].startswith("tcp://127.0.0.1:")
+        assert engine.info["workers"] == 2 and engine.info["scheduler"].startswith("tls://127.0.0.1:")
         res = campaign.run_tasks(engine, flaky, [tmp_path / "m"], ["flaky"], 1, lambda i, r, e: done.append(i))
         assert res[0] == ("second attempt", None)
         res = campaign.run_tasks(engine, flaky, [tmp_path / "m2"], ["flaky0"], 0, lambda i, r, e: done.append(i))
