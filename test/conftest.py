@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from xdist_groups import group_module_fixture_tests
 
 
 def _pick_domain_id() -> int:
@@ -101,19 +102,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if _NODES_DIR in item.path.parents:
             item.add_marker(pytest.mark.ros)
-    # make test runs ``-n 2 --dist loadgroup``: a module whose tests share a module-scoped fixture (a
-    # simulated flight, a dpos-process run) goes to one worker, so that the fixture is built once, not
-    # once per worker; the other tests are dealt one by one
-    for item in items:
-        info = getattr(item, "_fixtureinfo", None)
-        defs = info.name2fixturedefs.values() if info is not None else ()
-        if any(d[-1].scope in ("module", "package", "class") for d in defs if d):
-            item.add_marker(pytest.mark.xdist_group(_module_group(item)))
-
-
-def _module_group(item: pytest.Item) -> str:
-    """The xdist group of a module's tests: its path under test/."""
-    return item.path.relative_to(Path(__file__).parent).as_posix()
+    # make test runs ``-n 2 --dist loadgroup``: a module's tests that share a module fixture on one worker
+    group_module_fixture_tests(items, Path(__file__).parent)
 
 
 @pytest.fixture(scope="session")
