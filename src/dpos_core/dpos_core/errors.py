@@ -13,6 +13,7 @@ Hierarchy (every exception class of the workspace is defined here, test/dpos_cor
     +-- SessionError(DposError, ValueError)           a recording cannot be made into a session
     +-- LogFormatError(DposError, ValueError)         a flight log cannot be read at all
     +-- BagError(DposError)                           a bag cannot be read
+    +-- BagDamaged(DposError, ValueError)             a bag's layout cannot be trusted: read it from its start
     +-- OutputError(DposError)                        an output location cannot be used
     +-- ProductsExistError(DposError, FileExistsError)  products of an earlier run are in the way
     +-- GraphError(DposError, RuntimeError)           a node graph did not start or become ready
@@ -50,7 +51,7 @@ from typing import Any
 
 __all__ = ["DposError", "RejectedInput", "NumericalFailure", "AlignmentDiverged", "NumericalRepairWarning", "ConfigError", "ParameterError",
            "InputError", "SarInputError", "SessionError", "LogFormatError", "ClockNotObservable",
-           "MountingNotObservable", "BagError", "OutputError", "ProductsExistError",
+           "MountingNotObservable", "BagError", "BagDamaged", "OutputError", "ProductsExistError",
            "GraphError", "ImportFailure", "CampaignError", "TaskFailed"]
 
 
@@ -173,6 +174,12 @@ class MountingNotObservable(DposError, ValueError):
 
 class BagError(DposError):
     """A bag that cannot be read (the message names the path)."""
+
+
+class BagDamaged(DposError, ValueError):
+    """An MCAP file whose layout cannot be trusted (no footer, a summary or chunk index pointing
+    past the end of the file): read it record by record from its start instead
+    (``dpos_ros.io._mcap.scan``)."""
 
 
 # ----------------------------------------------------------------------------- outputs

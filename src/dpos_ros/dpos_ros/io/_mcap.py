@@ -44,6 +44,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 
+from dpos_core.errors import BagDamaged as Damaged  # (the file's layout cannot be trusted: read it with scan)
 from dpos_ros.io import _bag_kernel as K
 from dpos_ros.io.messages import Messages, RawTopic
 
@@ -110,11 +111,6 @@ class Notes(list[str]):
         super().__init__()
         self.lost_messages = 0
         self.seen: set[tuple[str, int]] = set()  # (file, chunk start) said
-
-
-class Damaged(ValueError):
-    """The file's layout cannot be trusted (no footer, a summary or chunk index pointing past the
-    end of the file): read it record by record from the start instead (:func:`scan`)."""
 
 
 @dataclass(frozen=True)
