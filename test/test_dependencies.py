@@ -44,7 +44,6 @@ LIBRARIES: dict[str, tuple[str, str]] = {
     "tqdm": ("python3-tqdm", "tqdm"),
     # not in rosdistro's python.yaml: pip keys, tools/rosdep.yaml
     "rosbags": ("python3-rosbags-pip", "rosbags"),
-    "mcap": ("python3-mcap-pip", "mcap"),
     "zstandard": ("python3-zstandard-pip", "zstandard"),
     "lz4": ("python3-lz4-pip", "lz4"),
     "distributed": ("python3-distributed-pip", "distributed"),
@@ -60,7 +59,7 @@ OPTIONAL_FALLBACK = {
     ("dpos_ros", "rosidl_runtime_py"): "contract.topics.message_class imports the message module itself without it",
 }
 #: the dev tools: in requirements-dev.in, not in the runtime locks' inputs
-DEV_TOOLS = {"pytest", "pytest-timeout", "pytest-xdist", "ruff", "mypy", "types-pyyaml"}
+DEV_TOOLS = {"pytest", "pytest-timeout", "pytest-xdist", "ruff", "mypy", "types-pyyaml", "mcap"}  # (mcap: the tests' reference MCAP reader)
 #: the optional extras' distributions
 EXTRAS = {"campaign": {"dask", "distributed", "cryptography"}, "plot": {"matplotlib"}}
 

@@ -15,7 +15,7 @@ setup(
     ],
     # The PyPI names of the libraries the sources import (the ROS packages and the workspace's own
     # come from package.xml: rosdep / the ros-jazzy wheels); test/test_dependencies.py checks both.
-    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'matplotlib', 'ruamel.yaml', 'rosbags', 'mcap', 'zstandard', 'lz4', 'tqdm'],
+    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'matplotlib', 'ruamel.yaml', 'rosbags', 'zstandard', 'lz4', 'tqdm'],
     # dpos-campaign's Dask engine: pip install 'dpos_ros[campaign]' (requirements-dev.txt has it);
     # cryptography: the local cluster's temporary TLS certificate (Security.temporary())
     extras_require={'campaign': ['dask', 'distributed', 'cryptography']},

@@ -50,7 +50,7 @@ def test_folder_without_bag_files(tmp_path: Path) -> None:
 
 def test_garbage_mcap_in_the_working_directory(tmp_path: Path) -> None:
     (tmp_path / "junk.mcap").write_bytes(b"garbage\n")
-    _one_error_line(_play("junk.mcap", cwd=tmp_path), "junk.mcap", "no complete message")
+    _one_error_line(_play("junk.mcap", cwd=tmp_path), "junk.mcap", "not an MCAP file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["junk.mcap"]  # nothing written beside it
 
 
