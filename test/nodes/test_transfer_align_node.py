@@ -19,7 +19,7 @@ from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
-from dpos_ros.contract.qos import NAV_QOS
+from dpos_ros.contract.qos import NAV_QOS, keep_all
 from dpos_ros.io import spill
 from dpos_ros.runtime.graph import Graph
 
@@ -65,7 +65,7 @@ def test_live_graph_session_products(tmp_path: Path) -> None:
     got: list[bytes] = []
     try:
         node = rclpy.create_node("odom_counter", context=ctx)
-        node.create_subscription(Odometry, "/antenna/ant_r/odom", lambda m: got.append(bytes(m)), NAV_QOS, raw=True)
+        node.create_subscription(Odometry, "/antenna/ant_r/odom", lambda m: got.append(bytes(m)), keep_all(NAV_QOS), raw=True)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         with Graph.from_yaml(_graph_yaml(tmp_path, domain, out), log=lambda n, l: None) as g:
