@@ -74,12 +74,13 @@ class Graph:
         spin_until(executor, lambda: all(p.get_subscription_count() >= 1 for p in self.pubs.values())
                    and self.node.nav_pub.get_subscription_count() >= 1, TIMEOUT_S, "the driver -> relay -> sink matches")
 
-    def play(self) -> None:
-        """The master device's IMU, fixes and velocities of the session, in stamp order, in chunks."""
+    def play(self, after_ns: int = -1, upto_ns: int = 2**63 - 1) -> None:
+        """The master device's IMU, fixes and velocities of the session stamped in ``(after_ns, upto_ns]``,
+        in stamp order, in chunks."""
         out = []
         for rank, (drv, topic) in enumerate((("/drv/imu", "/master/imu"), ("/drv/fix", "/gnss/fix"), ("/drv/vel", "/gnss/vel"))):
             s = self.streams[topic]
-            out += [(int(t), rank, drv, s.message(i)) for i, t in enumerate(s.t_ns)]
+            out += [(int(t), rank, drv, s.message(i)) for i, t in enumerate(s.t_ns) if after_ns < t <= upto_ns]
         out.sort(key=lambda m: (m[0], m[1]))
         received = lambda: sum(st.received for st in self.node.relay.stats.values())  # noqa: E731
         for lo in range(0, len(out), CHUNK):
@@ -213,6 +214,40 @@ def test_a_restarted_pos_master_takes_the_datum_of_the_running_ifa_node(ros_cont
         assert got[2] == pytest.approx(session[2], abs=1e-4)
         st = g.wait_status(lambda s: s.get("started") == "True", "the start")
         assert st["message"] == "UNALIGNED"  # the latched ALIGNED is not this node's: its covariance is initial_sigma's
+    finally:
+        for n in [foreign] + g.nodes[::-1]:
+            ros_executor.remove_node(n)
+            n.destroy_node()
+
+
+def test_fixes_that_wait_for_the_running_ifa_nodes_datum_still_start_the_mechanization(ros_context, ros_executor) -> None:
+    """A restart where the ifa_node's /ifa/status comes only after three fixes (a busy machine): the
+    fixes wait for its datum (sources.DATUM_WAIT_FIXES) and are not consumed meanwhile; once it has
+    come, /master/nav starts at the first of them, in the running ifa_node's datum."""
+    foreign = Node("running_ifa", context=ros_context)
+    foreign.create_publisher(Odometry, "/ifa/correction", NAV_QOS)  # an ifa_node is in the graph, its status not seen yet
+    status_pub = foreign.create_publisher(DiagnosticArray, "/ifa/status", STATUS_QOS)
+    ros_executor.add_node(foreign)
+    g = Graph(ros_context, ros_executor)
+    try:
+        gnss_t_ns = g.streams["/gnss/fix"].t_ns
+        assert len(gnss_t_ns) >= 4
+        session = g.session.gnss().llh[0] + np.array([0.01 * DEG, -0.02 * DEG, -3.0])
+        g.play(upto_ns=int(gnss_t_ns[2]))  # three fixes (and their IMU) before the status
+        relay_status: list[DiagnosticArray] = []  # the relay's, every 1 s: the node's timers (its start tick) ran meanwhile
+        g.sink.create_subscription(DiagnosticArray, "/pos_master_node/status", relay_status.append, STATUS_QOS)
+        spin_until(ros_executor, lambda: len(relay_status) >= 3, TIMEOUT_S, "three relay statuses")
+        assert not g.datum and not g.node.navigator.started  # waiting for the datum, not started without one
+        status_pub.publish(cv.diagnostic_array(Time(), "ifa_node", "master_imu", DiagnosticStatus.OK, "ALIGNED", {
+            "aligned": "true", "heading_sigma_deg": "0.02", "fixes_done_ns": str(2**62),
+            "datum_deg": f"{session[0] / DEG:.10f} {session[1] / DEG:.10f} {session[2]:.4f}"}))
+        spin_until(ros_executor, lambda: g.node.navigator.ifa_status != "none", TIMEOUT_S, "the ifa_node's status received")
+        g.play(after_ns=int(gnss_t_ns[2]))
+        g.wait_status(lambda s: s.get("started") == "True", "the start")
+        spin_until(ros_executor, lambda: bool(g.datum) and bool(g.raw["/master/nav"]), TIMEOUT_S, "/dpos/datum and /master/nav")
+        got = cv.datum_from_msg(g.datum[-1])
+        np.testing.assert_allclose(got[:2], session[:2], rtol=0, atol=1e-11)
+        assert g.nav(got).t_ns[0] == int(gnss_t_ns[0])  # started at the first fix, which waited for the datum
     finally:
         for n in [foreign] + g.nodes[::-1]:
             ros_executor.remove_node(n)

@@ -412,8 +412,8 @@ class Mechanizer(ABC):
             return False
         t0_ns, initial, text = start
         datum = inp.datum_llh
-        if datum is None:  # not reached: the given start waits for it, a fix sets it before it is kept
-            return False
+        if datum is None:  # not reached: both live starts wait for the datum
+            raise RuntimeError(f"alignment {self.alignment}: a live start without a datum")
         before = len(inp.imu)
         inp.imu = deque(s for s in inp.imu if s[0] > t0_ns)
         self.imu_before_start += before - len(inp.imu)
@@ -754,8 +754,12 @@ class IfaNavigator(Mechanizer):
                 f"{', else the initial_state heading' if cfg.initial_state else ''}), flagged UNALIGNED until {T.IFA_STATUS} ALIGNED")
 
     def live_initial(self, inp: DriverInput) -> tuple[int, NavState, str] | None:
-        """The course start (:meth:`course_start`); while waiting, at most ``ring_s`` of IMU samples are kept."""
-        start = self.course_start(inp)
+        """The course start (:meth:`course_start`); while waiting, at most ``ring_s`` of IMU samples are kept.
+
+        No start is taken while the datum is unknown (the source waits up to ``DATUM_WAIT_FIXES`` fixes
+        for a running ifa_node's ``datum_deg``): the waiting fixes stay queued, so the oldest of them
+        is still the start once the datum comes."""
+        start = None if inp.datum_llh is None else self.course_start(inp)
         if start is None and inp.imu:  # keep at most ring_s of samples while waiting
             t_min = inp.imu[-1][0] - int(self.config.ring_s * 1e9)
             while inp.imu[0][0] < t_min:
