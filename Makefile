@@ -12,6 +12,9 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
+# --no-compile: pip does not byte-compile every installed module (half of a fresh install's time);
+# Python compiles, and caches, only the modules that are imported, on their first import.
+PIP_INSTALL := $(VPY) -m pip install --no-compile
 # The venv is (re)installed when this stamp is older than the lock or any package's metadata.
 STAMP := $(VENV)/.dpos-installed
 # The dev tools (pytest, ruff, mypy, ...) and the campaign extra (dask, distributed), on top.
@@ -58,7 +61,7 @@ bench: $(BENCH_STAMP)
 	$(VPY) bench/run_bench.py
 
 $(BENCH_STAMP): $(STAMP) requirements-bench.txt
-	$(VPY) -m pip install -qq -c requirements.txt -r requirements-bench.txt
+	$(PIP_INSTALL) -qq -c requirements.txt -r requirements-bench.txt
 	@touch $@
 
 venv: $(DEV_STAMP)
@@ -68,13 +71,13 @@ venv: $(DEV_STAMP)
 $(STAMP): requirements.txt $(PACKAGE_META)
 	@test -x $(VPY) || { echo "creating $(VENV)"; $(PYTHON) -m venv $(VENV); }
 	@echo "installing requirements.txt into $(VENV) (about a minute on a fresh venv)"
-	$(VPY) -m pip install -qq -r requirements.txt
-	$(VPY) -m pip install -q --no-deps --no-build-isolation --use-pep517 $(foreach p,$(PACKAGES),-e src/$(p))
+	$(PIP_INSTALL) -qq -r requirements.txt
+	$(PIP_INSTALL) -q --no-deps --no-build-isolation --use-pep517 $(foreach p,$(PACKAGES),-e src/$(p))
 	@touch $@
 
 $(DEV_STAMP): $(STAMP) requirements-dev.txt
 	@echo "installing requirements-dev.txt into $(VENV) (test and lint tools, dpos_ros[campaign])"
-	$(VPY) -m pip install -qq -c requirements.txt -r requirements-dev.txt
+	$(PIP_INSTALL) -qq -c requirements.txt -r requirements-dev.txt
 	@touch $@
 
 clean:

@@ -44,10 +44,10 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import chi2
 
 from dpos_core import earth
 from dpos_core.attitude import attitude_error, quat_to_dcm
+from dpos_core.chi2 import chi2_quantile
 from dpos_core.units import DEG, FloatArray
 
 __all__ = ["Refusal", "GateCounts", "PublisherWatch", "InterleaveWatch", "check_stamp", "check_correction", "correction_difference",
@@ -156,7 +156,7 @@ def check_correction(diff: ArrayLike, own_cov: tuple[ArrayLike, ArrayLike, Array
     if not np.all(np.isfinite(S)):
         return Refusal("covariance", "the sum of covariances is not finite")
     d2 = float(d @ np.linalg.solve(S, d))
-    limit = float(chi2.ppf(1.0 - p_false, 9))
+    limit = chi2_quantile(1.0 - p_false, 9)
     if d2 <= limit:
         return None
     return Refusal("size", f"it moves the state by {np.linalg.norm(d[:3]):.4g} m, {np.linalg.norm(d[3:6]):.4g} m/s, "

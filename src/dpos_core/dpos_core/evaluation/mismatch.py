@@ -29,7 +29,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.signal import lfilter
 
 from .. import earth
 from ..attitude import dcm_to_quat, quat_to_dcm
@@ -42,6 +41,7 @@ from ..ifa import reference as ifa_reference
 from ..ifa.mechanization import body_rate_eb
 from ..ifa.smoother import smooth
 from ..series import ImuSeries, NavSeries
+from ..sim.ar1 import ar1
 from ..sim.flexure import FlexureRealization
 from ..sim.scenario import Scenario
 from ..sim.session import SimulatedSession
@@ -90,8 +90,7 @@ def _gauss_markov(sigma: FloatArray, tau_s: float, dt_s: float, n: int, rng: np.
     a = float(np.exp(-dt_s / tau_s))
     w = rng.normal(0.0, 1.0, (n, 3)) * sigma * np.sqrt(1.0 - a * a)
     x0 = rng.normal(0.0, 1.0, 3) * sigma
-    out, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * x0)[None, :])
-    return np.asarray(out)
+    return ar1(w, a, x0)
 
 
 @dataclass(frozen=True)

@@ -61,14 +61,13 @@ covariance ``C_v``, guarded the same way.  Jacobians are central differences of 
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_solve, solve_triangular
-from scipy.special import gammaincinv
 
+from dpos_core.chi2 import chi2_quantile
 from dpos_core.errors import NumericalFailure
 from dpos_core.units import FloatArray
 
@@ -259,12 +258,6 @@ class InnovationWindow:
         return w
 
 
-@lru_cache(maxsize=64)
-def _chi2_ppf(q: float, dof: int) -> float:
-    """Chi-square quantile (cached: the change test asks for the same few at every epoch)."""
-    # scipy.stats.chi2.ppf's value from scipy.special: importing scipy.stats costs ~1 s of CPU in
-    # every transfer-alignment worker (this module is on their import path)
-    return float(2.0 * gammaincinv(dof / 2.0, q))
 
 
 class ChangePointWindow:
@@ -366,8 +359,8 @@ class ChangePointWindow:
         Rd = np.diag(np.asarray(R, dtype=float))
         n, m = len(self._z2), self.n_min
         idx = self._group_index(Rd.size)
-        hi = {g.size: _chi2_ppf(self.quantile, m * g.size) for g in idx}
-        lo = {g.size: _chi2_ppf(1.0 - self.quantile, m * g.size) for g in idx}
+        hi = {g.size: chi2_quantile(self.quantile, m * g.size) for g in idx}
+        lo = {g.size: chi2_quantile(1.0 - self.quantile, m * g.size) for g in idx}
         for k in range(max(self._tested, 0) + 1, n + 1):  # epoch k-1 is the newest of the test
             for g in idx:
                 a = int(self._start[g[0]])

@@ -43,11 +43,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
 from dpos_core.units import DEG, FloatArray
 
 from ..attitude import dcm_to_quat, quat_to_dcm
+from ..chi2 import chi2_quantile
 from ..errors import NumericalFailure, RejectedInput
 from ..filters.dd2 import (
     ChangePointWindow,
@@ -180,7 +180,7 @@ class _Engine:
         self.fine = False  #: coarse (False) / fine (True) phase
         self.fine_t_s: float | None = None
         self.records: list[EpochRecord] = []
-        self._nis_limit = float(chi2.ppf(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window)
+        self._nis_limit = chi2_quantile(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window
         #: the smoother's record of every filter step (:class:`SmootherStep`), None unless ``record_smoother``
         self.smoother_steps: list[SmootherStep] | None = None
         self.initial = initial
@@ -435,7 +435,7 @@ class InFlightAligner:
         self.restarts = 0
         self._diverging = 0  # consecutive epochs beyond the divergence limit
         self._diverged_now = False
-        self._limit = float(chi2.ppf(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window) * cfg.diverged_nis_factor
+        self._limit = chi2_quantile(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window * cfg.diverged_nis_factor
         self.records: list[EpochRecord] = []
         #: (t_s, covariance (9, 9) of the navigation errors: position E, N, U [m], velocity E, N, U [m/s],
         #: attitude about E, N, U [rad]) after every filter epoch (updates and time updates alone), oldest first

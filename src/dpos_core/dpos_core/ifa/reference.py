@@ -10,12 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from dpos_core.units import DEG, FloatArray
 
 from .. import earth
 from ..attitude import attitude_error, quat_to_dcm
+from ..chi2 import chi2_ppf, chi2_quantile
 from ..config.sensors import ImuErrorModel
 from ..frames import hpr_from_C_nb
 from ..series import GnssSeries, ImuSeries
@@ -106,14 +106,14 @@ class Consistency:
     def summary(self) -> dict[str, float]:
         """Mean NEES per block (3 when consistent), the fraction inside the two-sided 95 %
         chi-square(3) bounds per epoch (0.95 when consistent), the same for the NIS."""
-        lo, hi = chi2.ppf([0.025, 0.975], 3)
+        lo, hi = chi2_ppf([0.025, 0.975], 3)
         out: dict[str, float] = {}
         for k in ("pos", "vel", "att"):
             v = getattr(self, f"nees_{k}")
             out[f"nees_{k}_mean"] = float(np.mean(v))
             out[f"nees_{k}_in95"] = float(np.mean((v >= lo) & (v <= hi)))
-            out[f"nees_{k}_below99"] = float(np.mean(v <= chi2.ppf(0.99, 3)))
-        nlo, nhi = chi2.ppf([0.025, 0.975], self.nis_dof)
+            out[f"nees_{k}_below99"] = float(np.mean(v <= chi2_quantile(0.99, 3)))
+        nlo, nhi = chi2_ppf([0.025, 0.975], self.nis_dof)
         out["nis_mean"] = float(np.mean(self.nis))
         out["nis_in95"] = float(np.mean((self.nis >= nlo) & (self.nis <= nhi)))
         out["epochs"] = float(self.t_s.size)

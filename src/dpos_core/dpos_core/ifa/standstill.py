@@ -37,10 +37,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from dpos_core.units import FloatArray
 
+from ..chi2 import chi2_quantile
 from ..config.sensors import ImuErrorModel
 from ..series import GnssSeries, ImuSeries
 from .mechanization import level_from_specific_force
@@ -84,7 +84,7 @@ def detect_standstill(omega_radps: FloatArray, f_mps2: FloatArray, imu: ImuError
     s_g, s_a = imu.white_sigma(dt_s)
     T = standstill_statistic(w, f, s_g, s_a)
     dof = 6 * (w.shape[0] - 1)
-    thr = noise_factor**2 * float(chi2.ppf(quantile, dof)) / dof
+    thr = noise_factor**2 * chi2_quantile(quantile, dof) / dof
     g_err = abs(float(np.linalg.norm(f.mean(axis=0))) - G0_MPS2)
     speed = float(np.hypot(gnss_vel_n_mps[0], gnss_vel_n_mps[1])) if gnss_vel_n_mps is not None else float("nan")
     rate_max = 3.0 * imu.gyro_bias_deg_h * np.pi / 180.0 / 3600.0 + 7.2921e-5 + 5.0 * s_g / np.sqrt(w.shape[0])

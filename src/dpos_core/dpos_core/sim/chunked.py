@@ -23,7 +23,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
@@ -33,6 +32,7 @@ from ..config.sensors import ImuErrorModel
 from ..frames import C_nb_from_hpr, hpr_from_C_nb, hpr_sigma_to_rotation_cov
 from ..kinematics import increments_from_motion
 from ..series import GnssSeries, ImuSeries, NavSeries
+from .ar1 import ar1
 from .sensors import draw_axes_errors, draw_biases
 from .session import SimulatedSession
 
@@ -51,9 +51,9 @@ class _GaussMarkov:
         if n == 0:
             return w
         # x_i = a x_{i-1} + w_i from the state carried over: the same recursion whatever the windows
-        out, _ = lfilter([1.0], [1.0, -self.a], w, axis=0, zi=(self.a * self.x)[None, :])
-        self.x = np.asarray(out[-1])
-        return np.asarray(out)
+        out = ar1(w, self.a, self.x)
+        self.x = out[-1].copy()
+        return out
 
 
 class _ImuStream:

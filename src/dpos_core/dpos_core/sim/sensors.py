@@ -15,10 +15,10 @@ produce the same samples as before these terms existed.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..config.sensors import ImuErrorModel
 from ..units import DEG, DEG_PER_H, UG_MPS2, FloatArray
+from .ar1 import ar1
 
 _OFFDIAG = ~np.eye(3, dtype=bool)
 
@@ -50,8 +50,7 @@ def _gauss_markov(sigma: float, tau_s: float, dt: FloatArray, rng: np.random.Gen
     a = float(np.exp(-float(np.mean(dt)) / tau_s))
     w = rng.normal(0.0, sigma * np.sqrt(1.0 - a * a), (n, 3))
     x0 = rng.normal(0.0, sigma, 3)
-    out, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * x0)[None, :])
-    return np.asarray(out)
+    return ar1(w, a, x0)
 
 
 def measure(

@@ -10,12 +10,12 @@ baseline (master-to-antenna distance) [m]; then means over the segments and over
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import gammaincinv
 
 from dpos_core.units import FloatArray
 
 from .. import earth
 from ..attitude import attitude_error
+from ..chi2 import chi2_quantile
 from ..frames import hpr_error, hpr_from_C_nb
 from ..series import NavSeries
 
@@ -133,8 +133,7 @@ def nees_bounds(runs: int, p: float = 0.95, dof: int = 1) -> tuple[float, float]
     They bound the pooled ANEES of :func:`consistency` over the runs too (``dof`` 1), whatever the
     errors' correlation in time within a run (:func:`anees_in_bounds`)."""
     m = runs * dof
-    # the chi-square quantile as scipy.stats.chi2.ppf computes it (2 P^-1(m/2, q)), without importing scipy.stats (~1 s)
-    return float(2.0 * gammaincinv(m / 2, (1 - p) / 2) / runs), float(2.0 * gammaincinv(m / 2, (1 + p) / 2) / runs)
+    return chi2_quantile((1 - p) / 2, m) / runs, chi2_quantile((1 + p) / 2, m) / runs
 
 
 def anees_in_bounds(nees: dict[str, float], runs: int, p: float = 0.95) -> dict[str, bool]:

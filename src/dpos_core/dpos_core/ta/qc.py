@@ -49,10 +49,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import gammaincinv
 
 from dpos_core.units import DEG, FloatArray
 
+from ..chi2 import chi2_ppf
 from ..filters.store import PerEpoch, blocks, in_memory
 from . import flags as F
 
@@ -192,17 +192,6 @@ def _epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArr
                        np.full((K, 3), np.nan), False, nz2)
     sep, sdof, norm = separation(x_f, P_f, x_s, P_s)
     return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, sep, sdof, norm, True, nz2)
-
-
-def chi2_ppf(q: float, dof) -> FloatArray:
-    """The ``q`` quantile of chi^2(dof) (``scipy.stats.chi2.ppf``'s value, from
-    ``scipy.special.gammaincinv``: no scipy.stats import in the sub-IMU workers), once per distinct
-    dof: the windowed bounds ask it for every epoch of the flight at every block of rows, with a few
-    dozen distinct window sums (a call per epoch took 5 of a 4 h worker task's 54 CPU s, quadratic
-    in the flight's length)."""
-    d = np.asarray(dof, dtype=float)
-    u, inv = np.unique(d, return_inverse=True)
-    return np.asarray(2.0 * gammaincinv(u / 2.0, q), dtype=float)[inv].reshape(d.shape)
 
 
 def chi2_bounds(dof, prob: float = PROB) -> tuple[FloatArray, FloatArray]:
