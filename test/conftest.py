@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from xdist_groups import group_module_fixture_tests
+from xdist_groups import group_module_fixture_tests, heavy_first
 
 
 def _pick_domain_id() -> int:
@@ -104,6 +104,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.ros)
     # make test runs ``-n 2 --dist loadgroup``: a module's tests that share a module fixture on one worker
     group_module_fixture_tests(items, Path(__file__).parent)
+    heavy_first(items)  # the long tests dealt first: no long test left for the run's tail
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,6 @@
 """make test's ``-n 2 --dist loadgroup`` really keeps a module's tests that share a module fixture on
 one worker (pytest-xdist 3.8 groups by setting ``item._nodeid``, which pytest 9.2 ignores: then each
-worker silently built the fixture again); tests without such a fixture are still dealt to both."""
+worker silently built the fixture again); tests without such a fixture are still dealt to both; the long tests are dealt first."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+
+from xdist_groups import heavy_first  # test/support/xdist_groups.py
 
 SUPPORT = Path(__file__).parent / "support"
 
@@ -53,3 +55,19 @@ def test_a_module_fixture_is_built_once_on_two_workers(tmp_path: Path) -> None:
     assert "16 passed" in r.stdout, r.stdout
     assert len((tmp_path / "builds.txt").read_text().split()) == 1  # the module fixture: once, on one worker
     assert len(set((tmp_path / "free.txt").read_text().split())) == 2  # the others on both workers
+
+
+class _Item:
+    """A collected test as heavy_first sees it: its markers."""
+
+    def __init__(self, name: str, *markers: str) -> None:
+        self.name, self.markers = name, markers
+
+    def get_closest_marker(self, name: str) -> str | None:
+        return name if name in self.markers else None
+
+
+def test_heavy_tests_are_dealt_first_in_their_order() -> None:
+    items = [_Item("a"), _Item("b", "ros"), _Item("c"), _Item("d", "slow"), _Item("e", "xdist_group"), _Item("f", "parametrize")]
+    heavy_first(items)  # type: ignore[arg-type]
+    assert [i.name for i in items] == ["b", "d", "e", "a", "c", "f"]

@@ -27,3 +27,16 @@ def group_module_fixture_tests(items: list[pytest.Item], root: Path) -> int:
             item.add_marker(pytest.mark.xdist_group(item.path.relative_to(root).as_posix()))
             n += 1
     return n
+
+
+#: markers of a test that takes long (``slow``: more than about 10 s; ``ros``: nodes, DDS, real time)
+HEAVY_MARKERS = ("xdist_group", "slow", "ros")
+
+
+def heavy_first(items: list[pytest.Item]) -> None:
+    """Sort ``items`` in place (stably) so that the grouped, ``slow`` and ``ros`` tests come first.
+
+    xdist deals the work units in collection order as the workers free up: a long test dealt last
+    keeps one worker busy while the other has nothing left (the run's tail). Dealt first, the long
+    tests are balanced by the many short ones that follow (longest-processing-time-first)."""
+    items.sort(key=lambda item: 0 if any(item.get_closest_marker(m) for m in HEAVY_MARKERS) else 1)
