@@ -203,13 +203,16 @@ def test_attitude_change_from_the_first_epoch() -> None:
     assert qc.attitude_change(t, q, np.zeros(0)).size == 0
 
 
-@pytest.mark.parametrize(("turn_deg", "noted"), [(2.0, True), (60.0, False)])
-def test_summary_says_when_the_data_cannot_check_the_lever_arm(turn_deg: float, noted: bool) -> None:
+@pytest.mark.parametrize(("turn_deg", "says"), [(0.0, "no lever-arm error can show"), (2.0, "below about 2.9 m cannot show"),
+                                               (20.0, "below about 0.29 m cannot show"), (60.0, None)])
+def test_summary_says_when_the_data_cannot_check_the_lever_arm(turn_deg: float, says: str | None) -> None:
     q = _run(K=300)
     q.att_change = np.linspace(0.0, turn_deg * DEG, q.epochs_s.size)
     s = qc.summarize(q.epochs_s, np.ones((q.epochs_s.size, 9)), F.none(q.epochs_s.size), q)
     assert s["verdict"] == "ok" and abs(s["attitude_change_deg"] - turn_deg) < 1e-9
-    assert any("lever arm not checked by the data" in n for n in s["notes"]) == noted
+    note = [n for n in s["notes"] if "lever arm not checked by the data" in n]
+    assert (note[0].count(says) == 1 if says else not note), s["notes"]
+    assert qc.lever_arm_hidden_m(np.pi / 3) == pytest.approx(0.1) and qc.lever_arm_hidden_m(0.0) == np.inf
     both = qc.EpochQC.concat([q, q])
     assert both.att_change is not None and both.att_change.size == 2 * q.epochs_s.size
     q.att_change = None

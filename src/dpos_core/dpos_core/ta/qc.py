@@ -44,6 +44,7 @@ separation and the flagged time, and a verdict line; ``dpos_ros.products.write``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -163,11 +164,21 @@ def separation(x_f: FloatArray, P_f: FloatArray, x_s: FloatArray, P_s: FloatArra
     return sep, dof, norm
 
 
-#: below this attitude change over a session (the main POS's, from its first epoch) a lever-arm error
-#: does not show in the matches: a note says the installation was not checked by the data [rad]
-#: (measured, docs/qc.md "Installation errors": paper_su's first 45 s, straight, attitude change
-#: 1-2 deg: 5 m off in x stays ``ok``; 400 s with turns: 0.1 m off gives ``check``)
+#: below this attitude change over a session (the main POS's, from its first epoch) a note says how
+#: large a lever-arm error the data could not show [rad] (docs/qc.md "Installation errors": at 30 deg
+#: an error of 0.2 m gives ``check``)
 LEVER_ARM_ATTITUDE_CHANGE = 30.0 * DEG
+#: the displacement ``|C_m(t) dr - C_m(t0) dr| = 2 |dr| sin(angle / 2)`` a lever-arm error must reach
+#: to turn the verdict [m] (measured, docs/qc.md "Installation errors": paper_su's sub_r, turns of
+#: 5-90 deg, seeds 1-5: from 0.087 m on ``check``, 0.044-0.07 m ``ok`` in all runs but one)
+LEVER_ARM_VISIBLE_M = 0.1
+
+
+def lever_arm_hidden_m(angle_rad: float) -> float:
+    """The lever-arm error [m] below which a session whose main POS turned by at most ``angle_rad``
+    cannot show it (:data:`LEVER_ARM_VISIBLE_M` over ``2 sin(angle / 2)``; inf without a turn)."""
+    chord = 2.0 * math.sin(min(abs(angle_rad), math.pi) / 2.0)
+    return LEVER_ARM_VISIBLE_M / chord if chord > 0.0 else math.inf
 
 
 def attitude_change(t_master_s: FloatArray, q_nb: FloatArray, epochs_s: FloatArray) -> FloatArray:
@@ -426,8 +437,11 @@ def summarize(t_rows: FloatArray, sigma: FloatArray | Callable[[int], FloatArray
             turn = float(np.nanmax(qc.att_change))
             out["attitude_change_deg"] = turn / DEG
             if turn < LEVER_ARM_ATTITUDE_CHANGE:
-                notes.append(f"lever arm not checked by the data: the main POS's attitude changed by at most {turn / DEG:.1f} deg "
-                             "(a lever-arm error shows only through attitude changes: turns)")
+                hidden = lever_arm_hidden_m(turn)
+                notes.append(f"lever arm not checked by the data: the main POS's attitude changed by at most {turn / DEG:.1f} deg; "
+                             + ("no lever-arm error can show without a turn" if not math.isfinite(hidden) or hidden > 100.0
+                                else f"a lever-arm error below about {hidden:.2g} m cannot show")
+                             + " (it shows only through attitude changes: turns)")
         p = qc.nz2.shape[1] if qc.nz2.ndim == 2 else 0
         names = MATCHES.get(p, tuple(f"m{i}" for i in range(p)))
         nd["per_match"] = {nm: float(np.nanmean(qc.nz2[ok][:, i])) if n else float("nan") for i, nm in enumerate(names)}
