@@ -438,7 +438,7 @@ def summarize(t_rows: FloatArray, sigma: FloatArray | Callable[[int], FloatArray
             out["attitude_change_deg"] = turn / DEG
             if turn < LEVER_ARM_ATTITUDE_CHANGE:
                 hidden = lever_arm_hidden_m(turn)
-                notes.append(f"lever arm not checked by the data: the main POS's attitude changed by at most {turn / DEG:.1f} deg; "
+                notes.append(f"lever arm not checked by the data: the main POS's attitude changed by at most {turn / DEG:.2g} deg; "
                              + ("no lever-arm error can show without a turn" if not math.isfinite(hidden) or hidden > 100.0
                                 else f"a lever-arm error below about {hidden:.2g} m cannot show")
                              + " (it shows only through attitude changes: turns)")
