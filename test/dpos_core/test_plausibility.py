@@ -149,3 +149,32 @@ def test_records_of_another_day_do_not_overlap():
     assert day is not None and "whole days" in day.statistic
     hour = P.check_overlap("imu and pos", (0.0, 100.0), (7300.0, 7400.0))
     assert hour is not None and "whole days" not in hour.statistic
+
+
+def test_fix_sigmas_all_zero_are_flagged_one_positive_fix_is_not():
+    s = np.zeros((20, 3))
+    f = P.check_fix_sigmas("/fix", s)
+    assert f is not None and "position sigma" in f.statistic and "> 0" in f.mistake
+    s[5] = (0.02, 0.02, 0.05)  # a driver that fills its covariance only sometimes: the filter rejects the others
+    assert P.check_fix_sigmas("/fix", s) is None
+    assert P.check_fix_sigmas("/fix", np.full((3, 3), np.nan)) is not None
+    assert P.check_fix_sigmas("/fix", np.zeros((0, 3))) is None
+
+
+def test_imu_with_track_compares_rates_with_the_course_within_the_imu_span():
+    """A vehicle on a circle at 0.1 rad/s: its gyros in rad/s pass, read as deg/s (x DEG: no tilt, the
+    record's own values cannot tell) are flagged against the track's course; the course outside the
+    IMU's span is not used."""
+    t = np.arange(0.0, 200.0, 0.01)
+    om = np.zeros((t.size, 3))
+    om[:, 2] = 0.1
+    f = np.tile([0.0, 0.0, G0_MPS2], (t.size, 1))
+    tt = np.arange(-100.0, 200.0, 0.25)
+    ang = 0.1 * np.maximum(tt, 0.0)  # (straight before the IMU starts)
+    llh = np.column_stack([0.7 + 100.0 * np.sin(ang) / 6_371_000.0, 0.2 + 100.0 * np.cos(ang) / (6_371_000.0 * math.cos(0.7)),
+                           np.zeros_like(tt)])
+    assert P.check_imu_with_track("imu", t, om, f, tt, llh, "/fix") == []
+    found = P.check_imu_with_track("imu", t, om * DEG, f, tt, llh, "/fix")
+    assert len(found) == 1 and "rad/s read as deg/s" in found[0].mistake and "the course of /fix" in found[0].statistic
+    found = P.check_imu_with_track("imu", t, om, f * G0_MPS2, tt, llh, "/fix")
+    assert len(found) == 1 and "m/s^2 read as g" in found[0].mistake

@@ -18,6 +18,8 @@ Checks:
 - :func:`check_datum`: a datum within 200 km of the first fix.
 - :func:`check_sigma`: a standard deviation > 0 and finite.
 - :func:`check_time_offset`: an offset within a bound (60 s by default).
+- :func:`check_imu_with_track`: an IMU record's units, and its rates against the GNSS course.
+- :func:`check_fix_sigmas`: GNSS fixes with a position sigma > 0.
 """
 
 from __future__ import annotations
@@ -273,3 +275,30 @@ def check_rate_scale(what: str, omega_radps: NDArray[np.float64], ref_rate_radps
     stat = f"90th percentile of |omega| is {pw / DEG:.4g} deg/s against {pr / DEG:.4g} deg/s of {ref} (ratio {ratio:.3g})"
     why = "looks like rad/s read as deg/s (/ 57.3)" if ratio < 1.0 else "looks like deg/s read as rad/s (x 57.3)"
     return Finding(what, stat, why)
+
+
+def check_imu_with_track(what: str, t_s: NDArray[np.float64], omega_radps: NDArray[np.float64], f_mps2: NDArray[np.float64],
+                         track_t_s: NDArray[np.float64], track_llh: NDArray[np.float64], track: str) -> list[Finding]:
+    """An IMU record against its own values (:func:`check_imu`) and, when those pass, its rates against
+    the course of the vehicle's GNSS track over the IMU's span (:func:`check_rate_scale`): what an IMU
+    with fixes (dpos-ifa's ``/imu/data`` and ``/fix``) can show.  ``t_s`` (N,) and ``track_t_s`` (M,)
+    on one time scale [s]; ``omega_radps``, ``f_mps2`` (N, 3); ``track_llh`` (M, 3) [rad, rad, m];
+    ``track``: the fixes as the user names them."""
+    found = check_imu(what, t_s, omega_radps, f_mps2)
+    if found or t_s.size < 2:
+        return found
+    inside = (track_t_s >= t_s[0]) & (track_t_s <= t_s[-1])
+    course = course_rate_radps(np.asarray(track_t_s[inside], dtype=np.float64), np.asarray(track_llh[inside], dtype=np.float64))
+    scale = check_rate_scale(what, omega_radps, course, f"the course of {track}")
+    return [scale] if scale is not None else []
+
+
+def check_fix_sigmas(what: str, pos_sigma_m: NDArray[np.float64]) -> Finding | None:
+    """GNSS fixes' position 1-sigma (M, 3) [m]: a finding when no fix has all three finite and > 0
+    (a driver that leaves its covariance at zero claims exact fixes; the filter rejects each)."""
+    s = np.asarray(pos_sigma_m, dtype=np.float64).reshape(-1, 3)
+    if s.shape[0] == 0 or np.any(np.all(np.isfinite(s) & (s > 0.0), axis=1)):
+        return None
+    return Finding(what, f"every one of the {s.shape[0]} fixes has a zero (or invalid) position sigma",
+                   "a sigma must be > 0 (0 claims an exact fix): the driver's position_covariance is not filled")
+

@@ -189,3 +189,73 @@ def test_chi2_ppf_once_per_distinct_dof_is_the_elementwise_value() -> None:
         assert got.shape == d.shape
         np.testing.assert_array_equal(got, 2.0 * gammaincinv(d / 2.0, q))
     assert qc.chi2_ppf(0.99, 3).shape == () and float(qc.chi2_ppf(0.99, 3)) == 2.0 * gammaincinv(1.5, 0.99)
+
+
+def test_attitude_change_from_the_first_epoch() -> None:
+    """A yaw of 90 deg at 3 deg/s from t = 10 s: the change from the first epoch, at the sample at or
+    before each epoch."""
+    t = np.arange(0.0, 60.0, 0.01)
+    yaw = np.clip(t - 10.0, 0.0, 30.0) * 3.0 * DEG
+    q = np.column_stack([np.cos(yaw / 2), np.zeros_like(t), np.zeros_like(t), np.sin(yaw / 2)])
+    e = np.arange(0.0, 60.0, 1.0)
+    a = qc.attitude_change(t, -q, e)  # (a quaternion's sign is no rotation)
+    np.testing.assert_allclose(a, np.clip(e - 10.0, 0.0, 30.0) * 3.0 * DEG, atol=1e-9)
+    assert qc.attitude_change(t, q, np.zeros(0)).size == 0
+
+
+@pytest.mark.parametrize(("turn_deg", "says"), [(0.0, "no lever-arm error can show"), (2.0, "below about 2.9 m cannot show"),
+                                               (20.0, "below about 0.29 m cannot show"), (60.0, None)])
+def test_summary_says_when_the_data_cannot_check_the_lever_arm(turn_deg: float, says: str | None) -> None:
+    q = _run(K=300)
+    q.att_change = np.linspace(0.0, turn_deg * DEG, q.epochs_s.size)
+    s = qc.summarize(q.epochs_s, np.ones((q.epochs_s.size, 9)), F.none(q.epochs_s.size), q)
+    assert s["verdict"] == "ok" and abs(s["attitude_change_deg"] - turn_deg) < 1e-9
+    note = [n for n in s["notes"] if "lever arm not checked by the data" in n]
+    assert (note[0].count(says) == 1 if says else not note), s["notes"]
+    assert qc.lever_arm_hidden_m(np.pi / 3) == pytest.approx(0.1) and qc.lever_arm_hidden_m(0.0) == np.inf
+    both = qc.EpochQC.concat([q, q])
+    assert both.att_change is not None and both.att_change.size == 2 * q.epochs_s.size
+    q.att_change = None
+    assert qc.EpochQC.concat([q, both]).att_change is None and "attitude_change_deg" not in qc.summarize(
+        q.epochs_s, np.ones((q.epochs_s.size, 9)), None, q)
+
+
+@pytest.fixture(scope="module")
+def turning_flight():
+    """paper_su's sub_r over 20 s straight, a 90 deg turn in 30 s, 30 s straight (80 s)."""
+    from dataclasses import replace
+
+    from dpos_core.evaluation import ta as from_sim
+    from dpos_core.sim.flight import Segment
+    from dpos_core.sim.scenario import load_scenario
+    from dpos_core.sim.session import SimulatedSession
+
+    sc = load_scenario("paper_su")
+    sc = replace(sc, segments=(Segment(20.0, name="lead_in"), Segment(30.0, heading_change_deg=90.0, name="turn"),
+                               Segment(30.0, name="out")))
+    ss = SimulatedSession(sc, 1, None)
+    return from_sim.sub_imu(ss, "sub_r"), from_sim.master_nav(ss), from_sim.installation(ss, "sub_r")
+
+
+@pytest.mark.parametrize(("dx_m", "straight", "verdict"), [(0.0, False, "ok"), (0.5, False, "check"), (0.2, False, "check"),
+                                                           (0.0, True, "ok"), (0.5, True, "ok")])
+def test_a_lever_arm_off_is_checked_through_a_turn(turning_flight, dx_m: float, straight: bool, verdict: str) -> None:
+    """sub_r's configured lever arm dx_m off in x (the truth's unchanged): through a 90 deg turn the
+    verdict is "check" (the forward/backward separation, the innovations), the honest arm "ok";
+    over the straight first 20 s the error cannot show (the sub-IMU starts at the configured arm and
+    follows it: docs/qc.md "Installation errors") and a note says the data did not check it."""
+    from dataclasses import replace
+
+    from dpos_core.ta import pipeline
+    from dpos_core.ta.pipeline import TASettings
+
+    imu, master, ins = turning_flight
+    if straight:
+        imu = imu.select(imu.t_s < 20.0)
+    ins = replace(ins, lever_arm_m=np.asarray(ins.lever_arm_m, dtype=float) + np.array([dx_m, 0.0, 0.0]))
+    r = pipeline.run_segments(imu, master, ins, TASettings(method="urtss"))
+    assert r.qc is not None and r.qc.att_change is not None
+    s = qc.summarize(r.qc.epochs_s, np.ones((r.qc.epochs_s.size, 9)), None, r.qc)
+    assert s["verdict"].split(":")[0] == verdict, s["verdict"]
+    assert any("lever arm not checked by the data" in n for n in s["notes"]) == straight, s["notes"]
+    assert (s["attitude_change_deg"] > 80.0) == (not straight)

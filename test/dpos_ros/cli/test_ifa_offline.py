@@ -4,6 +4,7 @@ real walk_0827 imported by dpos-import (data it did not generate); the errors a 
 from __future__ import annotations
 
 import json
+from dataclasses import replace as dc_replace
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 from repo_paths import REPO
 
 from dpos_core.imports.logs import read_pos
+from dpos_core.units import DEG, G0_MPS2
 from dpos_ros.cli import import_
 from ifa_node import offline as ifa
 
@@ -130,3 +132,30 @@ def test_gnss_time_offset_option_moves_fixes_start_and_reference_alike(walk_bag:
     # with 0); the reference left on the GNSS clock adds the 100 ms along the track (0.121 m)
     assert r["horizontal_error_m"]["before"]["rms"] < base["horizontal_error_m"]["before"]["rms"] + 0.02
     assert "gnss_time_offset_s +100.0 ms" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize(("edit", "says"), [
+    (lambda imu, g: (dc_replace(imu, f_mps2=imu.f_mps2 * G0_MPS2), g), "looks like m/s^2 read as g"),
+    (lambda imu, g: (dc_replace(imu, f_mps2=imu.f_mps2 / G0_MPS2), g), "looks like g read as m/s^2"),
+    (lambda imu, g: (dc_replace(imu, omega_radps=imu.omega_radps / DEG), g), "looks like deg/s read as rad/s"),
+    (lambda imu, g: (dc_replace(imu, omega_radps=imu.omega_radps * DEG), g), "looks like rad/s read as deg/s"),
+    (lambda imu, g: (imu, dc_replace(g, pos_sigma_m=np.zeros_like(g.pos_sigma_m))), "zero (or invalid) position sigma"),
+])
+def test_recording_in_the_wrong_unit_is_refused_in_one_line(walk_bag: Path, tmp_path: Path, capsys, monkeypatch, edit, says):
+    """dpos-ifa's input runs through dpos_core.plausibility (as dpos-import's and read_session's): the
+    real walk_0827 recording (which passes: ``report``) read in the wrong unit, or with its fixes'
+    covariance left at zero, exits 2 with one line naming the topic and the likely mistake."""
+    from dpos_ros.cli import ifa as cli
+
+    real = cli.read_recording
+
+    def wrong(bag, topics, rotation):
+        origin, imu, gnss, notes = real(bag, topics, rotation)
+        return (origin, *edit(imu, gnss), notes)
+
+    monkeypatch.setattr(cli, "read_recording", wrong)
+    out = tmp_path / "o"
+    assert ifa.main([str(walk_bag), "--params-file", str(WALK / "ifa_node.yaml"), "--min-course-speed", "0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"dpos-ifa: error: {walk_bag}: /") and says in err[0], err
+    assert not out.exists()

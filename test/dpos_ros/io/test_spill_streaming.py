@@ -119,8 +119,44 @@ def test_one_corrupt_record_size_costs_one_sample_and_is_counted(tmp_path: Path,
     same_session(a, b)
     assert b.sub_imus["sub_r"].t_s.size == len(raw[SUB_R][1]) - 1
     assert b.data_lost == {"spill_bytes_skipped": 12 + size}
+    assert a.data_lost == b.data_lost  # (read whole too: status.json says it either way)
     assert any(f"{12 + size} corrupt byte(s) of {f.name} skipped" in w for w in b.warnings)
     assert not any("cut short" in w for w in b.warnings)
+
+
+def _corrupt_size(f: Path, record: int) -> int:
+    """Record ``record`` of the log ``f`` gets a size 2**31; the bytes it held with its head."""
+    buf = bytearray(f.read_bytes())
+    o = 0
+    for _ in range(record):
+        o += 12 + int.from_bytes(buf[o + 8 : o + 12], "little")
+    size = int.from_bytes(buf[o + 8 : o + 12], "little")
+    buf[o + 8 : o + 12] = (2**31).to_bytes(4, "little")
+    f.write_bytes(bytes(buf))
+    return 12 + size
+
+
+@pytest.mark.parametrize("include_late", [True, False])
+def test_corrupt_records_counted_in_data_lost_whole_and_streamed(tmp_path: Path, raw, include_late: bool) -> None:
+    """A corrupt record size in a sub-IMU's log and one in its late log: both readings (whole, as the
+    recordings the part-at-a-time reader does not read; and block by block) count the bytes skipped in
+    ``data_lost`` (status.json), the late log's only when the late messages are read; an intact spill
+    counts nothing."""
+    from dpos_ros.products.write import status_doc
+
+    d = _write(tmp_path / "s", raw, topics={T.DATUM, T.MASTER_NAV, SUB_R}, late_after_s=30.0)
+    assert read_whole(d).data_lost == {} and read_session(d).data_lost == {}
+    n_main = _corrupt_size(spill.spill_meta(d)[0][SUB_R][1], 300)
+    n_late = _corrupt_size(spill.spill_meta(d / spill.LATE_DIR)[0][SUB_R][1], 200)
+    want = {"spill_bytes_skipped": n_main + (n_late if include_late else 0)}
+    a = read_whole(d, include_late=include_late)
+    b = read_session(d, batch_bytes=20_000, include_late=include_late)
+    same_session(a, b)
+    assert a.data_lost == want and b.data_lost == want
+    assert status_doc(a, {}, "ta", {}, set())["data_lost"] == want
+    skipped: dict[str, int] = {}
+    spill.read_spill(d, include_late, skipped=skipped)
+    assert skipped == ({SUB_R: n_main, f"{spill.LATE_DIR}/{SUB_R}": n_late} if include_late else {SUB_R: n_main})
 
 
 def test_log_blocks_are_read_spills_records(tmp_path: Path, raw) -> None:

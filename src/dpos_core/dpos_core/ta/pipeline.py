@@ -59,7 +59,7 @@ from . import guard
 from .antenna import step_roughness
 from .model import DP, DV, PHI, Installation, TAConfig, TransferAlignmentModel, accel_axis_rotation_var, check_imu_stamps, gap_limit_s, master_at, nominal_dt_s
 from .oracle import LinearizedAboutTruth
-from .qc import EpochQC, epoch_qc
+from .qc import EpochQC, attitude_change, epoch_qc
 
 METHODS = ("ukf", "urtss", "upf", "ups", "ups_mcmc", "cdkf", "cdkf_rts", "cdvf", "cdvf_rts")
 #: the Gaussian methods: (forward rule, smoothed) per method (the particle methods are the others)
@@ -385,6 +385,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, settings: TAS
         else:
             xo, Po = lin.to_model(x_f, P_f)
             qc = epoch_qc(model.epochs_s, tr.nu, tr.S, xo, Po)
+        qc.att_change = attitude_change(master.t_s, master.q_nb, model.epochs_s)
         return TAResult(method, *_apply(model, xo, Po, tr.corrections), model.epochs_s, xo, Po, None, flags=_bridged_flags(model), qc=qc,
                         installation=_installation(model, xo[-1], Po[-1]))
     cg: CGStats | None = None
@@ -413,6 +414,7 @@ def _run(imu: ImuSeries, master: NavSeries, install: Installation, settings: TAS
             else:
                 xs, Ps = tr.x_f, tr.P_f
             qc = epoch_qc(model.epochs_s, tr.nu, tr.S, tr.x_f, tr.P_f, *((xs, Ps) if smoothed else (None, None)))
+            qc.att_change = attitude_change(master.t_s, master.q_nb, model.epochs_s)
             corr = tr.corrections
             # the divergence guard (.guard): AlignmentDiverged before any row is used
             what = f"transfer alignment ({method})"

@@ -44,6 +44,7 @@ separation and the flagged time, and a verdict line; ``dpos_ros.products.write``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -88,7 +89,9 @@ class EpochQC:
     forward/backward separation ``d^T (P_f - P_s)^+ d`` per :data:`GROUPS` with ``sep_dof`` (K, 3)
     (NaN / 0 where there is none) and ``sep_norm`` (K, 3) ``|x_f - x_s|`` per group (rad, m/s, m);
     ``smoothed``: a backward pass exists (else the separation is all NaN); ``nz2`` (K, p): each
-    innovation component's ``nu_i^2 / S_ii`` (1 on average when consistent; NaN unmeasured)."""
+    innovation component's ``nu_i^2 / S_ii`` (1 on average when consistent; NaN unmeasured);
+    ``att_change`` (K,): the main POS's attitude change [rad] since the segment's first epoch
+    (:func:`attitude_change`; None when not given): how much the data can show of a lever-arm error."""
 
     epochs_s: FloatArray
     nis: FloatArray
@@ -98,13 +101,15 @@ class EpochQC:
     sep_norm: FloatArray
     smoothed: bool
     nz2: FloatArray
+    att_change: FloatArray | None = None
 
     @staticmethod
     def concat(parts: list[EpochQC]) -> EpochQC:
         """The segments' measures one after the other (``smoothed`` when all are)."""
         cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
         return EpochQC(cat("epochs_s"), cat("nis"), cat("dof"), cat("sep"), cat("sep_dof"), cat("sep_norm"),
-                       all(p.smoothed for p in parts), cat("nz2"))
+                       all(p.smoothed for p in parts), cat("nz2"),
+                       cat("att_change") if all(p.att_change is not None for p in parts) else None)
 
 
 def nis(nu: FloatArray, S: FloatArray) -> tuple[FloatArray, NDArray[np.int_]]:
@@ -157,6 +162,38 @@ def separation(x_f: FloatArray, P_f: FloatArray, x_s: FloatArray, P_s: FloatArra
         dof[:, j] = keep.sum(axis=1)
         sep[:, j] = np.where(dof[:, j] > 0, m, np.nan)
     return sep, dof, norm
+
+
+#: below this attitude change over a session (the main POS's, from its first epoch) a note says how
+#: large a lever-arm error the data could not show [rad] (docs/qc.md "Installation errors": at 30 deg
+#: an error of 0.2 m gives ``check``)
+LEVER_ARM_ATTITUDE_CHANGE = 30.0 * DEG
+#: the displacement ``|C_m(t) dr - C_m(t0) dr| = 2 |dr| sin(angle / 2)`` a lever-arm error must reach
+#: to turn the verdict [m] (measured, docs/qc.md "Installation errors": paper_su's sub_r, turns of
+#: 5-90 deg, seeds 1-5: from 0.087 m on ``check``, 0.044-0.07 m ``ok`` in all runs but one)
+LEVER_ARM_VISIBLE_M = 0.1
+
+
+def lever_arm_hidden_m(angle_rad: float) -> float:
+    """The lever-arm error [m] below which a session whose main POS turned by at most ``angle_rad``
+    cannot show it (:data:`LEVER_ARM_VISIBLE_M` over ``2 sin(angle / 2)``; inf without a turn)."""
+    chord = 2.0 * math.sin(min(abs(angle_rad), math.pi) / 2.0)
+    return LEVER_ARM_VISIBLE_M / chord if chord > 0.0 else math.inf
+
+
+def attitude_change(t_master_s: FloatArray, q_nb: FloatArray, epochs_s: FloatArray) -> FloatArray:
+    """The rotation angle [rad] (K,) of the main POS's attitude at each epoch ``epochs_s`` (K,) from its
+    attitude at the first epoch (``q_nb`` (M, 4) scalar first, body to ENU, at ``t_master_s`` (M,);
+    the sample at or before each epoch).  A lever-arm error ``dr`` enters the position match as
+    ``C_m(t) dr - C_m(t0) dr`` once the sub-IMU has started at the configured arm (module
+    docstring of :mod:`.model`): it shows only through this change."""
+    t = np.asarray(t_master_s, dtype=float)
+    e = np.asarray(epochs_s, dtype=float)
+    if e.size == 0 or t.size == 0:
+        return np.zeros(e.size)
+    q = np.asarray(q_nb, dtype=float)[np.clip(np.searchsorted(t, e, side="right") - 1, 0, t.size - 1)]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return np.asarray(2.0 * np.arccos(np.clip(np.abs(q @ q[0]), 0.0, 1.0)), dtype=float)
 
 
 #: epochs whose measures :func:`epoch_qc` computes at once
@@ -385,6 +422,15 @@ def summarize(t_rows: FloatArray, sigma: FloatArray | Callable[[int], FloatArray
                       "chance_fraction": (1.0 - prob) / 2, "window_s": window_s,
                       "windowed_above_fraction": frac(side > 0), "windowed_below_fraction": frac(side < 0)}
         nd = out["nis"]
+        if qc.att_change is not None and qc.att_change.size:
+            turn = float(np.nanmax(qc.att_change))
+            out["attitude_change_deg"] = turn / DEG
+            if turn < LEVER_ARM_ATTITUDE_CHANGE:
+                hidden = lever_arm_hidden_m(turn)
+                notes.append(f"lever arm not checked by the data: the main POS's attitude changed by at most {turn / DEG:.2g} deg; "
+                             + ("no lever-arm error can show without a turn" if not math.isfinite(hidden) or hidden > 100.0
+                                else f"a lever-arm error below about {hidden:.2g} m cannot show")
+                             + " (it shows only through attitude changes: turns)")
         p = qc.nz2.shape[1] if qc.nz2.ndim == 2 else 0
         names = MATCHES.get(p, tuple(f"m{i}" for i in range(p)))
         nd["per_match"] = {nm: float(np.nanmean(qc.nz2[ok][:, i])) if n else float("nan") for i, nm in enumerate(names)}

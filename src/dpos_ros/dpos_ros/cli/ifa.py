@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dpos_core import earth
+from dpos_core import earth, plausibility
 from dpos_core.attitude import quat_to_dcm
 from dpos_core.config.aircraft import AircraftConfig
 from dpos_core.frames import hpr_from_C_nb
@@ -39,6 +39,7 @@ from dpos_core.ifa.reference import Reference, compare, start, track_sigmas
 from dpos_core.ifa.smoother import as_result, smooth
 from dpos_core.ifa.time_offset import estimate_time_offset
 from dpos_core.imports.logs import LogFormatError, read_pos
+from dpos_core.series import GnssSeries, ImuSeries
 from dpos_core.units import DEG, FloatArray
 from dpos_ros.cli.options import finite_float, float_in, one_line_errors
 from dpos_ros.contract import conversions as cv
@@ -164,6 +165,19 @@ def _plot(path: Path, res: IfaResult, ref: Reference, outage: tuple[float, float
     plt.close(fig)
 
 
+def _check_plausible(bag: Path, topics: tuple[str, str, str], imu: ImuSeries, gnss: GnssSeries) -> None:
+    """InputError in one line when the recording's values show a unit mistake (dpos_core.plausibility,
+    as dpos-import and read_session check theirs): the IMU in m/s^2 read as g or the reverse, in rad/s
+    read as deg/s or the reverse (its own values, then its rates against the course of the fixes),
+    or fixes whose position sigmas are all zero."""
+    found = plausibility.check_imu_with_track(f"{bag}: {topics[0]}", imu.t_s, imu.omega_radps, imu.f_mps2, gnss.t_s, gnss.llh,
+                                              topics[1])
+    sig = plausibility.check_fix_sigmas(f"{bag}: {topics[1]}", gnss.pos_sigma_m)
+    found += [sig] if sig is not None else []
+    if found:
+        raise InputError(str(found[0]))
+
+
 #: ``(params_file, method override) -> (filter configuration, aircraft, method, GNSS lever arm [m] (3,))``:
 #: how the node's parameter file becomes the core's settings (``ifa_node.offline``, which owns the
 #: node's configuration class); raises :class:`~dpos_core.errors.InputError` naming the file
@@ -215,6 +229,7 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         default = PRODUCT_TOPICS if PRODUCT_TOPICS[0] in avail else DRIVER_TOPICS
         topics = (args.imu_topic or default[0], args.fix_topic or default[1], args.vel_topic or default[2])
         origin, imu, gnss, notes = read_recording(args.bag, topics, rotation_from_rpy_deg(rpy))
+        _check_plausible(args.bag, topics, imu, gnss)
         heading = None if args.initial_heading is None else args.initial_heading * DEG
         init, lv = start(imu, gnss, args.min_course_speed, heading_rad=heading, lever_arm_m=lever, gnss_time_offset_s=offset_s,
                          level=args.start_level, imu_model=cfg.imu)

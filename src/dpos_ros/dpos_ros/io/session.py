@@ -261,13 +261,15 @@ def _read_whole(path: Path, include_late: bool = True, keep: Callable[[str], boo
         keep = lambda t: t in (T.MASTER_NAV, T.DATUM, T.SESSION_END, T.POS_MASTER_STATUS) or only(t)  # noqa: E731
     path = Path(path)
     if S.is_spill(path):  # the crash-safe spill of transfer_align_node
+        skipped: dict[str, int] = {}
         try:
-            raw, custom, sid, warns = S.read_spill(path, include_late, keep)
+            raw, custom, sid, warns = S.read_spill(path, include_late, keep, skipped)
         except (ValueError, OSError) as e:
             raise SessionError(f"{path}: cannot read the spill: {e}") from None
         custom.setdefault("dpos.session_id", sid)
         sess = session_from_raw(raw, custom, path)
         sess.warnings[:0] = warns
+        _count_lost(sess, spill_bytes=sum(skipped.values()))  # as the streamed reading counts them
         return sess
     if not (path / "metadata.yaml").is_file() and not any(path.glob("*.mcap")):
         raise SessionError(f"{path}: not a rosbag2 directory (no metadata.yaml) nor a dpos spill (no spill.json)")

@@ -123,16 +123,21 @@ def is_spill(path: Path) -> bool:
 
 
 def read_spill(path: Path, include_late: bool = True, keep: Callable[[str], bool] | None = None,
-               ) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
+               skipped: dict[str, int] | None = None) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
     """``(raw, custom_data, session_id, warnings)`` of a spill directory (see module docstring);
     the late messages of ``<path>/late/`` merged into their topics in stamp order (unless
     ``include_late`` is False: transfer_align_node's own products are made without them).
-    ``keep``: read only the topics it accepts (the others' files are not opened)."""
+    ``keep``: read only the topics it accepts (the others' files are not opened).  ``skipped``:
+    filled with the corrupt bytes skipped per log (``topic``, ``late/topic``; only logs with some),
+    what :class:`LogBlocks` counts in :attr:`LogBlocks.skipped` (status.json ``data_lost``)."""
     path = Path(path)
-    raw, custom, sid, warnings = _read_one(path, keep)
+    raw, custom, sid, warnings = _read_one(path, keep, skipped)
     late_dir = path / LATE_DIR
     if include_late and is_spill(late_dir):
-        late, _, _, late_warnings = _read_one(late_dir, keep)
+        late_skipped: dict[str, int] = {}
+        late, _, _, late_warnings = _read_one(late_dir, keep, late_skipped)
+        if skipped is not None:
+            skipped.update({f"{LATE_DIR}/{t}": n for t, n in late_skipped.items()})
         warnings += [f"{LATE_DIR}/{w}" for w in late_warnings]
         for topic, (msgtype, times, blobs) in late.items():
             if not times:
@@ -411,7 +416,7 @@ class LogBlocks:
         self.cut_short = int(tail.size)
 
 
-def _read_one(path: Path, keep: Callable[[str], bool] | None = None,
+def _read_one(path: Path, keep: Callable[[str], bool] | None = None, skipped_bytes: dict[str, int] | None = None,
               ) -> tuple[dict[str, RawTopic], dict[str, str], str, list[str]]:
     topics, custom, sid = spill_meta(path)
     raw: dict[str, RawTopic] = {}
@@ -424,6 +429,8 @@ def _read_one(path: Path, keep: Callable[[str], bool] | None = None,
         t, starts, sizes, o = _records(buf, True, skipped)
         if skipped:
             warnings.append(skipped_warning(topic, f, skipped))
+            if skipped_bytes is not None:
+                skipped_bytes[topic] = sum(n for _, n in skipped)
         if o != buf.size:
             warnings.append(cut_short_warning(topic, f, buf.size - o))
         raw[topic] = RawTopic(msgtype, t.tolist(), Messages.pack(buf, starts, sizes))
