@@ -133,6 +133,9 @@ class IfaFilterConfig:
             (eq. 22's window of ``window`` epochs, adapting only in the fine phase).  paper_ifa,
             seeds 11-16 (docs/ifa.md): final level errors 1.12-1.16x and
             heading 1.25x those of DD2 with the true GNSS sigmas (``window``: 1.6-6.7x).
+        adaptive: ADD2 / AEKF adapt R from the innovations (eq. 21-23); ``False`` runs them with the
+            nominal R (ADD2 is then DD2, AEKF the EKF): the controlled comparison of the two filters'
+            cores with the same Q and R (docs/ifa.md, "ADD2 against AEKF").
         r_window_max, r_min_epochs, r_change_quantile: the change-point window's longest window,
             the epochs before its estimate is used (also the change-test length) and the
             two-sided chi-square quantile of its change test.
@@ -202,6 +205,7 @@ class IfaFilterConfig:
     adapt_diagonal: bool = True
     adapt_debias: bool = False
     r_estimator: str = "changepoint"
+    adaptive: bool = True
     r_window_max: int = 30
     r_min_epochs: int = 3
     r_change_quantile: float = 0.999

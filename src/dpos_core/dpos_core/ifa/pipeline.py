@@ -294,7 +294,7 @@ class _Engine:
         # are dominated by the nonlinear heading error, which the window minus the *current* state part
         # takes for GNSS noise; the change-point window subtracts each innovation's own state part and
         # adapts from the first epoch (module docstring)
-        adapt = self.fine or cfg.r_estimator == "changepoint"
+        adapt = (self.fine or cfg.r_estimator == "changepoint") and cfg.adaptive
         window = self.window.copy() if adapt else noise_window(cfg)
         if self.method == "aekf":
             Hs = _jac(h, x, P)
