@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 FIT = ["ant02", "ant04", "ant06", "ant08", "ant10", "ant12"]
-DURATION_S = 30.0
+DURATION_S = 20.0
 
 
 @pytest.fixture(scope="module")
