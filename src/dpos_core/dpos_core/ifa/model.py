@@ -198,7 +198,8 @@ class IfaFilterConfig:
             the IMU model's noise, ``standstill_noise_factor`` and the fix's speed), apply a
             zero-velocity (ZUPT, ``zupt_sigma_mps``) and a zero-angular-rate (ZARU: the gyro bias
             seen directly) update after the fix's (:mod:`dpos_core.ifa.constraints`); the level
-            follows from the ZUPT (a tilt error integrates gravity into the velocity).
+            follows from the ZUPT (a tilt error integrates gravity into the velocity).  ``zupt`` and
+            ``zaru`` select the two (both on by default; docs/ifa.md has the figures of each).
         nhc: the non-holonomic constraint of a ground vehicle (lateral and vertical body velocity
             zero within ``nhc_sigma_mps``) at every GNSS epoch in motion, in the fine phase; off by
             default (aircraft, handheld): the IMU's axes must be the vehicle's.
@@ -240,6 +241,8 @@ class IfaFilterConfig:
     bias_feedback: str = "auto"
     gyro_axis_errors: str = "auto"
     standstill_updates: bool = True
+    zupt: bool = True
+    zaru: bool = True
     zupt_sigma_mps: float = 0.005
     standstill_window_s: float = 1.0
     standstill_noise_factor: float = 10.0

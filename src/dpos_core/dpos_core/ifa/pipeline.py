@@ -128,6 +128,8 @@ class EpochRecord:
     at_rest: bool | None = None
     #: the constraint updates applied after the fix's: ``zupt``, ``zaru``, ``nhc`` (:mod:`.constraints`)
     constraints: tuple[str, ...] = ()
+    #: normalized innovation squared of the constraint updates (nan without), chi-square with their dimension when consistent
+    constraint_nis: float = float("nan")
 
 
 @dataclass
@@ -320,6 +322,7 @@ class _Engine:
             Py_model = symmetrize(up.S_y @ up.S_y.T)
             R_used = R
         at_rest, applied, cons = self._constraints(fix)
+        c_nis = float("nan")
         if cons:  # sequential updates with their nominal R (no adaptation): after the fix's, before the feedback
             ys, hs, Rs = zip(*cons)
             y_c = np.concatenate(ys)
@@ -333,12 +336,15 @@ class _Engine:
                 H = _jac(h_c, x, P)
                 Sy = symmetrize(H @ P @ H.T + R_c)
                 K = np.linalg.solve(Sy, H @ P).T
-                x = x + K @ (y_c - h_c(x[None])[0])
+                nu_c = y_c - h_c(x[None])[0]
+                c_nis = float(nu_c @ solve_spd(Sy, nu_c[:, None])[:, 0])
+                x = x + K @ nu_c
                 IKH = np.eye(m.n) - K @ H
                 P = symmetrize(IKH @ P @ IKH.T + K @ R_c @ K.T)
             else:
                 up_c = dd2_update(x, S, y_c, h_c, chol(R_c))
                 x, S = up_c.x, up_c.S
+                c_nis = float(np.sum(np.linalg.solve(up_c.S_y, up_c.nu) ** 2))
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise NumericalFailure("non-finite state after the update", what="IFA filter", t_s=fix.t_s)
         nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
@@ -400,7 +406,7 @@ class _Engine:
         if step is not None and self.smoother_steps is not None:
             self.smoother_steps.append(step)
         rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status, loglik,
-                          at_rest=at_rest, constraints=applied)
+                          at_rest=at_rest, constraints=applied, constraint_nis=c_nis)
         self.records.append(rec)
         return rec
 
@@ -408,7 +414,7 @@ class _Engine:
         """The standstill test of the IMU window before the epoch (``cfg.standstill_window_s``, the
         IMU model's noise, ``cfg.standstill_noise_factor``, the fix's speed) and the constraint
         measurements it calls for (:mod:`.constraints`): ZUPT and ZARU at rest
-        (``cfg.standstill_updates``), NHC in motion in the fine phase (``cfg.nhc``).  Returns
+        (``cfg.standstill_updates``, ``cfg.zupt``, ``cfg.zaru``), NHC in motion in the fine phase (``cfg.nhc``).  Returns
         ``(at_rest or None without a window, names, [(y, h, R)])``."""
         m, cfg = self.model, self.cfg
         t, om, fb = m.recent_samples()
@@ -422,10 +428,13 @@ class _Engine:
             at_rest = test.at_rest
         nom = m.strapdown.state
         C = nom.C_nb
-        if at_rest and cfg.standstill_updates:
+        if at_rest and cfg.standstill_updates and (cfg.zupt or cfg.zaru):
             g_sig, _ = cfg.imu.white_sigma(dt)
-            return at_rest, ("zupt", "zaru"), [constraints.zupt(nom.vel_n_mps, cfg.zupt_sigma_mps, m.full, fb, dt, C),
-                                               constraints.zaru(om, m.gyro_bias_comp, C, earth.earth_rate_n(nom.llh[0]), g_sig, m.full)]
+            names = ("zupt",) * cfg.zupt + ("zaru",) * cfg.zaru
+            ms = [constraints.zupt(nom.vel_n_mps, cfg.zupt_sigma_mps, m.full, fb, dt, C)] if cfg.zupt else []
+            if cfg.zaru:
+                ms.append(constraints.zaru(om, m.gyro_bias_comp, C, earth.earth_rate_n(nom.llh[0]), g_sig, m.full))
+            return at_rest, names, ms
         if cfg.nhc and self.fine and at_rest is not None and not at_rest:
             return at_rest, ("nhc",), [constraints.nhc(nom.vel_n_mps, C, cfg.nhc_sigma_mps, m.full)]
         return at_rest, (), []
@@ -734,6 +743,8 @@ class IfaResult:
     at_rest: FloatArray = field(default_factory=lambda: np.zeros(0))
     #: per epoch (K,): the constraint updates applied (``EpochRecord.constraints``)
     constraints: list[tuple[str, ...]] = field(default_factory=list)
+    #: per epoch (K,): EpochRecord.constraint_nis
+    constraint_nis: FloatArray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def heading_sigma_deg(self) -> FloatArray:
@@ -836,6 +847,7 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
         al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime, list(al.events), al.hypotheses_failed,
         al.chol_jitter_repairs, al.restarts, list(al.track), before_start, al.engine if record_smoother else None,
         np.array([np.nan if r.at_rest is None else float(r.at_rest) for r in recs]), [r.constraints for r in recs],
+        np.array([r.constraint_nis for r in recs]),
     )
 
 
