@@ -70,7 +70,9 @@ def test_zaru_recovers_the_gyro_bias_to_its_sigma(runs):
     b, sig = _gyro_bias(on)
     prior = 720.0 / 3600.0 * DEG
     assert np.all(np.abs(b - B_G) < 3.0 * sig), (np.degrees(b), np.degrees(sig))
-    assert np.all(sig < 0.05 * prior), np.degrees(sig)  # 1 s windows of 0.05 deg/s samples, 40 of them
+    # the heading axis from ZARU (1 s windows of 0.05 deg/s samples, 40 of them), the level axes from
+    # the tilt they drive, which ZUPT sees
+    assert np.all(sig < 0.05 * prior), np.degrees(sig)
     assert np.all(np.abs(b - B_G) < np.radians(0.01)), np.degrees(b - B_G)
     # without ZARU the heading axis's bias is not observable at rest (no heading reference)
     _, sig_off = _gyro_bias(off)
@@ -78,16 +80,16 @@ def test_zaru_recovers_the_gyro_bias_to_its_sigma(runs):
 
 
 def test_zupt_bounds_the_velocity(runs):
-    for on, lim_sig in ((True, 0.006), (False, None)):
+    """Once the level has settled (15 s), the navigation's speed at rest stays below 1.5 cm/s between
+    the 1 Hz epochs with ZUPT (measured 0.011 m/s), its velocity sigma below 6 mm/s; with the GNSS
+    velocity (3 cm/s) alone the speed reaches 4.8 cm/s and the sigma stays above 6 mm/s."""
+    speed = {}
+    for on in (True, False):
         res = runs[on]
-        late = res.t_s > 10.0
-        speed = np.linalg.norm(res.vel_n_mps[late], axis=1)
-        sig_v = np.array([np.sqrt(np.diag(P)[3:6]) for t, P in res.track if t > 10.0])
-        if lim_sig is not None:
-            assert speed.max() < 0.02, speed.max()  # between fixes too: the drift of 1 s with a levelled unit
-            assert sig_v.max() < lim_sig, sig_v.max()
-        else:
-            assert sig_v.min() > 0.006, sig_v.min()  # the GNSS velocity's 3 cm/s alone
+        speed[on] = float(np.linalg.norm(res.vel_n_mps[res.t_s > 15.0], axis=1).max())
+        sig_v = np.array([np.sqrt(np.diag(P)[3:6]) for t, P in res.track if t > 15.0])
+        assert (sig_v.max() < 0.006) if on else (sig_v.min() > 0.006), (on, sig_v.max(), sig_v.min())
+    assert speed[True] < 0.015 < speed[False], speed
 
 
 def test_constraint_measurements_see_their_states():

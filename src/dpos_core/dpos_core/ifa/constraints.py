@@ -14,11 +14,18 @@ and ``C_true = E C_est`` (:mod:`.model`).
   vibration of a running engine, the sway of a hand).
 * **ZARU** (Groves 2013 sec. 15.3.2): at rest the gyros see the earth rate alone, so the mean
   bias-compensated rate of the window ``w_bar`` minus the computed earth rate in IMU axes is the
-  remaining gyro bias plus the attitude error's share of the earth rate:
-  ``y = w_bar - C_est^T w_ie^n = eps + C_est^T (E^T - I) w_ie^n + v``.  Its noise is the window
-  mean's: per axis ``max(s^2, s_g^2) / W`` with ``s^2`` the samples' own variance over the window
-  (the vibration of a running engine, which the datasheet's white noise ``s_g`` does not hold) and
-  W samples.
+  remaining gyro bias plus the attitude error's share of the earth rate,
+  ``w_bar - C_est^T w_ie^n = eps + C_est^T (E^T - I) w_ie^n + v``.  Only its vertical component in
+  the navigation frame is used: ``y = (C_est w_bar - w_ie^n)_U = (C_est eps + (E^T - I) w_ie^n)_U``.
+  The horizontal components tell the level gyro biases, which the ZUPT already sees through the
+  tilt they drive, and the same tilt drift again: used as well, the two (in a divided-difference
+  filter with a heading still uncertain by tens of degrees) made the filter find heading
+  information at rest that is not there (mems_vehicle: attitude NEES 13 against 3, the outage's
+  error doubled); the vertical component, the heading axis's bias that nothing else observes at rest,
+  holds no heading error (a rotation about Up leaves the vertical earth rate as it is).  Its noise
+  is the window mean's: ``u^T C_est diag(max(s^2, s_g^2) / W) C_est^T u`` (u = Up) with ``s^2``
+  the samples' own variance per axis over the window (the vibration of a running engine, which
+  the datasheet's white noise ``s_g`` does not hold) and W samples.
 * **NHC** (Sukkarieh 2000; Groves 2013 sec. 15.4): a wheeled vehicle neither slips sideways nor
   leaves the road: the body velocity's lateral and vertical components (FLU ``y``, ``z``) are zero
   within ``sigma_nhc`` (side slip, suspension, an IMU not at the rear axle):
@@ -64,24 +71,26 @@ def zupt(vel_n_mps: FloatArray, sigma_mps: float, full: Callable[[FloatArray], F
 
 def zaru(omega_radps: FloatArray, gyro_bias_comp_radps: FloatArray, C_nb: FloatArray, w_ie_n_radps: FloatArray,
          sigma_g_radps: float, full: Callable[[FloatArray], FloatArray]) -> Measurement:
-    """Zero angular rate: the window's raw rates (W, 3) [rad/s] minus the compensation (3,) against
-    the earth rate ``w_ie_n`` (3,) ENU seen through the computed attitude ``C_nb`` (3, 3); the
-    samples' white noise 1 sigma ``sigma_g_radps`` is the floor of the noise (module docstring)."""
+    """Zero angular rate about the vertical: the window's raw rates (W, 3) [rad/s] minus the
+    compensation (3,), through the computed attitude ``C_nb`` (3, 3), against the earth rate
+    ``w_ie_n`` (3,) ENU; the samples' white noise 1 sigma ``sigma_g_radps`` is the floor of the
+    noise (module docstring).  One row."""
     w = np.asarray(omega_radps, dtype=float).reshape(-1, 3)
     if w.shape[0] < 2:
         raise ValueError(f"ZARU needs a window of W >= 2 samples, got {w.shape}")
     C = np.asarray(C_nb, dtype=float)
     wie = np.asarray(w_ie_n_radps, dtype=float).reshape(3)
-    y = w.mean(axis=0) - np.asarray(gyro_bias_comp_radps, dtype=float) - C.T @ wie
+    y = np.array([(C @ (w.mean(axis=0) - np.asarray(gyro_bias_comp_radps, dtype=float)) - wie)[2]])
     var = np.maximum(w.var(axis=0, ddof=1), sigma_g_radps**2) / w.shape[0]
+    u = C[2]  # the Up row of C: (C v)_U = u . v
 
     def h(x: FloatArray) -> FloatArray:
         X = full(np.asarray(x, dtype=float))
         E = rotvec_to_dcm(X[..., _PHI])
         d = np.einsum("...ji,j->...i", E, wie) - wie  # (E^T - I) w_ie (..., 3)
-        return X[..., _EPS] + d @ C  # + C^T d
+        return (X[..., _EPS] @ u + d[..., 2])[..., None]
 
-    return y, h, np.diag(var)
+    return y, h, np.array([[float(np.sum(u**2 * var))]])
 
 
 def nhc(vel_n_mps: FloatArray, C_nb: FloatArray, sigma_mps: float, full: Callable[[FloatArray], FloatArray]) -> Measurement:

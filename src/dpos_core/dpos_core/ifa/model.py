@@ -196,10 +196,12 @@ class IfaFilterConfig:
         standstill_updates: at every GNSS epoch whose ``standstill_window_s`` of IMU samples before
             it pass the standstill test (:func:`~dpos_core.ifa.standstill.detect_standstill` with
             the IMU model's noise, ``standstill_noise_factor`` and the fix's speed), apply a
-            zero-velocity (ZUPT, ``zupt_sigma_mps``) and a zero-angular-rate (ZARU: the gyro bias
-            seen directly) update after the fix's (:mod:`dpos_core.ifa.constraints`); the level
-            follows from the ZUPT (a tilt error integrates gravity into the velocity).  ``zupt`` and
-            ``zaru`` select the two (both on by default; docs/ifa.md has the figures of each).
+            zero-velocity (ZUPT, ``zupt_sigma_mps``, if ``zupt``) and a zero-angular-rate (ZARU
+            about the vertical: the heading axis's gyro bias, if ``zaru``) update after the fix's
+            (:mod:`dpos_core.ifa.constraints`), gated by their NIS.  Off by default: on the three
+            recordings with a standstill no setting was better everywhere (docs/ifa.md, "ZUPT and
+            ZARU"): ZUPT + ZARU doubled mems_vehicle's outage error against its truth, ZUPT alone
+            made thor_flight75's first outage worse, ZARU alone is neutral on mems_vehicle.
         nhc: the non-holonomic constraint of a ground vehicle (lateral and vertical body velocity
             zero within ``nhc_sigma_mps``) at every GNSS epoch in motion, in the fine phase; off by
             default (aircraft, handheld): the IMU's axes must be the vehicle's.
@@ -240,7 +242,7 @@ class IfaFilterConfig:
     restart_on_divergence: bool = True
     bias_feedback: str = "auto"
     gyro_axis_errors: str = "auto"
-    standstill_updates: bool = True
+    standstill_updates: bool = False
     zupt: bool = True
     zaru: bool = True
     zupt_sigma_mps: float = 0.005

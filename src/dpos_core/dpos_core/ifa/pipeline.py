@@ -338,13 +338,17 @@ class _Engine:
                 K = np.linalg.solve(Sy, H @ P).T
                 nu_c = y_c - h_c(x[None])[0]
                 c_nis = float(nu_c @ solve_spd(Sy, nu_c[:, None])[:, 0])
-                x = x + K @ nu_c
-                IKH = np.eye(m.n) - K @ H
-                P = symmetrize(IKH @ P @ IKH.T + K @ R_c @ K.T)
+                if c_nis <= chi2.ppf(cfg.nis_quantile, y_c.size):
+                    x = x + K @ nu_c
+                    IKH = np.eye(m.n) - K @ H
+                    P = symmetrize(IKH @ P @ IKH.T + K @ R_c @ K.T)
             else:
                 up_c = dd2_update(x, S, y_c, h_c, chol(R_c))
-                x, S = up_c.x, up_c.S
                 c_nis = float(np.sum(np.linalg.solve(up_c.S_y, up_c.nu) ** 2))
+                if c_nis <= chi2.ppf(cfg.nis_quantile, y_c.size):
+                    x, S = up_c.x, up_c.S
+            if c_nis > chi2.ppf(cfg.nis_quantile, y_c.size):  # gated: not at rest after all (a start within the window)
+                applied = ()
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise NumericalFailure("non-finite state after the update", what="IFA filter", t_s=fix.t_s)
         nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
@@ -415,16 +419,17 @@ class _Engine:
         IMU model's noise, ``cfg.standstill_noise_factor``, the fix's speed) and the constraint
         measurements it calls for (:mod:`.constraints`): ZUPT and ZARU at rest
         (``cfg.standstill_updates``, ``cfg.zupt``, ``cfg.zaru``), NHC in motion in the fine phase (``cfg.nhc``).  Returns
-        ``(at_rest or None without a window, names, [(y, h, R)])``."""
+        ``(at_rest or None without a window, names, [(y, h, R)])``.  The caller gates them: an
+        update whose NIS (their innovation covariance) is beyond the ``cfg.nis_quantile`` chi-square
+        quantile is not applied (the vehicle started within the window; ``EpochRecord.constraints``
+        is then empty, ``constraint_nis`` says why)."""
         m, cfg = self.model, self.cfg
         t, om, fb = m.recent_samples()
         at_rest: bool | None = None
         dt = float(np.median(np.diff(t))) if t.size >= 2 else 0.0
         if t.size >= 3 and t[-1] - t[0] >= 0.5 * cfg.standstill_window_s:
-            # the fix's speed is at rest when within 3 sigma of its noise (at least the detector's 0.2 m/s)
-            sv = np.asarray(fix.vel_sigma_mps if cfg.use_reported_sigma else cfg.gnss_vel_sigma_mps, dtype=float)
             test = detect_standstill(om - m.gyro_bias_comp, fb - m.accel_bias_comp, cfg.imu, dt, np.asarray(fix.vel_n_mps, dtype=float),
-                                     noise_factor=cfg.standstill_noise_factor, max_gnss_speed_mps=max(0.2, 3.0 * float(np.hypot(sv[0], sv[1]))))
+                                     noise_factor=cfg.standstill_noise_factor)
             at_rest = test.at_rest
         nom = m.strapdown.state
         C = nom.C_nb

@@ -81,9 +81,9 @@ def parser() -> argparse.ArgumentParser:
                     help="raw: level on the mean specific force before the start fix (pos_master_node's live rule); "
                          "auto (default): as raw at rest (standstill test), in motion with the GNSS acceleration removed and the level "
                          "sigma widened to what is left (dpos_core.ifa.standstill)")
-    ap.add_argument("--no-standstill-updates", action="store_true",
-                    help="no zero-velocity / zero-angular-rate updates at the epochs detected at rest (ifa_node's standstill_updates "
-                         "false; default: as the parameter file, on unless it says otherwise)")
+    ap.add_argument("--standstill-updates", choices=("on", "off"),
+                    help="zero-velocity / zero-angular-rate updates at the epochs detected at rest (ifa_node's standstill_updates; "
+                         "default: as the parameter file, off unless it says otherwise; docs/ifa.md)")
     ap.add_argument("--nhc", action="store_true",
                     help="the non-holonomic constraint of a wheeled ground vehicle (ifa_node's nhc true): no sideways or vertical "
                          "body velocity; only with the IMU's axes the vehicle's (--input-rotation-rpy-deg)")
@@ -216,8 +216,8 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         cfg, aircraft, method, lever = load_config(args.params_file, args.method)
         if args.gnss_time_offset is not None:
             cfg = dc_replace(cfg, gnss_time_offset_s=args.gnss_time_offset * 1e-3)
-        if args.no_standstill_updates:
-            cfg = dc_replace(cfg, standstill_updates=False)
+        if args.standstill_updates is not None:
+            cfg = dc_replace(cfg, standstill_updates=args.standstill_updates == "on")
         if args.nhc:
             cfg = dc_replace(cfg, nhc=True)
         offset_s = cfg.gnss_time_offset_s
