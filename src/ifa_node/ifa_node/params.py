@@ -54,7 +54,8 @@ class IfaConfig:
             [Fang2012] Table 1 (navigation grade).
         level_sigma_deg: prior pitch / roll 1 sigma [deg].
         gnss_time_offset_s, max_fix_bridge_s, predict_interval_s, restart_on_divergence,
-            bias_feedback, gyro_axis_errors: see :class:`dpos_core.ifa.model.IfaFilterConfig`.
+            bias_feedback, gyro_axis_errors, standstill_updates, nhc: see
+            :class:`dpos_core.ifa.model.IfaFilterConfig`.
         outage_wait_s: a time update alone due at IMU time ``t`` (no fix since ``predict_interval_s``:
             an outage) is made, and published as an /ifa/correction with the grown covariance, once
             IMU samples stamped ``t + outage_wait_s`` are here and the sample at ``t`` has been here
@@ -93,6 +94,8 @@ class IfaConfig:
     bias_feedback: str = param("auto", "when bias estimates are fed back: auto (by the IMU grade), aligned, always", choices=BIAS_FEEDBACK)
     gyro_axis_errors: str = param("auto", "gyro scale factor / misalignment as states or noise: auto (states for MEMS), states, noise",
                                   choices=GYRO_AXIS_ERRORS)
+    standstill_updates: bool = param(False, "zero-velocity and zero-angular-rate updates at the GNSS epochs detected at rest (docs/ifa.md)")
+    nhc: bool = param(False, "non-holonomic constraint (a wheeled ground vehicle: no sideways or vertical body velocity)")
     outage_wait_s: float = param(0.25, "outage: make a due time update alone once IMU data this much [s] newer is here, and this long [s] in wall time",
                                  minimum=0.0, exclusive_minimum=True)
     pair_tolerance_s: float = param(0.001, "a /gnss/fix and /gnss/vel closer than this [s] form one epoch", minimum=0.0)
@@ -124,7 +127,7 @@ class IfaConfig:
         return IfaFilterConfig(imu=imu, level_sigma_deg=self.level_sigma_deg, gnss_time_offset_s=self.gnss_time_offset_s,
                                max_fix_bridge_s=self.max_fix_bridge_s, predict_interval_s=self.predict_interval_s,
                                restart_on_divergence=self.restart_on_divergence, bias_feedback=self.bias_feedback,
-                               gyro_axis_errors=self.gyro_axis_errors,
+                               gyro_axis_errors=self.gyro_axis_errors, standstill_updates=self.standstill_updates, nhc=self.nhc,
                                vertical=self.vertical, window=self.window, r_estimator=self.r_estimator,
                                r_window_max=self.r_window_max, r_min_epochs=self.r_min_epochs,
                                r_change_quantile=self.r_change_quantile,

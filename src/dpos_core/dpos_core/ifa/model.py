@@ -196,6 +196,18 @@ class IfaFilterConfig:
             explain).
         restart_on_divergence: restart the alignment after a divergence (the bank of heading
             hypotheses again, from the latest fix's position and velocity and the current attitude).
+        standstill_updates: at every GNSS epoch whose ``standstill_window_s`` of IMU samples before
+            it pass the standstill test (:func:`~dpos_core.ifa.standstill.detect_standstill` with
+            the IMU model's noise, ``standstill_noise_factor`` and the fix's speed), apply a
+            zero-velocity (ZUPT, ``zupt_sigma_mps``, if ``zupt``) and a zero-angular-rate (ZARU
+            about the vertical: the heading axis's gyro bias, if ``zaru``) update after the fix's
+            (:mod:`dpos_core.ifa.constraints`), gated by their NIS.  Off by default: on the three
+            recordings with a standstill no setting was better everywhere (docs/ifa.md, "ZUPT and
+            ZARU"): ZUPT + ZARU doubled mems_vehicle's outage error against its truth, ZUPT alone
+            made thor_flight75's first outage worse, ZARU alone is neutral on mems_vehicle.
+        nhc: the non-holonomic constraint of a ground vehicle (lateral and vertical body velocity
+            zero within ``nhc_sigma_mps``) at every GNSS epoch in motion, in the fine phase; off by
+            default (aircraft, handheld): the IMU's axes must be the vehicle's.
     """
 
     vertical: bool = True
@@ -234,6 +246,14 @@ class IfaFilterConfig:
     restart_on_divergence: bool = True
     bias_feedback: str = "auto"
     gyro_axis_errors: str = "auto"
+    standstill_updates: bool = False
+    zupt: bool = True
+    zaru: bool = True
+    zupt_sigma_mps: float = 0.005
+    standstill_window_s: float = 1.0
+    standstill_noise_factor: float = 10.0
+    nhc: bool = False
+    nhc_sigma_mps: float = 0.1
 
     def __post_init__(self) -> None:
         if self.heading_hypotheses < 1:
@@ -263,6 +283,9 @@ class IfaFilterConfig:
             raise ValueError(f"gnss_time_offset_s must be finite, got {self.gnss_time_offset_s}")
         if not 0.0 < self.nis_quantile < 1.0:
             raise ValueError(f"nis_quantile must be in (0, 1), got {self.nis_quantile}")
+        rest = (self.zupt_sigma_mps, self.standstill_window_s, self.standstill_noise_factor, self.nhc_sigma_mps)
+        if not all(np.isfinite(v) and v > 0 for v in rest):
+            raise ValueError("IfaFilterConfig: zupt_sigma_mps, standstill_window_s, standstill_noise_factor and nhc_sigma_mps must be finite and > 0")
 
     @property
     def feeds_biases_while_aligning(self) -> bool:
@@ -395,6 +418,8 @@ class IfaModel:
         self._axis = cfg.axis_states
         self._K_gam = np.zeros((3, 9))  # int C_est W(omega) dt over the interval (gyro axis errors -> attitude)
         self.chunks: list[NavSeries] = []
+        # the raw IMU samples of the last standstill_window_s (the standstill test and ZARU at an epoch)
+        self._recent = (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
 
     # ------------------------------------------------------------------ embedding n <-> 24
     def full(self, x: FloatArray) -> FloatArray:
@@ -425,6 +450,12 @@ class IfaModel:
         t = np.asarray(t_s, dtype=float)
         if t.size == 0:
             return
+        rt, rw, rf = self._recent
+        rt = np.r_[rt, t]
+        rw = np.concatenate([rw, np.asarray(omega_radps, dtype=float).reshape(-1, 3)])
+        rf = np.concatenate([rf, np.asarray(f_mps2, dtype=float).reshape(-1, 3)])
+        k = rt > t[-1] - self.cfg.standstill_window_s  # (t - W, t], as standstill.start_level
+        self._recent = (rt[k], rw[k], rf[k])
         start = self.strapdown.state
         dt = np.diff(np.concatenate([[start.t_s], t]))[:, None]
         om = np.asarray(omega_radps, dtype=float) - self.gyro_bias_comp
@@ -438,6 +469,11 @@ class IfaModel:
             self._K_gam = self._K_gam + np.einsum("kij,kjl->il", C_mid, gyro_axis_matrix(om) * dt[:, :, None])
         self._omega_last = om[-1]
         self._rot_abs = self._rot_abs + np.abs(om * dt).sum(axis=0)
+
+    def recent_samples(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The raw (not bias-compensated) IMU samples of the last ``cfg.standstill_window_s``:
+        t_s (W,), omega_radps (W, 3), f_mps2 (W, 3)."""
+        return self._recent
 
     def interval(self) -> _Linearization | None:
         """Constants of ``f`` for the step since the last filter epoch (None if no time passed)."""

@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from dpos_core.units import DEG, FloatArray
 
+from .. import earth
 from ..attitude import dcm_to_quat, quat_to_dcm
 from ..chi2 import chi2_quantile
 from ..errors import NumericalFailure, RejectedInput
@@ -65,7 +66,9 @@ from ..filters.linalg import JitterRepairs, chol, householder_tria, solve_spd, s
 from ..frames import C_nb_from_hpr, hpr_error, hpr_from_C_nb
 from ..series import GnssSeries, ImuSeries, NavSeries
 from ..strapdown import NavState
+from . import constraints
 from .model import GnssFix, IfaFilterConfig, IfaModel, check_fix
+from .standstill import detect_standstill
 from .states import AlignmentState
 
 #: two stamps closer than this are the same instant [s] (as dpos_core.ifa.mechanization.STAMP_TOL_S)
@@ -121,6 +124,12 @@ class EpochRecord:
     loglik: float = 0.0  #: log-likelihood of this epoch's innovation (model covariance)
     hypotheses: int = 1  #: heading hypotheses still alive after this epoch
     events: list[HypothesisEvent] = field(default_factory=list)  #: what the bank did at this epoch
+    #: the standstill test of the epoch's IMU window (None: not made, too few samples)
+    at_rest: bool | None = None
+    #: the constraint updates applied after the fix's: ``zupt``, ``zaru``, ``nhc`` (:mod:`.constraints`)
+    constraints: tuple[str, ...] = ()
+    #: normalized innovation squared of the constraint updates (nan without), chi-square with their dimension when consistent
+    constraint_nis: float = float("nan")
 
 
 @dataclass
@@ -312,6 +321,34 @@ class _Engine:
             x, S, nu = up.x, up.S, up.nu
             Py_model = symmetrize(up.S_y @ up.S_y.T)
             R_used = R
+        at_rest, applied, cons = self._constraints(fix)
+        c_nis = float("nan")
+        if cons:  # sequential updates with their nominal R (no adaptation): after the fix's, before the feedback
+            ys, hs, Rs = zip(*cons)
+            y_c = np.concatenate(ys)
+            R_c = np.zeros((y_c.size, y_c.size))
+            o = 0
+            for Ri in Rs:
+                R_c[o:o + Ri.shape[0], o:o + Ri.shape[0]] = Ri
+                o += Ri.shape[0]
+            h_c = lambda X: np.concatenate([hi(X) for hi in hs], axis=-1)  # noqa: E731
+            if self.method == "aekf":
+                H = _jac(h_c, x, P)
+                Sy = symmetrize(H @ P @ H.T + R_c)
+                K = np.linalg.solve(Sy, H @ P).T
+                nu_c = y_c - h_c(x[None])[0]
+                c_nis = float(nu_c @ solve_spd(Sy, nu_c[:, None])[:, 0])
+                if c_nis <= chi2.ppf(cfg.nis_quantile, y_c.size):
+                    x = x + K @ nu_c
+                    IKH = np.eye(m.n) - K @ H
+                    P = symmetrize(IKH @ P @ IKH.T + K @ R_c @ K.T)
+            else:
+                up_c = dd2_update(x, S, y_c, h_c, chol(R_c))
+                c_nis = float(np.sum(np.linalg.solve(up_c.S_y, up_c.nu) ** 2))
+                if c_nis <= chi2.ppf(cfg.nis_quantile, y_c.size):
+                    x, S = up_c.x, up_c.S
+            if c_nis > chi2.ppf(cfg.nis_quantile, y_c.size):  # gated: not at rest after all (a start within the window)
+                applied = ()
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise NumericalFailure("non-finite state after the update", what="IFA filter", t_s=fix.t_s)
         nis = float(nu @ solve_spd(Py_model, nu[:, None])[:, 0])
@@ -372,9 +409,40 @@ class _Engine:
         self.last_fix_t = fix.t_s
         if step is not None and self.smoother_steps is not None:
             self.smoother_steps.append(step)
-        rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status, loglik)
+        rec = EpochRecord(fix.t_s, x_hat, P_hat, c, nu, nis, nis_w, np.diag(R_used).copy(), self.status, loglik,
+                          at_rest=at_rest, constraints=applied, constraint_nis=c_nis)
         self.records.append(rec)
         return rec
+
+    def _constraints(self, fix: GnssFix) -> tuple[bool | None, tuple[str, ...], list[constraints.Measurement]]:
+        """The standstill test of the IMU window before the epoch (``cfg.standstill_window_s``, the
+        IMU model's noise, ``cfg.standstill_noise_factor``, the fix's speed) and the constraint
+        measurements it calls for (:mod:`.constraints`): ZUPT and ZARU at rest
+        (``cfg.standstill_updates``, ``cfg.zupt``, ``cfg.zaru``), NHC in motion in the fine phase (``cfg.nhc``).  Returns
+        ``(at_rest or None without a window, names, [(y, h, R)])``.  The caller gates them: an
+        update whose NIS (their innovation covariance) is beyond the ``cfg.nis_quantile`` chi-square
+        quantile is not applied (the vehicle started within the window; ``EpochRecord.constraints``
+        is then empty, ``constraint_nis`` says why)."""
+        m, cfg = self.model, self.cfg
+        t, om, fb = m.recent_samples()
+        at_rest: bool | None = None
+        dt = float(np.median(np.diff(t))) if t.size >= 2 else 0.0
+        if t.size >= 3 and t[-1] - t[0] >= 0.5 * cfg.standstill_window_s:
+            test = detect_standstill(om - m.gyro_bias_comp, fb - m.accel_bias_comp, cfg.imu, dt, np.asarray(fix.vel_n_mps, dtype=float),
+                                     noise_factor=cfg.standstill_noise_factor)
+            at_rest = test.at_rest
+        nom = m.strapdown.state
+        C = nom.C_nb
+        if at_rest and cfg.standstill_updates and (cfg.zupt or cfg.zaru):
+            g_sig, _ = cfg.imu.white_sigma(dt)
+            names = ("zupt",) * cfg.zupt + ("zaru",) * cfg.zaru
+            ms = [constraints.zupt(nom.vel_n_mps, cfg.zupt_sigma_mps, m.full, fb, dt, C)] if cfg.zupt else []
+            if cfg.zaru:
+                ms.append(constraints.zaru(om, m.gyro_bias_comp, C, earth.earth_rate_n(nom.llh[0]), g_sig, m.full))
+            return at_rest, names, ms
+        if cfg.nhc and self.fine and at_rest is not None and not at_rest:
+            return at_rest, ("nhc",), [constraints.nhc(nom.vel_n_mps, C, cfg.nhc_sigma_mps, m.full)]
+        return at_rest, (), []
 
 
     def _smoother_step(self, t_fix_s: float, t_nav_s: float, pred: tuple[FloatArray, FloatArray, FloatArray], C: FloatArray,
@@ -676,6 +744,12 @@ class IfaResult:
     #: with ``run(..., record_smoother=True)``: the final hypothesis (its model's nominal chunks and
     #: :attr:`_Engine.smoother_steps`), what :func:`dpos_core.ifa.smoother.smooth` needs
     engine: _Engine | None = None
+    #: per epoch (K,): the standstill test of its IMU window (1 at rest, 0 in motion, nan not made)
+    at_rest: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: per epoch (K,): the constraint updates applied (``EpochRecord.constraints``)
+    constraints: list[tuple[str, ...]] = field(default_factory=list)
+    #: per epoch (K,): EpochRecord.constraint_nis
+    constraint_nis: FloatArray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def heading_sigma_deg(self) -> FloatArray:
@@ -777,6 +851,8 @@ def run(imu: ImuSeries, gnss: GnssSeries, lever_arm: ArrayLike, cfg: IfaFilterCo
         np.array([r.R_diag for r in recs]).reshape(-1, p), np.array([r.status for r in recs], dtype=int),
         al.aligned, al.aligned_t_s, gb, ab, al.nav, rejected, runtime, list(al.events), al.hypotheses_failed,
         al.chol_jitter_repairs, al.restarts, list(al.track), before_start, al.engine if record_smoother else None,
+        np.array([np.nan if r.at_rest is None else float(r.at_rest) for r in recs]), [r.constraints for r in recs],
+        np.array([r.constraint_nis for r in recs]),
     )
 
 

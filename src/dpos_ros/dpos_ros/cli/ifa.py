@@ -82,6 +82,12 @@ def parser() -> argparse.ArgumentParser:
                     help="raw: level on the mean specific force before the start fix (pos_master_node's live rule); "
                          "auto (default): as raw at rest (standstill test), in motion with the GNSS acceleration removed and the level "
                          "sigma widened to what is left (dpos_core.ifa.standstill)")
+    ap.add_argument("--standstill-updates", choices=("on", "off"),
+                    help="zero-velocity / zero-angular-rate updates at the epochs detected at rest (ifa_node's standstill_updates; "
+                         "default: as the parameter file, off unless it says otherwise; docs/ifa.md)")
+    ap.add_argument("--nhc", action="store_true",
+                    help="the non-holonomic constraint of a wheeled ground vehicle (ifa_node's nhc true): no sideways or vertical "
+                         "body velocity; only with the IMU's axes the vehicle's (--input-rotation-rpy-deg)")
     ap.add_argument("--smooth", action="store_true",
                     help="also the forward-backward (RTS) smoothed navigation, post-processing: OUT/nav_smoothed.csv and "
                          "OUT/nav_smoothed.pos (RTKLIB .pos columns), scored against the reference as the forward one")
@@ -224,6 +230,10 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
         cfg, aircraft, method, lever = load_config(args.params_file, args.method)
         if args.gnss_time_offset is not None:
             cfg = dc_replace(cfg, gnss_time_offset_s=args.gnss_time_offset * 1e-3)
+        if args.standstill_updates is not None:
+            cfg = dc_replace(cfg, standstill_updates=args.standstill_updates == "on")
+        if args.nhc:
+            cfg = dc_replace(cfg, nhc=True)
         offset_s = cfg.gnss_time_offset_s
         avail = _topics(args.bag)
         default = PRODUCT_TOPICS if PRODUCT_TOPICS[0] in avail else DRIVER_TOPICS
@@ -271,6 +281,8 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
              + ("" if lv is None else f"; level {lv.how}" + ("" if lv.standstill is None else
                 f" (standstill T {lv.standstill.statistic:.3g}, threshold {lv.standstill.threshold:.3g})")
                 + ("" if lv.sigma_rad is None else f", level sigma {lv.sigma_rad / DEG:.2f} deg")),
+             f"- standstill: {int(np.nansum(res.at_rest))} of {res.at_rest.size} epochs at rest; constraint updates "
+             f"{'ZUPT + ZARU at rest' if cfg.standstill_updates else 'off'}{', NHC in motion' if cfg.nhc else ''}",
              f"- rejected fixes: {len(res.rejected)}; warnings: {len(caught)}; processing {res.runtime_s:.2f} s for {data_s:.1f} s "
              f"of data (ratio {res.runtime_s / max(data_s, 1e-9):.4f})",
              f"- reference: {args.reference or 'the bag fixes'}; gnss_time_offset_s {offset_s * 1e3:+.1f} ms (GNSS stamps minus "
