@@ -338,16 +338,16 @@ class _Engine:
                 K = np.linalg.solve(Sy, H @ P).T
                 nu_c = y_c - h_c(x[None])[0]
                 c_nis = float(nu_c @ solve_spd(Sy, nu_c[:, None])[:, 0])
-                if c_nis <= chi2.ppf(cfg.nis_quantile, y_c.size):
+                if c_nis <= chi2_quantile(cfg.nis_quantile, y_c.size):
                     x = x + K @ nu_c
                     IKH = np.eye(m.n) - K @ H
                     P = symmetrize(IKH @ P @ IKH.T + K @ R_c @ K.T)
             else:
                 up_c = dd2_update(x, S, y_c, h_c, chol(R_c))
                 c_nis = float(np.sum(np.linalg.solve(up_c.S_y, up_c.nu) ** 2))
-                if c_nis <= chi2.ppf(cfg.nis_quantile, y_c.size):
+                if c_nis <= chi2_quantile(cfg.nis_quantile, y_c.size):
                     x, S = up_c.x, up_c.S
-            if c_nis > chi2.ppf(cfg.nis_quantile, y_c.size):  # gated: not at rest after all (a start within the window)
+            if c_nis > chi2_quantile(cfg.nis_quantile, y_c.size):  # gated: not at rest after all (a start within the window)
                 applied = ()
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise NumericalFailure("non-finite state after the update", what="IFA filter", t_s=fix.t_s)
