@@ -10,6 +10,8 @@ commands' ``--quiet``: then nothing at all is written by this module, and the co
     with st.items("sub-IMU", 6) as bar:               # a bar of the 6 sub-IMUs
         bar.done("imu01", "estimated")                # "  sub-IMU imu01: estimated" above the bar, bar + 1
     Progress("writing")(done, total)                   # a bar of done / total (the bag writers' callback)
+    with st.solving(6) as progress:                   # the bars of solve's ProductProgress (write: st.writing)
+        solve(..., progress=progress)
 """
 
 from __future__ import annotations
@@ -17,10 +19,14 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import TracebackType
 from typing import TextIO
 
 from tqdm import tqdm
+
+from dpos_ros.products.progress import ProductProgress
 
 
 def on_terminal(stream: TextIO, quiet: bool = False) -> bool:
@@ -126,6 +132,28 @@ class Stages:
     def bar(self, label: str) -> Progress:
         """A bar of done / total (:class:`Progress`), shown as the stages are."""
         return Progress(label, self.stream, self.enabled)
+
+    @contextmanager
+    def solving(self, n_sub_imus: int) -> Iterator[ProductProgress]:
+        """:func:`dpos_ros.products.solve.solve`'s progress: a line and a bar step per sub-IMU (of
+        ``n_sub_imus``), a bar of the wing fit's windows; the bars closed on leaving."""
+        with self.items("sub-IMU", n_sub_imus) as bar:
+            fit = self.bar("wing fit")
+            try:
+                yield ProductProgress(sub_imu=bar.done, fit_window=fit)
+            finally:
+                fit.close()
+
+    @contextmanager
+    def writing(self, n_antennas: int) -> Iterator[ProductProgress]:
+        """:func:`dpos_ros.products.write.write`'s progress: a line and a bar step per antenna (of
+        ``n_antennas``), a bar of the antenna bag's batches; the bars closed on leaving."""
+        with self.items("antenna", n_antennas) as bar:
+            bag = self.bar("antenna bag")
+            try:
+                yield ProductProgress(antenna=bar.done, bag=bag)
+            finally:
+                bag.close()
 
     def print(self, text: str) -> None:
         """A line on stdout (flushed) while a bar may be drawn on the terminal (the bar is redrawn below it)."""
