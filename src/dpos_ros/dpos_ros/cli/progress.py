@@ -134,26 +134,28 @@ class Stages:
         return Progress(label, self.stream, self.enabled)
 
     @contextmanager
+    def _items_and_bar(self, what: str, total: int, label: str) -> Iterator[tuple[Items, Progress]]:
+        """:meth:`items` of ``total`` ``what`` and a :meth:`bar` called ``label``, both closed on leaving."""
+        with self.items(what, total) as items:
+            bar = self.bar(label)
+            try:
+                yield items, bar
+            finally:
+                bar.close()
+
+    @contextmanager
     def solving(self, n_sub_imus: int) -> Iterator[ProductProgress]:
         """:func:`dpos_ros.products.solve.solve`'s progress: a line and a bar step per sub-IMU (of
-        ``n_sub_imus``), a bar of the wing fit's windows; the bars closed on leaving."""
-        with self.items("sub-IMU", n_sub_imus) as bar:
-            fit = self.bar("wing fit")
-            try:
-                yield ProductProgress(sub_imu=bar.done, fit_window=fit)
-            finally:
-                fit.close()
+        ``n_sub_imus``), a bar of the wing fit's windows."""
+        with self._items_and_bar("sub-IMU", n_sub_imus, "wing fit") as (items, fit):
+            yield ProductProgress(sub_imu=items.done, fit_window=fit)
 
     @contextmanager
     def writing(self, n_antennas: int) -> Iterator[ProductProgress]:
         """:func:`dpos_ros.products.write.write`'s progress: a line and a bar step per antenna (of
-        ``n_antennas``), a bar of the antenna bag's batches; the bars closed on leaving."""
-        with self.items("antenna", n_antennas) as bar:
-            bag = self.bar("antenna bag")
-            try:
-                yield ProductProgress(antenna=bar.done, bag=bag)
-            finally:
-                bag.close()
+        ``n_antennas``), a bar of the antenna bag's batches."""
+        with self._items_and_bar("antenna", n_antennas, "antenna bag") as (items, bag):
+            yield ProductProgress(antenna=items.done, bag=bag)
 
     def print(self, text: str) -> None:
         """A line on stdout (flushed) while a bar may be drawn on the terminal (the bar is redrawn below it)."""
