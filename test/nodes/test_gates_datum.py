@@ -1,46 +1,27 @@
 """The /dpos/datum gate (dpos_core.gates.check_datum) in transfer_align_node and ifa_node: a datum
 that changes within a session is refused (warned, counted in the status), the first is kept and spilled; the next
 session may have another. In-process: the subscription callbacks are called directly with the
-sample bag's serialized messages (as test_transfer_align_faults.py); every wait is bounded.
+sample bag's serialized messages (test/support/ta_inprocess.py, as in test_transfer_align_faults.py);
+every wait is bounded.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
-from repo_paths import REPO
 from sensor_msgs.msg import NavSatFix
+from ta_inprocess import TOPICS, bag_messages, finalize, make_node, stamp_ns, status  # test/support/ta_inprocess.py
 
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
-from dpos_ros.io import bag
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]  # (a finalize: the smoothers run)
 
-BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 SECONDS = 2.0
-TOPICS = [T.DATUM, T.MASTER_NAV, T.sub_imu("sub_r"), T.sub_imu("sub_l")]
-TYPES = {T.DATUM: T.NAVSATFIX, T.MASTER_NAV: T.ODOMETRY, T.sub_imu("sub_r"): T.IMU, T.sub_imu("sub_l"): T.IMU}
-
-
-def _stamp(d: bytes) -> int:
-    return int.from_bytes(d[4:8], "little", signed=True) * 1_000_000_000 + int.from_bytes(d[8:12], "little")
-
-
-class Tap:
-    def __init__(self) -> None:
-        self.sent: list[dict[str, Any]] = []
-
-    def publish(self, arr: Any) -> None:
-        st = arr.status[0]
-        level = st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")
-        self.sent.append({kv.key: kv.value for kv in st.values} | {"message": st.message, "level": level})
 
 
 def _moved(datum: bytes, dlat_deg: float = 0.0, dh_m: float = 0.0, lat_deg: float | None = None) -> bytes:
@@ -52,19 +33,10 @@ def _moved(datum: bytes, dlat_deg: float = 0.0, dh_m: float = 0.0, lat_deg: floa
 
 def test_a_datum_that_changes_within_a_session_is_refused_and_the_first_kept(ros_context, tmp_path: Path,
                                                                                monkeypatch) -> None:
-    import transfer_align_node.node as tan
-
-    monkeypatch.setattr(tan, "_pool", lambda n: cf.ThreadPoolExecutor(max_workers=max(1, n)))
-    raw = bag.read_raw(BAG, TOPICS)
-    t_first = raw[T.MASTER_NAV][1][0]
-    msgs = {topic: [d for t, d in zip(t_log, data) if topic == T.DATUM or t - t_first <= SECONDS * 1e9]
-            for topic, (_, t_log, data) in raw.items()}
-    over = {"method": "urtss", "aircraft_config": "paper_su_pair", "output_dir": str(tmp_path / "out"),
-            "finalize_timeout_s": 2.0, "output_rate_hz": 10.0}
-    ta = tan.TransferAlignNode(context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in over.items()])
+    msgs = {topic: data for topic, (_, data) in bag_messages(SECONDS).items()}
+    ta = make_node(ros_context, tmp_path / "out", monkeypatch)
     try:
-        ta._status_pub = Tap()
-        cbs = {t: ta._make_cb(t, mt) for t, mt in TYPES.items()}
+        cbs = ta.cbs
         datum = msgs[T.DATUM][0]
         first = cv.datum_from_msg(deserialize_message(datum, NavSatFix))
         cbs[T.DATUM](datum)
@@ -78,21 +50,16 @@ def test_a_datum_that_changes_within_a_session_is_refused_and_the_first_kept(ros
         for topic in TOPICS[1:]:
             for d in msgs[topic][half if topic == T.MASTER_NAV else 0:]:
                 cbs[topic](d)
-        ta._publish_status()
-        st = ta._status_pub.sent[-1]
+        st = status(ta)
         assert st["gate/datum/changed"] == "2" and st["gate/datum/nonfinite"] == "1" and st["gate_refused"] == "3", st
         assert st["level"] >= 1 and st["last_gate"].startswith("datum/nonfinite"), st
         with ta._lock:
             kept = cv.datum_from_msg(deserialize_message(ta._datum[1], NavSatFix))
         np.testing.assert_array_equal(kept, first)
         # the session closes: the next one may have another datum (a new flight)
-        end = max(_stamp(d) for d in msgs[T.MASTER_NAV])
-        assert ta._start_finalize(end, "gated")
-        ta._finalize_thread.join(timeout=180)
-        assert not ta._finalize_thread.is_alive(), ta._progress
+        finalize(ta, max(stamp_ns(d) for d in msgs[T.MASTER_NAV]), "gated")
         cbs[T.DATUM](_moved(datum, dlat_deg=1.0))
-        ta._publish_status()
-        assert ta._status_pub.sent[-1]["gate_refused"] == "3"
+        assert status(ta)["gate_refused"] == "3"
         with ta._lock:
             now = cv.datum_from_msg(deserialize_message(ta._datum[1], NavSatFix))
         assert now[0] == pytest.approx(first[0] + np.deg2rad(1.0), abs=1e-12)

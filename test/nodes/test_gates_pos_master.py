@@ -3,103 +3,41 @@ publisher sends /ifa/correction and /ifa/status that fail them; the node refuses
 /pos_master/status and keeps its navigation; a second publisher of /ifa/correction is counted.
 
 The node runs with ``device: ros``, ``alignment: ifa`` on 4 s of paper_ifa's master device relayed
-from a fake driver (as test_pos_master_node_relay.py); no ifa_node runs: the test is the foreign
-publisher. Every wait is bounded; nothing sleeps.
+from a fake driver (test/support/master_driver.py, as in test_pos_master_node_relay.py); no ifa_node
+runs: the test is the foreign publisher. Every wait is bounded; nothing sleeps.
 """
 
 from __future__ import annotations
 
-from collections import defaultdict
 from typing import Any
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import TwistWithCovarianceStamped
+from master_driver import TIMEOUT_S, MasterDriverGraph  # test/support/master_driver.py
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from ros_wait import spin_until  # test/support/ros_wait.py
-from sensor_msgs.msg import Imu, NavSatFix
+from sensor_msgs.msg import Imu
 
 from dpos_core import earth
 from dpos_core.units import DEG
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
-from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, STATUS_QOS
+from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
 from dpos_ros.devices.sim_device import load_sim_session
-from dpos_ros.devices.sim_streams import TopicStream, device_streams
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 60.0
-CHUNK = 100
-DRIVER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
-REMAPS = ["--ros-args", "-r", "imu_in:=/drv/imu", "-r", "fix_in:=/drv/fix", "-r", "vel_in:=/drv/vel"]
 DURATION_S = 4.0
+OVERRIDES = [Parameter("device", value="ros"), Parameter("alignment", value="ifa"), Parameter("aircraft_config", value="paper_ifa")]
 
 
-class Graph:
+def _graph(context: Any, executor: Any) -> MasterDriverGraph:
     """The fake driver, a sink of /master/nav, /dpos/datum and /pos_master/status, the node under test."""
-
-    def __init__(self, context: Any, executor: Any) -> None:
-        from pos_master_node.node import PosMasterNode
-
-        self.executor = executor
-        self.session = load_sim_session("paper_ifa", "", 1, DURATION_S)
-        self.streams: dict[str, TopicStream] = {s.topic: s for s in device_streams(self.session, "master", truth=False)}
-        self.driver = Node("fake_master_driver", context=context)
-        self.pubs = {"/drv/imu": self.driver.create_publisher(Imu, "/drv/imu", DRIVER_QOS),
-                     "/drv/fix": self.driver.create_publisher(NavSatFix, "/drv/fix", DRIVER_QOS),
-                     "/drv/vel": self.driver.create_publisher(TwistWithCovarianceStamped, "/drv/vel", DRIVER_QOS)}
-        self.sink = Node("gates_sink", context=context)
-        self.raw: dict[str, list[bytes]] = defaultdict(list)
-        self.sink.create_subscription(Odometry, "/master/nav", lambda m: self.raw["/master/nav"].append(bytes(m)), NAV_QOS,
-                                      raw=True)
-        self.datum: list[NavSatFix] = []
-        self.sink.create_subscription(NavSatFix, "/dpos/datum", self.datum.append, DATUM_QOS)
-        self.status: list[dict[str, str]] = []
-        self.sink.create_subscription(
-            DiagnosticArray, "/pos_master/status",
-            lambda m: self.status.append({kv.key: kv.value for kv in m.status[0].values} | {"message": m.status[0].message}),
-            STATUS_QOS)
-        self.node = PosMasterNode(context=context, cli_args=REMAPS, parameter_overrides=[
-            Parameter("device", value="ros"), Parameter("alignment", value="ifa"), Parameter("aircraft_config", value="paper_ifa")])
-        self.nodes = [self.driver, self.sink, self.node]
-        for n in self.nodes:
-            executor.add_node(n)
-        spin_until(executor, lambda: all(p.get_subscription_count() >= 1 for p in self.pubs.values())
-                   and self.node.nav_pub.get_subscription_count() >= 1, TIMEOUT_S, "the driver -> relay -> sink matches")
-
-    def play(self, after_ns: int = -1, upto_ns: int = 2**63 - 1) -> None:
-        """The master device's IMU, fixes and velocities of the session stamped in ``(after_ns, upto_ns]``,
-        in stamp order, in chunks."""
-        out = []
-        for rank, (drv, topic) in enumerate((("/drv/imu", "/master/imu"), ("/drv/fix", "/gnss/fix"), ("/drv/vel", "/gnss/vel"))):
-            s = self.streams[topic]
-            out += [(int(t), rank, drv, s.message(i)) for i, t in enumerate(s.t_ns) if after_ns < t <= upto_ns]
-        out.sort(key=lambda m: (m[0], m[1]))
-        received = lambda: sum(st.received for st in self.node.relay.stats.values())  # noqa: E731
-        for lo in range(0, len(out), CHUNK):
-            n0 = received()
-            chunk = out[lo:lo + CHUNK]
-            for _, _, drv, msg in chunk:
-                self.pubs[drv].publish(msg)
-            spin_until(self.executor, lambda n=n0 + len(chunk): received() >= n, TIMEOUT_S, "the relay to receive a chunk")
-
-    def nav(self, datum_llh: np.ndarray) -> cv.OdometryBlock:
-        lay = cdr.layout("odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
-        rows = np.stack([np.frombuffer(r, dtype=np.uint8)[: lay.size] for r in self.raw["/master/nav"]])
-        t_ns, vals = cdr.decode(lay, rows)
-        return cv.odometry_from_values(t_ns, vals, datum_llh)
-
-    def wait_status(self, condition: Any, what: str) -> dict[str, str]:
-        spin_until(self.executor, lambda: bool(self.status) and condition(self.status[-1]), TIMEOUT_S,
-                   lambda: f"{what} (last status: {self.status[-1] if self.status else None})")
-        return self.status[-1]
+    return MasterDriverGraph(context, executor, OVERRIDES, DURATION_S)
 
 
 def _correction(t_ns: int, llh: np.ndarray, vel: np.ndarray, q: np.ndarray, datum: np.ndarray,
@@ -118,10 +56,10 @@ def _ifa_status(message: str, heading_sigma_deg: str) -> DiagnosticArray:
 
 
 def test_pos_master_refuses_foreign_feedback_and_counts_it(ros_context, ros_executor) -> None:
-    g = Graph(ros_context, ros_executor)
+    g = _graph(ros_context, ros_executor)
     foreign = stray = None
     try:
-        g.play()
+        g.play(g.driver_messages())
         ss = g.session
         imu, gnss = ss.master_imu(), ss.gnss()
         n_after = int((imu.t_s > gnss.t_s[0] + 1e-9).sum())
@@ -205,9 +143,9 @@ def test_a_restarted_pos_master_takes_the_datum_of_the_running_ifa_node(ros_cont
         "aligned": "true", "heading_sigma_deg": "0.02", "fixes_done_ns": str(2**62),
         "datum_deg": f"{session[0] / DEG:.10f} {session[1] / DEG:.10f} {session[2]:.4f}"}))
     ros_executor.add_node(foreign)
-    g = Graph(ros_context, ros_executor)
+    g = _graph(ros_context, ros_executor)
     try:
-        g.play()
+        g.play(g.driver_messages())
         spin_until(ros_executor, lambda: bool(g.datum), TIMEOUT_S, "/dpos/datum")
         got = cv.datum_from_msg(g.datum[-1])
         np.testing.assert_allclose(got[:2], session[:2], rtol=0, atol=1e-11)  # (the status has 1e-10 deg, 0.1 mm)
@@ -228,12 +166,12 @@ def test_fixes_that_wait_for_the_running_ifa_nodes_datum_still_start_the_mechani
     foreign.create_publisher(Odometry, "/ifa/correction", NAV_QOS)  # an ifa_node is in the graph, its status not seen yet
     status_pub = foreign.create_publisher(DiagnosticArray, "/ifa/status", STATUS_QOS)
     ros_executor.add_node(foreign)
-    g = Graph(ros_context, ros_executor)
+    g = _graph(ros_context, ros_executor)
     try:
         gnss_t_ns = g.streams["/gnss/fix"].t_ns
         assert len(gnss_t_ns) >= 4
         session = g.session.gnss().llh[0] + np.array([0.01 * DEG, -0.02 * DEG, -3.0])
-        g.play(upto_ns=int(gnss_t_ns[2]))  # three fixes (and their IMU) before the status
+        g.play(g.driver_messages(upto_ns=int(gnss_t_ns[2])))  # three fixes (and their IMU) before the status
         relay_status: list[DiagnosticArray] = []  # the relay's, every 1 s: the node's timers (its start tick) ran meanwhile
         g.sink.create_subscription(DiagnosticArray, "/pos_master_node/status", relay_status.append, STATUS_QOS)
         spin_until(ros_executor, lambda: len(relay_status) >= 3, TIMEOUT_S, "three relay statuses")
@@ -242,7 +180,7 @@ def test_fixes_that_wait_for_the_running_ifa_nodes_datum_still_start_the_mechani
             "aligned": "true", "heading_sigma_deg": "0.02", "fixes_done_ns": str(2**62),
             "datum_deg": f"{session[0] / DEG:.10f} {session[1] / DEG:.10f} {session[2]:.4f}"}))
         spin_until(ros_executor, lambda: g.node.navigator.ifa_status != "none", TIMEOUT_S, "the ifa_node's status received")
-        g.play(after_ns=int(gnss_t_ns[2]))
+        g.play(g.driver_messages(after_ns=int(gnss_t_ns[2])))
         g.wait_status(lambda s: s.get("started") == "True", "the start")
         spin_until(ros_executor, lambda: bool(g.datum) and bool(g.raw["/master/nav"]), TIMEOUT_S, "/dpos/datum and /master/nav")
         got = cv.datum_from_msg(g.datum[-1])

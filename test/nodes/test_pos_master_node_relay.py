@@ -1,6 +1,6 @@
 """``device: ros``: pos_master_node relays real IMU / GNSS drivers and mechanizes the relayed IMU.
 
-A fake driver publishes paper_ifa's simulated master IMU (sensor_msgs/Imu on /drv/imu), GNSS fix
+A fake driver (test/support/master_driver.py) publishes paper_ifa's simulated master IMU (sensor_msgs/Imu on /drv/imu), GNSS fix
 (/drv/fix) and velocity (/drv/vel); pos_master_node runs with ``device:=ros`` and the remaps
 ``imu_in:=/drv/imu`` etc.:
 
@@ -17,40 +17,26 @@ Every wait is bounded; nothing sleeps.
 
 from __future__ import annotations
 
-from collections import defaultdict
 from typing import Any
 
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import TwistWithCovarianceStamped
-from nav_msgs.msg import Odometry
-from rclpy.node import Node
+from master_driver import TIMEOUT_S, MasterDriverGraph  # test/support/master_driver.py
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from ros_wait import spin_until  # test/support/ros_wait.py
-from sensor_msgs.msg import Imu, NavSatFix
+from sensor_msgs.msg import Imu
 
 from dpos_core.frames import hpr_error, hpr_from_C_nb
 from dpos_core.ifa.mechanization import MasterMechanization, initial_state_from_list, level_from_specific_force, stamp_s
 from dpos_core.units import DEG
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
-from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
 from dpos_ros.devices.relay import rotation_from_rpy_deg
 from dpos_ros.devices.sim_device import load_sim_session
-from dpos_ros.devices.sim_streams import TopicStream, device_streams
 from dpos_ros.runtime.params import ParameterError
 
 pytestmark = pytest.mark.ros
-
-TIMEOUT_S = 60.0
-CHUNK = 100  # messages published before waiting for the relay to catch up
-DRIVER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
-REMAPS = ["--ros-args", "-r", "imu_in:=/drv/imu", "-r", "fix_in:=/drv/fix", "-r", "vel_in:=/drv/vel"]
-RELAYED = {"/drv/imu": "/master/imu", "/drv/fix": "/gnss/fix", "/drv/vel": "/gnss/vel"}
 
 
 def _llh_err_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -66,75 +52,6 @@ def _state_list(llh: np.ndarray, vel: np.ndarray, C_nb: np.ndarray) -> list[floa
     return [llh[0] / DEG, llh[1] / DEG, float(llh[2]), *map(float, vel), *(hpr_from_C_nb(C_nb) / DEG).tolist()]
 
 
-class Graph:
-    """The fake driver, a sink of every contract topic, and the node under test on one executor."""
-
-    def __init__(self, context: Any, executor: Any, overrides: list[Parameter], duration_s: float) -> None:
-        from pos_master_node.node import PosMasterNode
-
-        self.executor = executor
-        self.session = load_sim_session("paper_ifa", "", 1, duration_s)
-        self.streams: dict[str, TopicStream] = {s.topic: s for s in device_streams(self.session, "master", truth=False)}
-        self.driver = Node("fake_master_driver", context=context)
-        self.pubs = {"/drv/imu": self.driver.create_publisher(Imu, "/drv/imu", DRIVER_QOS),
-                     "/drv/fix": self.driver.create_publisher(NavSatFix, "/drv/fix", DRIVER_QOS),
-                     "/drv/vel": self.driver.create_publisher(TwistWithCovarianceStamped, "/drv/vel", DRIVER_QOS)}
-        self.sink = Node("master_relay_sink", context=context)
-        self.raw: dict[str, list[bytes]] = defaultdict(list)
-        for topic, cls, qos in (("/master/imu", Imu, SENSOR_QOS), ("/gnss/fix", NavSatFix, SENSOR_QOS),
-                                ("/gnss/vel", TwistWithCovarianceStamped, SENSOR_QOS), ("/master/nav", Odometry, NAV_QOS)):
-            self.sink.create_subscription(cls, topic, lambda m, t=topic: self.raw[t].append(bytes(m)), qos, raw=True)
-        self.datum: list[NavSatFix] = []
-        self.sink.create_subscription(NavSatFix, "/dpos/datum", self.datum.append, DATUM_QOS)
-        self.status: list[dict[str, str]] = []
-        self.sink.create_subscription(
-            DiagnosticArray, "/pos_master/status",
-            lambda m: self.status.append({kv.key: kv.value for kv in m.status[0].values} | {"message": m.status[0].message}),
-            STATUS_QOS)
-        self.node = PosMasterNode(context=context, cli_args=REMAPS, parameter_overrides=overrides)
-        for n in (self.driver, self.sink, self.node):
-            executor.add_node(n)
-        spin_until(executor, lambda: all(p.get_subscription_count() >= 1 for p in self.pubs.values())
-                   and self.node.nav_pub.get_subscription_count() >= 1
-                   and all(s.publisher.get_subscription_count() >= 1 for s in self.node.relay._states),
-                   TIMEOUT_S, "the driver -> relay -> sink matches")
-
-    def received(self) -> int:
-        return sum(st.received for st in self.node.relay.stats.values())
-
-    def play(self, messages: list[tuple[int, str, Any]]) -> None:
-        """Publish (stamp, driver topic, bytes or message) in order, in chunks the relay catches up with."""
-        for lo in range(0, len(messages), CHUNK):
-            n0 = self.received()
-            chunk = messages[lo:lo + CHUNK]
-            for _, topic, msg in chunk:
-                self.pubs[topic].publish(msg)
-            spin_until(self.executor, lambda n=n0 + len(chunk): self.received() >= n, TIMEOUT_S,
-                       lambda: f"the relay to receive {len(chunk)} messages (got {self.received() - n0})")
-
-    def driver_messages(self, t_max_s: float) -> list[tuple[int, str, bytes]]:
-        """The master device's IMU, fixes and velocities up to t_max_s, in stamp order (IMU first at a tie)."""
-        t_end = cv.stamps_ns(self.session.scenario.start_time_s, np.array([t_max_s]))[0]
-        out = []
-        for rank, (drv, topic) in enumerate((("/drv/imu", "/master/imu"), ("/drv/fix", "/gnss/fix"), ("/drv/vel", "/gnss/vel"))):
-            s = self.streams[topic]
-            out += [(int(t), rank, drv, s.message(i)) for i, t in enumerate(s.t_ns) if t <= t_end]
-        out.sort(key=lambda m: (m[0], m[1]))
-        return [(t, drv, msg) for t, _, drv, msg in out]
-
-    def nav(self, datum_llh: np.ndarray | None = None) -> cv.OdometryBlock:
-        """The received /master/nav, poses in the ``enu`` frame of ``datum_llh`` (default: the session's)."""
-        lay = cdr.layout("odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
-        rows = np.stack([np.frombuffer(r, dtype=np.uint8)[: lay.size] for r in self.raw["/master/nav"]])
-        t_ns, vals = cdr.decode(lay, rows)
-        return cv.odometry_from_values(t_ns, vals, self.session.datum_llh if datum_llh is None else datum_llh)
-
-    def close(self) -> None:
-        for n in (self.node, self.sink, self.driver):
-            self.executor.remove_node(n)
-            n.destroy_node()
-
-
 def _datum_deg(session: Any) -> list[float]:
     d = session.datum_llh
     return [d[0] / DEG, d[1] / DEG, float(d[2])]
@@ -146,11 +63,11 @@ def test_given_alignment_relays_everything_and_mechanizes_every_imu_stamp(ros_co
     imu = ss.master_imu()
     tr0 = ss.truth("master", imu.t_s[:1])
     initial = _state_list(tr0.llh[0], tr0.vel_n_mps[0], tr0.C_nb[0])  # the truth at the first IMU stamp
-    g = Graph(ros_context, ros_executor, [
+    g = MasterDriverGraph(ros_context, ros_executor, [
         Parameter("device", value="ros"), Parameter("alignment", value="given"), Parameter("initial_state", value=initial),
-        Parameter("datum", value=_datum_deg(ss)), Parameter("input_reliability", value="reliable")], duration)
+        Parameter("datum", value=_datum_deg(ss)), Parameter("input_reliability", value="reliable")], duration, relayed=True)
     try:
-        msgs = g.driver_messages(duration)
+        msgs = g.driver_messages(upto_ns=g.stamp_ns(duration))
         n_imu = imu.t_s.size
         # a NaN IMU message with the stamp of a good one, just before it: rejected, the good one kept
         k_nan = next(i for i, m in enumerate(msgs) if m[1] == "/drv/imu" and m[0] == g.streams["/master/imu"].t_ns[1000])
@@ -233,11 +150,11 @@ def test_ifa_alignment_starts_from_the_first_fix(case, ros_context, ros_executor
         overrides += [Parameter("min_course_speed_mps", value=500.0),
                       Parameter("initial_state", value=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 123.0, 0.0, 0.0])]
     R = rotation_from_rpy_deg(TILT_RPY_DEG) if case == "tilted" else np.eye(3)
-    g = Graph(ros_context, ros_executor, overrides, duration)
+    g = MasterDriverGraph(ros_context, ros_executor, overrides, duration, relayed=True)
     try:
         ss = g.session
         imu, gnss = ss.master_imu(), ss.gnss()
-        g.play(_tilted(g.driver_messages(duration), R))
+        g.play(_tilted(g.driver_messages(upto_ns=g.stamp_ns(duration)), R))
         n_after = int((imu.t_s > gnss.t_s[0] + 1e-9).sum())  # IMU samples after the first fix
         spin_until(ros_executor, lambda: len(g.raw["/master/nav"]) >= n_after + 1, TIMEOUT_S,
                    lambda: f"{n_after + 1} /master/nav (got {len(g.raw['/master/nav'])})")

@@ -15,7 +15,6 @@ timing) and the smoothers run in threads; every wait is bounded.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import errno
 import json
 from pathlib import Path
@@ -24,72 +23,40 @@ from typing import Any
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from repo_paths import REPO
+from ta_inprocess import TOPICS, bag_messages, finalize, make_node, stamp_ns, status  # test/support/ta_inprocess.py
 
 from dpos_ros.contract import topics as T
-from dpos_ros.io import bag, spill
+from dpos_ros.io import spill
 from dpos_ros.io.session import read_session
 
 pytestmark = pytest.mark.ros
 
-BAG = REPO / "bags" / "paper_su_pair_seed1_45s"
 SECONDS = 25.0
-TOPICS = [T.DATUM, T.MASTER_NAV, T.sub_imu("sub_r"), T.sub_imu("sub_l")]
 
 
 @pytest.fixture(scope="module")
 def msgs() -> dict[str, tuple[str, list[bytes]]]:
-    raw = bag.read_raw(BAG, TOPICS)
-    t_first = raw[T.MASTER_NAV][1][0]
-    return {topic: (mt, [d for t, d in zip(t_log, data) if topic == T.DATUM or t - t_first <= SECONDS * 1e9])
-            for topic, (mt, t_log, data) in raw.items()}
-
-
-def _stamp(d: bytes) -> int:
-    return int.from_bytes(d[4:8], "little", signed=True) * 1_000_000_000 + int.from_bytes(d[8:12], "little")
-
-
-class Tap:
-    def __init__(self) -> None:
-        self.sent: list[dict[str, Any]] = []
-
-    def publish(self, arr: Any) -> None:
-        st = arr.status[0]
-        level = st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")
-        self.sent.append({kv.key: kv.value for kv in st.values} | {"message": st.message, "level": level})
+    return bag_messages(SECONDS)
 
 
 @pytest.fixture
 def node(ros_context, tmp_path: Path, monkeypatch):
-    import transfer_align_node.node as tan
-
-    monkeypatch.setattr(tan, "_pool", lambda n: cf.ThreadPoolExecutor(max_workers=max(1, n)))
     nodes = []
 
     def make(**params: Any):
-        over = {"method": "urtss", "aircraft_config": "paper_su_pair", "output_dir": str(tmp_path / "out"),
-                "finalize_timeout_s": 2.0, "output_rate_hz": 10.0} | params
-        ta = tan.TransferAlignNode(context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in over.items()])
-        ta._status_pub = Tap()
-        ta.cbs = {t: ta._make_cb(t, mt) for t, (mt, _) in _types().items()}
-        nodes.append(ta)
-        return ta
+        nodes.append(make_node(ros_context, tmp_path / "out", monkeypatch, **params))
+        return nodes[-1]
 
     yield make
     for n in nodes:
         n.destroy_node()
 
 
-def _types() -> dict[str, tuple[str, None]]:
-    return {T.DATUM: (T.NAVSATFIX, None), T.MASTER_NAV: (T.ODOMETRY, None), T.sub_imu("sub_r"): (T.IMU, None),
-            T.sub_imu("sub_l"): (T.IMU, None)}
-
-
 def _feed(ta, msgs, topics=TOPICS, upto_ns: int | None = None, after_ns: int | None = None) -> int:
     n = 0
     for topic in topics:
         for d in msgs[topic][1]:
-            t = _stamp(d)
+            t = stamp_ns(d)
             if topic != T.DATUM and ((upto_ns is not None and t > upto_ns) or (after_ns is not None and t <= after_ns)):
                 continue
             ta.cbs[topic](d)
@@ -97,32 +64,21 @@ def _feed(ta, msgs, topics=TOPICS, upto_ns: int | None = None, after_ns: int | N
     return n
 
 
-def _finalize(ta, end_ns: int, sid: str = "") -> None:
-    assert ta._start_finalize(end_ns, sid)
-    ta._finalize_thread.join(timeout=180)
-    assert not ta._finalize_thread.is_alive(), ta._progress
-
-
 def _end(msgs) -> int:
-    return max(_stamp(d) for d in msgs[T.MASTER_NAV][1])
-
-
-def _status(ta) -> dict[str, Any]:
-    ta._publish_status()
-    return ta._status_pub.sent[-1]
+    return max(stamp_ns(d) for d in msgs[T.MASTER_NAV][1])
 
 
 def test_second_session_with_the_same_stamps_and_a_datum_latched_once(node, msgs, tmp_path: Path) -> None:
     ta = node()
     _feed(ta, msgs)
-    _finalize(ta, _end(msgs), "first")
+    finalize(ta, _end(msgs), "first")
     _feed(ta, msgs, topics=TOPICS[1:])  # the replay: same stamps, the datum is not sent again
     with ta._lock:
         counts = {t: s.count for t, s in ta._streams.items()}
     assert counts[T.MASTER_NAV] == len(msgs[T.MASTER_NAV][1]) and counts[T.DATUM] == 1, counts
-    _finalize(ta, _end(msgs), "second")
+    finalize(ta, _end(msgs), "second")
     _feed(ta, msgs, topics=TOPICS[1:])  # and again, under a session id that has products already
-    _finalize(ta, _end(msgs), "second")
+    finalize(ta, _end(msgs), "second")
     for sid in ("first", "second", "second_2"):
         st = json.loads((tmp_path / "out" / sid / "status.json").read_text())
         assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, st
@@ -130,18 +86,18 @@ def test_second_session_with_the_same_stamps_and_a_datum_latched_once(node, msgs
     a = np.loadtxt(tmp_path / "out" / "first" / "ant_r.csv", delimiter=",", skiprows=2)
     b = np.loadtxt(tmp_path / "out" / "second" / "ant_r.csv", delimiter=",", skiprows=2)
     assert a.shape == b.shape and np.allclose(a, b)  # the same data give the same poses
-    s = _status(ta)
+    s = status(ta)
     assert s["sessions_done"] == "3" and not any(k.endswith("late_after_finalize") for k in s), s
 
 
 def test_mid_flight_finalize_leaves_the_rest_of_the_flight_processable(node, msgs, tmp_path: Path) -> None:
     ta = node()
-    t0 = _stamp(msgs[T.MASTER_NAV][1][0])
+    t0 = stamp_ns(msgs[T.MASTER_NAV][1][0])
     mid = t0 + 12_000_000_000
     _feed(ta, msgs, upto_ns=mid)
-    _finalize(ta, mid, "part1")
+    finalize(ta, mid, "part1")
     _feed(ta, msgs, topics=TOPICS[1:], after_ns=mid)
-    _finalize(ta, _end(msgs), "part2")
+    finalize(ta, _end(msgs), "part2")
     for sid, dur in (("part1", 12.0), ("part2", SECONDS - 12.0)):
         st = json.loads((tmp_path / "out" / sid / "status.json").read_text())
         assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, (sid, st)
@@ -184,10 +140,10 @@ def test_stray_messages_are_rejected_and_counted_and_both_wings_estimated(node, 
     bad_msgs = dict(msgs)
     bad_msgs[topic] = (msgs[topic][0], good[:300] + strays + good[300:])
     _feed(ta, bad_msgs)
-    s = _status(ta)
+    s = status(ta)
     assert s[f"{topic}/rejected"] == "7" and s["level"] >= 1, s
     assert (s[f"{topic}/rejected/frame"], s[f"{topic}/rejected/zero_stamp"], s[f"{topic}/rejected/unavailable"]) == ("5", "1", "1"), s
-    _finalize(ta, _end(msgs), "strays")
+    finalize(ta, _end(msgs), "strays")
     st = json.loads((tmp_path / "out" / "strays" / "status.json").read_text())
     assert st["antennas"] == {"ant_r": "estimated", "ant_l": "estimated"}, st
     w = " | ".join(st["warnings"])
@@ -205,10 +161,10 @@ def test_late_messages_are_kept_counted_and_used_by_a_rerun(node, msgs, tmp_path
     cut = end - 3_000_000_000  # sub_l's device lags: its last 3 s arrive after the session closed
     _feed(ta, msgs, topics=[T.DATUM, T.MASTER_NAV, T.sub_imu("sub_r")])
     _feed(ta, msgs, topics=[topic], upto_ns=cut)
-    _finalize(ta, end, "lagging")
+    finalize(ta, end, "lagging")
     n_late = _feed(ta, msgs, topics=[topic], after_ns=cut)
     assert n_late > 250
-    s = _status(ta)
+    s = status(ta)
     assert s[f"{topic}/late_after_finalize"] == str(n_late) and s["level"] >= 1, s
     with ta._lock:
         assert not ta._streams  # late messages do not open a new session
@@ -239,14 +195,14 @@ def test_disk_that_refuses_the_spill_holds_in_memory_and_loses_nothing(node, msg
     state["full"] = True
     for d in nav[500:1500]:
         ta.cbs[T.MASTER_NAV](d)
-    s = _status(ta)
+    s = status(ta)
     assert s["level"] == 2 and s["held_in_memory"] == "1000" and s["lost"] == "0" and "No space" in s["disk_error"], s
     assert "disk" in s["last_error"], s
     assert state["refused"] < 20  # retried at most once a second, not once per message
     state["full"] = False
     for d in nav[1500:]:
         ta.cbs[T.MASTER_NAV](d)
-    s = _status(ta)
+    s = status(ta)
     assert s["level"] == 0 and "held_in_memory" not in s, s
     sp = ta._spill
     sp.writer.close()
@@ -260,7 +216,7 @@ def test_disk_bound_counts_what_is_lost(node, msgs, monkeypatch) -> None:
     nav = msgs[T.MASTER_NAV][1]
     for d in nav[:1000]:
         ta.cbs[T.MASTER_NAV](d)
-    s = _status(ta)
+    s = status(ta)
     held = int(s["held_in_memory"])
     assert s["level"] == 2 and held + int(s["lost"]) == 1000 and held * len(nav[0]) <= 100_000 < (held + 1) * len(nav[0]), s
     assert "Read-only" in s["disk_error"] and "lost past disk_full_buffer_mb" in s["last_error"], s

@@ -23,6 +23,7 @@ from dpos_core.imports.clock import ClockEstimate, estimate_clock
 from dpos_core.imports.logs import ImuColumns, read_imu_csv
 from dpos_core.imports.mounting import MountingEstimate, estimate_mounting, relative_rotation
 from dpos_core.imports.navsol import NavColumns, read_nav_csv
+from dpos_core.series import ImuSeries
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "real" / "quad_mimu"
 RAW_DOT1 = DATA / "raw" / "Xsens_DOT1_D422CD003EBC_20220707_111438_acc_gyr.csv"
@@ -145,11 +146,11 @@ def lever_arms_to_dot1(path: int, results: dict[tuple[int, int], PathResult]) ->
     for d in DOTS:
         imu = read_imu_csv(DATA / f"straight_path_{path}" / f"IMU_{d}.csv", PATH_IMU)
         td = np.asarray(imu.t_ns * 1e-9, dtype=np.float64)
-        logs[d] = (np.asarray(results[(path, d)].clock.to_gpst_ns(td, 0) * 1e-9, dtype=np.float64), imu.f_mps2, imu.omega_radps)
+        logs[d] = ImuSeries(np.asarray(results[(path, d)].clock.to_gpst_ns(td, 0) * 1e-9, dtype=np.float64), imu.omega_radps, imu.f_mps2)
     out = {}
     for d in DOTS[1:]:
-        rot = relative_rotation(logs[1][0], logs[1][2], logs[d][0], logs[d][2], name=f"path {path} DOT1-DOT{d}")
-        out[d] = lever_arm_from_specific_force(*logs[1], *logs[d], rot.C_bs, name=f"path {path} DOT1-DOT{d}")
+        rot = relative_rotation(logs[1].t_s, logs[1].omega_radps, logs[d].t_s, logs[d].omega_radps, name=f"path {path} DOT1-DOT{d}")
+        out[d] = lever_arm_from_specific_force(logs[1], logs[d], rot.C_bs, name=f"path {path} DOT1-DOT{d}")
     return out
 
 

@@ -179,7 +179,7 @@ class BagError(DposError):
 class BagDamaged(DposError, ValueError):
     """An MCAP file whose layout cannot be trusted (no footer, a summary or chunk index pointing
     past the end of the file): read it record by record from its start instead
-    (``dpos_ros.io._mcap.scan``)."""
+    (``dpos_ros.io._mcap_recover.scan``)."""
 
 
 # ----------------------------------------------------------------------------- outputs

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dpos_core.ifa.pos_file import Q_AIDED, Q_BRIDGED, gnss_support, write_pos
+from dpos_core.ifa.pos_file import Q_AIDED, Q_BRIDGED, GnssSupport, gnss_support, write_pos
 from dpos_core.imports.logs import read_pos
 from dpos_core.units import DEG
 
@@ -29,7 +29,7 @@ def test_written_pos_reads_back_with_the_import_reader(tmp_path: Path) -> None:
     t_ns, llh, P, v, V = _solution(rng)
     q = np.where(rng.random(t_ns.size) < 0.5, Q_AIDED, Q_BRIDGED)
     ns = rng.integers(0, 3, t_ns.size)
-    write_pos(tmp_path / "s.pos", t_ns, llh, P, v, V, q, ns, rng.random(t_ns.size), comments=["a test"])
+    write_pos(tmp_path / "s.pos", t_ns, llh, P, v, V, GnssSupport(q, ns, rng.random(t_ns.size)), comments=["a test"])
     text = (tmp_path / "s.pos").read_text()
     assert text.startswith("% a test\n")
     back = read_pos(tmp_path / "s.pos")
@@ -54,7 +54,7 @@ def test_stamps_must_be_increasing(tmp_path: Path) -> None:
     t_ns, llh, P, v, V = _solution(rng, 3)
     t_ns[2] = t_ns[1] + 999
     with pytest.raises(ValueError, match="1 us"):
-        write_pos(tmp_path / "s.pos", t_ns, llh, P, v, V, np.ones(3, int), np.ones(3, int), np.zeros(3))
+        write_pos(tmp_path / "s.pos", t_ns, llh, P, v, V, GnssSupport(np.ones(3, int), np.ones(3, int), np.zeros(3)))
 
 
 def test_quality_flags_an_outage_bridged_from_both_ends() -> None:

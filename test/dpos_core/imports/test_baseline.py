@@ -9,6 +9,7 @@ import pytest
 from dpos_core.attitude import cross, mount_dcm
 from dpos_core.errors import MountingNotObservable
 from dpos_core.imports.baseline import lever_arm_from_specific_force
+from dpos_core.series import ImuSeries
 
 R_TRUE = np.array([0.12, -0.21, 0.05])  #: IMU b from IMU a, a's axes [m]
 C_AB = mount_dcm((1.0, -0.5, 2.0), (0.0, 0.0, 0.0))  #: b's axes -> a's
@@ -19,7 +20,7 @@ def rigid_pair(seed: int, amp_radps: float = 0.6, duration_s: float = 60.0, hz: 
                w_noise: float = 0.005) -> tuple[np.ndarray, ...]:
     """Two IMUs on a rigid body turning by sums of sinusoids (about every axis): a at the origin, b
     at R_TRUE turned by C_AB, each with white noise (b's samples half a step later than a's).
-    Returns t_a, f_a, w_a, t_b, f_b, w_b."""
+    Returns a's and b's logs."""
     rng = np.random.default_rng(seed)
     freqs = rng.uniform(0.2, 1.5, (3, 3))
     phases = rng.uniform(0, 2 * np.pi, (3, 3))
@@ -41,7 +42,7 @@ def rigid_pair(seed: int, amp_radps: float = 0.6, duration_s: float = 60.0, hz: 
     fb_a = f + cross(alpha, R_TRUE) + cross(w, cross(w, R_TRUE))
     f_b = fb_a @ C_AB + BIAS_B + f_noise * rng.standard_normal(f.shape)  # (C_AB^T fb_a per row)
     w_b = w @ C_AB + w_noise * rng.standard_normal(w.shape)
-    return t_a, f_a, w_a, t_b, f_b, w_b
+    return ImuSeries(t_a, w_a, f_a), ImuSeries(t_b, w_b, f_b)
 
 
 def test_lever_arm_recovered_within_its_sigma() -> None:
@@ -81,6 +82,6 @@ def test_no_rotation_is_refused() -> None:
 
 
 def test_too_short_overlap_is_refused() -> None:
-    t_a, f_a, w_a, t_b, f_b, w_b = rigid_pair(0, duration_s=0.5)
+    a, b = rigid_pair(0, duration_s=0.5)
     with pytest.raises(MountingNotObservable, match="overlap"):
-        lever_arm_from_specific_force(t_a, f_a, w_a, t_b, f_b, w_b, C_AB)
+        lever_arm_from_specific_force(a, b, C_AB)

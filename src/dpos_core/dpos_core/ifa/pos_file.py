@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,7 +54,16 @@ def _signed_root(c: FloatArray) -> FloatArray:
     return np.sign(c) * np.sqrt(np.abs(c))
 
 
-def gnss_support(t_s: FloatArray, updates_s: FloatArray, gap_s: float, smoothed: bool) -> tuple[NDArray[np.int64], NDArray[np.int64], FloatArray]:
+class GnssSupport(NamedTuple):
+    """The columns that say how each row of a solution is supported by GNSS (module docstring), (N,) each:
+    ``quality`` (Q: :data:`Q_AIDED` or :data:`Q_BRIDGED`), ``n_used`` (ns), ``age_s`` (age(s) [s], NaN: no update)."""
+
+    quality: NDArray[np.int64]
+    n_used: NDArray[np.int64]
+    age_s: FloatArray
+
+
+def gnss_support(t_s: FloatArray, updates_s: FloatArray, gap_s: float, smoothed: bool) -> GnssSupport:
     """Q, ns and age(s) of each row (module docstring).
 
     Args:
@@ -64,7 +74,7 @@ def gnss_support(t_s: FloatArray, updates_s: FloatArray, gap_s: float, smoothed:
     t = np.asarray(t_s, dtype=float)
     u = np.asarray(updates_s, dtype=float)
     if u.size == 0:
-        return np.full(t.size, Q_BRIDGED, dtype=np.int64), np.zeros(t.size, dtype=np.int64), np.full(t.size, np.nan)
+        return GnssSupport(np.full(t.size, Q_BRIDGED, dtype=np.int64), np.zeros(t.size, dtype=np.int64), np.full(t.size, np.nan))
     j = np.searchsorted(u, t + 1e-9, side="right") - 1  # the last update at or before
     before = np.where(j >= 0, t - u[np.maximum(j, 0)], np.inf)
     after = np.where(j + 1 < u.size, u[np.minimum(j + 1, u.size - 1)] - t, np.inf)
@@ -77,12 +87,11 @@ def gnss_support(t_s: FloatArray, updates_s: FloatArray, gap_s: float, smoothed:
         aided = ok_b
         ns = ok_b.astype(np.int64)
         age = before
-    return np.where(aided, Q_AIDED, Q_BRIDGED).astype(np.int64), ns, np.where(np.isfinite(age), age, np.nan)
+    return GnssSupport(np.where(aided, Q_AIDED, Q_BRIDGED).astype(np.int64), ns, np.where(np.isfinite(age), age, np.nan))
 
 
 def write_pos(path: str | Path, t_ns: NDArray[np.int64], llh: FloatArray, pos_cov_enu_m2: FloatArray, vel_enu_mps: FloatArray,
-              vel_cov_enu: FloatArray, quality: NDArray[np.int64], n_used: NDArray[np.int64], age_s: FloatArray,
-              comments: list[str] | None = None) -> None:
+              vel_cov_enu: FloatArray, support: GnssSupport, comments: list[str] | None = None) -> None:
     """Write a navigation solution as an RTKLIB ``.pos`` file (module docstring: the columns).
 
     Args:
@@ -90,7 +99,7 @@ def write_pos(path: str | Path, t_ns: NDArray[np.int64], llh: FloatArray, pos_co
             least 1 us apart (written to the microsecond).
         llh: (N, 3) [lat_rad, lon_rad, h_m]; vel_enu_mps: (N, 3) East, North, Up [m/s].
         pos_cov_enu_m2, vel_cov_enu: (N, 3, 3) covariances in ENU [m^2], [m^2/s^2].
-        quality, n_used, age_s: (N,) the Q, ns and age(s) columns (:func:`gnss_support`).
+        support: the Q, ns and age(s) columns (:func:`gnss_support`).
         comments: lines written after ``%`` at the top (what the solution is).
     """
     t = np.asarray(t_ns, dtype=np.int64)
@@ -107,7 +116,8 @@ def write_pos(path: str | Path, t_ns: NDArray[np.int64], llh: FloatArray, pos_co
     cr = _signed_root(np.stack([P[:, 1, 0], P[:, 0, 2], P[:, 2, 1]], axis=1))
     sdv = np.sqrt(np.stack([V[:, 1, 1], V[:, 0, 0], V[:, 2, 2]], axis=1))
     crv = _signed_root(np.stack([V[:, 1, 0], V[:, 0, 2], V[:, 2, 1]], axis=1))
-    age = np.nan_to_num(np.asarray(age_s, dtype=float), nan=0.0)
+    quality, n_used = support.quality, support.n_used
+    age = np.nan_to_num(np.asarray(support.age_s, dtype=float), nan=0.0)
     lines = [f"% {c}" for c in (comments or [])] + ["%", HEADER]
     for i in range(n):
         date = time.strftime("%Y/%m/%d %H:%M:%S", time.gmtime(int(sec[i])))
@@ -119,4 +129,4 @@ def write_pos(path: str | Path, t_ns: NDArray[np.int64], llh: FloatArray, pos_co
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-__all__ = ["HEADER", "Q_AIDED", "Q_BRIDGED", "gnss_support", "write_pos"]
+__all__ = ["HEADER", "Q_AIDED", "Q_BRIDGED", "GnssSupport", "gnss_support", "write_pos"]

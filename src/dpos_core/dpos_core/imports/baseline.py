@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from ..attitude import skew
 from ..errors import MountingNotObservable
+from ..series import ImuSeries
 from ..units import FloatArray
 from .clock import interval_means, running_integral
 from .mounting import _corr_factor
@@ -85,13 +86,14 @@ def _triangle_means(t_s: FloatArray, x: FloatArray, edges: FloatArray, h: float)
     return out, inside
 
 
-def lever_arm_from_specific_force(t_a_s: FloatArray, f_a: FloatArray, omega_a: FloatArray, t_b_s: FloatArray, f_b: FloatArray,
-                                  omega_b: FloatArray, C_ab: FloatArray, interval_s: float = 0.05, min_excitation: float = 0.5,
-                                  name: str = "IMU pair") -> LeverArmEstimate:
-    """Lever arm of IMU b from IMU a by (1) (module docstring).  Both logs on one clock: t_a_s (N,),
-    f_a, omega_a (N, 3); t_b_s (M,), f_b, omega_b (M, 3) [s, m/s^2, rad/s]; C_ab (3, 3) b's axes ->
-    a's.  ``min_excitation`` [1/s^2]: the smallest rms singular value of the centred design for
-    ``r`` to count as observable.  Raises :class:`MountingNotObservable`."""
+def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, interval_s: float = 0.05,
+                                  min_excitation: float = 0.5, name: str = "IMU pair") -> LeverArmEstimate:
+    """Lever arm of IMU b from IMU a by (1) (module docstring).  Both logs on one clock, each in its
+    own axes: ``a`` (N samples), ``b`` (M samples); C_ab (3, 3) b's axes -> a's.
+    ``min_excitation`` [1/s^2]: the smallest rms singular value of the centred design for ``r`` to
+    count as observable.  Raises :class:`MountingNotObservable`."""
+    t_a_s, f_a, omega_a = a.t_s, a.f_mps2, a.omega_radps
+    t_b_s, f_b, omega_b = b.t_s, b.f_mps2, b.omega_radps
     lo, hi = max(t_a_s[0], t_b_s[0]), min(t_a_s[-1], t_b_s[-1])
     h = 0.5 * interval_s
     edges = np.arange(lo + h, hi - h + 1e-9, interval_s)

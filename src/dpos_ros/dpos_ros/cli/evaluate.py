@@ -57,7 +57,7 @@ from dpos_ros.products import lsfit_tables
 from dpos_ros.products.evaluate import evaluate, series_free
 from dpos_ros.products.ifa import main_ifa
 from dpos_ros.products.report import combine_runs, metrics_json, report_md
-from dpos_ros.products.solve import SubImuSource, solve
+from dpos_ros.products.solve import Oracle, SubImuSource, solve
 
 #: the filter rate of the transfer-alignment runs (TASettings' default, [Gong2018])
 TA_FILTER_RATE_HZ = 1.0
@@ -257,8 +257,8 @@ def ta_run(plan: TAPlan, seed: int, label: str = "run", echo: bool = True, scrat
     run = TARun(seed, {}, {}, list(sess.imaging_segments().keys()) or ["session"])
     for m in methods:
         t0 = time.perf_counter()
-        ants, tm = solve(sess, scenario.aircraft, plan.settings(m, seed), oracle_truth=truth if m in (ORACLE, ORACLE_FILTER) else None,
-                         known_wing=wing if m == ORACLE_WING else None)
+        oracle = Oracle(truth=truth if m in (ORACLE, ORACLE_FILTER) else None, known_wing=wing if m == ORACLE_WING else None)
+        ants, tm = solve(sess, scenario.aircraft, plan.settings(m, seed), oracle=oracle)
         ev = evaluate(sess, ants)
         _record(run, m, ev, tm, label, seed, t0, echo)
     return run

@@ -120,10 +120,10 @@ def _write_smoothed(out: Path, res: IfaResult, smoothed: IfaResult, origin_ns: i
     """``nav_smoothed.csv`` and ``nav_smoothed.pos`` of a smoothed run (``as_result``)."""
     _write_nav(out / "nav_smoothed.csv", smoothed, origin_ns, SMOOTHED_TITLE)
     P = np.array([p for _, p in smoothed.track])
-    q, ns, age = gnss_support(smoothed.t_s, res.epochs_s, predict_interval_s, smoothed=True)
+    support = gnss_support(smoothed.t_s, res.epochs_s, predict_interval_s, smoothed=True)
     t_ns = origin_ns + np.round(smoothed.t_s * 1e9).astype(np.int64)
     with atomic_path(out / "nav_smoothed.pos") as tmp:  # a full disk leaves no partial file
-        write_pos(tmp, t_ns, smoothed.llh, P[:, 0:3, 0:3], smoothed.vel_n_mps, P[:, 3:6, 3:6], q, ns, age,
+        write_pos(tmp, t_ns, smoothed.llh, P[:, 0:3, 0:3], smoothed.vel_n_mps, P[:, 3:6, 3:6], support,
                   comments=[f"dpos-ifa --smooth: {what}", "forward-backward (RTS) smoothed main POS at the IMU, IMU rate; "
                             f"Q 1: a GNSS update within {predict_interval_s:g} s on both sides, Q 5: bridged across a longer gap; "
                             "ns: GNSS updates within that time (0-2); age: time to the nearest one [s]",

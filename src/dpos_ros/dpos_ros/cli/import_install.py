@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import shlex
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -263,10 +264,30 @@ def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, Mountin
     return text, replaced
 
 
-def _import_sub(name: str, path: Path, ns: argparse.Namespace, nav: NavSolution, tm: np.ndarray, t0: int, settings: ClockSettings,
-                streams: list[TopicStream], rep_subs: dict[str, Any], mounts: dict[str, MountingEstimate]) -> None:
-    """One --sub log (:func:`run_installation`): read, placed on GPS time, its mounting estimated;
-    its stream appended to ``streams``, its report entry to ``rep_subs``, its mounting to ``mounts``."""
+@dataclass(frozen=True)
+class _MainSolution:
+    """What the --sub logs are placed against (:func:`_import_sub`): the --nav solution ``nav``,
+    its epochs ``tm`` (N,) [s from ``t0_ns``, its first stamp, ns GPST] and the clock estimation's
+    ``settings``."""
+
+    nav: NavSolution
+    tm: np.ndarray
+    t0_ns: int
+    settings: ClockSettings
+
+
+@dataclass(frozen=True)
+class _SubImport:
+    """One imported --sub log: its stream, its report entry and its mounting (None: not observable)."""
+
+    stream: TopicStream
+    entry: dict[str, Any]
+    mounting: MountingEstimate | None
+
+
+def _import_sub(name: str, path: Path, ns: argparse.Namespace, main: _MainSolution) -> _SubImport:
+    """One --sub log (:func:`run_installation`): read, placed on GPS time, its mounting estimated."""
+    nav, tm, t0, settings = main.nav, main.tm, main.t0_ns, main.settings
     log, kind, n_zero = read_sub(name, path, ns)
     entry: dict[str, Any] = {"file": str(path), "samples_read": len(log) + n_zero, "lines_skipped": len(log.skipped),
                              "skipped_first": [{"line": n, "reason": why} for n, why in log.skipped[:5]],
@@ -293,17 +314,17 @@ def _import_sub(name: str, path: Path, ns: argparse.Namespace, nav: NavSolution,
     scale = plausibility.check_rate_scale(f"--sub {name} ({path})", log.omega_radps, rates, "the --nav solution's attitude")
     if scale is not None:
         raise ImportFailure(f"{scale} (read with --gyro-unit {ns.gyro_unit})")
+    m: MountingEstimate | None = None
     try:
         m = estimate_mounting(tm, nav.C_nb, t_sub, log.omega_radps, name=f"--sub {name}")
-        mounts[name] = m
         entry["mounting"] = _mount_dict(m)
     except MountingNotObservable as exc:
         entry["mounting"] = {"not_observable": str(exc)}
     entry["samples_written"] = len(log)
-    rep_subs[name] = entry
-    streams.append(TopicStream(T.sub_imu(name), T.IMU, log.t_ns.copy(),
-                               rows=cv.imu_rows(cv.sub_imu_frame(name), log.t_ns, log.omega_radps, log.f_mps2,
-                                                ns.gyro_sigma_radps, ns.accel_sigma_mps2)))
+    stream = TopicStream(T.sub_imu(name), T.IMU, log.t_ns.copy(),
+                         rows=cv.imu_rows(cv.sub_imu_frame(name), log.t_ns, log.omega_radps, log.f_mps2,
+                                          ns.gyro_sigma_radps, ns.accel_sigma_mps2))
+    return _SubImport(stream, entry, m)
 
 
 def _sub_line(entry: dict[str, Any]) -> str:
@@ -335,13 +356,17 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
     tm = np.asarray((nav.t_ns - t0) * 1e-9, dtype=np.float64)
     rep_subs: dict[str, Any] = {}
     mounts: dict[str, MountingEstimate] = {}
-    settings = ClockSettings(min_peak=args.clock_min_peak)
+    main = _MainSolution(nav, tm, t0, ClockSettings(min_peak=args.clock_min_peak))
     if st is not None:
         st.stage(f"{len(subs)} sub-IMU log(s): reading, clocks, mountings")
     with contextlib.ExitStack() as stack:
         bar = stack.enter_context(st.items("sub-IMU", len(subs))) if st is not None else None
         for name, (path, ns) in subs.items():
-            _import_sub(name, path, ns, nav, tm, t0, settings, streams, rep_subs, mounts)
+            sub = _import_sub(name, path, ns, main)
+            streams.append(sub.stream)
+            rep_subs[name] = sub.entry
+            if sub.mounting is not None:
+                mounts[name] = sub.mounting
             if bar is not None:
                 bar.done(name, _sub_line(rep_subs[name]))
     text, replaced = aircraft_text(args.aircraft, list(subs), mounts, args.sub_imu_preset)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from dpos_ros.devices.sim_streams import session_custom_data, session_streams
 from dpos_ros.io.session import session_from_streams
 from dpos_ros.products.evaluate import evaluate
 from dpos_ros.products.report import ROWS, combine_runs, metrics_json
-from dpos_ros.products.solve import solve
+from dpos_ros.products.solve import NO_ORACLE, Oracle, solve
 
 #: the goal for every case (docs/mismatch.md, "The table")
 GOAL_HEADING_DEG = 0.01
@@ -46,26 +46,43 @@ def recording(case: MM.MismatchCase, scenario: Scenario, seed: int, aircraft_tex
     return ss, session_from_streams(session_streams(ss), custom, f"{scenario.name}_{case.name}_seed{seed}")
 
 
-def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], seeds: list[int], *, aircraft_text: str,
-             particles: int = 100, duration_s: float | None = None, initial_attitude_error_deg: float = 0.0,
-             filter_rate_hz: float = 1.0, log=print, filter_aircraft: AircraftConfig | None = None) -> dict:
-    """One case over ``seeds``: metrics.json's entry (module docstring).  ``filter_aircraft``: what
+@dataclass(frozen=True)
+class CaseRuns:
+    """How each case of the suite is run (:func:`run_case`): one simulated recording per seed of
+    ``seeds`` (``duration_s``: the scenario's own when None) carrying the nominal ``aircraft_text``;
+    the filters' settings of :meth:`settings`."""
+
+    seeds: list[int]
+    aircraft_text: str
+    particles: int = 100
+    duration_s: float | None = None
+    initial_attitude_error_deg: float = 0.0
+    filter_rate_hz: float = 1.0
+
+    def settings(self, case: MM.MismatchCase, method: str, seed: int) -> TASettings:
+        """The transfer alignment's settings of ``method`` on ``case``'s run ``seed``."""
+        return TASettings(method=method, particles=self.particles, seed=seed, filter_rate_hz=self.filter_rate_hz,
+                          master_error_tau_s=case.master_error_tau_s, initial_attitude_error_deg=self.initial_attitude_error_deg)
+
+
+def run_case(case: MM.MismatchCase, scenario: Scenario, methods: list[str], plan: CaseRuns, *, log=print,
+             filter_aircraft: AircraftConfig | None = None) -> dict:
+    """One case over ``plan.seeds``: metrics.json's entry (module docstring).  ``filter_aircraft``: what
     the filters read instead of the nominal aircraft (a what-if: the configuration that would fix a case)."""
+    seeds = plan.seeds
     if filter_aircraft is None and case.filters is not None:
         filter_aircraft = case.filters(scenario.aircraft)
     per_method: dict[str, list[dict]] = {m: [] for m in methods}
     timing = {m: {"processing_s": 0.0, "data_s": 0.0} for m in methods}
     sess = None
     for seed in seeds:
-        ss, sess = recording(case, scenario, seed, aircraft_text, duration_s)
+        ss, sess = recording(case, scenario, seed, plan.aircraft_text, plan.duration_s)
         truth = {s.name: from_sim.oracle_truth(ss, s.name) for s in ss.scenario.aircraft.sub_imus} if ORACLE in methods else None
         for m in methods:
             t0 = time.perf_counter()
             # the filters read the nominal aircraft; the oracle the true one (what its model can express)
             ac = _with_installation_states(ss.scenario.aircraft, filter_aircraft) if m == ORACLE else (filter_aircraft or scenario.aircraft)
-            settings = TASettings(method=m, particles=particles, seed=seed, filter_rate_hz=filter_rate_hz,
-                                  master_error_tau_s=case.master_error_tau_s, initial_attitude_error_deg=initial_attitude_error_deg)
-            ants, tm = solve(sess, ac, settings, oracle_truth=truth if m == ORACLE else None)
+            ants, tm = solve(sess, ac, plan.settings(case, m, seed), oracle=Oracle(truth=truth) if m == ORACLE else NO_ORACLE)
             ev = evaluate(sess, ants, keep_nsq=True)
             per_method[m].append(ev)
             timing[m]["processing_s"] += tm["processing_s"]
@@ -202,8 +219,7 @@ def main_mismatch(args: argparse.Namespace, scenario: Scenario, methods: list[st
                  "cases": {}}
     args.out.mkdir(parents=True, exist_ok=True)
     for name in cases:
-        doc["cases"][name] = run_case(MM.CASES[name], scenario, methods, seeds, aircraft_text=text, particles=args.particles,
-                                      duration_s=args.duration, initial_attitude_error_deg=err0)
+        doc["cases"][name] = run_case(MM.CASES[name], scenario, methods, CaseRuns(seeds, text, args.particles, args.duration, err0))
         _write(args.out, doc)  # after every case: a long suite keeps what it has
     print(report_md(doc))
     print(f"wrote {args.out / 'metrics.json'} and {args.out / 'report.md'}")

@@ -26,7 +26,7 @@ from rclpy.utilities import remove_ros_args
 
 from dpos_ros.cli.options import one_line_errors
 from dpos_ros.io.flow import use_device_fastdds_profile
-from dpos_ros.io.play import BagError, BagPlayer
+from dpos_ros.io.play import BagError, BagPlayer, PlayOptions
 from dpos_ros.runtime.node_main import install_stop_handlers, restore_handlers
 
 EXIT_OK = 0
@@ -81,10 +81,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"dpos-play: {text}", flush=True)
 
         try:
-            player = BagPlayer(node, args.bag, rate=args.rate, topics=args.topics, clock=args.clock,
-                               clock_hz=args.clock_hz, min_subscribers=args.min_subscribers,
-                               wait_subscribers_s=args.wait_subscribers, log=log,
-                               **({} if args.flow_window is None else {"flow_window": args.flow_window}))
+            options = PlayOptions(rate=args.rate, topics=None if args.topics is None else tuple(args.topics), clock=args.clock,
+                                  clock_hz=args.clock_hz, min_subscribers=args.min_subscribers,
+                                  wait_subscribers_s=args.wait_subscribers,
+                                  **({} if args.flow_window is None else {"flow_window": args.flow_window}))
+            player = BagPlayer(node, args.bag, options, log=log)
         except BagError as exc:
             print(f"dpos-play: error: {exc}", file=sys.stderr)
             return EXIT_ERROR

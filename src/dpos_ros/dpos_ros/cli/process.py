@@ -73,7 +73,7 @@ from dpos_ros.products.master_reference import (
 )
 from dpos_ros.products.rows import scratch_dir
 from dpos_ros.products.solve import SubImuSource, solve
-from dpos_ros.products.write import ProductsExistError, write
+from dpos_ros.products.write import ProductsExistError, WriteOptions, write
 from dpos_ros.runtime.pool import default_workers, max_workers, warm_pool
 
 #: --stream auto: the rows spilled to disk for recordings longer than this [s]
@@ -332,13 +332,9 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             ta = settings(args, sess, _master_error(args, sess, ref.which))
             n_subs = sum(s.name in subs for s in aircraft.sub_imus)
             st.stage(f"aligning {n_subs} sub-IMU(s) with {args.method} on {getattr(pool, 'n_workers', 1)} worker(s)")
-            with st.items("sub-IMU", n_subs) as bar:
-                fit = st.bar("wing fit")
-                try:
-                    antennas, timing = solve(sess, aircraft, ta, source=source, store_dir=Path(tmp) if spill else None, pool=pool,
-                                             sub_imus=subs, on_sub_imu=bar.done, on_fit_window=fit)
-                finally:
-                    fit.close()
+            with st.solving(n_subs) as progress:
+                antennas, timing = solve(sess, aircraft, ta, source=source, store_dir=Path(tmp) if spill else None, pool=pool,
+                                         sub_imus=subs, progress=progress)
             if topics is None or any(tp.startswith("/truth/") for tp in topics):
                 st.stage("evaluating against the recorded truth")
             ev = evaluate(sess, antennas, topics)  # against the truth, a part at a time (none without it)
@@ -346,13 +342,9 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
                 print(f"dpos-process: warning: {w}", file=sys.stderr)
             n_est = sum(a.rows is not None for a in antennas.values())
             st.stage(f"writing the products of {n_est} antenna(s) (CSV, QC, antenna bag, tracks)")
-            with st.items("antenna", n_est) as bar:
-                bag = st.bar("antenna bag")
-                try:
-                    out = write(args.out, sess, antennas, args.method, timing, ev or None, overwrite=args.overwrite, pool=pool,
-                                on_antenna=bar.done, geoid=args.geoid_grid, on_bag=bag)
-                finally:
-                    bag.close()
+            with st.writing(n_est) as progress:
+                out = write(args.out, sess, antennas, args.method, timing, ev or None, pool=pool,
+                            options=WriteOptions(overwrite=args.overwrite, geoid=args.geoid_grid), progress=progress)
             st.stage("done")
     except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
         return _write_error(e, target, final, had_products)

@@ -10,6 +10,8 @@ commands' ``--quiet``: then nothing at all is written by this module, and the co
     with st.items("sub-IMU", 6) as bar:               # a bar of the 6 sub-IMUs
         bar.done("imu01", "estimated")                # "  sub-IMU imu01: estimated" above the bar, bar + 1
     Progress("writing")(done, total)                   # a bar of done / total (the bag writers' callback)
+    with st.solving(6) as progress:                   # the bars of solve's ProductProgress (write: st.writing)
+        solve(..., progress=progress)
 """
 
 from __future__ import annotations
@@ -17,10 +19,14 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import TracebackType
 from typing import TextIO
 
 from tqdm import tqdm
+
+from dpos_ros.products.progress import ProductProgress
 
 
 def on_terminal(stream: TextIO, quiet: bool = False) -> bool:
@@ -126,6 +132,30 @@ class Stages:
     def bar(self, label: str) -> Progress:
         """A bar of done / total (:class:`Progress`), shown as the stages are."""
         return Progress(label, self.stream, self.enabled)
+
+    @contextmanager
+    def _items_and_bar(self, what: str, total: int, label: str) -> Iterator[tuple[Items, Progress]]:
+        """:meth:`items` of ``total`` ``what`` and a :meth:`bar` called ``label``, both closed on leaving."""
+        with self.items(what, total) as items:
+            bar = self.bar(label)
+            try:
+                yield items, bar
+            finally:
+                bar.close()
+
+    @contextmanager
+    def solving(self, n_sub_imus: int) -> Iterator[ProductProgress]:
+        """:func:`dpos_ros.products.solve.solve`'s progress: a line and a bar step per sub-IMU (of
+        ``n_sub_imus``), a bar of the wing fit's windows."""
+        with self._items_and_bar("sub-IMU", n_sub_imus, "wing fit") as (items, fit):
+            yield ProductProgress(sub_imu=items.done, fit_window=fit)
+
+    @contextmanager
+    def writing(self, n_antennas: int) -> Iterator[ProductProgress]:
+        """:func:`dpos_ros.products.write.write`'s progress: a line and a bar step per antenna (of
+        ``n_antennas``), a bar of the antenna bag's batches."""
+        with self._items_and_bar("antenna", n_antennas, "antenna bag") as (items, bag):
+            yield ProductProgress(antenna=items.done, bag=bag)
 
     def print(self, text: str) -> None:
         """A line on stdout (flushed) while a bar may be drawn on the terminal (the bar is redrawn below it)."""

@@ -9,7 +9,9 @@ and its decompressed records go through buffers reused from chunk to chunk, as f
 paid a page fault per page).  Per topic, messages come out in the order of
 rosbags' ``AnyReader.messages``: by log time, ties in file order.  A file this path does not
 handle (no summary or chunk index, an unknown compression, one topic on several channels)
-gives None, and the caller falls back to rosbags.
+gives None, and the caller falls back to rosbags.  A file whose summary cannot be trusted
+(:func:`damage`) is read record by record by :mod:`dpos_ros.io._mcap_recover`, which decodes a
+chunk as this reader does (:func:`_chunk_data`).
 
 Writing (:func:`write`) lays out the file as rosbags' MCAP writer does (rosbag2 ``version`` 9,
 profile ``ros2``): the schema and channel records at the start of the first chunk, chunks closed
@@ -23,7 +25,6 @@ while the next ones are built, and written in order.
 
 from __future__ import annotations
 
-import mmap
 import struct
 import threading
 import zlib
@@ -322,9 +323,9 @@ class _Reading:
             if ch.uncompressed_size > MAX_CHUNK_BYTES or ch.length > MAX_CHUNK_BYTES + 256:
                 raise ValueError(f"it declares {max(ch.uncompressed_size, ch.length)} bytes, more than the "
                                  f"{MAX_CHUNK_BYTES} a chunk may have (nothing allocated)")
-            _chunk_messages(self.file, ch, self.reuse.read(self.f, ch.start, ch.length), mask, bufs, self.reuse)
+            _chunk_messages(ch, self.reuse.read(self.f, ch.start, ch.length), mask, bufs, self.reuse)
         except ValueError as e:
-            why = str(e).removeprefix(f"{self.file}: the chunk at byte {ch.start}").lstrip(": ")
+            why = str(e)
             n, lost = _lost(self.f, self.size, ch, self.names)
             self.lost += n
             if isinstance(self.notes, Notes):
@@ -391,189 +392,6 @@ def read_batches(file: Path, wanted: Callable[[str], bool] | None, batch_bytes: 
     return parts()
 
 
-@dataclass
-class Scanned:
-    """What :func:`scan` read: schemas ``{id: (name, encoding, data)}``, channels ``{id: (topic,
-    schema id)}``, the messages ``(channel id, log time [ns], data)`` in file order, the messages
-    known lost in skipped chunks, and the warnings (:attr:`notes`, the last one where the reading
-    stopped)."""
-
-    schemas: dict[int, tuple[str, str, bytes]]
-    channels: dict[int, tuple[str, int]]
-    messages: list[tuple[int, int, bytes]]
-    lost: int
-    notes: list[str]
-
-
-#: a chunk record's compression field "zstd", 37 bytes after its start: where :func:`scan` resynchronizes
-_ZSTD_FIELD = b"\x04\x00\x00\x00zstd"
-
-
-def _records_in(buf: memoryview | bytes, out: Scanned, top: bool) -> int:
-    """Read the schema, channel and message records back to back in ``buf`` into ``out``; returns
-    where the records stop (``len(buf)`` when all are whole).  ``top``: the file's own records
-    (stop at the end of the data)."""
-    o, n = 0, len(buf)
-    while o + 9 <= n:
-        op, length = struct.unpack_from("<BQ", buf, o)
-        if length > n - o - 9:
-            return o
-        body = o + 9
-        if op == OP_MESSAGE:
-            if length < K.MESSAGE_HEAD - 9:
-                return o
-            cid, = struct.unpack_from("<H", buf, body)
-            t, = struct.unpack_from("<Q", buf, body + 6)
-            out.messages.append((cid, t, bytes(buf[body + K.MESSAGE_HEAD - 9 : body + length])))
-        elif op == OP_SCHEMA:
-            c = _Cursor(buf, body)
-            sid, name, enc = c.u16(), c.str(), c.str()
-            out.schemas[sid] = (name, enc, c.raw(c.u32()))
-        elif op == OP_CHANNEL:
-            c = _Cursor(buf, body)
-            cid, sid = c.u16(), c.u16()
-            out.channels[cid] = (c.str(), sid)
-        o = body + length
-    return o
-
-
-def scan(file: Path) -> Scanned:
-    """Every readable record of the MCAP ``file`` read from its start, without its summary (a
-    recording cut short, or whose summary cannot be trusted: :func:`damage`).  A chunk that is
-    corrupt (see :func:`read`) is skipped, its lost messages counted from the message indexes that
-    follow it, and said; a record whose declared length runs past the end of the file is either
-    the end (a file cut short: what it held is lost, said) or, when a whole chunk follows it,
-    damage skipped up to that chunk.  No allocation is larger than a chunk (at most
-    :data:`MAX_CHUNK_BYTES`): the file is mapped, not read."""
-    out = Scanned({}, {}, [], 0, [])
-    size = file.stat().st_size
-    reuse = _Buffers()
-    with file.open("rb") as f:
-        if size < len(MAGIC) or f.read(len(MAGIC)) != MAGIC:
-            raise ValueError(f"{file}: not an MCAP file (no magic)")
-        if size <= len(MAGIC) + 9:
-            out.notes.append(f"{file}: no record after the magic")
-            return out
-        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            buf = memoryview(mm)
-            try:
-                _scan(file, mm, buf, size, out, reuse)
-                _summary_channels(buf, size, out)
-            finally:
-                buf.release()
-    return out
-
-
-def _summary_channels(buf: memoryview, size: int, out: Scanned) -> None:
-    """Add to ``out`` the schemas and channels of the file's summary that the records did not give
-    (those of a skipped chunk), when the footer and the summary are whole."""
-    if size < 2 * len(MAGIC) + _FOOTER:
-        return
-    op, n, start, offsets, _ = struct.unpack_from("<BQQQI", buf, size - len(MAGIC) - _FOOTER)
-    end = offsets or size - len(MAGIC) - _FOOTER
-    if op != OP_FOOTER or n != 20 or bytes(buf[size - len(MAGIC):]) != MAGIC or not 0 < start <= end <= size:
-        return
-    found = Scanned({}, {}, [], 0, [])
-    try:
-        for op, c, _ in _records(buf[start:end]):
-            if op in (OP_SCHEMA, OP_CHANNEL):
-                _records_in(buf[start + c.o - 9 : start + c.o - 9 + 9 + struct.unpack_from("<Q", buf, start + c.o - 8)[0]],
-                            found, True)
-    except (ValueError, struct.error, UnicodeDecodeError):
-        return
-    for k, v in found.schemas.items():
-        out.schemas.setdefault(k, v)
-    for k, ch in found.channels.items():
-        out.channels.setdefault(k, ch)
-
-
-def _scan(file: Path, mm: mmap.mmap, buf: memoryview, size: int, out: Scanned, reuse: _Buffers) -> None:
-    o = len(MAGIC)
-    bad: list[str] | None = None  # the skipped chunk's warning, waiting for its message indexes
-    bad_n: list[int] = [0]
-
-    def close_bad() -> None:
-        nonlocal bad
-        if bad is not None:
-            out.lost += bad_n[0]
-            out.notes.append(bad[0].replace("{lost}", f"{bad_n[0]} message(s)" if bad_n[0] else "its messages (not indexed)"))
-            bad = None
-
-    while True:
-        if o + 9 > size:
-            close_bad()
-            if o < size:
-                out.notes.append(f"the file ends in an incomplete record at byte {o} of {size}; what was not in a complete chunk is lost")
-            else:
-                out.notes.append("read to the end")
-            return
-        op, length = struct.unpack_from("<BQ", buf, o)
-        if op == OP_MESSAGE_INDEX and bad is not None and length >= 6 and o + 15 <= size:
-            bad_n[0] += struct.unpack_from("<I", buf, o + 11)[0] // 16
-            o += 9 + length
-            continue
-        close_bad()
-        if op in (OP_DATA_END, OP_FOOTER):
-            out.notes.append("read to the end")
-            return
-        if length > size - o - 9:
-            nxt = mm.find(_ZSTD_FIELD, o + 9 + 37)
-            if nxt < 0 or buf[nxt - 37] != OP_CHUNK:
-                out.notes.append(f"the file ends in an incomplete record at byte {o} of {size} (one of {length} bytes "
-                                 f"declared); what was not in a complete chunk is lost")
-                return
-            out.notes.append(f"{file}: {nxt - 37 - o} bytes skipped at byte {o} (a record declaring {length} bytes, "
-                             f"past the end of the file: damage); reading on from the chunk at byte {nxt - 37}")
-            o = nxt - 37
-            continue
-        if op == OP_CHUNK:
-            why = _scan_chunk(buf[o : o + 9 + length], out, reuse)
-            if why is not None:
-                t0, t1 = struct.unpack_from("<QQ", buf, o + 9) if length >= 16 else (0, 0)
-                ch = _ChunkIndex(o, 9 + length, frozenset(), "", 0, 0, t0, t1)
-                bad = [_skipped(file, ch, why, "{lost}")]
-                bad_n[0] = 0
-        elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE):
-            try:
-                _records_in(buf[o : o + 9 + length], out, True)
-            except (ValueError, struct.error, UnicodeDecodeError) as e:
-                out.notes.append(f"{file}: the record at byte {o} is skipped ({e})")
-        o += 9 + length
-
-
-def _scan_chunk(rec: memoryview, out: Scanned, reuse: _Buffers) -> str | None:
-    """Read one chunk record into ``out`` (all or nothing); why it is skipped, or None."""
-    try:
-        if len(rec) > MAX_CHUNK_BYTES + 256:
-            raise ValueError(f"it declares {len(rec)} bytes, more than the {MAX_CHUNK_BYTES} a chunk may have")
-        c = _Cursor(rec, 9)
-        c.u64(), c.u64()
-        usize, crc = c.u64(), c.u32()
-        comp = c.str()
-        n = c.u64()
-        if usize > MAX_CHUNK_BYTES:
-            raise ValueError(f"it declares {usize} bytes of records, more than the {MAX_CHUNK_BYTES} a chunk may have (nothing allocated)")
-        if c.o + n > len(rec):
-            raise ValueError(f"its records run past it ({n} bytes declared)")
-        try:
-            data = reuse.decompress(rec[c.o : c.o + n], comp, usize)
-        except Exception as e:  # noqa: BLE001 - zstandard / lz4 raise their own errors
-            raise ValueError(f"cannot be decompressed ({comp}: {type(e).__name__}: {e})") from None
-        if len(data) != usize:
-            raise ValueError(f"decompresses to {len(data)} bytes, not {usize}")
-        if crc and zlib.crc32(data) != crc:
-            raise ValueError("CRC mismatch of its records")
-        part = Scanned({}, {}, [], 0, [])
-        if _records_in(data, part, False) != len(data):
-            raise ValueError("its records end in an incomplete record")
-    except (ValueError, struct.error, UnicodeDecodeError) as e:
-        return str(e)
-    out.schemas.update(part.schemas)
-    out.channels.update(part.channels)
-    out.messages.extend(part.messages)
-    return None
-
-
 class _Growing:
     """One channel's messages as they are read: a buffer grown by doubling (first sized for
     ``expected`` messages of the size of the first), the messages' offsets and log times."""
@@ -612,31 +430,39 @@ class _Growing:
         return t, Messages(self.data[: self.used], off)
 
 
-def _chunk_messages(file: Path, ch: _ChunkIndex, rec: memoryview, mask: NDArray[np.bool_], bufs: dict[int, _Growing],
-                    reuse: _Buffers) -> None:
-    """Append the wanted messages of one chunk record to their channels' ``bufs``."""
-    where = f"{file}: the chunk at byte {ch.start}"
-    if len(rec) != ch.length or len(rec) < 9 + 28 or rec[0] != OP_CHUNK:
-        raise ValueError(f"{where} is cut short or not a chunk ({len(rec)} of {ch.length} bytes)")
+def _chunk_data(rec: memoryview, reuse: _Buffers) -> memoryview:
+    """The records of the chunk record ``rec`` (from its opcode on) decompressed (into ``reuse``'s
+    buffer) and checked against the chunk's declared size and CRC; ValueError saying why they
+    cannot be read (the reader and the recovery scan, :mod:`dpos_ros.io._mcap_recover`, skip the chunk)."""
     c = _Cursor(rec, 9)
-    c.u64(), c.u64()
+    c.u64(), c.u64()  # (its messages' log time range)
     usize, crc = c.u64(), c.u32()
     comp = c.str()
     n = c.u64()
+    if usize > MAX_CHUNK_BYTES:
+        raise ValueError(f"it declares {usize} bytes of records, more than the {MAX_CHUNK_BYTES} a chunk may have (nothing allocated)")
     if c.o + n > len(rec):
-        raise ValueError(f"{where} is cut short ({len(rec) - c.o} of {n} bytes of records)")
+        raise ValueError(f"is cut short ({len(rec) - c.o} of {n} bytes of records)")
     try:
         data = reuse.decompress(rec[c.o : c.o + n], comp, usize)
     except Exception as e:  # noqa: BLE001 - zstandard / lz4 raise their own errors
-        raise ValueError(f"{where} cannot be decompressed ({comp}: {type(e).__name__}: {e})") from None
+        raise ValueError(f"cannot be decompressed ({comp}: {type(e).__name__}: {e})") from None
     if len(data) != usize:
-        raise ValueError(f"{where} decompresses to {'more than ' if len(data) > usize else ''}{len(data)} bytes, not {usize}")
+        raise ValueError(f"decompresses to {'more than ' if len(data) > usize else ''}{len(data)} bytes, not {usize}")
     if crc and zlib.crc32(data) != crc:
-        raise ValueError(f"{where}: CRC mismatch of its records")
-    buf = np.frombuffer(data, dtype=np.uint8)
+        raise ValueError("CRC mismatch of its records")
+    return data
+
+
+def _chunk_messages(ch: _ChunkIndex, rec: memoryview, mask: NDArray[np.bool_], bufs: dict[int, _Growing], reuse: _Buffers) -> None:
+    """Append the wanted messages of one chunk record ``rec`` (indexed as ``ch``) to their channels'
+    ``bufs``; ValueError saying why the chunk cannot be read."""
+    if len(rec) != ch.length or len(rec) < 9 + 28 or rec[0] != OP_CHUNK:
+        raise ValueError(f"is cut short or not a chunk ({len(rec)} of {ch.length} bytes)")
+    buf = np.frombuffer(_chunk_data(rec, reuse), dtype=np.uint8)
     stop, _, cid, t, d0, ds = K.scan_messages(buf, mask)
     if stop != buf.size:
-        raise ValueError(f"{where}: its records end in an incomplete record at byte {stop} of {buf.size}")
+        raise ValueError(f"its records end in an incomplete record at byte {stop} of {buf.size}")
     for c_ in np.unique(cid):
         i = np.nonzero(cid == c_)[0]
         bufs[int(c_)].add(buf, d0[i], ds[i], t[i])

@@ -27,7 +27,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlu
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from dpos_ros.contract.topics import QOS_KINDS, qos_kind
-from dpos_ros.io import _mcap
+from dpos_ros.io import _mcap, _mcap_recover
 from dpos_ros.io.messages import Messages, RawTopic
 from dpos_ros.io.streams import TopicStream, merged_order
 
@@ -177,7 +177,7 @@ def readable_bag(path: Path, verify: bool = False) -> tuple[Path, str | None]:
     reads neither. A bag whose MCAP has no footer (cut short, with or without its metadata.yaml),
     or whose summary or chunk index points past the end of its data (:func:`dpos_ros.io._mcap.damage`),
     is no better. Such a bag is recovered into the new directory ``<path>.recovered``: the MCAP is
-    read record by record from its start (:func:`dpos_ros.io._mcap.scan`: bad chunks skipped and
+    read record by record from its start (:func:`dpos_ros.io._mcap_recover.scan`: bad chunks skipped and
     said, allocations bounded by the file), and every complete message is written with its channel
     and log time into a rosbag2 there; the original is not touched. ``verify``: also decompress
     every chunk and check its CRC (for readers that do not check them, e.g. rosbags' behind
@@ -226,7 +226,7 @@ def _recover_mcap(src: Path, out: Path, custom: dict[str, str] | None = None) ->
     """Copy the complete messages of the MCAP ``src`` into a new rosbag2 ``out`` (:func:`readable_bag`):
     (messages, topics, what was lost and where the reading stopped)."""
     ts = typestore()
-    got = _mcap.scan(src)
+    got = _mcap_recover.scan(src)
     stop = "; ".join(got.notes)
     if got.lost:
         stop = f"{got.lost} message(s) lost in skipped chunks; {stop}"

@@ -152,57 +152,64 @@ def _not_a_bag(path: Path) -> str | None:
     return f"{path}: not a rosbag2 directory ({what})"
 
 
+@dataclass(frozen=True)
+class PlayOptions:
+    """How :class:`BagPlayer` plays a bag (dpos-play's options).
+
+    Attributes:
+        rate: 1.0 = as recorded, 10 = ten times faster, 0 = as fast as subscribers keep up.
+        topics: play only these (None = all); a topic that is not in the bag is a :class:`BagError`.
+        clock: publish /clock with the bag's log time.
+        clock_hz: most /clock messages per wall second.
+        min_subscribers, wait_subscribers_s: see "Waiting for subscribers".
+        flow_window: unacknowledged messages over all non-latched topics (see "Flow control").
+    """
+
+    rate: float = 1.0
+    topics: tuple[str, ...] | None = None
+    clock: bool = True
+    clock_hz: float = 100.0
+    min_subscribers: int = 0
+    wait_subscribers_s: float = 30.0
+    flow_window: int = PLAY_FLOW_WINDOW
+
+    def __post_init__(self) -> None:
+        if not self.rate >= 0.0:
+            raise ValueError(f"rate must be >= 0, got {self.rate}")
+        if not self.clock_hz > 0.0:
+            raise ValueError(f"clock_hz must be > 0, got {self.clock_hz}")
+
+
 class BagPlayer:
     """Publishes a bag on ``node``'s publishers (module docstring); call :meth:`run` once.
 
     Args:
         node: the rclpy node that owns the publishers. It need not be spun.
         bag: the rosbag2 directory.
-        rate: 1.0 = as recorded, 10 = ten times faster, 0 = as fast as subscribers keep up.
-        topics: play only these (None = all); a topic that is not in the bag is a :class:`BagError`.
-        clock: publish /clock with the bag's log time.
-        clock_hz: most /clock messages per wall second.
-        min_subscribers, wait_subscribers_s: see "Waiting for subscribers".
+        options: :class:`PlayOptions`.
         log: progress reporting (default: the node's logger at INFO).
-        flow_window: unacknowledged messages over all non-latched topics (see "Flow control").
 
     Attributes after :meth:`run`: ``published`` (bag messages), ``clock_published``,
     ``per_topic`` (messages per topic), ``elapsed_s`` (from the first message), ``first_ns`` /
     ``last_ns`` (log times).
     """
 
-    def __init__(
-        self,
-        node: Any,
-        bag: Path,
-        *,
-        rate: float = 1.0,
-        topics: Iterable[str] | None = None,
-        clock: bool = True,
-        clock_hz: float = 100.0,
-        min_subscribers: int = 0,
-        wait_subscribers_s: float = 30.0,
-        log: Callable[[str], None] | None = None,
-        flow_window: int = PLAY_FLOW_WINDOW,
-    ) -> None:
-        if not rate >= 0.0:
-            raise ValueError(f"rate must be >= 0, got {rate}")
-        if not clock_hz > 0.0:
-            raise ValueError(f"clock_hz must be > 0, got {clock_hz}")
+    def __init__(self, node: Any, bag: Path, options: PlayOptions = PlayOptions(), *,
+                 log: Callable[[str], None] | None = None) -> None:
         self.node = node
         self.bag = Path(bag)
-        self.rate = float(rate)
-        self.clock = bool(clock)
-        self.clock_period_s = 1.0 / float(clock_hz)
-        self.min_subscribers = int(min_subscribers)
-        self.flow_window = max(1, int(flow_window))
-        self.wait_subscribers_s = float(wait_subscribers_s)
+        self.rate = float(options.rate)
+        self.clock = bool(options.clock)
+        self.clock_period_s = 1.0 / float(options.clock_hz)
+        self.min_subscribers = int(options.min_subscribers)
+        self.flow_window = max(1, int(options.flow_window))
+        self.wait_subscribers_s = float(options.wait_subscribers_s)
         self._logger = node.get_logger()
         self._log = log or self._logger.info
         self._stop = threading.Event()
         self.reader = open_bag(self.bag, self._logger.warning)
         try:
-            self._setup(None if topics is None else list(topics))
+            self._setup(None if options.topics is None else list(options.topics))
         except BaseException:
             self.reader.close()
             raise

@@ -45,6 +45,7 @@ from dpos_ros.io.session import MASTER_SOURCE_KEY, MASTER_SOURCE_SOLUTION, Recor
 
 from . import rows as R
 from .antenna import AntennaSolution
+from .progress import NO_PROGRESS, ProductProgress
 from .rows import ROW_COLUMNS, RowStore, StampCursor, drained, release_memory
 
 #: seconds of the wing fit's windows (module docstring)
@@ -204,11 +205,24 @@ def _kept(t_s: FloatArray, i0: int, i1: int, rate_hz: float) -> NDArray[np.bool_
 # ------------------------------------------------------------------------------------ the session
 
 
+@dataclass(frozen=True)
+class Oracle:
+    """What the oracle methods know (evaluation of simulations only, :mod:`dpos_core.evaluation.ta`):
+    ``truth``: per sub-IMU the simulation's truth (``pipeline.run_segments``'s ``oracle_truth``);
+    ``known_wing``: per sub-IMU the true wing, set as ``Installation.known_wing``."""
+
+    truth: dict | None = None
+    known_wing: dict | None = None
+
+
+#: no oracle (every method but the evaluation's oracles)
+NO_ORACLE = Oracle()
+
+
 def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings, *, source: SubImuSource | None = None,
           store_dir: Path | None = None, pool: cf.Executor | None = None, sub_imus: list[str] | None = None,
-          oracle_truth: dict | None = None, known_wing: dict | None = None,
-          on_sub_imu: Callable[[str, str], None] | None = None,
-          on_fit_window: Callable[[int, int], None] | None = None) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
+          oracle: Oracle = NO_ORACLE,
+          progress: ProductProgress = NO_PROGRESS) -> tuple[dict[str, AntennaSolution], dict[str, float]]:
     """Transfer-align every sub-IMU of the aircraft found in the recording from the first epoch at
     which the main POS is aligned (:func:`aligned_master`); carry the solutions to their antennas
     (module docstring).  Returns the antennas (the aircraft's order) and the timing (processing and
@@ -230,11 +244,11 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
     sub-IMUs going on.  ``settings.inflate_sigma``: each sub-IMU's output 1-sigma is scaled by the
     innovations' variance factor where they say the filter is optimistic (docs/qc.md).
 
-    ``oracle_truth`` / ``known_wing`` (evaluation only, the oracle methods): per sub-IMU the
-    simulation's truth, or the true wing set as ``Installation.known_wing``.
+    ``oracle`` (evaluation only, the oracle methods): :class:`Oracle`.
 
-    ``on_sub_imu(name, outcome)`` (progress, dpos_ros.cli.progress): called as each sub-IMU's result
-    arrives, ``outcome`` one line; ``on_fit_window(done, total)``: after each window of the wing fit."""
+    ``progress`` (:class:`~dpos_ros.products.progress.ProductProgress`, dpos_ros.cli.progress):
+    ``sub_imu(name, outcome)`` as each sub-IMU's result arrives, ``fit_window(done, total)`` after
+    each window of the wing fit."""
     t0 = time.perf_counter()
     source = SubImuSource.of_session(sess) if source is None else source
     store = RowStore(None if store_dir is None else Path(store_dir))
@@ -249,13 +263,13 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
 
     def install(name: str) -> Installation:
         ins = Installation.from_aircraft(aircraft, name)
-        return ins if known_wing is None else dc_replace(ins, known_wing=known_wing[name])
+        return ins if oracle.known_wing is None else dc_replace(ins, known_wing=oracle.known_wing[name])
 
     # the workers read the recorded main POS with their sub-IMU's topic (a long flight's main POS is not pickled to them)
     send_master = pool is None or not source.read_master or source.bag is None
     tasks = {s.name: SubImuTask(source.only(s.name), s.name, master if send_master else None, install(s.name), settings,
                                 tuple((a.name, np.asarray(a.lever_arm_m, dtype=float)) for a in aircraft.antennas if a.sub_imu == s.name),
-                                store, None if oracle_truth is None else oracle_truth[s.name], imported)
+                                store, None if oracle.truth is None else oracle.truth[s.name], imported)
              for s in aircraft.sub_imus if s.name in present and master is not None}
     futs = {name: pool.submit(align_to_store, task) for name, task in tasks.items()} if pool is not None else {}
     out: dict[str, AntennaSolution] = {}
@@ -274,20 +288,17 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
             if "rejected" in r:
                 unusable[s.name] = f"sub-IMU {s.name}: {r['rejected']}"
                 sess.warnings.append(f"sub-IMU {s.name}: {r['rejected']}; its antennas are not estimated")
-                if on_sub_imu is not None:
-                    on_sub_imu(s.name, f"not estimated: {r['rejected']}")
+                progress.sub_imu(s.name, f"not estimated: {r['rejected']}")
                 continue
             if "missing" in r:
-                if on_sub_imu is not None:
-                    on_sub_imu(s.name, "no data")
+                progress.sub_imu(s.name, "no data")
                 continue
             n_done += 1
             if r["not_estimated"]:
                 sess.warnings.append(f"sub-IMU {s.name}: no pose over {spans_text(r['not_estimated'])}; each part after a gap "
                                      f"restarts from the main POS (flag {ta_flags.RESTARTED_AFTER_GAP} in the antenna CSV)")
             status = f"estimated (not estimated over {spans_text(r['not_estimated'])})" if r["not_estimated"] else "estimated"
-            if on_sub_imu is not None:
-                on_sub_imu(s.name, status)
+            progress.sub_imu(s.name, status)
             for a in aircraft.antennas:
                 if a.sub_imu == s.name:
                     out[a.name] = AntennaSolution(a.name, s.name, status, r["stores"][a.name], r["chol_jitter_repairs"],
@@ -303,7 +314,7 @@ def solve(sess: RecordedSession, aircraft: AircraftConfig, settings: TASettings,
             why = "the main POS is never aligned" if master is None else unusable.get(a.sub_imu, f"sub-IMU {a.sub_imu} has no data")
             out[a.name] = AntennaSolution(a.name, a.sub_imu, f"not estimated: {why}")
     if any(a.sub_imu is None for a in aircraft.antennas):
-        out.update(_fit_windows(sess, aircraft, carriers, store, pool, on_fit_window))
+        out.update(_fit_windows(sess, aircraft, carriers, store, pool, progress.fit_window))
     release_memory()
     return {a.name: out[a.name] for a in aircraft.antennas if a.name in out}, timing
 
@@ -409,7 +420,7 @@ def fit_window(master: NavSeries, aircraft: AircraftConfig, carriers: dict[str, 
 
 def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict[str, RowStore],
                  store: RowStore, pool: cf.Executor | None = None,
-                 on_window: Callable[[int, int], None] | None = None) -> dict[str, AntennaSolution]:
+                 on_window: Callable[[int, int], None] = NO_PROGRESS.fit_window) -> dict[str, AntennaSolution]:
     """The ``fit`` antennas by :func:`fit_antennas` over consecutive windows of :data:`FIT_WINDOW_S`
     (module docstring), their rows appended window by window; the windows fitted on ``pool`` when
     given (a few at a time, taken in order)."""
@@ -455,8 +466,7 @@ def _fit_windows(sess: RecordedSession, aircraft: AircraftConfig, carriers: dict
                         stores[a.name].extend(rows)
                 if store.path is not None:
                     shutil.rmtree(store.path / f"fit_window{w_done:05d}", ignore_errors=True)
-                if on_window is not None:
-                    on_window(w_done + 1, n_win)
+                on_window(w_done + 1, n_win)
     out: dict[str, AntennaSolution] = {}
     for a in fits:
         if a.name not in first:

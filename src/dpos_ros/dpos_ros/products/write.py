@@ -23,6 +23,7 @@ import os
 import shutil
 from collections import deque
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
 from typing import BinaryIO
@@ -49,20 +50,29 @@ from . import _csv_kernel as K
 from . import rows as R
 from .antenna import AntennaSolution
 from .evaluate import write_evaluation
+from .progress import NO_PROGRESS, ProductProgress
 from .qc import MAX_PLOT_POINTS, json_safe, plot_qc, qc_dir, qc_md
 from .rows import RowBlock, RowStore, StampCursor, drained, nav_of, release_memory
 from .track import TrackWriter
 
 
+@dataclass(frozen=True)
+class WriteOptions:
+    """How :func:`write` writes: ``overwrite`` the products of an earlier run (else
+    :class:`ProductsExistError`); ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`)."""
+
+    overwrite: bool = False
+    geoid: GeoidGrid | None = None
+
+
 def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
-          evaluation: dict[str, dict] | None = None, *, overwrite: bool = False, pool: cf.Executor | None = None,
-          on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None,
-          on_bag: Callable[[int, int], None] | None = None) -> Path:
+          evaluation: dict[str, dict] | None = None, *, pool: cf.Executor | None = None,
+          options: WriteOptions = WriteOptions(), progress: ProductProgress = NO_PROGRESS) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring) from the antennas'
     rows, a block of rows at a time; returns that directory.
 
     The directory is new: when it exists, :class:`ProductsExistError` (a FileExistsError) is raised
-    before anything is written, unless ``overwrite``; then the products are written into a
+    before anything is written, unless ``options.overwrite``; then the products are written into a
     temporary sibling ``.<session id>.new-<pid>`` and swapped in only when complete (the old
     products are kept when writing fails). On any exception while writing, what this call created
     (the new directory or the temporary one) is removed and the exception re-raised: the
@@ -71,12 +81,12 @@ def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolu
     workers, and the antenna bag's batches (:data:`BAG_BATCH_S` of poses each) made and compressed
     there while this process writes them to the file in order.  ``evaluation``:
     :func:`dpos_ros.products.evaluate.evaluate`'s result, written (metrics.json, report.md, error
-    figures) before status.json.  ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`).
-    Progress: ``on_antenna(name)`` as each antenna's files are written, ``on_bag(done, total)`` after
-    each batch of the antenna bag."""
-    return write_complete(child_dir(Path(out_root), safe_name(sess.session_id)), overwrite,
-                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, on_antenna, geoid,
-                                                      on_bag))
+    figures) before status.json.  ``options``: :class:`WriteOptions`.  ``progress``
+    (:class:`~dpos_ros.products.progress.ProductProgress`): ``antenna(name)`` as each antenna's files
+    are written, ``bag(done, total)`` after each batch of the antenna bag."""
+    return write_complete(child_dir(Path(out_root), safe_name(sess.session_id)), options.overwrite,
+                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, options.geoid,
+                                                      progress))
 
 
 def write_complete(final: Path, overwrite: bool, fill: Callable[[Path], None]) -> Path:
@@ -159,11 +169,10 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
 
 
 def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
-                    pool: cf.Executor | None, evaluation: dict[str, dict] | None = None,
-                    on_antenna: Callable[[str], None] | None = None, geoid: GeoidGrid | None = None,
-                    on_bag: Callable[[int, int], None] | None = None) -> None:
-    """The products (module docstring) into the new, empty directory ``out``; ``on_antenna(name)``
-    and ``on_bag(done, total)``: :func:`write`'s progress."""
+                    pool: cf.Executor | None, evaluation: dict[str, dict] | None = None, geoid: GeoidGrid | None = None,
+                    progress: ProductProgress = NO_PROGRESS) -> None:
+    """The products (module docstring) into the new, empty directory ``out``; ``geoid`` and
+    ``progress``: :func:`write`'s."""
     est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
@@ -171,12 +180,12 @@ def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, Antenn
     summ: dict[str, dict] = {}
     with drained(lambda: [f for f in files.values() if f is not None]):  # (they write into out)
         if est:
-            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool, on_bag)
+            _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool, progress.bag)
         for name, a in antennas.items():
             f = files.get(name)
             summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method, geoid))
-            if a.rows is not None and on_antenna is not None:
-                on_antenna(name)
+            if a.rows is not None:
+                progress.antenna(name)
     _write_tracks(out / "tracks.geojson", sess, est)
     doc = status_doc(sess, antennas, method, timing, set(est))
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))  # never reads truth
