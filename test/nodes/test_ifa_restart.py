@@ -27,8 +27,8 @@ from dpos_core.ifa.mechanization import stamp_s
 
 pytestmark = pytest.mark.ros
 
-DURATION_S = 40.0
-RESTART_S = 12.0
+DURATION_S = 32.0
+RESTART_S = 10.0
 TIMEOUT_S = 60.0
 
 
@@ -56,13 +56,20 @@ def test_a_restarted_ifa_node_starts_from_the_next_fix_and_its_corrections_are_a
     def mk_ifa(ctx: Any) -> Any:
         return IfaNode(context=ctx, parameter_overrides=[Parameter("aircraft_config", value="paper_ifa")])
 
+    def own_context() -> Any:  # an ifa_node process: its own DDS participant
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=ros_domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        return ctx
+
+    # the first ifa_node in the graph's participant (its own executor, stopped cleanly), as in
+    # test_ifa_loop_live.py; the restarted one in its own participant
+    contexts: list[Any] = []
     ifa = mk_ifa(ros_context)
+    ifa_spinner = Spinner(ros_context, [ifa])
     master = PosMasterNode(context=ros_context, cli_args=live.REMAPS, parameter_overrides=[
         Parameter("device", value="ros"), Parameter("alignment", value="ifa"), Parameter("aircraft_config", value="paper_ifa"),
         Parameter("input_reliability", value="reliable"), Parameter("ring_s", value=600.0)])
-    spinner = Spinner(ros_context, [probe.node, ifa, master])
-    ctx2: Any = None
-    spinner2: Any = None
+    spinner = Spinner(ros_context, [probe.node, master])
     try:
         def matched() -> bool:
             return (all(p.get_subscription_count() >= 1 for p in probe.pubs.values())
@@ -88,18 +95,15 @@ def test_a_restarted_ifa_node_starts_from_the_next_fix_and_its_corrections_are_a
         probe.wait(lambda: master.mech is not None and master.mech.corrections >= n_fix_before - 1, TIMEOUT_S,
                    lambda: f"the first ifa_node's corrections ({master.mech.corrections if master.mech else None} of {n_fix_before})")
 
-        spinner.executor.remove_node(ifa)  # the ifa_node stops ...
-        spinner.nodes.remove(ifa)
-        ifa.destroy_node()
-        ctx2 = Context()  # ... and comes back as a new process (its own participant)
-        rclpy.init(context=ctx2, domain_id=ros_domain_id, signal_handler_options=SignalHandlerOptions.NO)
-        ifa = mk_ifa(ctx2)
-        spinner2 = Spinner(ctx2, [ifa])
-        probe.wait(lambda: matched() and ifa.datum_llh is not None and ifa.joined_running_graph, TIMEOUT_S,
-                   lambda: f"the restarted ifa_node's matches, datum ({ifa.datum_llh}) and the running session "
-                   f"({ifa.joined_running_graph})")
+        ifa_spinner.stop()  # the ifa_node stops (its callbacks finished, the node destroyed) ...
+        contexts.append(own_context())  # ... and a new process starts
+        ifa = mk_ifa(contexts[0])
+        ifa_spinner = Spinner(contexts[0], [ifa])
+        probe.wait(lambda: matched() and ifa.datum_llh is not None, TIMEOUT_S,
+                   lambda: f"the restarted ifa_node's matches and datum ({ifa.datum_llh})")
         np.testing.assert_array_equal(ifa.datum_llh, master.source.input.datum_llh)  # the session's datum (latched)
         corrections_before = master.mech.corrections
+        timeouts_before = master.navigator.hold_timeouts
         n_nav_before = len(probe.raw["/master/nav"])
         n_status_before = len(probe.status["/ifa/status"])
         rest = [m for m in msgs if m[0] > t_r]
@@ -108,12 +112,13 @@ def test_a_restarted_ifa_node_starts_from_the_next_fix_and_its_corrections_are_a
         # its start fix (and any before it) is skipped; every later one is an epoch
         probe.wait(lambda: ifa.al is not None and ifa.epochs + ifa.before_start >= n_fix_after - 1, TIMEOUT_S,
                    lambda: f"the restarted ifa_node's epochs (started: {ifa.al is not None}, {ifa.epochs} epochs, "
-                   f"{ifa.before_start} before its start, of {n_fix_after} fixes)")
+                   f"{ifa.before_start} before its start, of {n_fix_after} fixes; received {ifa.imu_samples} IMU samples,"
+                   f" {len(ifa._fixes)} fixes waiting, {ifa.discrepancy_checks + len(ifa._navs)} /master/nav)")
         probe.wait(lambda: master.mech.corrections - corrections_before >= ifa.corrections_published
                    and probe.status["/pos_master/status"][-1].get("corrections") == str(master.mech.corrections), TIMEOUT_S,
                    lambda: f"the master to apply the restarted node's {ifa.corrections_published} corrections "
                    f"({probe.status['/pos_master/status'][-1:]})")
-        assert ifa.start_source == "gnss_fix" and ifa.epochs >= n_fix_after - 4, (ifa.start_source, ifa.epochs, n_fix_after)
+        assert ifa.epochs >= n_fix_after - 4, (ifa.epochs, n_fix_after)
 
         after = probe.status["/ifa/status"][n_status_before:]
         first = next(s for s in after if s.get("start") == "gnss_fix")
@@ -124,8 +129,9 @@ def test_a_restarted_ifa_node_starts_from_the_next_fix_and_its_corrections_are_a
 
         master_last = probe.status["/pos_master/status"][-1]
         # the restarted node's corrections passed the gates, none lost; the master was not held waiting for it
+        # (a hold unanswered is released after 5 s, counted: a node waiting for a /master/nav costs one at least)
         assert master_last.get("gate_refused", "0") == "0", master_last
-        assert master_last["corrections_lost"] == "0" and master_last["hold_timeouts"] == "0", master_last
+        assert master_last["corrections_lost"] == "0" and int(master_last["hold_timeouts"]) == timeouts_before, master_last
         assert master.mech.corrections - corrections_before == ifa.corrections_published > 0
         # not flagged aligned by its own covariance (that of the restarted node's corrections)
         assert master_last["message"] == "UNALIGNED" and float(master_last["heading_sigma_deg"]) > 1.0, master_last
@@ -141,7 +147,7 @@ def test_a_restarted_ifa_node_starts_from_the_next_fix_and_its_corrections_are_a
         assert inside >= 0.99 and err.max() < 10.0, (inside, float(err.max()), float(sig.min()))
     finally:
         spinner.stop()
-        if spinner2 is not None:
-            spinner2.stop()
-        if ctx2 is not None:
-            rclpy.try_shutdown(context=ctx2)
+        if ifa_spinner.thread.is_alive():
+            ifa_spinner.stop()
+        for ctx in contexts:
+            rclpy.try_shutdown(context=ctx)

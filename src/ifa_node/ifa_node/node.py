@@ -97,7 +97,7 @@ import bisect
 import time
 import warnings
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -154,6 +154,8 @@ RESTART_MIN_COURSE_SPEED_MPS = 5.0
 #: restart: pitch and roll levelled on the mean specific force over this long before the start fix [s]
 #: (pos_master_node's LEVEL_WINDOW_S); a fix with less IMU data than half of it before it is no start
 RESTART_LEVEL_WINDOW_S = 1.0
+#: no /master/nav this long [s] of wall time after a fix that could start the node: a restart (IfaNode._check_join)
+JOIN_WAIT_S = 3.0
 #: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
 #: (nor a deeper KEEP_LAST): measured here, such a reader stopped acknowledging after ~5000
 #: samples although the node had taken every one, and the simulated device's flow control then
@@ -220,6 +222,7 @@ class IfaNode(Node):
         self.joined_running_graph = False
         self.start_source = "none"  # "/master/nav" or "gnss_fix" once started (status key ``start``)
         self._no_start: set[int] = set()  # fix stamps tried as a restart's start (or unfit)
+        self._join_since: float | None = None  # monotonic time a fix that could start the node was here (_check_join)
         self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
         self._last_imu_ns: int | None = None
         self._end_ns: int | None = None  # /session/end: the stamp of the session's last sample
@@ -435,13 +438,11 @@ class IfaNode(Node):
         blk = cv.odometry_from_values(np.array([t0_ns]), v[None], self._datum())
         self._start(t0_ns, NavState(0.0, blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0]), "/master/nav", f"/master/nav at stamp {t0_ns} ns")
 
-    def _gnss_start(self) -> None:
-        """A restart: the start from the oldest waiting fix with its velocity, a ground speed of
-        ``RESTART_MIN_COURSE_SPEED_MPS`` or more, ``RESTART_LEVEL_WINDOW_S / 2`` of IMU data before
-        it and ``IMU_DT_SAMPLES`` after it (:func:`dpos_core.ifa.reference.start`, pos_master_node's
-        course start: velocity = the fix's, heading = course over ground, pitch and roll levelled on
-        the IMU, position = the fix moved to the IMU by the lever arm), stamped at the fix on the
-        IMU's clock. Fixes that are no start wait and are skipped at the start (``before_start``)."""
+    def _start_candidates(self) -> Iterator[tuple[int, int, int, list[int]]]:
+        """The waiting fixes that may start a restart (:meth:`_gnss_start`), oldest first:
+        ``(fix stamp, its velocity's stamp, the fix on the IMU's clock [ns], the buffered IMU stamps)``:
+        a velocity, a fix, ``RESTART_LEVEL_WINDOW_S / 2`` of IMU data before it (else it is never one)
+        and ``IMU_DT_SAMPLES`` after it (else it and the later ones are not yet)."""
         if not self._imu:
             return
         offset_ns = int(round(self.core_config.gnss_time_offset_s * 1e9))
@@ -461,6 +462,42 @@ class IfaNode(Node):
                 stamps = [s for s, _ in self._imu]
             if len(stamps) - bisect.bisect_right(stamps, t0_ns) < IMU_DT_SAMPLES:
                 return
+            yield t_ns, kv, t0_ns, stamps
+
+    def _check_join(self) -> None:
+        """No /master/nav ``JOIN_WAIT_S`` of wall time after a fix that could start the node (ground
+        speed, IMU around it) was here, while /master/nav has a publisher: pos_master_node runs
+        and its start state was published before this node ran (a restart, also when its latched
+        /pos_master/status does not reach this node): join the running session."""
+        if self.al is not None or self.joined_running_graph or self._first_nav is not None or self.datum_llh is None:
+            return
+        now = time.monotonic()
+        if self._join_since is None:
+            for _, kv, _, _ in self._start_candidates():
+                lin = self._vels[kv].twist.twist.linear
+                if np.hypot(lin.x, lin.y) >= RESTART_MIN_COURSE_SPEED_MPS:
+                    self._join_since = now
+                    break
+            return
+        if now - self._join_since < JOIN_WAIT_S or self.count_publishers(T.MASTER_NAV) == 0:
+            return
+        self.joined_running_graph = True
+        self.get_logger().warning(
+            f"no /master/nav for {JOIN_WAIT_S:g} s while GNSS and IMU data come and pos_master_node publishes it: its start"
+            " state was published before this node ran (a restart); this ifa_node joins the running session, UNALIGNED"
+            " with its prior covariance, from the next GNSS fix (position, velocity, course heading, pitch and roll"
+            " levelled on the IMU)")
+        self._maybe_start()
+
+    def _gnss_start(self) -> None:
+        """A restart: the start from the oldest waiting fix with its velocity, a ground speed of
+        ``RESTART_MIN_COURSE_SPEED_MPS`` or more, ``RESTART_LEVEL_WINDOW_S / 2`` of IMU data before
+        it and ``IMU_DT_SAMPLES`` after it (:func:`dpos_core.ifa.reference.start`, pos_master_node's
+        course start: velocity = the fix's, heading = course over ground, pitch and roll levelled on
+        the IMU, position = the fix moved to the IMU by the lever arm), stamped at the fix on the
+        IMU's clock. Fixes that are no start wait and are skipped at the start (``before_start``)."""
+        for t_ns, kv, t0_ns, stamps in self._start_candidates():
+            fix_msg = self._fixes[t_ns]
             fix = self._gnss_fix(t_ns, fix_msg, self._vels[kv], origin_ns=t0_ns)
             self._no_start.add(t_ns)  # (tried once: a start, or none)
             if not (np.all(np.isfinite(fix.llh)) and np.all(np.isfinite(fix.vel_n_mps))):
@@ -593,6 +630,7 @@ class IfaNode(Node):
         middleware are taken (this node may have been busy), then a fix or velocity whose partner did
         not come for ``pair_timeout_s`` is dropped, and the due outage time updates are made."""
         self._take_gnss()
+        self._check_join()
         self._process(wall=True)
         self._outage_predict()
 
@@ -603,6 +641,7 @@ class IfaNode(Node):
             return
         timeout_ns = int(round(self.config.pair_timeout_s * 1e9))
         bridge = self.core_config.max_fix_bridge_s
+        skipped = self.before_start
         while self._fixes:
             t_ns = min(self._fixes)
             fix_msg = self._fixes[t_ns]
@@ -614,6 +653,9 @@ class IfaNode(Node):
                     del self._vels[kv]
                 self.before_start += 1
                 continue
+            if self.before_start > skipped:  # fixes_done_ns moved on: pos_master_node's hold waits for it
+                skipped = self.before_start
+                self._publish_status()
             if al.last_fix_t is not None and t_s <= al.last_fix_t + 1e-9:  # no need to wait for its velocity
                 self._finish(t_ns)
                 kv = self._pair(t_ns)
@@ -657,6 +699,8 @@ class IfaNode(Node):
                 continue
             self._propagate_to(t_s)
             self._epoch(t_ns, fix)
+        if self.before_start > skipped:
+            self._publish_status()
         self._expire_vels(timeout_ns, wall)
         if len(self._arrived) > len(self._fixes) + len(self._vels):
             self._arrived = {k: v for k, v in self._arrived.items() if k in self._fixes or k in self._vels}
