@@ -15,6 +15,16 @@ Inputs
     update) and the discrepancy goes into the status (``nav_discrepancy_m`` / ``_deg``: zero to
     rounding when the master had received every earlier correction when it computed that epoch; a
     master running ahead of the corrections with ``rate_factor`` 0 shows its lag here).
+    Restart (joining a running session): pos_master_node's latched ``/pos_master/status`` says it
+    runs and has applied corrections before this node started, or no /master/nav comes
+    ``JOIN_WAIT_S`` of wall time after a fix that could start the node while /master/nav has a
+    publisher (its start state was published before this node ran). The node then starts, unless a
+    /master/nav comes first, from the oldest fix with its velocity, ``RESTART_MIN_COURSE_SPEED_MPS``
+    of ground speed, half ``RESTART_LEVEL_WINDOW_S`` of IMU data before it and ``IMU_DT_SAMPLES``
+    after it (:func:`dpos_core.ifa.reference.start`: pos_master_node's course start, stamped at the
+    fix on the IMU's clock) with its configured prior covariance: UNALIGNED (ALIGNING), its
+    corrections wide enough for pos_master_node's gates; the datum is the latched /dpos/datum.
+    Status keys ``start`` (``/master/nav``, ``gnss_fix``, ``none``) and ``joined_running_session``.
     ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
     out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
     ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
