@@ -5,6 +5,7 @@ them, or at the pace of the stamps after the restart with RT=1) and print the re
 nodes' last statuses (docs/reliability.md, G12).
 
     .venv/bin/python test/nodes/restart_measure.py master   # env: DUR (130 s), TR (restart, 95 s), DATUM=1, RT=1, DOM
+    .venv/bin/python test/nodes/restart_measure.py ifa      # the restarted ifa_node has its own Context (a new process)
 
 The restart removes the node from the executor and destroys it after a pause (a measurement, not a
 test: a callback still running may fail; rerun then).
@@ -48,8 +49,8 @@ def main(which: str) -> None:
     g0 = jm.gnss.llh[0]
     datum_param = [Parameter("datum", value=[float(np.rad2deg(g0[0])), float(np.rad2deg(g0[1])), float(g0[2])])]
 
-    def mk_ifa() -> Any:
-        return IfaNode(context=ctx, parameter_overrides=[Parameter("aircraft_config", value="paper_ifa")])
+    def mk_ifa(c: Any = ctx) -> Any:
+        return IfaNode(context=c, parameter_overrides=[Parameter("aircraft_config", value="paper_ifa")])
 
     def mk_master() -> Any:
         return PosMasterNode(context=ctx, cli_args=live.REMAPS, parameter_overrides=[
@@ -84,9 +85,10 @@ def main(which: str) -> None:
         sp.nodes.remove(ifa)
         time.sleep(0.5)
         ifa.destroy_node()
-        ifa = mk_ifa()
-        sp.executor.add_node(ifa)
-        sp.nodes.append(ifa)
+        ctx2 = Context()  # its own DDS participant, as a restarted process has
+        rclpy.init(context=ctx2, domain_id=int(os.environ.get("DOM", 91)), signal_handler_options=SignalHandlerOptions.NO)
+        ifa = mk_ifa(ctx2)
+        sp2 = Spinner(ctx2, [ifa])
         probe.wait(lambda: ifa.pub_correction.get_subscription_count() >= 2 and master.nav_pub.get_subscription_count() >= 2,
                    60, "the new ifa_node's matches")
     else:
@@ -121,10 +123,18 @@ def main(which: str) -> None:
             print(f"t {a:5.0f}-{a + 5:.0f} s: error max {err[k].max():8.3f} m, 3-D sigma {sig[k].mean():8.3f} m, "
                   f"inside 3 sigma {np.mean(err[k] < 3 * sig[k]):.2f}")
     print("ifa_node after the restart:", [s.get("message") for s in probe.status["/ifa/status"][-3:]])
-    keys = ("message", "corrections", "gate_refused", "last_gate", "corrections_lost", "heading_sigma_deg")
+    if which == "ifa":
+        print(f"the restarted ifa_node received {ifa.discrepancy_checks + len(ifa._navs)} /master/nav messages (start: {ifa.start_source})")
+    ifa_keys = ("message", "start", "joined_running_session", "epochs", "before_start", "heading_sigma_deg", "aligned_t_s", "t_s")
+    print("ifa_node last:", {k: v for k, v in probe.status["/ifa/status"][-1].items() if k in ifa_keys})
+    keys = ("message", "corrections", "gate_refused", "last_gate", "corrections_lost", "heading_sigma_deg", "hold_timeouts",
+            "corrections_late")
     print("pos_master_node last:", {k: v for k, v in probe.status["/pos_master/status"][-1].items() if k in keys or k.startswith("gate/")})
     sp.stop()
     rclpy.try_shutdown(context=ctx)
+    if which == "ifa":
+        sp2.stop()
+        rclpy.try_shutdown(context=ctx2)
 
 
 if __name__ == "__main__":

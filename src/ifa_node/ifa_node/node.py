@@ -15,6 +15,16 @@ Inputs
     update) and the discrepancy goes into the status (``nav_discrepancy_m`` / ``_deg``: zero to
     rounding when the master had received every earlier correction when it computed that epoch; a
     master running ahead of the corrections with ``rate_factor`` 0 shows its lag here).
+    Restart (joining a running session): pos_master_node's latched ``/pos_master/status`` says it
+    runs and has applied corrections before this node started, or no /master/nav comes
+    ``JOIN_WAIT_S`` of wall time after a fix that could start the node while /master/nav has a
+    publisher (its start state was published before this node ran). The node then starts, unless a
+    /master/nav comes first, from the oldest fix with its velocity, ``RESTART_MIN_COURSE_SPEED_MPS``
+    of ground speed, half ``RESTART_LEVEL_WINDOW_S`` of IMU data before it and ``IMU_DT_SAMPLES``
+    after it (:func:`dpos_core.ifa.reference.start`: pos_master_node's course start, stamped at the
+    fix on the IMU's clock) with its configured prior covariance: UNALIGNED (ALIGNING), its
+    corrections wide enough for pos_master_node's gates; the datum is the latched /dpos/datum.
+    Status keys ``start`` (``/master/nav``, ``gnss_fix``, ``none``) and ``joined_running_session``.
     ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
     out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
     ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
@@ -93,10 +103,11 @@ Outputs per accepted epoch
 
 from __future__ import annotations
 
+import bisect
 import time
 import warnings
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -117,9 +128,10 @@ from dpos_core.ifa.mechanization import STAMP_TOL_S, body_rate_eb, stamp_s
 from dpos_core.ifa.model import GnssFix, check_fix
 from dpos_core.ifa.pipeline import IMU_DT_SAMPLES, EpochRecord, InFlightAligner, nominal_imu_dt_s
 from dpos_core.ifa.pipeline import advance as advance_imu  # run()'s own loop: live == offline by construction
+from dpos_core.ifa.reference import start as course_start
 from dpos_core.ifa.states import AlignmentState
 from dpos_core.ifa.warmup import warm_up
-from dpos_core.series import GAP_FACTOR, NavSeries
+from dpos_core.series import GAP_FACTOR, GnssSeries, ImuSeries, NavSeries
 from dpos_core.strapdown import NavState
 from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 from dpos_ros.contract import cdr
@@ -146,6 +158,14 @@ PUBLISHER_CHECK_S = 2.0
 SINGLE_PUBLISHER_TOPICS = (T.MASTER_NAV, T.MASTER_IMU, T.GNSS_FIX, T.GNSS_VEL, T.DATUM, T.IFA_CORRECTION, T.IFA_STATUS)
 #: /master/nav messages kept for the epoch comparison
 NAV_CACHE = 2000
+#: restart (a running graph): the start fix's ground speed at least this [m/s] (its course is the
+#: initial heading; pos_master_node's ``min_course_speed_mps`` default)
+RESTART_MIN_COURSE_SPEED_MPS = 5.0
+#: restart: pitch and roll levelled on the mean specific force over this long before the start fix [s]
+#: (pos_master_node's LEVEL_WINDOW_S); a fix with less IMU data than half of it before it is no start
+RESTART_LEVEL_WINDOW_S = 1.0
+#: no /master/nav this long [s] of wall time after a fix that could start the node: a restart (IfaNode._check_join)
+JOIN_WAIT_S = 3.0
 #: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
 #: (nor a deeper KEEP_LAST): measured here, such a reader stopped acknowledging after ~5000
 #: samples although the node had taken every one, and the simulated device's flow control then
@@ -206,6 +226,13 @@ class IfaNode(Node):
         self.al: InFlightAligner | None = None  # once the initial state is known (_maybe_start)
         self.origin_ns: int | None = None  # the stamp of the first /master/nav (t_s = 0), set with al
         self._first_nav: bytes | None = None
+        #: a restart: pos_master_node's latched /pos_master/status says it runs and took corrections (of
+        #: an earlier ifa_node) before this node started; the start is then the next GNSS fix if no
+        #: /master/nav comes first (:meth:`_gnss_start`)
+        self.joined_running_graph = False
+        self.start_source = "none"  # "/master/nav" or "gnss_fix" once started (status key ``start``)
+        self._no_start: set[int] = set()  # fix stamps tried as a restart's start (or unfit)
+        self._join_since: float | None = None  # monotonic time a fix that could start the node was here (_check_join)
         self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
         self._last_imu_ns: int | None = None
         self._end_ns: int | None = None  # /session/end: the stamp of the session's last sample
@@ -261,6 +288,7 @@ class IfaNode(Node):
                             TwistWithCovarianceStamped, self._on_vel)]
         self._in_outage_check = False
         self.create_subscription(Header, T.SESSION_END, self._on_session_end, NAV_QOS)
+        self._master_status_sub = self.create_subscription(DiagnosticArray, T.POS_MASTER_STATUS, self._on_master_status, STATUS_QOS)
         self._datum_from_topic = self.datum_llh is None
         if self._datum_from_topic:  # (the datum parameter wins: /dpos/datum is not read then)
             self.create_subscription(NavSatFix, T.DATUM, self._on_datum, DATUM_QOS)
@@ -375,31 +403,155 @@ class IfaNode(Node):
         self._process()
 
     # ------------------------------------------------------------------ start
-    def _maybe_start(self) -> None:
-        """Start the aligner from the first /master/nav once the datum and two IMU samples are known."""
-        if self.al is not None or self._first_nav is None or self.datum_llh is None:
+    def _on_master_status(self, msg: DiagnosticArray) -> None:
+        """/pos_master/status (latched): a pos_master_node that has started and applied corrections
+        before this node started runs a session whose ifa_node was restarted (this one). Its
+        /master/nav start state was published long ago, so the start is the next GNSS fix
+        (:meth:`_gnss_start`) unless a /master/nav message comes first."""
+        if self.al is not None or self.joined_running_graph:
             return
-        t0_ns, v = cv.decode_raw(self._first_nav, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+        for st in msg.status:
+            if not st.name.startswith("pos_master"):
+                continue
+            values = {kv.key: kv.value for kv in st.values}
+            try:
+                corrected = int(values.get("corrections", "0")) > 0
+            except ValueError:
+                corrected = False
+            if values.get("started") == "True" and corrected:
+                self.joined_running_graph = True
+                self.get_logger().warning(
+                    f"{T.POS_MASTER_STATUS}: pos_master_node runs and has applied {values.get('corrections')} corrections"
+                    f" (its navigation at t={values.get('nav_t_s')} s): this ifa_node joins a running session (a restart);"
+                    " it starts UNALIGNED with its prior covariance from the next GNSS fix (position, velocity, course"
+                    " heading, pitch and roll levelled on the IMU) unless a /master/nav message comes first")
+                self._maybe_start()
+                return
+
+    def _maybe_start(self) -> None:
+        """Start the aligner from the first /master/nav once the datum and enough IMU samples are
+        known; joining a running session (:meth:`_on_master_status`) from the next GNSS fix if no
+        /master/nav has come."""
+        if self.al is not None or self.datum_llh is None:
+            return
+        if self._first_nav is not None:
+            self._nav_start(self._first_nav)
+        elif self.joined_running_graph:
+            self._gnss_start()
+
+    def _nav_start(self, first_nav: bytes) -> None:
+        """The start from the first /master/nav (the state pos_master_node's mechanization starts from)."""
+        t0_ns, v = cv.decode_raw(first_nav, "odometry", cv.WORLD_FRAME, cv.MASTER_FRAME)
+        self._imu = [s for s in self._imu if s[0] > t0_ns]
+        if len(self._imu) < IMU_DT_SAMPLES:
+            return
+        blk = cv.odometry_from_values(np.array([t0_ns]), v[None], self._datum())
+        self._start(t0_ns, NavState(0.0, blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0]), "/master/nav", f"/master/nav at stamp {t0_ns} ns")
+
+    def _start_candidates(self) -> Iterator[tuple[int, int, int, list[int]]]:
+        """The waiting fixes that may start a restart (:meth:`_gnss_start`), oldest first:
+        ``(fix stamp, its velocity's stamp, the fix on the IMU's clock [ns], the buffered IMU stamps)``:
+        a velocity, a fix, ``RESTART_LEVEL_WINDOW_S / 2`` of IMU data before it (else it is never one)
+        and ``IMU_DT_SAMPLES`` after it (else it and the later ones are not yet)."""
+        if not self._imu:
+            return
+        offset_ns = int(round(self.core_config.gnss_time_offset_s * 1e9))
+        first_imu_ns, last_imu_ns = self._imu[0][0], self._imu[-1][0]
+        stamps: list[int] | None = None
+        for t_ns in sorted(self._fixes):
+            fix_msg, kv = self._fixes[t_ns], self._pair(t_ns)
+            t0_ns = t_ns - offset_ns  # on the IMU's clock
+            if t_ns in self._no_start or kv is None or fix_msg.status.status == NavSatStatus.STATUS_NO_FIX:
+                continue
+            if t0_ns - first_imu_ns < 0.5 * RESTART_LEVEL_WINDOW_S * 1e9:
+                self._no_start.add(t_ns)  # too little IMU data before it to level on
+                continue
+            if last_imu_ns <= t0_ns:
+                return  # the IMU after it is not here yet (the later fixes' neither)
+            if stamps is None:
+                stamps = [s for s, _ in self._imu]
+            if len(stamps) - bisect.bisect_right(stamps, t0_ns) < IMU_DT_SAMPLES:
+                return
+            yield t_ns, kv, t0_ns, stamps
+
+    def _check_join(self) -> None:
+        """No /master/nav ``JOIN_WAIT_S`` of wall time after a fix that could start the node (ground
+        speed, IMU around it) was here, while /master/nav has a publisher: pos_master_node runs
+        and its start state was published before this node ran (a restart, also when its latched
+        /pos_master/status does not reach this node): join the running session."""
+        if self.al is not None or self.joined_running_graph or self._first_nav is not None or self.datum_llh is None:
+            return
+        now = time.monotonic()
+        if self._join_since is None:
+            for _, kv, _, _ in self._start_candidates():
+                lin = self._vels[kv].twist.twist.linear
+                if np.hypot(lin.x, lin.y) >= RESTART_MIN_COURSE_SPEED_MPS:
+                    self._join_since = now
+                    break
+            return
+        if now - self._join_since < JOIN_WAIT_S or self.count_publishers(T.MASTER_NAV) == 0:
+            return
+        self.joined_running_graph = True
+        self.get_logger().warning(
+            f"no /master/nav for {JOIN_WAIT_S:g} s while GNSS and IMU data come and pos_master_node publishes it: its start"
+            " state was published before this node ran (a restart); this ifa_node joins the running session, UNALIGNED"
+            " with its prior covariance, from the next GNSS fix (position, velocity, course heading, pitch and roll"
+            " levelled on the IMU)")
+        self._maybe_start()
+
+    def _gnss_start(self) -> None:
+        """A restart: the start from the oldest waiting fix with its velocity, a ground speed of
+        ``RESTART_MIN_COURSE_SPEED_MPS`` or more, ``RESTART_LEVEL_WINDOW_S / 2`` of IMU data before
+        it and ``IMU_DT_SAMPLES`` after it (:func:`dpos_core.ifa.reference.start`, pos_master_node's
+        course start: velocity = the fix's, heading = course over ground, pitch and roll levelled on
+        the IMU, position = the fix moved to the IMU by the lever arm), stamped at the fix on the
+        IMU's clock. Fixes that are no start wait and are skipped at the start (``before_start``)."""
+        for t_ns, kv, t0_ns, stamps in self._start_candidates():
+            fix_msg = self._fixes[t_ns]
+            fix = self._gnss_fix(t_ns, fix_msg, self._vels[kv], origin_ns=t0_ns)
+            self._no_start.add(t_ns)  # (tried once: a start, or none)
+            if not (np.all(np.isfinite(fix.llh)) and np.all(np.isfinite(fix.vel_n_mps))):
+                continue
+            lo, hi = t0_ns - int(round(RESTART_LEVEL_WINDOW_S * 1e9)), bisect.bisect_right(stamps, t0_ns) + IMU_DT_SAMPLES
+            batch = [r for s, r in self._imu[:hi] if s > lo]
+            t_imu, vals = cv.decode_raw_batch(batch, "imu", cv.MASTER_FRAME)
+            ok = np.all(np.isfinite(vals[:, 13:16]), axis=1) & np.all(np.isfinite(vals[:, 25:28]), axis=1)
+            imu = ImuSeries(stamp_s(t_imu[ok], t0_ns), vals[ok, 13:16], vals[ok, 25:28])
+            gnss = GnssSeries(np.array([0.0]), fix.llh[None], fix.pos_sigma_m[None], fix.vel_n_mps[None], fix.vel_sigma_mps[None])
+            try:
+                initial, _ = course_start(imu, gnss, RESTART_MIN_COURSE_SPEED_MPS, RESTART_LEVEL_WINDOW_S, lever_arm_m=self.lever_arm_m)
+            except ValueError as e:  # too slow for a course, nothing to level on
+                self.get_logger().info(f"restart: the fix at stamp {t_ns} ns is no start ({e}); waiting for the next",
+                                       throttle_duration_sec=5.0)
+                continue
+            speed = float(np.hypot(fix.vel_n_mps[0], fix.vel_n_mps[1]))
+            self._start(t0_ns, NavState(0.0, initial.q_nb, initial.vel_n_mps, initial.llh), "gnss_fix",
+                        f"the GNSS fix at stamp {t_ns} ns (a restart: heading = course over ground at {speed:.1f} m/s,"
+                        f" pitch and roll levelled on the IMU, lever arm removed)")
+            return
+
+    def _start(self, t0_ns: int, initial: NavState, source: str, what: str) -> None:
+        """Start the aligner from ``initial`` (t_s 0) stamped ``t0_ns`` [ns] (the time origin); the
+        buffered IMU samples after it set the IMU interval (at least IMU_DT_SAMPLES, else later)."""
         self._imu = [s for s in self._imu if s[0] > t0_ns]
         if len(self._imu) < IMU_DT_SAMPLES:
             return
         t_imu = np.array([s[0] for s in self._imu[:IMU_DT_SAMPLES]], dtype=np.int64)  # the IMU interval: median step
         self._imu_dt_s = nominal_imu_dt_s(stamp_s(t_imu, t0_ns))  # the same rule as run()
-        blk = cv.odometry_from_values(np.array([t0_ns]), v[None], self.datum_llh)
-        initial = NavState(0.0, blk.q_nb[0], blk.vel_n_mps[0], blk.llh[0])
         self.imu_start_gap_s = (self._imu[0][0] - t0_ns) * 1e-9
         if self.imu_start_gap_s > max(GAP_FACTOR * self._imu_dt_s, START_GAP_WARN_S):
             # e.g. a replay started before this node subscribed: the motion in between is not measured
             self.get_logger().warning(
-                f"the first /master/imu sample after the start state (/master/nav at {t0_ns} ns) is {self.imu_start_gap_s:.3f} s "
+                f"the first /master/imu sample after the start state ({what}) is {self.imu_start_gap_s:.3f} s "
                 f"after it (IMU interval {self._imu_dt_s:.4g} s): the navigation integrates across this gap and is wrong by the "
                 "motion in it until GNSS corrects it; start this node before the data (status imu_start_gap_s)")
         self.origin_ns = t0_ns
         self.al = InFlightAligner(initial, self.lever_arm_m, self.core_config, self.config.method, self._imu_dt_s)
         self._first_nav = None
+        self.start_source = source
         hpr = initial.hpr_rad / DEG
         self.get_logger().info(
-            f"started from /master/nav at stamp {t0_ns} ns: heading {hpr[0]:.3f} pitch {hpr[1]:.3f} roll {hpr[2]:.3f} deg,"
+            f"started from {what}: heading {hpr[0]:.3f} pitch {hpr[1]:.3f} roll {hpr[2]:.3f} deg,"
             f" IMU interval {self._imu_dt_s:.6g} s; {self.config.method.upper()} ALIGNING"
         )
         self._publish_status()
@@ -444,7 +596,8 @@ class IfaNode(Node):
         self.get_logger().error(f"{e.what} failed numerically at the GNSS fix of stamp {t_ns} ns, the fix is dropped: {e}")
         self._publish_status()
 
-    def _gnss_fix(self, t_ns: int, fix: NavSatFix, vel: TwistWithCovarianceStamped | None):
+    def _gnss_fix(self, t_ns: int, fix: NavSatFix, vel: TwistWithCovarianceStamped | None, origin_ns: int | None = None) -> GnssFix:
+        """The fix (and its velocity) as the core takes it, its time relative to ``origin_ns`` (default: the node's origin)."""
         cov = np.asarray(fix.position_covariance, dtype=float).reshape(3, 3)
         if fix.position_covariance_type == NavSatFix.COVARIANCE_TYPE_UNKNOWN:
             pos_sigma = np.asarray(self.config.gnss_pos_sigma_m, dtype=float)
@@ -460,7 +613,7 @@ class IfaNode(Node):
             v = np.array([lin.x, lin.y, lin.z], dtype=float)
             v_sigma = _sigma(np.diag(np.asarray(vel.twist.covariance, dtype=float).reshape(6, 6))[:3])
         llh = np.array([np.deg2rad(fix.latitude), np.deg2rad(fix.longitude), fix.altitude], dtype=float)
-        return GnssFix(float(stamp_s(t_ns, self._origin())), llh, pos_sigma, v, v_sigma)
+        return GnssFix(float(stamp_s(t_ns, self._origin() if origin_ns is None else origin_ns)), llh, pos_sigma, v, v_sigma)
 
     def _pair(self, t_ns: int) -> int | None:
         tol = int(round(self.config.pair_tolerance_s * 1e9))
@@ -487,6 +640,7 @@ class IfaNode(Node):
         middleware are taken (this node may have been busy), then a fix or velocity whose partner did
         not come for ``pair_timeout_s`` is dropped, and the due outage time updates are made."""
         self._take_gnss()
+        self._check_join()
         self._process(wall=True)
         self._outage_predict()
 
@@ -497,6 +651,7 @@ class IfaNode(Node):
             return
         timeout_ns = int(round(self.config.pair_timeout_s * 1e9))
         bridge = self.core_config.max_fix_bridge_s
+        skipped = self.before_start
         while self._fixes:
             t_ns = min(self._fixes)
             fix_msg = self._fixes[t_ns]
@@ -508,6 +663,9 @@ class IfaNode(Node):
                     del self._vels[kv]
                 self.before_start += 1
                 continue
+            if self.before_start > skipped:  # fixes_done_ns moved on: pos_master_node's hold waits for it
+                skipped = self.before_start
+                self._publish_status()
             if al.last_fix_t is not None and t_s <= al.last_fix_t + 1e-9:  # no need to wait for its velocity
                 self._finish(t_ns)
                 kv = self._pair(t_ns)
@@ -551,6 +709,8 @@ class IfaNode(Node):
                 continue
             self._propagate_to(t_s)
             self._epoch(t_ns, fix)
+        if self.before_start > skipped:
+            self._publish_status()
         self._expire_vels(timeout_ns, wall)
         if len(self._arrived) > len(self._fixes) + len(self._vels):
             self._arrived = {k: v for k, v in self._arrived.items() if k in self._fixes or k in self._vels}
@@ -760,7 +920,8 @@ class IfaNode(Node):
         values.update({"last_rejection": self.last_rejection, "before_start": self.before_start, "unpaired": self.unpaired,
                        "imu_samples": self.imu_samples, "imu_dropped": self.imu_dropped, "imu_gaps": self.imu_gaps,
                        "imu_start_gap_s": f"{self.imu_start_gap_s:.6g}",
-                       "numerical_failures": self.numerical_failures, "last_failure": self.last_failure})
+                       "numerical_failures": self.numerical_failures, "last_failure": self.last_failure,
+                       "start": self.start_source, "joined_running_session": "true" if self.joined_running_graph else "false"})
         if self.datum_llh is not None:  # the session's frame: a restarted pos_master_node takes it (its sources module)
             d = self.datum_llh
             values["datum_deg"] = f"{d[0] / DEG:.10f} {d[1] / DEG:.10f} {d[2]:.4f}"
