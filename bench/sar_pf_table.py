@@ -1,4 +1,4 @@
-"""The SINS/SAR particle filters on paper_sar runs, one line per method (docs/sar.md, issue 34):
+"""The SINS/SAR particle filters on paper_sar runs, one line per method (docs/sar.md):
 mean MAE over the runs of pitch, roll, yaw ['] and lon, lat, alt [m] over 100 s - end, their
 (min, max) over all runs, mean ESS, mean distinct particles carried on, MH acceptance, NEES and
 CPU seconds per run.
@@ -9,7 +9,10 @@ the epochs of the window and the runs (15 for a consistent filter); ``nees9`` th
 attitude, velocity and position (9).
 
     .venv/bin/python bench/sar_pf_table.py --runs 10 --duration 1000 --particles 1000 \\
-        --methods ekf,pf,rpf,mcmc_rpf,mcmc_rpf_literal
+        --methods ekf,ukf,oracle,pf,rpf,rpf@0.5,mcmc_rpf,mcmc_rpf_literal
+
+(``method@s``: that method at the bandwidth ``s h_opt``; the method's index in the list seeds its
+generator as dpos-eval's does.)
 """
 
 from __future__ import annotations
@@ -56,9 +59,11 @@ def main() -> None:
         sel = t >= a.window_start
         for i, m in enumerate(methods):
             t0 = time.process_time()
-            est = run(m, prob.model, prob.x0, prob.P0, n_particles=a.particles,
+            name, _, bw = m.partition("@")  # rpf@0.5: that method at bandwidth 0.5 h_opt
+            est = run(name, prob.model, prob.x0, prob.P0, n_particles=a.particles,
                       rng=np.random.default_rng([a.seed + r, i, a.particles]),
-                      truth_x=prob.truth_x if m == ORACLE else None, bandwidth_scale=a.bandwidth_scale)
+                      truth_x=prob.truth_x if name == ORACLE else None,
+                      bandwidth_scale=float(bw) if bw else a.bandwidth_scale)
             d = acc[m]
             d["cpu"].append(time.process_time() - t0)
             d["stats"].append(table_stats(t, errors(prob, est.x), (a.window_start, a.duration)))

@@ -11,27 +11,28 @@ resampling + Metropolis-Hastings), all vectorized over the particles.
   a draw from the Gaussian kernel ``K_h`` scaled by a square root ``A`` of the particles'
   weighted covariance (``S = A A^T``), bandwidth ``h_opt = (4 / (N (n + 2)))^(1 / (n + 4))``
   (eq. 9, optimal for a Gaussian density), ``h_opt / 2`` for multimodal densities.
-* ``mcmc_rpf_literal`` - [Yan2016]'s modified PF (sec. "Metropolis-Hastings rules") read literally: local resampling -
+* ``mcmc_rpf`` - [Yan2016]'s modified PF with its MH moves acting on the particles'
+  *trajectories* over a window, as the paper describes them, in the form that tracks on an INS
+  error model (:mod:`.trajectory_move`): every ``window`` epochs the particles are
+  resampled and each trajectory's window start ``x_{k0}`` - with the constant biases, moved as
+  static parameters - is moved by Metropolis-Hastings (resample-move, Gilks and Berzuini 2001),
+  the window regenerated from it with the particle's own noise draws and judged by the window's
+  measurements and a Gaussian of the cloud at ``k0``.  The proposals are shaped by the observable
+  subspace: the window start conditioned on the window's measurements by a linearized Kalman
+  update, used as an independence proposal, alternating with [Yan2016]'s regularization kernel
+  as a random walk.  Between the window ends it is the bootstrap PF; at a window end the moved
+  cloud's moments are reported.
+* ``mcmc_rpf_literal`` - [Yan2016]'s modified PF (sec. "Metropolis-Hastings rules") read
+  literally, kept for comparison: local resampling -
   after resampling, only the *children* (every copy of a parent beyond its first) are
   regenerated, the parents stay - and the regularized move of each child is accepted by the
   Metropolis-Hastings rule (eq. 10-13; Gilks and Berzuini 2001 resample-move) with the target
   ``p(x_k | x_{k-1}, y_k) ~ p(y_k | x_k) p(x_k | x_{k-1})`` of the particle's own trajectory: the
   Gaussian kernel is symmetric, so the proposal ratio cancels (eq. 13) and
   ``beta = p(y_k | x*) p(x* | x_{k-1}) / (p(y_k | x) p(x | x_{k-1}))``.  The move leaves the
-  particles' posterior invariant (unlike the RPF's jitter, which widens it).  [Yan2016] writes the
-  move over a window of L particles of the trajectory without saying how the window's earlier
-  states are regenerated; here the window is the last step (L = 2: the parent ``x_{k-1}`` fixed,
-  ``x_k`` moved), the form whose target is computable from the particle's own transition.
-
-* ``mcmc_rpf`` - the windowed MCMC-regularized PF that tracks on INS error models (issue 34,
-  :mod:`.trajectory_move`): every ``window`` epochs the particles are resampled and the
-  *trajectories* over the window are moved by Metropolis-Hastings - the window start ``x_{k0}``
-  (with the constant biases, moved as static parameters) by the regularization kernel shaped by
-  the resampled window starts' covariance, the window regenerated from it with the particle's own
-  noise draws, judged by the window's measurements and a Gaussian of the cloud at ``k0``.  Between
-  the window ends it is the bootstrap PF.
-* ``mcmc_rpf_literal`` - the literal reading of eq. 10-13 above (the previous ``mcmc_rpf``),
-  kept for comparison.
+  particles' posterior invariant (unlike the RPF's jitter, which widens it), but on a model whose
+  transition noise is the IMU's it rejects almost every move (docs/sar.md): the window is the
+  last step only (the parent ``x_{k-1}`` fixed, ``x_k`` moved).
 
 Models with a constrained state (a unit quaternion) may define ``project(x)`` (applied after every
 draw and move) and ``free`` (the indices the transition density is evaluated on, so that a state
