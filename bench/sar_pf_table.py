@@ -18,7 +18,9 @@ generator as dpos-eval's does.)
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -48,7 +50,15 @@ def main() -> None:
     ap.add_argument("--methods", default="ekf,pf,rpf,mcmc_rpf")
     ap.add_argument("--bandwidth-scale", type=float, default=1.0)
     ap.add_argument("--window-start", type=float, default=100.0)
+    ap.add_argument("--json", type=Path, help="also write the per-run figures here")
+    ap.add_argument("--merge", type=Path, nargs="+", help="print the table of these --json files (runs concatenated)")
     a = ap.parse_args()
+    if a.merge:
+        parts = [json.loads(p.read_text()) for p in a.merge]
+        methods = parts[0]["methods"]
+        acc = {m: {k: sum((p["acc"][m][k] for p in parts), []) for k in parts[0]["acc"][m]} for m in methods}
+        _table(acc, methods, sum(p["runs"] for p in parts), parts[0]["duration"], parts[0]["particles"])
+        return
     methods = a.methods.split(",")
     acc: dict[str, dict[str, list]] = {m: {"stats": [], "ess": [], "distinct": [], "accept": [], "nees": [], "nees9": [],
                                            "cpu": []} for m in methods}
@@ -76,7 +86,14 @@ def main() -> None:
                                         if key != "distinct" or np.any(est.extra["resampled"] > 0) else np.nan))
             print(f"run {r + 1}/{a.runs} {m}: " + " ".join(f"{c} {d['stats'][-1][c]['mae']:.3g}" for c in COMPONENTS)
                   + f" nees {d['nees'][-1]:.3g} cpu {d['cpu'][-1]:.1f}s", flush=True)
-    print(f"\n{a.runs} runs, {a.duration:.0f} s, N = {a.particles}, MAE mean over runs (min, max over all runs)")
+    if a.json:
+        a.json.write_text(json.dumps({"methods": methods, "runs": a.runs, "duration": a.duration, "particles": a.particles,
+                                      "acc": acc}))
+    _table(acc, methods, a.runs, a.duration, a.particles)
+
+
+def _table(acc: dict[str, dict[str, list]], methods: list[str], runs: int, duration: float, particles: int) -> None:
+    print(f"\n{runs} runs, {duration:.0f} s, N = {particles}, MAE mean over runs (min, max over all runs)")
     print("| method | " + " | ".join(COMPONENTS) + " | mean ESS | distinct | MH acc | NEES (15) | NEES (9) | CPU s |")
     print("| --- " * (len(COMPONENTS) + 7) + "|")
     for m in methods:
@@ -89,7 +106,6 @@ def main() -> None:
         f = lambda k: f"{np.nanmean(d[k]):.3g}" if d[k] else "-"  # noqa: E731
         print(f"| {m} | " + " | ".join(cells) + f" | {f('ess')} | {f('distinct')} | {f('accept')} | {f('nees')} | "
               f"{f('nees9')} | {f('cpu')} |")
-
 
 if __name__ == "__main__":
     main()
