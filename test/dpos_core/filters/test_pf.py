@@ -203,6 +203,10 @@ def test_bad_arguments_are_named() -> None:
         run_sir(m, x0, P0, bandwidth_scale=0.0)
     with pytest.raises(ValueError, match="finite"):
         run_sir(m, np.array([np.nan, 0.0]), P0)
+    with pytest.raises(ValueError, match="window and n_moves"):
+        run_sir(m, x0, P0, method="mcmc_rpf", window=0)
+    with pytest.raises(ValueError, match="window and n_moves"):
+        run_sir(m, x0, P0, method="mcmc_rpf", n_moves=0)
 
 
 def test_ups_resample_move_keeps_the_kalman_filter() -> None:
