@@ -25,7 +25,7 @@ Keys (in order):
                                wing_paper_wing_serial_time_ratio: the same one sub-IMU after the other;
                                *_split_s: seconds of the transfer alignment and of the rest (the wing fit)
   sar_<method>_paper_sar_time_ratio  SINS/SAR filtering of paper_sar (1000 s, 16 states, 1 Hz; dpos_core.sar,
-                               docs/sar.md) / duration, for ekf, ukf and the particle filters pf, rpf, mcmc_rpf
+                               docs/sar.md) / duration, for ekf, ukf and the particle filters pf, rpf, mcmc_rpf, mcmc_rpf_literal
                                with 1000 particles (the simulation and the SINS not counted)
   ifa_add2_paper_ifa_time_ratio   in-flight alignment (ADD2, bank of 6 hypotheses) of paper_ifa / duration
   ifa_add2_mems_vehicle_time_ratio  the same on the MEMS scenario (24 states, real-device timing)

@@ -17,11 +17,12 @@ class SarNavConfig:
     Attributes:
         datum: [lat_deg, lon_deg, h_m] of the ``enu`` origin; ``[]`` = /dpos/datum.
         method: SINS/SAR filter, one of :data:`dpos_core.sar.pipeline.METHODS` (``ekf``, ``ukf`` and
-            [Yan2016]'s particle filters ``pf``, ``rpf``, ``mcmc_rpf``).
+            [Yan2016]'s particle filters ``pf``, ``rpf``, ``mcmc_rpf`` - the windowed trajectory-move
+            MCMC-RPF that tracks, docs/sar.md - and ``mcmc_rpf_literal``, eq. 10-13 read literally).
         particles: particles of the particle filters (>= 2; unused by ekf / ukf).
         seed: random seed of the particle filters.
-        bandwidth_scale: the regularization kernel's bandwidth in units of h_opt (rpf, mcmc_rpf;
-            0.5 = docs/sar.md's h_opt / 2).
+        bandwidth_scale: the regularization kernel's bandwidth in units of h_opt (rpf, the mcmc_rpf
+            variants' random-walk moves; 0.5 = docs/sar.md's h_opt / 2).
         filter_rate_hz: filter epochs (and /sar_nav/nav messages) per second; SAR fixes are used at
             the epochs they are stamped at.
         initial_position_sigma_m, initial_velocity_sigma_mps, initial_attitude_sigma_arcmin: prior 1
@@ -34,9 +35,9 @@ class SarNavConfig:
 
     datum: tuple[float, ...] = datum_param()
     method: str = param("ekf", "SINS/SAR filter", choices=METHODS)
-    particles: int = param(1000, "number of particles of pf, rpf, mcmc_rpf", minimum=2)
+    particles: int = param(1000, "number of particles of pf, rpf, mcmc_rpf, mcmc_rpf_literal", minimum=2)
     seed: int = param(0, "random seed of the particle filters", minimum=0)
-    bandwidth_scale: float = param(1.0, "rpf, mcmc_rpf: regularization bandwidth in units of h_opt", minimum=0.0, exclusive_minimum=True)
+    bandwidth_scale: float = param(1.0, "rpf, mcmc_rpf, mcmc_rpf_literal: regularization bandwidth in units of h_opt", minimum=0.0, exclusive_minimum=True)
     filter_rate_hz: float = param(1.0, "filter epochs [Hz] (one /sar_nav/nav message each)", minimum=0.0, exclusive_minimum=True)
     initial_position_sigma_m: tuple[float, float, float] = param((10.0, 10.0, 15.0), "prior 1 sigma of the initial position E, N, U [m]",
                                                                  minimum=0.0, exclusive_minimum=True, length=3)

@@ -87,7 +87,7 @@ def test_bad_settings_and_data_are_refused(session) -> None:
     with pytest.raises(ValueError, match="n_particles >= 2"):
         SarNavSettings(method="pf", n_particles=1)
     assert SarNavSettings(method="ekf", n_particles=1).n_particles == 1  # unused by the Gaussian filters
-    assert set(METHODS) == {"ekf", "ukf", "pf", "rpf", "mcmc_rpf"}
+    assert set(METHODS) == {"ekf", "ukf", "pf", "rpf", "mcmc_rpf", "mcmc_rpf_literal"}
     b = baro_heights(session)
     gap = (b.t_s < 40.0) | (b.t_s > 42.0)  # no barometer within half a step of t = 41 s
     with pytest.raises(ValueError, match="t = 41 s"):

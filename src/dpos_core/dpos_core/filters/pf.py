@@ -11,17 +11,28 @@ resampling + Metropolis-Hastings), all vectorized over the particles.
   a draw from the Gaussian kernel ``K_h`` scaled by a square root ``A`` of the particles'
   weighted covariance (``S = A A^T``), bandwidth ``h_opt = (4 / (N (n + 2)))^(1 / (n + 4))``
   (eq. 9, optimal for a Gaussian density), ``h_opt / 2`` for multimodal densities.
-* ``mcmc_rpf`` - [Yan2016]'s modified PF (sec. "Metropolis-Hastings rules"): local resampling -
+* ``mcmc_rpf`` - [Yan2016]'s modified PF with its MH moves acting on the particles'
+  *trajectories* over a window, as the paper describes them, in the form that tracks on an INS
+  error model (:mod:`.trajectory_move`): every ``window`` epochs the particles are
+  resampled and each trajectory's window start ``x_{k0}`` - with the constant biases, moved as
+  static parameters - is moved by Metropolis-Hastings (resample-move, Gilks and Berzuini 2001),
+  the window regenerated from it with the particle's own noise draws and judged by the window's
+  measurements and a Gaussian of the cloud at ``k0``.  The proposals are shaped by the observable
+  subspace: the window start conditioned on the window's measurements by a linearized Kalman
+  update, used as an independence proposal, alternating with [Yan2016]'s regularization kernel
+  as a random walk.  Between the window ends it is the bootstrap PF; at a window end the moved
+  cloud's moments are reported.
+* ``mcmc_rpf_literal`` - [Yan2016]'s modified PF (sec. "Metropolis-Hastings rules") read
+  literally, kept for comparison: local resampling -
   after resampling, only the *children* (every copy of a parent beyond its first) are
   regenerated, the parents stay - and the regularized move of each child is accepted by the
   Metropolis-Hastings rule (eq. 10-13; Gilks and Berzuini 2001 resample-move) with the target
   ``p(x_k | x_{k-1}, y_k) ~ p(y_k | x_k) p(x_k | x_{k-1})`` of the particle's own trajectory: the
   Gaussian kernel is symmetric, so the proposal ratio cancels (eq. 13) and
   ``beta = p(y_k | x*) p(x* | x_{k-1}) / (p(y_k | x) p(x | x_{k-1}))``.  The move leaves the
-  particles' posterior invariant (unlike the RPF's jitter, which widens it).  [Yan2016] writes the
-  move over a window of L particles of the trajectory without saying how the window's earlier
-  states are regenerated; here the window is the last step (L = 2: the parent ``x_{k-1}`` fixed,
-  ``x_k`` moved), the form whose target is computable from the particle's own transition.
+  particles' posterior invariant (unlike the RPF's jitter, which widens it), but on a model whose
+  transition noise is the IMU's it rejects almost every move (docs/sar.md): the window is the
+  last step only (the parent ``x_{k-1}`` fixed, ``x_k`` moved).
 
 Models with a constrained state (a unit quaternion) may define ``project(x)`` (applied after every
 draw and move) and ``free`` (the indices the transition density is evaluated on, so that a state
@@ -40,9 +51,12 @@ from dpos_core.units import FloatArray
 from .linalg import gauss_logpdf, symmetrize
 from .model import StateSpaceModel
 from .particle import RESAMPLING, ess, log_normalize, resample_indices
+from .trajectory_move import window_mh_move, window_posterior
 
 #: the particle filters of :func:`run_sir`, in [Yan2016]'s order (classical, regularized, modified)
-PF_METHODS = ("pf", "rpf", "mcmc_rpf")
+PF_METHODS = ("pf", "rpf", "mcmc_rpf", "mcmc_rpf_literal")
+#: the windowed MCMC-RPF's defaults: window length [epochs] and MH steps per window end
+MCMC_WINDOW, MCMC_MOVES = 10, 2
 
 
 def bandwidth_opt(n_particles: int, n_states: int) -> float:
@@ -125,6 +139,62 @@ def mh_move(
     return np.where(acc[:, None], prop, x), np.where(acc, lt1, lt0), acc
 
 
+def _loglik(model: StateSpaceModel, k: int, z: FloatArray) -> FloatArray:
+    """``log p(y_k | z)`` (M,) of states z (M, n); zeros where epoch k has no measurement."""
+    y = model.y(k)
+    if y is None:
+        return np.zeros(z.shape[0])
+    return gauss_logpdf(model.residual(y, model.h(k, z)), model.R(k))
+
+
+def _window_propagator(model: StateSpaceModel, k0: int, k: int, W: FloatArray, project):
+    """``propagate(s) -> (x_k, sum_{j=k0+1..k} log p(y_j | x_j))`` (from j = 0 when k0 = 0, whose anchor
+    is the prior) for window starts s (N, n): the
+    window regenerated with the particles' own noise draws W (>= k - k0, N, n), the same
+    arithmetic as the filter's forward step (:mod:`.trajectory_move`)."""
+
+    def propagate(s: FloatArray) -> tuple[FloatArray, FloatArray]:
+        z = s
+        ll = _loglik(model, 0, s) if k0 == 0 else np.zeros(s.shape[0])  # the first window: the prior is the anchor
+        for j in range(k0, k):
+            z = model.f(j, z) + W[j - k0]
+            if project is not None:
+                z = project(z)
+            ll = ll + _loglik(model, j + 1, z)
+        return z, ll
+
+    return propagate
+
+
+def _window_residuals(model: StateSpaceModel, k0: int, k: int, project):
+    """``residuals(s) -> (r (M, m), R (m, m))``: the stacked residuals ``y_j - h_j(x_j)`` over the
+    window's measured epochs (j = k0 + 1..k, from 0 when k0 = 0) of the noise-free trajectories
+    from starts s (M, n), and their block-diagonal covariance (:func:`.trajectory_move.window_posterior`)."""
+
+    def residuals(s: FloatArray) -> tuple[FloatArray, FloatArray]:
+        z, rs, Rs = s, [], []
+        for j in range(k0, k + 1):
+            if j > k0:
+                z = model.f(j - 1, z)
+                if project is not None:
+                    z = project(z)
+            if j == k0 and k0 != 0:
+                continue
+            y = model.y(j)
+            if y is not None:
+                rs.append(model.residual(y, model.h(j, z)))
+                Rs.append(model.R(j))
+        m = sum(R.shape[0] for R in Rs)
+        Rb = np.zeros((m, m))
+        i = 0
+        for R in Rs:
+            Rb[i:i + R.shape[0], i:i + R.shape[0]] = R
+            i += R.shape[0]
+        return (np.hstack(rs) if rs else np.zeros((s.shape[0], 0))), Rb
+
+    return residuals
+
+
 @dataclass
 class SirTrack:
     """Forward pass of a particle filter of :func:`run_sir`, K epochs, n states.
@@ -158,6 +228,8 @@ def run_sir(
     resample: str = RESAMPLING[0],
     bandwidth_scale: float = 1.0,
     keep_particles: bool = False,
+    window: int = MCMC_WINDOW,
+    n_moves: int = MCMC_MOVES,
 ) -> SirTrack:
     """Run the particle filter ``method`` (one of :data:`PF_METHODS`, module docstring).
 
@@ -171,6 +243,8 @@ def run_sir(
         bandwidth_scale: the kernel's bandwidth is ``bandwidth_scale h_opt``; 1 for a unimodal
             density, 0.5 for a multimodal one ([Yan2016] after eq. 9).
         keep_particles: also return every epoch's particles (K, N, n) (memory: K N n doubles).
+        window, n_moves: ``mcmc_rpf``'s window length in epochs (>= 1) and Metropolis-Hastings
+            steps per window end (>= 1).
     """
     if method not in PF_METHODS:
         raise ValueError(f"unknown particle filter {method!r}; choose one of {PF_METHODS}")
@@ -181,6 +255,8 @@ def run_sir(
         raise ValueError(f"n_particles must be >= 2, got {n_particles}")
     if not (np.isfinite(bandwidth_scale) and bandwidth_scale > 0):
         raise ValueError(f"bandwidth_scale must be > 0, got {bandwidth_scale}")
+    if int(window) < 1 or int(n_moves) < 1:
+        raise ValueError(f"window and n_moves must be >= 1, got {window}, {n_moves}")
     if not 0.0 < ess_threshold <= 1.0:
         raise ValueError(f"ess_threshold must be in (0, 1], got {ess_threshold}")
     x0 = np.asarray(x0, dtype=float)
@@ -204,32 +280,42 @@ def run_sir(
     fx = np.broadcast_to(x0, (N, n)).copy()  # each particle's transition mean (the prior's at k = 0)
     Qk = P0
     logw = np.full(N, -np.log(N))
+    traj = method == "mcmc_rpf"
+    L = int(window)
+    # mcmc_rpf: each particle's window start (N, n), its noise draws over the window (L, N, n),
+    # the window's summed log-likelihood (N,); the window-start epoch's Gaussian (the anchor)
+    s, W, ll_win, k0 = x.copy(), np.zeros((L, N, n)), np.zeros(N), 0
+    anchor: tuple[FloatArray, FloatArray] = (x0, P0)
+    sqQ = [psd_sqrt(model.Q(j)) for j in range(K - 1)] if K > 1 else []
     for k in range(K):
         if k > 0:
             fx = model.f(k - 1, x)
             Qk = model.Q(k - 1)
-            x = fx + rng.standard_normal((N, n)) @ psd_sqrt(Qk).T
+            e = rng.standard_normal((N, n)) @ sqQ[k - 1].T
+            x = fx + e
             if project is not None:
                 x = project(x)
+            if traj:
+                W[k - 1 - k0] = e
         y = model.y(k)
         loglik = np.zeros(N)
         if y is not None:
-            Rk = model.R(k)
-
-            def loglik_of(z: FloatArray, k: int = k, y: FloatArray = y, Rk: FloatArray = Rk) -> FloatArray:
-                return gauss_logpdf(model.residual(y, model.h(k, z)), Rk)
-
-            loglik = loglik_of(x)
+            loglik = _loglik(model, k, x)
             logw = log_normalize(logw + loglik)
+            if traj and (k > k0 or k == 0):  # the first window's anchor is the prior: y_0 is in it
+                ll_win = ll_win + loglik
         mean[k], cov[k] = weighted_cov(x, logw)
         ess_k[k] = ess(logw)
         if kept is not None:
             kept[k] = x
-        if k + 1 == K or ess_k[k] >= ess_threshold * N:
+        window_end = traj and k - k0 == L
+        if k + 1 == K or (ess_k[k] >= ess_threshold * N and not window_end):
             continue
         A = psd_sqrt(cov[k])
         idx = resample_indices(logw, rng, resample)
         x, fx, loglik = x[idx], fx[idx], loglik[idx]
+        if traj:
+            s, W, ll_win = s[idx], W[:, idx], ll_win[idx]
         logw = np.full(N, -np.log(N))
         res_k[k] = True
         distinct[k] = float(np.unique(idx).size)
@@ -238,7 +324,16 @@ def run_sir(
             if project is not None:
                 x = project(x)
             distinct[k] = float(N) if np.any(A) else distinct[k]
-        elif method == "mcmc_rpf":
+        elif traj and window_end:
+            post = window_posterior(anchor, _window_residuals(model, k0, k, project), free, project)
+            s, x, ll_win, accept[k] = window_mh_move(
+                s, x, ll_win, _window_propagator(model, k0, k, W, project), anchor, post, h_bw, rng, free,
+                n_moves=n_moves, project=project)
+            distinct[k] = float(np.unique(x, axis=0).shape[0])
+            anchor = weighted_cov(x, logw)
+            mean[k], cov[k] = anchor  # the window end reports the moved cloud
+            s, W, ll_win, k0 = x.copy(), np.zeros((L, N, n)), np.zeros(N), k
+        elif method == "mcmc_rpf_literal":
             child = children_mask(idx)
             if not child.any():
                 continue

@@ -5,8 +5,10 @@ three particle filters of :mod:`dpos_core.filters.pf` and the oracle.
   differences (filters/jacobian.py), covariance and update by the linear KF pieces of
   filters/gaussian.py (the update's innovation is the nonlinear ``y - h(x)``).
 * ``ukf``: unscented Kalman filter (filters/gaussian.py ``ut_predict`` / ``ut_update``).
-* ``pf``, ``rpf``, ``mcmc_rpf``: :func:`dpos_core.filters.pf.run_sir` - [Yan2016]'s classical PF,
-  regularized PF and modified (local resampling + Metropolis-Hastings) PF.
+* ``pf``, ``rpf``, ``mcmc_rpf``, ``mcmc_rpf_literal``: :func:`dpos_core.filters.pf.run_sir` -
+  [Yan2016]'s classical PF, regularized PF and modified PF: ``mcmc_rpf`` with Metropolis-Hastings
+  moves of the trajectories over a window (the one that tracks, docs/sar.md),
+  ``mcmc_rpf_literal`` with local resampling and eq. 10-13's move of the last state.
 * ``oracle``: the EKF linearized about the true error state (simulations only) with the model's
   exact noise statistics.  Its covariance recursion ``P_{k+1} = F P F^T + Q``, ``P^-1 += H^T R^-1 H``
   with the Jacobians at the truth is the posterior Cramer-Rao bound of the model (Tichavsky,
