@@ -165,7 +165,7 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
     }
     # the solution against itself: its height against the integral of its vertical speed (navsol.vertical_consistency);
     # where they disagree beyond their sigmas both are widened, and the report says where
-    vc = vertical_consistency(t_s, nav.llh[:, 2], nav.vel_n_mps[:, 2], pos_sig[:, 2], vel_sig[:, 2])
+    vc = vertical_consistency(np.asarray(t_s, dtype=np.float64), nav.llh[:, 2], nav.vel_n_mps[:, 2], pos_sig[:, 2], vel_sig[:, 2])
     pos_sig, vel_sig = pos_sig.copy(), vel_sig.copy()
     pos_sig[:, 2], vel_sig[:, 2] = vc.sigma_h_m, vc.sigma_vu_mps
     if vc.widened.any():
