@@ -182,6 +182,23 @@ def test_lever_arms_consistent_across_paths(paths: dict[tuple[int, int], PathRes
         assert np.all(sd < 0.02) and np.all(chi2 < 25.0), (d, sd, chi2)
 
 
+def test_path1_reference_inconsistent_with_itself() -> None:
+    """The reference of path 1 is inconsistent with itself: its height and the integral of its
+    vertical speed disagree by up to 1 m over 2 s, 6-7 sigmas of the import's 0.1 m and 0.1 m/s;
+    those of paths 2-4 and the raw flight log agree within 3 sigmas.  ``dpos-import`` widens both
+    sigmas where they disagree (navsol.vertical_consistency) - docs/real.md."""
+    from dpos_core.imports.navsol import vertical_consistency
+
+    for name, f, cols in [*((p, DATA / f"straight_path_{p}" / "GTExtended.csv", GT_COLUMNS) for p in PATHS), ("raw", FLIGHT_LOG, FLIGHT_COLUMNS)]:
+        nav = read_nav_csv(f, cols)
+        s = np.full(len(nav), 0.1)
+        c = vertical_consistency((nav.t_ns - nav.t_ns[0]) * 1e-9, nav.llh[:, 2], nav.vel_n_mps[:, 2], s, s)
+        if name == 1:
+            assert c.max_disagreement_m > 0.8 and c.max_sigmas > 5.0 and c.widened.mean() > 0.5, (name, c.max_disagreement_m, c.max_sigmas)
+        else:
+            assert not c.widened.any() and c.max_disagreement_m < 0.5, (name, c.max_disagreement_m, c.max_sigmas)
+
+
 @pytest.fixture(scope="module")
 def raw_import(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, np.ndarray, int, Path]:
     """dpos-import on the raw DOT1 log and the flight log: (report, DOT1 stamps [ns], first nav stamp [ns], recording)."""
@@ -394,17 +411,25 @@ def process_path(path: int, tmp: Path) -> dict[str, dict[str, float]]:
 
 @pytest.mark.slow
 def test_raw_dot1_through_dpos_process(raw_import: tuple[dict, np.ndarray, int, Path], tmp_path: Path) -> None:
-    """DOT1's antenna (at the IMU) through ``dpos-process --method ukf`` against the flight log, at
-    its 1710 epochs within the DOT log, the main solution's sigmas the import's defaults (0.1 m,
-    0.1 m/s, 0.1 deg): attitude (through the estimated mounting) RMSE about 0.19 deg, 0.92 within
-    2 sigma, the sigma (the product's, the reference's rounding and the mounting's) about 0.17
-    deg; position RMSE about 8 cm, 1.00 within 2 sigma, the sigma about 0.12 m (the solution's
-    0.1 m in it) - docs/real.md."""
+    """DOT1's antenna (at the IMU) through ``dpos-process`` with the default method ``ups`` against
+    the flight log, at its 1710 epochs within the DOT log, the main solution's sigmas the import's
+    defaults (0.1 m, 0.1 m/s, 0.1 deg): attitude (through the estimated mounting) RMSE about 0.20
+    deg, 0.95 within 2 sigma, the sigma (the product's, the reference's rounding and the
+    mounting's) about 0.19 deg; position RMSE about 9 cm, 0.99 within 2 sigma, the sigma about
+    0.13 m (the solution's 0.1 m in it) - docs/real.md.  The smoothed attitude's constant 0.23 deg
+    about the DOT's x (the alignment's mounting against the rates') is covered because the
+    product widens the alignment's own sigmas by the innovations' correlation in time (6-8 on the
+    attitude match: the imported solution's errors are not white; without it 0.78 within 2 sigma)
+    and says so in status.json."""
+    import json
+
     _, _, _, rec = raw_import
-    r = process_raw(rec, tmp_path / "products")
+    r = process_raw(rec, tmp_path / "products", "ups")
     assert r["epochs"] > 1500
-    assert r["pos_rmse_m"] < 0.12 and r["pos_within_2sigma"] > 0.88 and r["pos_sigma_median_m"] < 0.15, r
-    assert r["att_rmse_deg"] < 0.3 and r["att_within_2sigma"] > 0.88 and r["att_sigma_median_deg"] < 0.3, r
+    assert r["pos_rmse_m"] < 0.12 and r["pos_within_2sigma"] >= 0.9 and r["pos_sigma_median_m"] < 0.16, r
+    assert r["att_rmse_deg"] < 0.25 and r["att_within_2sigma"] >= 0.9 and r["att_sigma_median_deg"] < 0.25, r
+    st = json.loads((tmp_path / "products" / rec.name / "status.json").read_text())
+    assert any("correlated in time" in w for w in st["warnings"]), st["warnings"]
 
 
 @pytest.mark.slow
@@ -437,6 +462,7 @@ def _process_tables() -> str:
 
     assert import_.main([*RAW_ARGV, "--out", str(tmp / "raw_dot1")]) == 0
     lines.append(row("raw", "dot1", process_raw(tmp / "raw_dot1", tmp / "products")))
+    lines.append(row("raw (ups)", "dot1", process_raw(tmp / "raw_dot1", tmp / "products_ups", "ups")))
     for p in PATHS:
         for name, r in sorted(process_path(p, tmp).items()):
             lines.append(row(f"path {p}", name, r))

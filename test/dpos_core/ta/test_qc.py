@@ -97,6 +97,33 @@ def test_separation_of_a_wrong_model_is_large() -> None:
     assert np.sum(q.sep[has]) / np.sum(q.sep_dof[has]) > 2.0
 
 
+def test_correlation_factors_white_and_correlated_measurement_errors() -> None:
+    """A filter whose measurement errors are white has white innovations: every component's
+    ``1 + 2 sum rho`` about 1.  Measurement errors of the first three components an AR(1) at
+    rho 0.9 per epoch (a main POS's errors correlated in time, of the variance R says) give factors
+    of several there (the AR(1)'s own (1 + rho) / (1 - rho) = 19, less what the filter's states
+    take up), above the others' (which see them only through the states); ``correlation_scale`` is their square root per output
+    column, the position's the velocity's without position matching (6 components)."""
+    q = _run(K=1200)
+    f = qc.correlation_factors(q)
+    assert f.shape == (6,) and np.all(f >= 1.0) and np.all(f < 1.6), f
+    F_, Q, H, R, ys, x0, P0 = _system(1200, 1)
+    rng = np.random.default_rng(2)
+    e = np.zeros((1200, 3))
+    for k in range(1, 1200):
+        e[k] = 0.9 * e[k - 1] + np.sqrt(1 - 0.9**2) * 0.1 * rng.normal(size=3)
+    ys = ys.copy()
+    ys[:, :3] += e
+    tr = run_sigma_point_filter(LinearGaussianModel(F_, Q, H, R * 2.0, ys), x0, P0)
+    qa = qc.epoch_qc(np.arange(1200, dtype=float), tr.nu, tr.S, tr.x_f, tr.P_f)
+    fa = qc.correlation_factors(qa)
+    assert np.all(fa[:3] > 3.0) and fa[:3].min() > fa[3:].max(), fa
+    sc = qc.correlation_scale(qa)
+    np.testing.assert_allclose(sc[:6], np.sqrt(fa))
+    np.testing.assert_allclose(sc[6:], sc[3:6])
+    assert np.all(qc.correlation_scale(None) == 1.0)
+
+
 def test_nis_handles_unmeasured_components_and_epochs() -> None:
     nu = np.array([[1.0, 2.0], [np.nan, 2.0], [np.nan, np.nan]])
     S = np.array([np.diag([1.0, 4.0]), np.diag([1.0, 4.0]), np.full((2, 2), np.nan)])

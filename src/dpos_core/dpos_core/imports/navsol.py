@@ -246,9 +246,81 @@ def read_nav_csv(path: str | Path, c: NavColumns) -> NavSolution:
     return NavSolution(t_ns, llh, vel_enu, C_nb, hpr, pos_sig, vel_sig, att_sig, sorted(skipped), note)
 
 
+#: :func:`vertical_consistency`: the window [s] over which the height is checked against the integral
+#: of the vertical speed, and the bound in sigmas of the difference beyond which the two disagree
+VERTICAL_WINDOW_S = 2.0
+VERTICAL_BOUND_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class VerticalCheck:
+    """:func:`vertical_consistency`'s result.
+
+    Attributes:
+        sigma_h_m: (N,) the height 1 sigma [m], widened where the check fails.
+        sigma_vu_mps: (N,) the vertical-speed 1 sigma [m/s], widened where it fails.
+        widened: (N,) the epochs widened.
+        max_disagreement_m: the largest ``|dh - int v_up dt|`` over a window [m].
+        max_sigmas: that disagreement's largest ratio to its sigma.
+        spans_s: the widened spans (start, end) [s of ``t_s``].
+    """
+
+    sigma_h_m: FloatArray
+    sigma_vu_mps: FloatArray
+    widened: NDArray[np.bool_]
+    max_disagreement_m: float
+    max_sigmas: float
+    spans_s: list[tuple[float, float]]
+
+
+def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray, sigma_h_m: FloatArray, sigma_vu_mps: FloatArray,
+                         window_s: float = VERTICAL_WINDOW_S, bound_sigmas: float = VERTICAL_BOUND_SIGMAS) -> VerticalCheck:
+    """A navigation solution checked against itself: over every window of ``window_s`` (from each
+    epoch to the first one ``window_s`` later) the height change against the trapezoid integral of
+    the vertical speed, ``r = h_j - h_i - int_i^j v_up dt``, whose 1 sigma from the solution's own
+    sigmas is ``s = sqrt(sigma_h,i^2 + sigma_h,j^2 + sum_k (sigma_vu,k dt_k)^2)`` (the vertical
+    speed's errors white at the solution's epochs, as the sigmas per epoch say).  Where
+    ``|r| > bound_sigmas s`` the solution is inconsistent with itself - its height and its vertical
+    speed cannot both be right - and both sigmas over the window's epochs are multiplied by
+    ``|r| / (2 s)`` (the largest over the failing windows holding an epoch): the difference is then
+    2 sigmas, which does not say which of the two is wrong.  ``t_s`` (N,) [s], the others (N,)."""
+    t = np.asarray(t_s, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    vu = np.asarray(v_up_mps, dtype=float)
+    sh = np.asarray(sigma_h_m, dtype=float).copy()
+    sv = np.asarray(sigma_vu_mps, dtype=float).copy()
+    n = t.size
+    if n < 2:
+        return VerticalCheck(sh, sv, np.zeros(n, dtype=bool), 0.0, 0.0, [])
+    dt_ = np.diff(t)
+    integ = np.concatenate([[0.0], np.cumsum(0.5 * (vu[1:] + vu[:-1]) * dt_)])
+    # the integral's variance: each epoch's speed enters with the weight (dt_left + dt_right) / 2
+    w = np.concatenate([[0.0], 0.5 * dt_]) + np.concatenate([0.5 * dt_, [0.0]])
+    var_int = np.concatenate([[0.0], np.cumsum((sv * w) ** 2)])
+    j = np.searchsorted(t, t + window_s - 1e-9)
+    i = np.flatnonzero(j < n)
+    j = j[i]
+    if i.size == 0:
+        return VerticalCheck(sh, sv, np.zeros(n, dtype=bool), 0.0, 0.0, [])
+    r = (h[j] - h[i]) - (integ[j] - integ[i])
+    s = np.sqrt(sh[i] ** 2 + sh[j] ** 2 + (var_int[j + 1] - var_int[i]))
+    z = np.abs(r) / s
+    factor = np.ones(n)
+    for k in np.flatnonzero(z > bound_sigmas):
+        a, b = i[k], j[k]
+        factor[a:b + 1] = np.maximum(factor[a:b + 1], z[k] / 2.0)
+    widened = factor > 1.0
+    spans: list[tuple[float, float]] = []
+    if widened.any():
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], widened.astype(int), [0]])))
+        spans = [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    return VerticalCheck(sh * factor, sv * factor, widened, float(np.abs(r).max()), float(z.max()), spans)
+
+
 def _iso(t_ns: int) -> str:
     sec, ns = divmod(int(t_ns), _NS)
     return f"{dt.datetime.fromtimestamp(sec, tz=dt.UTC):%Y-%m-%d %H:%M:%S}.{ns // 1_000_000:03d}"
 
 
-__all__ = ["ANGLE_UNITS", "HEADINGS", "NavColumns", "NavSolution", "TIME_FORMS", "VEL_FRAMES", "read_nav_csv"]
+__all__ = ["ANGLE_UNITS", "HEADINGS", "NavColumns", "NavSolution", "TIME_FORMS", "VEL_FRAMES", "VerticalCheck", "read_nav_csv",
+           "vertical_consistency"]

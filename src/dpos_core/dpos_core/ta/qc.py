@@ -91,7 +91,9 @@ class EpochQC:
     ``smoothed``: a backward pass exists (else the separation is all NaN); ``nz2`` (K, p): each
     innovation component's ``nu_i^2 / S_ii`` (1 on average when consistent; NaN unmeasured);
     ``att_change`` (K,): the main POS's attitude change [rad] since the segment's first epoch
-    (:func:`attitude_change`; None when not given): how much the data can show of a lever-arm error."""
+    (:func:`attitude_change`; None when not given): how much the data can show of a lever-arm error;
+    ``nz`` (K, p): each innovation component's ``nu_i / sqrt(S_ii)``, signed (None when not kept):
+    its correlation in time (:func:`correlation_factors`)."""
 
     epochs_s: FloatArray
     nis: FloatArray
@@ -102,6 +104,7 @@ class EpochQC:
     smoothed: bool
     nz2: FloatArray
     att_change: FloatArray | None = None
+    nz: FloatArray | None = None
 
     @staticmethod
     def concat(parts: list[EpochQC]) -> EpochQC:
@@ -109,7 +112,8 @@ class EpochQC:
         cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
         return EpochQC(cat("epochs_s"), cat("nis"), cat("dof"), cat("sep"), cat("sep_dof"), cat("sep_norm"),
                        all(p.smoothed for p in parts), cat("nz2"),
-                       cat("att_change") if all(p.att_change is not None for p in parts) else None)
+                       cat("att_change") if all(p.att_change is not None for p in parts) else None,
+                       cat("nz") if all(p.nz is not None for p in parts) else None)
 
 
 def nis(nu: FloatArray, S: FloatArray) -> tuple[FloatArray, NDArray[np.int_]]:
@@ -223,12 +227,13 @@ def _epoch_qc(epochs_s: FloatArray, nu: FloatArray, S: FloatArray, x_f: FloatArr
     v, dof = nis(nu, S)
     K = np.asarray(epochs_s).size
     with np.errstate(invalid="ignore", divide="ignore"):
-        nz2 = np.asarray(nu, dtype=float) ** 2 / np.diagonal(np.asarray(S, dtype=float), axis1=1, axis2=2)
+        nz = np.asarray(nu, dtype=float) / np.sqrt(np.diagonal(np.asarray(S, dtype=float), axis1=1, axis2=2))
+    nz2 = nz**2
     if x_s is None or P_s is None:
         return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, np.full((K, 3), np.nan), np.zeros((K, 3), dtype=int),
-                       np.full((K, 3), np.nan), False, nz2)
+                       np.full((K, 3), np.nan), False, nz2, nz=nz)
     sep, sdof, norm = separation(x_f, P_f, x_s, P_s)
-    return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, sep, sdof, norm, True, nz2)
+    return EpochQC(np.asarray(epochs_s, dtype=float), v, dof, sep, sdof, norm, True, nz2, nz=nz)
 
 
 def chi2_bounds(dof, prob: float = PROB) -> tuple[FloatArray, FloatArray]:
@@ -361,6 +366,59 @@ def sigma_scale(qc: EpochQC | None, t_rows: FloatArray, window_s: float = WINDOW
     c = np.where(np.isfinite(c), c, 1.0)
     for g in range(3):
         out[:, 3 * g:3 * g + 3] = np.sqrt(np.interp(t_rows, qc.epochs_s, c[:, g]))[:, None]
+    return out
+
+
+#: the largest lag [epochs] :func:`correlation_factors` sums the innovations' autocorrelation over
+CORRELATION_MAX_LAG = 50
+
+
+def correlation_factors(qc: EpochQC | None, max_lag: int = CORRELATION_MAX_LAG) -> FloatArray:
+    """Per innovation component (p,), ``1 + 2 sum_j rho_j`` of its normalized innovations ``nz``
+    over the session's measured epochs (``rho_j`` their autocorrelation at lag j epochs, summed up
+    to the first lag where it is not positive, at most ``max_lag``; at least 1): the factor by
+    which correlated innovations shrink the number of independent measurements.  The innovations
+    of a filter whose measurement noise is what it assumes are white (factor 1); a main POS whose
+    errors are correlated in time - an imported navigation solution, whose sigmas its producer
+    states per epoch - gives factors of several, and the filter, taking every epoch as new
+    information, averages its constants (the mounting above all) that many times too well.  The
+    variance of a mean of N samples so correlated is the factor over N instead of 1 over N (the
+    rule of ``dpos_core.imports.mounting``'s rate fit, for the same reason).  Empty without
+    ``nz``."""
+    if qc is None or qc.nz is None or qc.nz.ndim != 2:
+        return np.ones(0)
+    out = np.ones(qc.nz.shape[1])
+    for i in range(qc.nz.shape[1]):
+        z = qc.nz[:, i]
+        z = z[np.isfinite(z)]
+        if z.size < 3:
+            continue
+        z = z - z.mean()
+        den = float(z @ z)
+        if den <= 0.0:
+            continue
+        tot = 0.0
+        for j in range(1, min(max_lag, z.size - 1)):
+            rho = float(z[j:] @ z[:-j]) / den
+            if rho <= 0.0:
+                break
+            tot += rho
+        out[i] = 1.0 + 2.0 * tot
+    return out
+
+
+def correlation_scale(qc: EpochQC | None, max_lag: int = CORRELATION_MAX_LAG) -> FloatArray:
+    """The multipliers (9,) of a sub-IMU's output 1-sigma (attitude, velocity, position, each E, N,
+    U: :class:`.pipeline.TAResult` ``sigma``) for innovations correlated in time: per column the
+    square root of its match's :func:`correlation_factors` (the attitude sigma the attitude
+    match's, and so on; the position the velocity match's without position matching, as
+    :func:`sigma_scale`); 1 where there is no measure."""
+    f = correlation_factors(qc, max_lag)
+    out = np.ones(9)
+    n = min(f.size, 9)
+    out[:n] = np.sqrt(f[:n])
+    if f.size == 6:
+        out[6:9] = out[3:6]
     return out
 
 

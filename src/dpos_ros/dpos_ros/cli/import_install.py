@@ -40,7 +40,7 @@ from dpos_core.frames import hpr_sigma_to_rotation_cov
 from dpos_core.imports.clock import ClockEstimate, ClockNotObservable, ClockSettings, attitude_rates, estimate_clock
 from dpos_core.imports.logs import ImuColumns, ImuLog, read_imu_csv, read_tag
 from dpos_core.imports.mounting import MountingEstimate, MountingNotObservable, estimate_mounting
-from dpos_core.imports.navsol import NavColumns, NavSolution, read_nav_csv
+from dpos_core.imports.navsol import VERTICAL_BOUND_SIGMAS, VERTICAL_WINDOW_S, NavColumns, NavSolution, read_nav_csv, vertical_consistency
 from dpos_core.imports.timescales import to_gpst_ns
 from dpos_core.units import DEG
 from dpos_ros.contract import conversions as cv
@@ -163,6 +163,20 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
         "velocity": "columns" if nav.vel_sigma_mps is not None else f"option --nav-vel-sigma-mps {args.nav_vel_sigma_mps:g} (not in the file)",
         "attitude": "columns" if nav.hpr_sigma_rad is not None else f"option --nav-att-sigma-deg {args.nav_att_sigma_deg:g} (not in the file)",
     }
+    # the solution against itself: its height against the integral of its vertical speed (navsol.vertical_consistency);
+    # where they disagree beyond their sigmas both are widened, and the report says where
+    vc = vertical_consistency(np.asarray(t_s, dtype=np.float64), nav.llh[:, 2], nav.vel_n_mps[:, 2], pos_sig[:, 2], vel_sig[:, 2])
+    pos_sig, vel_sig = pos_sig.copy(), vel_sig.copy()
+    pos_sig[:, 2], vel_sig[:, 2] = vc.sigma_h_m, vc.sigma_vu_mps
+    if vc.widened.any():
+        spans = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in vc.spans_s[:5]) + (" ..." if len(vc.spans_s) > 5 else "")
+        sources["height and vertical speed"] = (
+            f"widened at {int(vc.widened.sum())} of {n} epochs ({spans} s): the height and the integral of the vertical speed "
+            f"disagree by up to {vc.max_disagreement_m:.2f} m over {VERTICAL_WINDOW_S:g} s ({vc.max_sigmas:.1f} sigmas; "
+            f"beyond {VERTICAL_BOUND_SIGMAS:g} the solution is inconsistent with itself)")
+    else:
+        sources["height and vertical speed"] = (f"consistent (the height against the integral of the vertical speed over "
+                                                f"{VERTICAL_WINDOW_S:g} s: at most {vc.max_sigmas:.1f} sigmas)")
     datum = nav.llh[0].copy()
     vals = cv.odometry_values_cov(nav.llh, nav.vel_n_mps, dcm_to_quat(nav.C_nb), datum, _rates_at(t_s, nav.C_nb),
                                   pos_sig[:, :, None] ** 2 * np.eye(3), att_cov, vel_sig[:, :, None] ** 2 * np.eye(3))

@@ -110,7 +110,9 @@ class SubImuTask:
     #: the main POS's covariances are its absolute accuracy, its errors correlated in time (an
     #: imported navigation solution): the filter, taking them as white, averages them down; the rows
     #: add them back (position and velocity only where the filter does not model them as states,
-    #: ``settings.master_error_tau_s`` 0; with states it adds them itself)
+    #: ``settings.master_error_tau_s`` 0; with states it adds them itself), and the filter's own
+    #: sigmas grow by its innovations' correlation in time (:func:`dpos_core.ta.qc.correlation_scale`:
+    #: what it averaged, the mounting above all, it averaged over fewer independent epochs than it took)
     master_sigma_absolute: bool = False
 
 
@@ -161,6 +163,13 @@ def _align_to_store(task: SubImuTask) -> dict:
     att_sig = np.sqrt(np.max(np.diagonal(att_cov, axis1=1, axis2=2), axis=1))
     # the rows' columns: attitude, velocity, position (ENU, as the main POS's covariances)
     master_covs = [att_cov] + (list(master.required("vel_cov", "pos_cov")) if settings.master_error_tau_s == 0 else [])
+    # an imported solution's errors are correlated in time, which the filter (white main-POS errors) does not know: its
+    # innovations show it, and the sigmas of what it averaged (the mounting, the biases) grow by their correlation factor
+    corr = Q.correlation_scale(res.qc) if task.master_sigma_absolute else np.ones(9)
+    if np.any(corr > 1.0):
+        warnings = [*warnings, f"sub-IMU {sub}: the innovations are correlated in time (the main POS's errors are not white): "
+                    f"its own sigmas widened x{' / '.join(f'{c:.1f}' for c in corr[0:3])} (attitude E / N / U), "
+                    f"x{' / '.join(f'{c:.1f}' for c in corr[3:6])} (velocity), x{' / '.join(f'{c:.1f}' for c in corr[6:9])} (position)"]
     tau = res.installation.get("time_offset", {}).get("value", [0.0])[0]
     rates = ImuRates(imu.t_s, imu.omega_radps)
     stores = {name: task.store.child(f"ant_{name}") for name, _ in task.antennas}
@@ -174,7 +183,7 @@ def _align_to_store(task: SubImuTask) -> dict:
         if settings.inflate_sigma:  # the innovations' variance factor where they say the filter is optimistic
             sigma = sigma * Q.sigma_scale(res.qc, t)
         if task.master_sigma_absolute:  # (SubImuTask): the sub-IMU's pose is known relative to the main POS's
-            sigma = sigma.copy()
+            sigma = sigma * corr
             var_m = np.column_stack([np.interp(t, master.t_s, cov[:, j, j]) for cov in master_covs for j in range(3)])
             sigma[:, :var_m.shape[1]] = np.sqrt(sigma[:, :var_m.shape[1]] ** 2 + var_m)
         C = quat_to_dcm(c["q_nb"])
