@@ -9,6 +9,9 @@ os.environ so that node subprocesses inherit it:
 - RMW_IMPLEMENTATION=rmw_fastrtps_cpp (the middleware of the wheels).
 - DPOS_WORKERS=1 unless set: ``workers: 0`` (one per core) starts one worker process.
 - ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set: discovery stays on this machine.
+- DPOS_FIGURES=off unless set: the products are written without their PNG figures (about a second
+  of CPU each, two per antenna and run); the tests of the figures ask for them (``--figures on`` or
+  the ``figures_on`` fixture).
 """
 
 from __future__ import annotations
@@ -43,6 +46,13 @@ os.environ.setdefault("DPOS_WORKERS", "1")
 os.environ["ROS_DOMAIN_ID"] = str(ROS_DOMAIN_ID)
 os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("DPOS_FIGURES", "off")
+
+
+@pytest.fixture
+def figures_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The products of this test with their figures ($DPOS_FIGURES=on, also for the processes it starts)."""
+    monkeypatch.setenv("DPOS_FIGURES", "on")
 
 
 _NODES_DIR = Path(__file__).parent / "nodes"

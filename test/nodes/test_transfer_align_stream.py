@@ -177,7 +177,7 @@ def test_a_broken_pool_costs_the_sub_imus_tasks_only() -> None:
         tasks.submit(divmod, 1, 0).result(timeout=5)
 
 
-def test_spilled_rows_evaluate_against_the_truth_as_rows_in_memory(graph, msgs, tmp_path: Path) -> None:
+def test_spilled_rows_evaluate_against_the_truth_as_rows_in_memory(graph, msgs, tmp_path: Path, figures_on) -> None:
     """With the truth in the spill, the finalize evaluates it a part at a time (each truth log a
     block at a time, dpos_ros.products.evaluate): metrics.json, report.md and the error figures,
     the same with the rows in memory and spilled, and no warning that it did not evaluate."""

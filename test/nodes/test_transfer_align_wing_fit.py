@@ -75,7 +75,7 @@ def _poses(msgs: list[Odometry]) -> dict[int, np.ndarray]:
     return {_stamp_ns(m): np.array([m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z]) for m in msgs}
 
 
-def test_fit_antennas_in_a_live_graph(ros_context, tmp_path: Path) -> None:
+def test_fit_antennas_in_a_live_graph(ros_context, tmp_path: Path, figures_on) -> None:
     t_start = time.monotonic()
     aircraft = _aircraft(tmp_path)
     rec, out = tmp_path / "rec", tmp_path / "out"

@@ -34,7 +34,7 @@ def products(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("proc")
     b = _sim_bag(d / "bag")
     # the default method: [Gong2018]'s unscented particle smoother (100 particles)
-    r = subprocess.run([str(EXE / "dpos-process"), str(b), "--initial-attitude-error", "40", "--out", str(d / "out")],
+    r = subprocess.run([str(EXE / "dpos-process"), str(b), "--initial-attitude-error", "40", "--figures", "on", "--out", str(d / "out")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     return d / "out" / "paper_su_seed2"

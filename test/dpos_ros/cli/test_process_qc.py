@@ -26,7 +26,7 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 
 def test_dpos_process_writes_the_qc_report_without_truth(bags, tmp_path: Path) -> None:
     _, no_truth = bags
-    r = subprocess.run([str(EXE / "dpos-process"), str(no_truth), "--method", "urtss", "--out", str(tmp_path / "o")],
+    r = subprocess.run([str(EXE / "dpos-process"), str(no_truth), "--method", "urtss", "--figures", "on", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     out = tmp_path / "o" / "paper_su_seed2"
@@ -50,19 +50,55 @@ def test_the_qc_products_do_not_depend_on_the_truth(bags, tmp_path: Path) -> Non
     from dpos_ros.io.session import read_session
     from dpos_ros.products.evaluate import evaluate
     from dpos_ros.products.solve import solve
-    from dpos_ros.products.write import write
+    from dpos_ros.products.write import WriteOptions, write
 
     dirs = []
     for b, name in zip(bags, ("t", "n"), strict=True):
         sess = read_session(b)
         ants, timing = solve(sess, load_aircraft("paper_su"), TASettings(method="ukf"))
-        dirs.append(write(tmp_path / name, sess, ants, "ukf", timing, evaluate(sess, ants) or None))
+        dirs.append(write(tmp_path / name, sess, ants, "ukf", timing, evaluate(sess, ants) or None, options=WriteOptions(figures=True)))
     with_truth, without = dirs
     assert (with_truth / "metrics.json").exists() and not (without / "metrics.json").exists()
     assert (with_truth / "qc.md").read_text() == (without / "qc.md").read_text()
     qa, qb = (json.loads((d / "status.json").read_text())["qc"] for d in dirs)
     assert qa == qb and qa["antennas"]["ant_r"]["separation"] is None  # ukf: forward only
     assert (with_truth / "qc" / "ant_r_qc.png").read_bytes() == (without / "qc" / "ant_r_qc.png").read_bytes()
+
+
+def test_figures_off_leaves_out_the_pngs_only(bags, tmp_path: Path) -> None:
+    """``WriteOptions(figures=False)`` (``--figures off``, ``DPOS_FIGURES=off``): the same products
+    without qc/<antenna>_qc.png and errors_<antenna>.png."""
+    from dpos_core.config import load_aircraft
+    from dpos_core.ta.pipeline import TASettings
+    from dpos_ros.io.session import read_session
+    from dpos_ros.products.evaluate import evaluate
+    from dpos_ros.products.solve import solve
+    from dpos_ros.products.write import WriteOptions, write
+
+    sess = read_session(bags[0])
+    ants, timing = solve(sess, load_aircraft("paper_su"), TASettings(method="ukf"))
+    ev = evaluate(sess, ants) or None
+    on, off = (write(tmp_path / n, sess, ants, "ukf", timing, ev, options=WriteOptions(figures=f)) for n, f in (("on", True), ("off", False)))
+    listing = {p.relative_to(on).as_posix() for p in on.rglob("*") if p.is_file()}
+    assert {"qc/ant_r_qc.png", "errors_ant_r.png"} <= listing
+    assert {p.relative_to(off).as_posix() for p in off.rglob("*") if p.is_file()} == listing - {"qc/ant_r_qc.png", "errors_ant_r.png"}
+    for f in ("ant_r.csv", "qc.md", "metrics.json", "report.md"):
+        assert (on / f).read_bytes() == (off / f).read_bytes(), f
+
+
+def test_figures_default_comes_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    from dpos_ros.products.write import WriteOptions, figures_switch
+
+    assert [figures_switch(v) for v in ("on", "ON", "1", "true", "yes", "off", "0", "False", " no ")] == [True] * 5 + [False] * 4
+    with pytest.raises(ValueError, match="DPOS_FIGURES='maybe': expected on or off"):
+        figures_switch("maybe")
+    monkeypatch.delenv("DPOS_FIGURES", raising=False)
+    assert WriteOptions().figures is True
+    monkeypatch.setenv("DPOS_FIGURES", "off")
+    assert WriteOptions().figures is False
+    monkeypatch.setenv("DPOS_FIGURES", "of")  # a typo: said, and the figures are written (never fewer products)
+    with pytest.warns(UserWarning, match="DPOS_FIGURES='of': expected on or off; the figures are written"):
+        assert WriteOptions().figures is True
 
 
 def test_qc_flags_are_documented() -> None:

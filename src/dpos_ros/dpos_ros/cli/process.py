@@ -119,11 +119,21 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--geoid", type=Path, metavar="FILE",
                     help="geoid grid (GeographicLib .pgm or NOAA/PROJ .gtx): the antenna CSVs get h_geoid_m, the height above it "
                          "(default: none; the CSV says its heights are ellipsoidal, WGS-84)")
+    ap.add_argument("--figures", choices=("on", "off"),
+                    help="the PNG figures (qc/<antenna>_qc.png, errors_<antenna>.png; about a second of CPU each): "
+                         "default on, or $DPOS_FIGURES (on/off)")
     ap.add_argument("--quiet", action="store_true", help="no progress on the terminal (none is shown when stderr is not one)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing OUT/<session id>/: the new products are swapped in when complete "
                          "(the old ones are kept if the run fails)")
     return ap
+
+
+def _write_options(args: argparse.Namespace) -> WriteOptions:
+    """The products' :class:`WriteOptions` of the command line (``--figures`` over ``$DPOS_FIGURES``)."""
+    if args.figures is None:
+        return WriteOptions(overwrite=args.overwrite, geoid=args.geoid_grid)
+    return WriteOptions(overwrite=args.overwrite, geoid=args.geoid_grid, figures=args.figures == "on")
 
 
 def _tau(text: str) -> float:
@@ -344,7 +354,7 @@ def _process(args: argparse.Namespace, target: OutputTarget, pool: cf.Executor |
             st.stage(f"writing the products of {n_est} antenna(s) (CSV, QC, antenna bag, tracks)")
             with st.writing(n_est) as progress:
                 out = write(args.out, sess, antennas, args.method, timing, ev or None, pool=pool,
-                            options=WriteOptions(overwrite=args.overwrite, geoid=args.geoid_grid), progress=progress)
+                            options=_write_options(args), progress=progress)
             st.stage("done")
     except OSError as e:  # (ProductsExistError: appeared while processing) ENOSPC, EACCES, EROFS, EIO: partial products removed
         return _write_error(e, target, final, had_products)

@@ -12,6 +12,8 @@ is read by rosbags' ``AnyReader``.
 
 from __future__ import annotations
 
+import copy
+import functools
 import warnings
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Sequence
@@ -292,6 +294,31 @@ def read_raw(path: Path, topics: Iterable[str] | Callable[[str], bool] | None = 
     return read_raw_rosbags(path, wanted)
 
 
+#: the YAML loader of the bags' metadata: libyaml's when PyYAML was built with it (~10x faster)
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def bag_info(path: Path) -> dict:
+    """The ``rosbag2_bagfile_information`` mapping of the rosbag2 directory ``path``'s
+    ``metadata.yaml`` ({} when the file holds none; a copy the caller may change).
+
+    Raises OSError when the file cannot be read and ``yaml.YAMLError`` when it is not YAML. A
+    session's metadata is read once per change of the file (its size and modification time), not
+    once per reader: a recording's metadata lists every topic and its QoS (26 kB for a 10 s wing
+    session) and one ``dpos-process`` run asks for it dozens of times."""
+    meta = Path(path) / "metadata.yaml"
+    st = meta.stat()
+    return copy.deepcopy(_parsed_info(str(meta.resolve()), st.st_mtime_ns, st.st_size))
+
+
+@functools.lru_cache(maxsize=32)
+def _parsed_info(meta: str, mtime_ns: int, size: int) -> dict:
+    """:func:`bag_info` of the file ``meta`` as it was at ``mtime_ns`` / ``size`` (the cache's key)."""
+    doc = yaml.load(Path(meta).read_text(), Loader=_YAML_LOADER)  # noqa: S506 (a safe loader)
+    info = doc.get("rosbag2_bagfile_information", {}) if isinstance(doc, dict) else {}
+    return info if isinstance(info, dict) else {}
+
+
 def _single_mcap(path: Path) -> Path | None:
     """The one MCAP file of a rosbag2 directory (``metadata.yaml`` with storage ``mcap`` and one
     file), else None."""
@@ -299,7 +326,7 @@ def _single_mcap(path: Path) -> Path | None:
     if not meta.is_file():
         return None
     try:
-        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+        info = bag_info(path)
     except yaml.YAMLError:
         return None  # rosbags says what is wrong with it
     files = info.get("relative_file_paths") or []
@@ -334,11 +361,9 @@ def rows(blobs: Sequence[bytes]) -> np.ndarray:
 
 def custom_data(path: Path) -> dict[str, str]:
     """The rosbag2 metadata's ``custom_data`` (empty for bags without it)."""
-    meta = Path(path) / "metadata.yaml"
-    if not meta.is_file():
+    if not (Path(path) / "metadata.yaml").is_file():
         return {}
-    info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
-    return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+    return {str(k): str(v) for k, v in (bag_info(path).get("custom_data") or {}).items()}
 
 
 def topics_and_duration(path: Path) -> tuple[list[str], float] | None:
@@ -347,7 +372,7 @@ def topics_and_duration(path: Path) -> tuple[list[str], float] | None:
     if not meta.is_file():
         return None
     try:
-        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+        info = bag_info(path)
         topics = [str(t["topic_metadata"]["name"]) for t in info.get("topics_with_message_count") or []]
         return topics, float((info.get("duration") or {}).get("nanoseconds", 0)) * 1e-9
     except (yaml.YAMLError, KeyError, TypeError, ValueError):

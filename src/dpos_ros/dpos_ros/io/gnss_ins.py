@@ -13,7 +13,7 @@ import yaml
 from dpos_core.errors import InputError
 from dpos_core.series import GnssSeries, ImuSeries
 from dpos_core.units import DEG
-from dpos_ros.io.bag import read_raw, typestore
+from dpos_ros.io.bag import bag_info, read_raw, typestore
 
 #: the product's topics (a recorded live graph) and real drivers' (``dpos-import``)
 PRODUCT_TOPICS = ("/master/imu", "/gnss/fix", "/gnss/vel")
@@ -86,9 +86,7 @@ def read_recording(bag: Path, topics: tuple[str, str, str], rotation: np.ndarray
 
 def _topics(bag: Path) -> set[str]:
     """Topic names of a bag (empty when it cannot be read: read_recording then says why)."""
-    meta = bag / "metadata.yaml"
     try:
-        d = yaml.safe_load(meta.read_text())
-        return {t["topic_metadata"]["name"] for t in d["rosbag2_bagfile_information"]["topics_with_message_count"]}
+        return {t["topic_metadata"]["name"] for t in bag_info(bag)["topics_with_message_count"]}
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         return set()

@@ -666,9 +666,8 @@ class _Rows:
 
 def message_counts(path: Path) -> dict[str, int]:
     """The message count per topic that the rosbag2 metadata of ``path`` lists ({} without one)."""
-    meta = Path(path) / "metadata.yaml"
     try:
-        info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+        info = bag.bag_info(path)
         return {str(t["topic_metadata"]["name"]): int(t.get("message_count") or 0) for t in info.get("topics_with_message_count") or []}
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
         return {}

@@ -437,12 +437,12 @@ def evaluate(sess: RecordedSession, antennas: dict[str, AntennaSolution], topics
 
 
 def write_evaluation(out: Path, sess: RecordedSession, evaluation: dict[str, dict], method: str, timing: dict[str, float],
-                     pool: cf.Executor | None = None) -> None:
-    """``metrics.json``, ``report.md`` and ``errors_<antenna>.png`` of :func:`evaluate`'s result into
-    the products directory ``out`` (:func:`dpos_ros.products.write.write`); metrics.json also says
-    ``"evaluation": {"path": "streaming", "plot_step": {antenna: n}}`` (:func:`evaluation_metrics`)."""
-    figs = [pool.submit(plot_antenna_errors, out / f"errors_{name}.png", name, ev, method) if pool is not None else
-            plot_antenna_errors(out / f"errors_{name}.png", name, ev, method) for name, ev in evaluation.items()]
+                     pool: cf.Executor | None = None, *, figures: bool = True) -> None:
+    """``metrics.json``, ``report.md`` and (``figures``) ``errors_<antenna>.png`` of :func:`evaluate`'s
+    result into the products directory ``out`` (:func:`dpos_ros.products.write.write`); metrics.json
+    also says ``"evaluation": {"path": "streaming", "plot_step": {antenna: n}}`` (:func:`evaluation_metrics`)."""
+    figs = [(pool.submit(plot_antenna_errors, out / f"errors_{name}.png", name, ev, method) if pool is not None else
+             plot_antenna_errors(out / f"errors_{name}.png", name, ev, method)) for name, ev in evaluation.items() if figures]
     metrics = evaluation_metrics(sess, evaluation, method, timing)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     (out / "report.md").write_text(report_md(metrics, title=f"Session {sess.session_id}"))

@@ -21,9 +21,10 @@ import functools
 import json
 import os
 import shutil
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
 from typing import BinaryIO
@@ -55,19 +56,50 @@ from .qc import MAX_PLOT_POINTS, json_safe, plot_qc, qc_dir, qc_md
 from .rows import RowBlock, RowStore, StampCursor, drained, nav_of, release_memory
 from .track import TrackWriter
 
+#: the environment variable that sets the default of :attr:`WriteOptions.figures` (``on`` / ``off``)
+FIGURES_ENV = "DPOS_FIGURES"
+_SWITCH = {"on": True, "1": True, "true": True, "yes": True, "off": False, "0": False, "false": False, "no": False}
+
+
+def figures_switch(value: str, what: str = FIGURES_ENV) -> bool:
+    """``value`` (``on`` / ``off``, also 1 / 0, true / false, yes / no, any case) as a bool;
+    ValueError naming ``what`` and the value otherwise."""
+    v = _SWITCH.get(value.strip().lower())
+    if v is None:
+        raise ValueError(f"{what}={value!r}: expected on or off")
+    return v
+
+
+def figures_default() -> bool:
+    """Whether the products include their figures when the caller does not say: ``$DPOS_FIGURES``
+    (:func:`figures_switch`), else on. A value that is neither is warned about, naming it, and the
+    figures are on (a typo must not cost a session's products at its end)."""
+    v = os.environ.get(FIGURES_ENV, "").strip()
+    if not v:
+        return True
+    try:
+        return figures_switch(v)
+    except ValueError as e:
+        warnings.warn(f"{e}; the figures are written", stacklevel=2)
+        return True
+
 
 @dataclass(frozen=True)
 class WriteOptions:
     """How :func:`write` writes: ``overwrite`` the products of an earlier run (else
-    :class:`ProductsExistError`); ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`)."""
+    :class:`ProductsExistError`); ``geoid``: the antenna CSVs' heights above it too (:func:`csv_header`);
+    ``figures``: the PNG figures (``qc/<antenna>_qc.png``, ``errors_<antenna>.png``; about a second
+    of CPU each, whatever the flight's length), default :func:`figures_default`: a batch that needs
+    only the numbers (CSV, bag, qc.md, metrics) sets them off, e.g. with ``DPOS_FIGURES=off``."""
 
     overwrite: bool = False
     geoid: GeoidGrid | None = None
+    figures: bool = field(default_factory=figures_default)
 
 
 def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
           evaluation: dict[str, dict] | None = None, *, pool: cf.Executor | None = None,
-          options: WriteOptions = WriteOptions(), progress: ProductProgress = NO_PROGRESS) -> Path:
+          options: WriteOptions | None = None, progress: ProductProgress = NO_PROGRESS) -> Path:
     """Write the products under ``out_root/<session id>/`` (module docstring) from the antennas'
     rows, a block of rows at a time; returns that directory.
 
@@ -81,11 +113,13 @@ def write(out_root: Path, sess: RecordedSession, antennas: dict[str, AntennaSolu
     workers, and the antenna bag's batches (:data:`BAG_BATCH_S` of poses each) made and compressed
     there while this process writes them to the file in order.  ``evaluation``:
     :func:`dpos_ros.products.evaluate.evaluate`'s result, written (metrics.json, report.md, error
-    figures) before status.json.  ``options``: :class:`WriteOptions`.  ``progress``
+    figures) before status.json.  ``options``: :class:`WriteOptions` (default: ``WriteOptions()`` made at
+    the call, so that ``$DPOS_FIGURES`` is read then).  ``progress``
     (:class:`~dpos_ros.products.progress.ProductProgress`): ``antenna(name)`` as each antenna's files
     are written, ``bag(done, total)`` after each batch of the antenna bag."""
-    return write_complete(child_dir(Path(out_root), safe_name(sess.session_id)), options.overwrite,
-                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, options.geoid,
+    opts = options if options is not None else WriteOptions()
+    return write_complete(child_dir(Path(out_root), safe_name(sess.session_id)), opts.overwrite,
+                          lambda out: _write_products(out, sess, antennas, method, timing, pool, evaluation, opts,
                                                       progress))
 
 
@@ -169,28 +203,28 @@ def status_doc(sess: RecordedSession, antennas: dict, method: str, timing: dict[
 
 
 def _write_products(out: Path, sess: RecordedSession, antennas: dict[str, AntennaSolution], method: str, timing: dict[str, float],
-                    pool: cf.Executor | None, evaluation: dict[str, dict] | None = None, geoid: GeoidGrid | None = None,
+                    pool: cf.Executor | None, evaluation: dict[str, dict] | None, options: WriteOptions,
                     progress: ProductProgress = NO_PROGRESS) -> None:
-    """The products (module docstring) into the new, empty directory ``out``; ``geoid`` and
+    """The products (module docstring) into the new, empty directory ``out``; ``options`` and
     ``progress``: :func:`write`'s."""
     est = {name: a for name, a in antennas.items() if a.rows is not None}
     if est:
         qc_dir(out).mkdir(exist_ok=True)
-    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method, geoid) if pool is not None else None) for name, a in est.items()}
+    files = {name: (pool.submit(_antenna_files, out, a, sess.t0_ns, method, options) if pool is not None else None) for name, a in est.items()}
     summ: dict[str, dict] = {}
     with drained(lambda: [f for f in files.values() if f is not None]):  # (they write into out)
         if est:
             _write_bag(out / "antennas", sess, est, {"dpos.session_id": sess.session_id, "dpos.method": method}, pool, progress.bag)
         for name, a in antennas.items():
             f = files.get(name)
-            summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method, geoid))
+            summ[name] = {"verdict": a.status} if a.rows is None else (f.result() if f is not None else _antenna_files(out, a, sess.t0_ns, method, options))
             if a.rows is not None:
                 progress.antenna(name)
     _write_tracks(out / "tracks.geojson", sess, est)
     doc = status_doc(sess, antennas, method, timing, set(est))
     (out / "qc.md").write_text(qc_md(summ, sess.session_id, method))  # never reads truth
     if evaluation:  # against the truth (dpos_ros.products.evaluate)
-        write_evaluation(out, sess, evaluation, method, timing, pool)
+        write_evaluation(out, sess, evaluation, method, timing, pool, figures=options.figures)
     doc["qc"] = json_safe({"window_s": Q.WINDOW_S, "probability": Q.PROB, "check_fraction": Q.CHECK_FRACTION, "antennas": summ})
     (out / "status.json").write_text(json.dumps(doc, indent=2) + "\n")  # last: its presence says the products are complete
 
@@ -210,24 +244,26 @@ def _write_tracks(path: Path, sess: RecordedSession, est: dict[str, AntennaSolut
     w.write(path)
 
 
-def _antenna_files(out: Path, a: AntennaSolution, t0_ns: int, method: str, geoid: GeoidGrid | None = None) -> dict:
-    """One estimated antenna's CSV and QC figure; returns its QC summary (a worker's task)."""
+def _antenna_files(out: Path, a: AntennaSolution, t0_ns: int, method: str, options: WriteOptions) -> dict:
+    """One estimated antenna's CSV and QC figure (``options``: :class:`WriteOptions`); returns its QC
+    summary (a worker's task)."""
     try:
-        return _antenna_files_in(out, a, t0_ns, method, geoid)
+        return _antenna_files_in(out, a, t0_ns, method, options)
     finally:
         release_memory()
 
 
-def _antenna_files_in(out: Path, a: AntennaSolution, t0_ns: int, method: str, geoid: GeoidGrid | None = None) -> dict:
+def _antenna_files_in(out: Path, a: AntennaSolution, t0_ns: int, method: str, options: WriteOptions) -> dict:
     assert a.rows is not None
-    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows, geoid)
+    _write_csv_blocks(out / f"{a.name}.csv", t0_ns, a.rows, options.geoid)
     rows = a.rows
     t, flags = rows.read("t_s"), rows.read("flags")
     s = Q.summarize(t, lambda j: rows.column("sigma", j), flags, a.qc, a.wing_fit)  # (a column of the sigmas at a time)
     del t, flags
     s["sub_imu"] = a.sub_imu if a.sub_imu is not None else "fit"
-    step = max(1, a.rows.n // (50 * MAX_PLOT_POINTS))  # plot_qc strides to MAX_PLOT_POINTS points: every row is not needed
-    plot_qc(qc_dir(out) / f"{a.name}_qc.png", a, a.block(step=step), method)
+    if options.figures:
+        step = max(1, a.rows.n // (50 * MAX_PLOT_POINTS))  # plot_qc strides to MAX_PLOT_POINTS points: every row is not needed
+        plot_qc(qc_dir(out) / f"{a.name}_qc.png", a, a.block(step=step), method)
     return s
 
 
