@@ -1,0 +1,203 @@
+"""Private numba kernels of :class:`dpos_core.sar.model.SarModel`: the transition ``f``, the
+measurement ``h`` and the quaternion projection over a batch of states row by row (scalar code, no
+temporaries).  Use :class:`~dpos_core.sar.model.SarModel`, which documents the model ([Yan2016]
+eq. 2 and 4-5); the formulas and their order of operations are those of its numpy form, so the
+results agree to rounding.
+
+The per-step quantities of the SINS track (its frame rate, Coriolis and gravity terms, the radii
+at the epochs) are computed once per model, by the numpy functions of :mod:`dpos_core.earth`,
+into a table (K - 1, :data:`N_STEP`) of the columns ``C_*``; the WGS-84 constants the per-particle
+(true-position) side needs come in ``earth_c`` (:data:`N_EARTH`: ``A_M, E2, OMEGA_IE, GAMMA_E,
+K_SOMIGLIANA, F, M_GRAV``), so this module imports nothing of the package.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+# columns of the per-step table (one row per step k -> k + 1)
+C_DT = 0  # dt [s]
+C_LLH_I = 1  # the SINS's llh at the step's middle (3)
+C_V_I = 4  # the SINS's ENU velocity at the middle (3)
+C_CNB_I = 7  # its C_nb at the middle (3, 3) row major (9)
+C_DVSF = 16  # specific-force velocity increment (3)
+C_DEN_N = 19  # R_M + h at epoch k (metres north -> dlat)
+C_DEN_E = 20  # (R_N + h) cos L at epoch k (metres east -> dlon)
+C_W_IN_I = 21  # w_ie' + w_en' at the middle (3)
+C_COR_I = 24  # (2 w_ie' + w_en') x v' at the middle (3)
+C_G_I = 27  # normal gravity at the middle
+C_RATE_I = 28  # llh rate of the SINS at the middle (3)
+C_RMH1 = 31  # R_M + h at epoch k + 1
+C_RNH1 = 32  # R_N + h at epoch k + 1
+C_COS1 = 33  # cos L at epoch k + 1
+N_STEP = 34
+N_EARTH = 7
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _rotvec_quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """:func:`dpos_core.attitude.rotvec_to_quat` of one rotation vector (series below 1e-6 rad)."""
+    a2 = x * x + y * y + z * z
+    a = math.sqrt(a2)
+    if a < 1e-6:
+        w = 1.0 - a2 / 8.0
+        s = 0.5 - a2 / 48.0
+    else:
+        w = math.cos(0.5 * a)
+        s = math.sin(0.5 * a) / a
+    return w, s * x, s * y, s * z
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _quat_mul(aw: float, ax: float, ay: float, az: float,
+              bw: float, bx: float, by: float, bz: float) -> tuple[float, float, float, float]:
+    """Hamilton product ``a * b`` (:func:`dpos_core.attitude.quat_mul`)."""
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _normalize(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """:func:`dpos_core.attitude.quat_normalize`: unit norm, scalar part >= 0."""
+    n = math.sqrt(((w * w + x * x) + y * y) + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    if w < 0.0:
+        return -w, -x, -y, -z
+    return w, x, y, z
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _gravity(lat: float, h: float, ec: np.ndarray) -> float:
+    """:func:`dpos_core.earth.normal_gravity`."""
+    a_m, e2, gamma_e, k_s, f, m_g = ec[0], ec[1], ec[3], ec[4], ec[5], ec[6]
+    s2 = math.sin(lat) ** 2
+    g0 = gamma_e * (1.0 + k_s * s2) / math.sqrt(1.0 - e2 * s2)
+    return g0 * (1.0 - 2.0 / a_m * (1.0 + f + m_g - 2.0 * f * s2) * h + 3.0 / a_m**2 * h * h)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_f(x: np.ndarray, c: np.ndarray, ec: np.ndarray, out: np.ndarray) -> None:
+    """One step of :meth:`SarModel.f <dpos_core.sar.model.SarModel.f>` for states x (M, 16) into
+    out (M, 16); c (:data:`N_STEP`,) the step's row of the table, ec the earth constants."""
+    dt = c[C_DT]
+    lat_i, h_i = c[C_LLH_I], c[C_LLH_I + 2]
+    ve_i, vn_i, vu_i = c[C_V_I], c[C_V_I + 1], c[C_V_I + 2]
+    a_m, e2, om = ec[0], ec[1], ec[2]
+    for m in range(x.shape[0]):
+        qw, qx, qy, qz = x[m, 0], x[m, 1], x[m, 2], x[m, 3]
+        dve, dvn, dvu = x[m, 4], x[m, 5], x[m, 6]
+        ex, ey, ez = x[m, 10], x[m, 11], x[m, 12]
+        nx, ny, nz = x[m, 13], x[m, 14], x[m, 15]
+        # the position error in llh (radii at epoch k), the true position and velocity
+        d0 = x[m, 7] / c[C_DEN_N]
+        d1 = x[m, 8] / c[C_DEN_E]
+        d2 = x[m, 9]
+        lat_t = lat_i - d0
+        h_t = h_i - d2
+        vte, vtn, vtu = ve_i - dve, vn_i - dvn, vu_i - dvu
+        sl = math.sin(lat_t)
+        w_ = 1.0 - e2 * sl * sl
+        rn = a_m / math.sqrt(w_)
+        rm = rn * (1.0 - e2) / w_
+        cl = math.cos(lat_t)
+        wie1, wie2 = om * cl, om * math.sin(lat_t)
+        rmh, rnh = rm + h_t, rn + h_t
+        wen0, wen1, wen2 = -vtn / rmh, vte / rnh, vte * math.tan(lat_t) / rnh
+        # attitude: q1 = exp((dw - w_in') dt / 2) q exp(w_in dt / 2), dw = C_nb' eps
+        dw0 = ex * c[C_CNB_I] + ey * c[C_CNB_I + 1] + ez * c[C_CNB_I + 2]
+        dw1 = ex * c[C_CNB_I + 3] + ey * c[C_CNB_I + 4] + ez * c[C_CNB_I + 5]
+        dw2 = ex * c[C_CNB_I + 6] + ey * c[C_CNB_I + 7] + ez * c[C_CNB_I + 8]
+        aw, ax, ay, az = _rotvec_quat((dw0 - c[C_W_IN_I]) * dt, (dw1 - c[C_W_IN_I + 1]) * dt,
+                                      (dw2 - c[C_W_IN_I + 2]) * dt)
+        bw, bx, by, bz = _rotvec_quat((0.0 + wen0) * dt, (wie1 + wen1) * dt, (wie2 + wen2) * dt)
+        pw, px, py, pz = _quat_mul(aw, ax, ay, az, qw, qx, qy, qz)
+        q1w, q1x, q1y, q1z = _quat_mul(pw, px, py, pz, bw, bx, by, bz)
+        # C = C(q) (the step's start attitude error), its transpose applied to f' and to C_nb' nab
+        uw, ux, uy, uz = _normalize(qw, qx, qy, qz)
+        c00 = 1 - 2 * (uy * uy + uz * uz)
+        c01 = 2 * (ux * uy - uw * uz)
+        c02 = 2 * (ux * uz + uw * uy)
+        c10 = 2 * (ux * uy + uw * uz)
+        c11 = 1 - 2 * (ux * ux + uz * uz)
+        c12 = 2 * (uy * uz - uw * ux)
+        c20 = 2 * (ux * uz - uw * uy)
+        c21 = 2 * (uy * uz + uw * ux)
+        c22 = 1 - 2 * (ux * ux + uy * uy)
+        f0, f1, f2 = c[C_DVSF], c[C_DVSF + 1], c[C_DVSF + 2]
+        t0 = c00 * f0 + c10 * f1 + c20 * f2
+        t1 = c01 * f0 + c11 * f1 + c21 * f2
+        t2 = c02 * f0 + c12 * f1 + c22 * f2
+        b0 = nx * c[C_CNB_I] + ny * c[C_CNB_I + 1] + nz * c[C_CNB_I + 2]
+        b1 = nx * c[C_CNB_I + 3] + ny * c[C_CNB_I + 4] + nz * c[C_CNB_I + 5]
+        b2 = nx * c[C_CNB_I + 6] + ny * c[C_CNB_I + 7] + nz * c[C_CNB_I + 8]
+        n0 = c00 * b0 + c10 * b1 + c20 * b2
+        n1 = c01 * b0 + c11 * b1 + c21 * b2
+        n2 = c02 * b0 + c12 * b1 + c22 * b2
+        # Coriolis and gravity differences at the true position
+        a0, a1, a2 = 2.0 * 0.0 + wen0, 2.0 * wie1 + wen1, 2.0 * wie2 + wen2
+        cor0 = c[C_COR_I] - (a1 * vtu - a2 * vtn)
+        cor1 = c[C_COR_I + 1] - (a2 * vte - a0 * vtu)
+        cor2 = c[C_COR_I + 2] - (a0 * vtn - a1 * vte)
+        dg2 = -c[C_G_I] - -_gravity(lat_t, h_t, ec)
+        dv1e = dve + (f0 - t0) + n0 * dt - cor0 * dt + 0.0 * dt
+        dv1n = dvn + (f1 - t1) + n1 * dt - cor1 * dt + 0.0 * dt
+        dv1u = dvu + (f2 - t2) + n2 * dt - cor2 * dt + dg2 * dt
+        # position: the difference of the geodetic rates of the SINS's and the true velocity
+        vme = ve_i - 0.5 * (dve + dv1e)
+        vmn = vn_i - 0.5 * (dvn + dv1n)
+        vmu = vu_i - 0.5 * (dvu + dv1u)
+        r0 = c[C_RATE_I] - vmn / rmh
+        r1 = c[C_RATE_I + 1] - vme / (rnh * cl)
+        r2 = c[C_RATE_I + 2] - vmu
+        out[m, 0], out[m, 1], out[m, 2], out[m, 3] = _normalize(q1w, q1x, q1y, q1z)
+        out[m, 4], out[m, 5], out[m, 6] = dv1e, dv1n, dv1u
+        out[m, 7] = (d0 + r0 * dt) * c[C_RMH1]
+        out[m, 8] = (d1 + r1 * dt) * c[C_RNH1] * c[C_COS1]
+        out[m, 9] = d2 + r2 * dt
+        for i in range(10, 16):
+            out[m, i] = x[m, i]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_heading_residual(x: np.ndarray, C_nb: np.ndarray, psi: float, out: np.ndarray) -> None:
+    """The SAR rows of :meth:`SarModel.h <dpos_core.sar.model.SarModel.h>` for states x (M, 16)
+    into out (M, 4): ``wrap(psi - heading(C(q)^T C_nb))`` and the position error (NaN heading for
+    a non-finite attitude, as :func:`dpos_core.frames.hpr_from_C_nb`)."""
+    two_pi = 2.0 * math.pi
+    for m in range(x.shape[0]):
+        uw, ux, uy, uz = _normalize(x[m, 0], x[m, 1], x[m, 2], x[m, 3])
+        # column 0 of C(q)^T C_nb: its rows 0 and 1 give the heading (ENU world, FLU body)
+        c00 = 1 - 2 * (uy * uy + uz * uz)
+        c01 = 2 * (ux * uy - uw * uz)
+        c10 = 2 * (ux * uy + uw * uz)
+        c11 = 1 - 2 * (ux * ux + uz * uz)
+        c20 = 2 * (ux * uz - uw * uy)
+        c21 = 2 * (uy * uz + uw * ux)
+        e0 = c00 * C_nb[0, 0] + c10 * C_nb[1, 0] + c20 * C_nb[2, 0]
+        e1 = c01 * C_nb[0, 0] + c11 * C_nb[1, 0] + c21 * C_nb[2, 0]
+        if math.isfinite(uw) and math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz):
+            # numpy's mod and frames.hpr_from_C_nb / attitude.wrap_angle (Python's float %: fmod
+            # with the divisor's sign, the same as numpy's for a positive divisor)
+            hd = math.atan2(e0 + 0.0, e1 + 0.0) % two_pi
+            w = (psi - hd + math.pi) % two_pi - math.pi
+            out[m, 0] = math.pi if w == -math.pi else w
+        else:
+            out[m, 0] = math.nan
+        out[m, 1], out[m, 2], out[m, 3] = x[m, 7], x[m, 8], x[m, 9]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_project(x: np.ndarray, out: np.ndarray) -> None:
+    """:meth:`SarModel.project <dpos_core.sar.model.SarModel.project>`: x (M, 16) with the
+    quaternion normalized into out (M, 16)."""
+    for m in range(x.shape[0]):
+        out[m, 0], out[m, 1], out[m, 2], out[m, 3] = _normalize(x[m, 0], x[m, 1], x[m, 2], x[m, 3])
+        for i in range(4, 16):
+            out[m, i] = x[m, i]
