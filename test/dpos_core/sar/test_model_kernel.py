@@ -116,3 +116,18 @@ def test_project_normalizes_the_quaternion_only() -> None:
     assert np.all(out[:, 0] >= 0.0)
     np.testing.assert_array_equal(out[:, 4:], x[:, 4:])
     assert not np.shares_memory(out, x)
+
+
+def test_residual_wraps_the_heading_as_wrap_angle(model: SarModel) -> None:
+    rng = np.random.default_rng(10)
+    y = np.array([3.1, 5.0, -7.0, 2.0])
+    hx = np.column_stack([rng.uniform(-20.0, 20.0, 200), rng.standard_normal((200, 3))])
+    hx[:4, 0] = [3.1 - np.pi, 3.1 + np.pi, 3.1 - 3 * np.pi, 3.1]  # at the wrap points
+    ref = y - hx
+    ref[:, 0] = wrap_angle(ref[:, 0])
+    out = model.residual(y, hx)
+    np.testing.assert_array_equal(out, ref)
+    assert np.all((out[:, 0] > -np.pi) & (out[:, 0] <= np.pi))
+    np.testing.assert_array_equal(model.residual(y, hx[5]), ref[5])
+    np.testing.assert_array_equal(model.residual(y[3:], hx[:, 3:]), ref[:, 3:])  # the barometer row: no wrap
+    assert np.isnan(model.residual(y, np.full(4, np.nan))[0])

@@ -286,7 +286,8 @@ def run_sir(
     # the window's summed log-likelihood (N,); the window-start epoch's Gaussian (the anchor)
     s, W, ll_win, k0 = x.copy(), np.zeros((L, N, n)), np.zeros(N), 0
     anchor: tuple[FloatArray, FloatArray] = (x0, P0)
-    sqQ = [psd_sqrt(model.Q(j)) for j in range(K - 1)] if K > 1 else []
+    # the transition noise's square roots, one batched eigen-decomposition (K - 1, n, n)
+    sqQ = psd_sqrt(np.stack([model.Q(j) for j in range(K - 1)])) if K > 1 else np.empty((0, n, n))
     for k in range(K):
         if k > 0:
             fx = model.f(k - 1, x)
@@ -318,7 +319,7 @@ def run_sir(
             s, W, ll_win = s[idx], W[:, idx], ll_win[idx]
         logw = np.full(N, -np.log(N))
         res_k[k] = True
-        distinct[k] = float(np.unique(idx).size)
+        distinct[k] = float(np.count_nonzero(np.bincount(idx, minlength=N)))  # the distinct parents
         if method == "rpf":
             x = regularize(x, A, h_bw, rng)
             if project is not None:

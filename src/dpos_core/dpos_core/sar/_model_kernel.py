@@ -201,3 +201,13 @@ def rows_project(x: np.ndarray, out: np.ndarray) -> None:
         out[m, 0], out[m, 1], out[m, 2], out[m, 3] = _normalize(x[m, 0], x[m, 1], x[m, 2], x[m, 3])
         for i in range(4, 16):
             out[m, i] = x[m, i]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_wrap_heading(d: np.ndarray) -> None:
+    """The heading column of residuals d (M, 4) wrapped to (-pi, pi] in place
+    (:func:`dpos_core.attitude.wrap_angle`)."""
+    two_pi = 2.0 * math.pi
+    for m in range(d.shape[0]):
+        w = (d[m, 0] + math.pi) % two_pi - math.pi
+        d[m, 0] = math.pi if w == -math.pi else w

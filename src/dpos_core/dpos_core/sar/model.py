@@ -268,10 +268,11 @@ class SarModel:
         return self._R4[k] if self.meas.sar[k] else self._R4[k][3:4, 3:4]
 
     def residual(self, a: FloatArray, b: FloatArray) -> FloatArray:
-        d = a - b
-        if d.shape[-1] == 4:
-            d = d.copy()
-            d[..., 0] = wrap_angle(d[..., 0])
+        d = np.asarray(a - b, dtype=float)
+        if d.shape[-1] == 4:  # the heading row wrapped (attitude.wrap_angle), in place in the new array
+            rows = np.ascontiguousarray(d).reshape(-1, 4)
+            _mk.rows_wrap_heading(rows)
+            d = rows.reshape(d.shape)
         return d
 
     def feedback(self, k: int, mean: FloatArray) -> FloatArray | None:
