@@ -33,19 +33,24 @@ C_RATE_I = 28  # llh rate of the SINS at the middle (3)
 C_RMH1 = 31  # R_M + h at epoch k + 1
 C_RNH1 = 32  # R_N + h at epoch k + 1
 C_COS1 = 33  # cos L at epoch k + 1
-N_STEP = 34
+C_SIN_I = 34  # sin L at the middle
+C_COS_I = 35  # cos L at the middle
+N_STEP = 36
 N_EARTH = 7
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _rotvec_quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
-    """:func:`dpos_core.attitude.rotvec_to_quat` of one rotation vector (series below 1e-6 rad)."""
+    """:func:`dpos_core.attitude.rotvec_to_quat` of one rotation vector; below 1e-3 rad (a filter
+    step's frame rotation: 1e-4 rad) ``cos(a / 2)`` and ``sin(a / 2) / a`` by their series to
+    ``a^4``, whose first neglected terms (``a^6 / 46080``, ``a^6 / 645120``) are below 1e-22, far
+    under the rounding of 1."""
     a2 = x * x + y * y + z * z
-    a = math.sqrt(a2)
-    if a < 1e-6:
-        w = 1.0 - a2 / 8.0
-        s = 0.5 - a2 / 48.0
+    if a2 < 1e-6:
+        w = 1.0 - a2 / 8.0 * (1.0 - a2 / 48.0)
+        s = 0.5 - a2 / 48.0 * (1.0 - a2 / 80.0)
     else:
+        a = math.sqrt(a2)
         w = math.cos(0.5 * a)
         s = math.sin(0.5 * a) / a
     return w, s * x, s * y, s * z
@@ -73,11 +78,27 @@ def _normalize(w: float, x: float, y: float, z: float) -> tuple[float, float, fl
     return w, x, y, z
 
 
+_TWO_PI = 2.0 * math.pi
+
+
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _gravity(lat: float, h: float, ec: np.ndarray) -> float:
-    """:func:`dpos_core.earth.normal_gravity`."""
+def _mod_two_pi(a: float) -> float:
+    """``a % 2 pi`` as numpy's ``np.mod`` and Python's float ``%`` (fmod, then the divisor's sign;
+    a zero is +0), without the fmod on (-2 pi, 4 pi), where it is exact: ``a``, ``a + 2 pi`` (the
+    same rounded sum) or ``a - 2 pi`` (exact, Sterbenz)."""
+    if 0.0 < a < _TWO_PI:
+        return a
+    if -_TWO_PI < a < 0.0:
+        return a + _TWO_PI
+    if _TWO_PI <= a < 2.0 * _TWO_PI:
+        return a - _TWO_PI
+    return a % _TWO_PI
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _gravity(s2: float, h: float, ec: np.ndarray) -> float:
+    """:func:`dpos_core.earth.normal_gravity` of ``sin^2`` of the latitude and the height."""
     a_m, e2, gamma_e, k_s, f, m_g = ec[0], ec[1], ec[3], ec[4], ec[5], ec[6]
-    s2 = math.sin(lat) ** 2
     g0 = gamma_e * (1.0 + k_s * s2) / math.sqrt(1.0 - e2 * s2)
     return g0 * (1.0 - 2.0 / a_m * (1.0 + f + m_g - 2.0 * f * s2) * h + 3.0 / a_m**2 * h * h)
 
@@ -102,14 +123,20 @@ def rows_f(x: np.ndarray, c: np.ndarray, ec: np.ndarray, out: np.ndarray) -> Non
         lat_t = lat_i - d0
         h_t = h_i - d2
         vte, vtn, vtu = ve_i - dve, vn_i - dvn, vu_i - dvu
-        sl = math.sin(lat_t)
+        if -1e-3 < d0 < 1e-3:  # sin, cos of lat_i - d0 from the middle's, d0's by series (to d0^5: < 1e-22)
+            d02 = d0 * d0
+            sd = d0 * (1.0 - d02 / 6.0 * (1.0 - d02 / 20.0))
+            cd = 1.0 - d02 / 2.0 * (1.0 - d02 / 12.0)
+            sl = c[C_SIN_I] * cd - c[C_COS_I] * sd
+            cl = c[C_COS_I] * cd + c[C_SIN_I] * sd
+        else:
+            sl, cl = math.sin(lat_t), math.cos(lat_t)
         w_ = 1.0 - e2 * sl * sl
         rn = a_m / math.sqrt(w_)
         rm = rn * (1.0 - e2) / w_
-        cl = math.cos(lat_t)
-        wie1, wie2 = om * cl, om * math.sin(lat_t)
+        wie1, wie2 = om * cl, om * sl
         rmh, rnh = rm + h_t, rn + h_t
-        wen0, wen1, wen2 = -vtn / rmh, vte / rnh, vte * math.tan(lat_t) / rnh
+        wen0, wen1, wen2 = -vtn / rmh, vte / rnh, vte * (sl / cl) / rnh
         # attitude: q1 = exp((dw - w_in') dt / 2) q exp(w_in dt / 2), dw = C_nb' eps
         dw0 = ex * c[C_CNB_I] + ey * c[C_CNB_I + 1] + ez * c[C_CNB_I + 2]
         dw1 = ex * c[C_CNB_I + 3] + ey * c[C_CNB_I + 4] + ez * c[C_CNB_I + 5]
@@ -145,7 +172,7 @@ def rows_f(x: np.ndarray, c: np.ndarray, ec: np.ndarray, out: np.ndarray) -> Non
         cor0 = c[C_COR_I] - (a1 * vtu - a2 * vtn)
         cor1 = c[C_COR_I + 1] - (a2 * vte - a0 * vtu)
         cor2 = c[C_COR_I + 2] - (a0 * vtn - a1 * vte)
-        dg2 = -c[C_G_I] - -_gravity(lat_t, h_t, ec)
+        dg2 = -c[C_G_I] - -_gravity(sl * sl, h_t, ec)
         dv1e = dve + (f0 - t0) + n0 * dt - cor0 * dt + 0.0 * dt
         dv1n = dvn + (f1 - t1) + n1 * dt - cor1 * dt + 0.0 * dt
         dv1u = dvu + (f2 - t2) + n2 * dt - cor2 * dt + dg2 * dt
@@ -170,7 +197,6 @@ def rows_heading_residual(x: np.ndarray, C_nb: np.ndarray, psi: float, out: np.n
     """The SAR rows of :meth:`SarModel.h <dpos_core.sar.model.SarModel.h>` for states x (M, 16)
     into out (M, 4): ``wrap(psi - heading(C(q)^T C_nb))`` and the position error (NaN heading for
     a non-finite attitude, as :func:`dpos_core.frames.hpr_from_C_nb`)."""
-    two_pi = 2.0 * math.pi
     for m in range(x.shape[0]):
         uw, ux, uy, uz = _normalize(x[m, 0], x[m, 1], x[m, 2], x[m, 3])
         # column 0 of C(q)^T C_nb: its rows 0 and 1 give the heading (ENU world, FLU body)
@@ -183,10 +209,9 @@ def rows_heading_residual(x: np.ndarray, C_nb: np.ndarray, psi: float, out: np.n
         e0 = c00 * C_nb[0, 0] + c10 * C_nb[1, 0] + c20 * C_nb[2, 0]
         e1 = c01 * C_nb[0, 0] + c11 * C_nb[1, 0] + c21 * C_nb[2, 0]
         if math.isfinite(uw) and math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz):
-            # numpy's mod and frames.hpr_from_C_nb / attitude.wrap_angle (Python's float %: fmod
-            # with the divisor's sign, the same as numpy's for a positive divisor)
-            hd = math.atan2(e0 + 0.0, e1 + 0.0) % two_pi
-            w = (psi - hd + math.pi) % two_pi - math.pi
+            # frames.hpr_from_C_nb's heading in [0, 2 pi) and attitude.wrap_angle's wrap
+            hd = _mod_two_pi(math.atan2(e0 + 0.0, e1 + 0.0))
+            w = _mod_two_pi(psi - hd + math.pi) - math.pi
             out[m, 0] = math.pi if w == -math.pi else w
         else:
             out[m, 0] = math.nan
@@ -207,7 +232,6 @@ def rows_project(x: np.ndarray, out: np.ndarray) -> None:
 def rows_wrap_heading(d: np.ndarray) -> None:
     """The heading column of residuals d (M, 4) wrapped to (-pi, pi] in place
     (:func:`dpos_core.attitude.wrap_angle`)."""
-    two_pi = 2.0 * math.pi
     for m in range(d.shape[0]):
-        w = (d[m, 0] + math.pi) % two_pi - math.pi
+        w = _mod_two_pi(d[m, 0] + math.pi) - math.pi
         d[m, 0] = math.pi if w == -math.pi else w

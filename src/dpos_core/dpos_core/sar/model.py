@@ -184,6 +184,8 @@ def _step_table(track: SinsTrack) -> FloatArray:
     T[:, _mk.C_RMH1] = r_m1 + track.llh[1:, 2]
     T[:, _mk.C_RNH1] = r_n1 + track.llh[1:, 2]
     T[:, _mk.C_COS1] = np.cos(track.llh[1:, 0])
+    T[:, _mk.C_SIN_I] = np.sin(llh_i[:, 0])
+    T[:, _mk.C_COS_I] = np.cos(llh_i[:, 0])
     return T
 
 
@@ -196,7 +198,12 @@ class SarModel:
     """The 16-state SINS/SAR/baro error model (module docstring) as a
     :class:`~dpos_core.filters.model.StateSpaceModel` over the K epochs of ``track``; f and h are
     vectorized over leading axes (particles, sigma points).  ``free`` (the 15 components but
-    ``q0``) and ``project`` (unit quaternion, ``q0 >= 0``) are for the particle filters."""
+    ``q0``) and ``project`` (unit quaternion, ``q0 >= 0``) are for the particle filters.
+
+    f, h, ``project`` and ``residual`` run as compiled loops over the rows
+    (:mod:`._model_kernel`, the formulas of the numpy form in its order of operations: equal to
+    it to rounding, test/dpos_core/sar/test_model_kernel.py); the SINS's side of every step is
+    tabulated once here (:func:`_step_table`)."""
 
     n = N_STATES
     free = np.arange(1, N_STATES)
