@@ -148,3 +148,25 @@ def test_kernel_mod_two_pi_is_numpys_mod() -> None:
     out = np.array([_mod_two_pi(float(v)) for v in a])
     np.testing.assert_array_equal(out, ref)
     np.testing.assert_array_equal(np.signbit(out), np.signbit(ref))
+
+
+def test_loglik_is_gauss_logpdf_of_the_residual(model: SarModel) -> None:
+    """SarModel.loglik (the particle filters' weights in one pass) equals the generic
+    ``gauss_logpdf(residual(y, h(x)), R)`` at epochs with and without a SAR fix."""
+    from dpos_core.filters.linalg import gauss_logpdf
+
+    rng = np.random.default_rng(12)
+    sar = np.flatnonzero(model.meas.sar)
+    no_fix = np.flatnonzero(~model.meas.sar)
+    assert sar.size and no_fix.size
+    for k in np.concatenate([sar[::5], no_fix[::5]]):
+        x = _particles(rng, 64)
+        x[:, 1:4] *= 0.01  # attitude errors of arcminutes: the likelihood's own scale
+        x[:, 7:10] *= 0.02
+        ref = gauss_logpdf(model.residual(model.y(k), model.h(k, x)), model.R(k))
+        np.testing.assert_allclose(model.loglik(k, x), ref, rtol=1e-13, atol=1e-12)
+    x = _particles(rng, 3)
+    x[1, 0] = np.nan
+    assert np.isnan(model.loglik(int(sar[0]), x)[1])
+    with pytest.raises(ValueError, match="loglik"):
+        model.loglik(int(sar[0]), x[0])

@@ -36,7 +36,9 @@ resampling + Metropolis-Hastings), all vectorized over the particles.
 
 Models with a constrained state (a unit quaternion) may define ``project(x)`` (applied after every
 draw and move) and ``free`` (the indices the transition density is evaluated on, so that a state
-that is a function of the others - a quaternion's scalar part - does not make ``Q`` singular).
+that is a function of the others - a quaternion's scalar part - does not make ``Q`` singular), and
+``loglik(k, z)``: ``log p(y_k | z)`` (M,) of states z (M, n) in one pass, equal to
+``gauss_logpdf(residual(y_k, h(k, z)), R(k))`` (the weights' hot path; a compiled model has one).
 """
 
 from __future__ import annotations
@@ -149,10 +151,14 @@ def mh_move(
 
 
 def _loglik(model: StateSpaceModel, k: int, z: FloatArray) -> FloatArray:
-    """``log p(y_k | z)`` (M,) of states z (M, n); zeros where epoch k has no measurement."""
+    """``log p(y_k | z)`` (M,) of states z (M, n); zeros where epoch k has no measurement; the
+    model's own ``loglik(k, z)`` where it has one (module docstring)."""
     y = model.y(k)
     if y is None:
         return np.zeros(z.shape[0])
+    own = getattr(model, "loglik", None)
+    if own is not None:
+        return own(k, z)
     return gauss_logpdf(model.residual(y, model.h(k, z)), model.R(k))
 
 
@@ -353,7 +359,7 @@ def run_sir(
             def log_target(z: FloatArray, fxc: FloatArray = fxc, Qf: FloatArray = Qf, y=y, k: int = k) -> FloatArray:
                 lt = gauss_logpdf(z[:, free] - fxc[:, free], Qf)
                 if y is not None:
-                    lt = lt + gauss_logpdf(model.residual(y, model.h(k, z)), model.R(k))
+                    lt = lt + _loglik(model, k, z)
                 return lt
 
             moved, _, acc = mh_move(x[child], log_target, A, h_bw, rng, project=project)

@@ -193,29 +193,72 @@ def rows_f(x: np.ndarray, c: np.ndarray, ec: np.ndarray, out: np.ndarray) -> Non
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
+def _heading_row(qw: float, qx: float, qy: float, qz: float, C_nb: np.ndarray, psi: float) -> float:
+    """h's first row ``wrap(psi - heading(C(q)^T C_nb))`` of one state's quaternion (NaN for a
+    non-finite one)."""
+    uw, ux, uy, uz = _normalize(qw, qx, qy, qz)
+    if not (math.isfinite(uw) and math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz)):
+        return math.nan
+    # column 0 of C(q)^T C_nb: its rows 0 and 1 give the heading (ENU world, FLU body)
+    c00 = 1 - 2 * (uy * uy + uz * uz)
+    c01 = 2 * (ux * uy - uw * uz)
+    c10 = 2 * (ux * uy + uw * uz)
+    c11 = 1 - 2 * (ux * ux + uz * uz)
+    c20 = 2 * (ux * uz - uw * uy)
+    c21 = 2 * (uy * uz + uw * ux)
+    e0 = c00 * C_nb[0, 0] + c10 * C_nb[1, 0] + c20 * C_nb[2, 0]
+    e1 = c01 * C_nb[0, 0] + c11 * C_nb[1, 0] + c21 * C_nb[2, 0]
+    # frames.hpr_from_C_nb's heading in [0, 2 pi) and attitude.wrap_angle's wrap
+    hd = _mod_two_pi(math.atan2(e0 + 0.0, e1 + 0.0))
+    w = _mod_two_pi(psi - hd + math.pi) - math.pi
+    return math.pi if w == -math.pi else w
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _wrap(a: float) -> float:
+    """:func:`dpos_core.attitude.wrap_angle` of one angle."""
+    w = _mod_two_pi(a + math.pi) - math.pi
+    return math.pi if w == -math.pi else w
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def rows_heading_residual(x: np.ndarray, C_nb: np.ndarray, psi: float, out: np.ndarray) -> None:
     """The SAR rows of :meth:`SarModel.h <dpos_core.sar.model.SarModel.h>` for states x (M, 16)
     into out (M, 4): ``wrap(psi - heading(C(q)^T C_nb))`` and the position error (NaN heading for
     a non-finite attitude, as :func:`dpos_core.frames.hpr_from_C_nb`)."""
     for m in range(x.shape[0]):
-        uw, ux, uy, uz = _normalize(x[m, 0], x[m, 1], x[m, 2], x[m, 3])
-        # column 0 of C(q)^T C_nb: its rows 0 and 1 give the heading (ENU world, FLU body)
-        c00 = 1 - 2 * (uy * uy + uz * uz)
-        c01 = 2 * (ux * uy - uw * uz)
-        c10 = 2 * (ux * uy + uw * uz)
-        c11 = 1 - 2 * (ux * ux + uz * uz)
-        c20 = 2 * (ux * uz - uw * uy)
-        c21 = 2 * (uy * uz + uw * ux)
-        e0 = c00 * C_nb[0, 0] + c10 * C_nb[1, 0] + c20 * C_nb[2, 0]
-        e1 = c01 * C_nb[0, 0] + c11 * C_nb[1, 0] + c21 * C_nb[2, 0]
-        if math.isfinite(uw) and math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz):
-            # frames.hpr_from_C_nb's heading in [0, 2 pi) and attitude.wrap_angle's wrap
-            hd = _mod_two_pi(math.atan2(e0 + 0.0, e1 + 0.0))
-            w = _mod_two_pi(psi - hd + math.pi) - math.pi
-            out[m, 0] = math.pi if w == -math.pi else w
-        else:
-            out[m, 0] = math.nan
+        out[m, 0] = _heading_row(x[m, 0], x[m, 1], x[m, 2], x[m, 3], C_nb, psi)
         out[m, 1], out[m, 2], out[m, 3] = x[m, 7], x[m, 8], x[m, 9]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def rows_loglik(x: np.ndarray, C_nb: np.ndarray, psi: float, y: np.ndarray, L: np.ndarray, out: np.ndarray) -> None:
+    """``log N(y - h(x_m); 0, L L^T)`` into out (M,) for states x (M, 16): the residual of
+    :meth:`SarModel.residual <dpos_core.sar.model.SarModel.residual>` (heading wrapped) and the
+    density of :func:`dpos_core.filters.linalg.gauss_logpdf` (its kernel's arithmetic) in one pass;
+    y (4,) and L (4, 4) at a SAR epoch (h's four rows), y (1,) and L (1, 1) without a fix (the
+    barometer row: the height error)."""
+    p = y.shape[0]
+    half_logdet = 0.0
+    for j in range(p):
+        half_logdet += math.log(L[j, j])
+    c = half_logdet + 0.5 * p * math.log(2.0 * math.pi)
+    r = np.empty(p)
+    z = np.empty(p)
+    for m in range(x.shape[0]):
+        if p == 4:
+            r[0] = _wrap(y[0] - _heading_row(x[m, 0], x[m, 1], x[m, 2], x[m, 3], C_nb, psi))
+            r[1], r[2], r[3] = y[1] - x[m, 7], y[2] - x[m, 8], y[3] - x[m, 9]
+        else:
+            r[0] = y[0] - x[m, 9]
+        q = 0.0
+        for a in range(p):
+            e = r[a]
+            for b in range(a):
+                e -= L[a, b] * z[b]
+            z[a] = e / L[a, a]
+            q += z[a] * z[a]
+        out[m] = -0.5 * q - c
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
@@ -233,5 +276,4 @@ def rows_wrap_heading(d: np.ndarray) -> None:
     """The heading column of residuals d (M, 4) wrapped to (-pi, pi] in place
     (:func:`dpos_core.attitude.wrap_angle`)."""
     for m in range(d.shape[0]):
-        w = _mod_two_pi(d[m, 0] + math.pi) - math.pi
-        d[m, 0] = math.pi if w == -math.pi else w
+        d[m, 0] = _wrap(d[m, 0])

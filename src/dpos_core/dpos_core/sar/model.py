@@ -43,6 +43,7 @@ from dpos_core.units import FloatArray
 
 from .. import earth
 from ..attitude import cross, dcm_to_quat, quat_conj, quat_mul, quat_normalize, quat_to_dcm, wrap_angle
+from ..filters.linalg import chol
 from ..frames import hpr_from_C_nb
 from ..series import NavSeries
 from . import _model_kernel as _mk
@@ -220,6 +221,8 @@ class SarModel:
         self._psi = heading_of(track.C_nb)
         self._steps = _step_table(track)
         self._C_nb = np.ascontiguousarray(track.C_nb)
+        # the Cholesky factors of R(k) (gauss_logpdf's), for loglik
+        self._L = [chol(self.R(k)) for k in range(self.n_epochs)]
 
     def _make_Q(self, dt: float) -> FloatArray:
         nz = self.noise
@@ -270,6 +273,17 @@ class SarModel:
         out = np.empty((rows.shape[0], 4))
         _mk.rows_heading_residual(rows, self._C_nb[k], float(self._psi[k]), out)
         return out.reshape(shape[:-1] + (4,))
+
+    def loglik(self, k: int, x: FloatArray) -> FloatArray:
+        """``log p(y_k | x)`` (M,) of states x (M, 16): ``gauss_logpdf(residual(y(k), h(k, x)), R(k))``
+        in one compiled pass (:func:`~._model_kernel.rows_loglik`; the particle filters' weights)."""
+        rows, shape = _rows(x)
+        if len(shape) != 2:
+            raise ValueError(f"SarModel.loglik: expected states (M, {N_STATES}), got {shape}")
+        out = np.empty(rows.shape[0])
+        y = np.ascontiguousarray(self.y(k), dtype=float)
+        _mk.rows_loglik(rows, self._C_nb[k], float(self._psi[k]), y, self._L[k], out)
+        return out
 
     def R(self, k: int) -> FloatArray:
         return self._R4[k] if self.meas.sar[k] else self._R4[k][3:4, 3:4]
