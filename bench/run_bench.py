@@ -303,7 +303,9 @@ def bench_sar(results: dict, repeats: int) -> None:
     dur = float(prob.model.track.t_s[-1] - prob.model.track.t_s[0])
     warm = prob.model.project(np.repeat(prob.x0[None], 2, axis=0))  # load the model's compiled kernels outside the timing
     prob.model.f(0, warm)
-    prob.model.h(int(np.argmax(prob.model.meas.sar)), warm)
+    for k in (int(np.argmax(prob.model.meas.sar)), int(np.argmin(prob.model.meas.sar))):
+        prob.model.h(k, warm)
+        prob.model.loglik(k, warm)
     for m in METHODS:
         el = cpu = np.inf
         for _ in range(max(1, min(repeats, 2))):
