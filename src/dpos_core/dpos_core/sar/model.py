@@ -201,7 +201,7 @@ class SarModel:
     vectorized over leading axes (particles, sigma points).  ``free`` (the 15 components but
     ``q0``) and ``project`` (unit quaternion, ``q0 >= 0``) are for the particle filters.
 
-    f, h, ``project`` and ``residual`` run as compiled loops over the rows
+    f, h, ``project``, ``residual`` and ``loglik`` run as compiled loops over the rows
     (:mod:`._model_kernel`, the formulas of the numpy form in its order of operations: equal to
     it to rounding, test/dpos_core/sar/test_model_kernel.py); the SINS's side of every step is
     tabulated once here (:func:`_step_table`)."""
