@@ -8,7 +8,7 @@ import pytest
 from dpos_core.filters.gaussian import kf_predict, kf_update
 from dpos_core.filters.model import LinearGaussianModel
 from dpos_core.filters.particle import ess
-from dpos_core.filters.pf import PF_METHODS, bandwidth_opt, children_mask, mh_move, psd_sqrt, regularize, run_sir, weighted_cov
+from dpos_core.filters.pf import PF_METHODS, bandwidth_opt, children_mask, mh_move, n_distinct_rows, psd_sqrt, regularize, run_sir, weighted_cov
 from dpos_core.filters.points import UnscentedPoints
 
 
@@ -191,6 +191,15 @@ def test_children_mask_and_ess() -> None:
     assert ess(lw) == pytest.approx(1.0)
     w = np.array([0.5, 0.25, 0.25])
     assert ess(np.log(w)) == pytest.approx(1.0 / np.sum(w**2))
+
+
+def test_distinct_rows_count_as_np_unique() -> None:
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((300, 7))[rng.integers(0, 300, 300)]  # resampled copies
+    x[::7, 3] += 1e-12  # copies that moved by a hair are distinct
+    assert n_distinct_rows(x) == np.unique(x, axis=0).shape[0] < 300
+    assert n_distinct_rows(x[:, ::2]) == np.unique(x[:, ::2], axis=0).shape[0]  # a non-contiguous view
+    assert n_distinct_rows(np.ones((5, 3))) == 1
 
 
 def test_bad_arguments_are_named() -> None:

@@ -42,9 +42,11 @@ import numpy as np
 from dpos_core.units import FloatArray
 
 from .. import earth
-from ..attitude import cross, dcm_to_quat, quat_conj, quat_mul, quat_normalize, quat_to_dcm, rotvec_to_quat, wrap_angle
+from ..attitude import cross, dcm_to_quat, quat_conj, quat_mul, quat_normalize, quat_to_dcm, wrap_angle
+from ..filters.linalg import chol
 from ..frames import hpr_from_C_nb
 from ..series import NavSeries
+from . import _model_kernel as _mk
 
 #: state layout
 Q_ATT, DV, DP, EPS, NAB = slice(0, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 16)
@@ -145,6 +147,49 @@ def _frame_rate(llh: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]
     return earth.earth_rate_n(llh[..., 0]), earth.transport_rate_n(llh[..., 0], llh[..., 2], v)
 
 
+def _rows(x: FloatArray) -> tuple[FloatArray, tuple[int, ...]]:
+    """States (..., 16) as contiguous float rows (M, 16), and their shape."""
+    a = np.asarray(x, dtype=float)
+    if a.shape[-1:] != (N_STATES,):
+        raise ValueError(f"SarModel: expected states (..., {N_STATES}), got {a.shape}")
+    return np.ascontiguousarray(a).reshape(-1, N_STATES), a.shape
+
+
+#: the WGS-84 constants of :mod:`dpos_core.earth` the kernel's true-position side needs (its ``earth_c``)
+_EARTH_C = np.array([earth.A_M, earth.E2, earth.OMEGA_IE_RADPS, earth.GAMMA_E_MPS2, earth.K_SOMIGLIANA, earth.F,
+                     earth.M_GRAV])
+
+
+def _step_table(track: SinsTrack) -> FloatArray:
+    """The SINS's side of every step k -> k + 1 of :meth:`SarModel.f`, (K - 1, ``_mk.N_STEP``)
+    (the columns ``_model_kernel.C_*``): dt, the middle sample's llh, velocity and C_nb, the
+    specific-force increment, the radii at the epochs, the SINS's frame rate ``w_ie' + w_en'``,
+    its Coriolis term ``(2 w_ie' + w_en') x v'``, gravity and llh rate at the middle - the
+    per-particle kernel computes only the true-position side."""
+    T = np.empty((track.dt_s.size, _mk.N_STEP))
+    llh_i, v_i = track.llh_mid, track.vel_mid_n_mps
+    wie_i, wen_i = _frame_rate(llh_i, v_i)
+    r_m0, r_n0 = earth.radii_of_curvature(track.llh[:-1, 0])
+    r_m1, r_n1 = earth.radii_of_curvature(track.llh[1:, 0])
+    T[:, _mk.C_DT] = track.dt_s
+    T[:, _mk.C_LLH_I:_mk.C_LLH_I + 3] = llh_i
+    T[:, _mk.C_V_I:_mk.C_V_I + 3] = v_i
+    T[:, _mk.C_CNB_I:_mk.C_CNB_I + 9] = track.C_nb_mid.reshape(-1, 9)
+    T[:, _mk.C_DVSF:_mk.C_DVSF + 3] = track.dv_sf_n_mps
+    T[:, _mk.C_DEN_N] = r_m0 + track.llh[:-1, 2]
+    T[:, _mk.C_DEN_E] = (r_n0 + track.llh[:-1, 2]) * np.cos(track.llh[:-1, 0])
+    T[:, _mk.C_W_IN_I:_mk.C_W_IN_I + 3] = wie_i + wen_i
+    T[:, _mk.C_COR_I:_mk.C_COR_I + 3] = cross(2.0 * wie_i + wen_i, v_i)
+    T[:, _mk.C_G_I] = earth.normal_gravity(llh_i[:, 0], llh_i[:, 2])
+    T[:, _mk.C_RATE_I:_mk.C_RATE_I + 3] = earth.llh_rate(llh_i[:, 0], llh_i[:, 2], v_i)
+    T[:, _mk.C_RMH1] = r_m1 + track.llh[1:, 2]
+    T[:, _mk.C_RNH1] = r_n1 + track.llh[1:, 2]
+    T[:, _mk.C_COS1] = np.cos(track.llh[1:, 0])
+    T[:, _mk.C_SIN_I] = np.sin(llh_i[:, 0])
+    T[:, _mk.C_COS_I] = np.cos(llh_i[:, 0])
+    return T
+
+
 def heading_of(C_nb: FloatArray) -> FloatArray:
     """Aviation heading [rad] of C_nb (..., 3, 3)."""
     return hpr_from_C_nb(C_nb)[..., 0]
@@ -154,7 +199,12 @@ class SarModel:
     """The 16-state SINS/SAR/baro error model (module docstring) as a
     :class:`~dpos_core.filters.model.StateSpaceModel` over the K epochs of ``track``; f and h are
     vectorized over leading axes (particles, sigma points).  ``free`` (the 15 components but
-    ``q0``) and ``project`` (unit quaternion, ``q0 >= 0``) are for the particle filters."""
+    ``q0``) and ``project`` (unit quaternion, ``q0 >= 0``) are for the particle filters.
+
+    f, h, ``project``, ``residual`` and ``loglik`` run as compiled loops over the rows
+    (:mod:`._model_kernel`, the formulas of the numpy form in its order of operations: equal to
+    it to rounding, test/dpos_core/sar/test_model_kernel.py); the SINS's side of every step is
+    tabulated once here (:func:`_step_table`)."""
 
     n = N_STATES
     free = np.arange(1, N_STATES)
@@ -169,6 +219,10 @@ class SarModel:
         ps = np.broadcast_to(np.asarray(meas.pos_sigma_m, dtype=float), (self.n_epochs,))
         self._R4 = [np.diag([h**2, p**2, p**2, float(b) ** 2]) for h, p, b in zip(hs, ps, meas.baro_sigma_m, strict=True)]
         self._psi = heading_of(track.C_nb)
+        self._steps = _step_table(track)
+        self._C_nb = np.ascontiguousarray(track.C_nb)
+        # the Cholesky factors of R(k) (gauss_logpdf's), for loglik
+        self._L = [chol(self.R(k)) for k in range(self.n_epochs)]
 
     def _make_Q(self, dt: float) -> FloatArray:
         nz = self.noise
@@ -188,44 +242,23 @@ class SarModel:
 
     # ------------------------------------------------------------------ transition
     def f(self, k: int, x: FloatArray) -> FloatArray:
-        """One step k -> k + 1 of the error equations (module docstring), x (..., 16)."""
-        tr = self.track
-        dt = float(tr.dt_s[k])
-        q, dv, dp, eps, nab = x[..., Q_ATT], x[..., DV], x[..., DP], x[..., EPS], x[..., NAB]
-        llh_i, v_i, C_i = tr.llh_mid[k], tr.vel_mid_n_mps[k], tr.C_nb_mid[k]
-        dllh = _dp_to_dllh(dp, tr.llh[k])
-        llh_t = llh_i - dllh
-        v_t = v_i - dv
-        wie_i, wen_i = _frame_rate(llh_i, v_i)
-        wie_t, wen_t = _frame_rate(llh_t, v_t)
-        dw = eps @ C_i.T
-        q1 = quat_mul(quat_mul(rotvec_to_quat((dw - (wie_i + wen_i)) * dt), q), rotvec_to_quat((wie_t + wen_t) * dt))
-        C = quat_to_dcm(quat_normalize(q))
-        dvsf = tr.dv_sf_n_mps[k]
-        CT_dvsf = np.einsum("...ji,j->...i", C, dvsf)
-        CT_nab = np.einsum("...ji,...j->...i", C, nab @ C_i.T)
-        cor = cross(2.0 * wie_i + wen_i, v_i) - cross(2.0 * wie_t + wen_t, v_t)
-        dg = earth.gravity_n(llh_i[0], llh_i[2]) - earth.gravity_n(llh_t[..., 0], llh_t[..., 2])
-        dv1 = dv + (dvsf - CT_dvsf) + CT_nab * dt - cor * dt + dg * dt
-        v_tm = v_i - 0.5 * (dv + dv1)
-        rate = earth.llh_rate(llh_i[0], llh_i[2], v_i) - earth.llh_rate(llh_t[..., 0], llh_t[..., 2], v_tm)
-        dp1 = _dllh_to_dp(dllh + rate * dt, tr.llh[k + 1])
-        out = np.empty(np.broadcast_shapes(x.shape))
-        out[..., Q_ATT] = quat_normalize(q1)
-        out[..., DV] = dv1
-        out[..., DP] = dp1
-        out[..., EPS] = eps
-        out[..., NAB] = nab
-        return out
+        """One step k -> k + 1 of the error equations (module docstring), x (..., 16): the
+        compiled kernel :func:`~._model_kernel.rows_f` over the rows, with the step's SINS
+        quantities computed once per model (:func:`_step_table`)."""
+        rows, shape = _rows(x)
+        out = np.empty(rows.shape)
+        _mk.rows_f(rows, self._steps[k], _EARTH_C, out)
+        return out.reshape(shape)
 
     def Q(self, k: int) -> FloatArray:
         return self._Q[k]
 
     def project(self, x: FloatArray) -> FloatArray:
         """The states with a unit attitude quaternion (scalar part >= 0), x (..., 16)."""
-        out = np.array(x, dtype=float, copy=True)
-        out[..., Q_ATT] = quat_normalize(out[..., Q_ATT])
-        return out
+        rows, shape = _rows(x)
+        out = np.empty(rows.shape)
+        _mk.rows_project(rows, out)
+        return out.reshape(shape)
 
     # ------------------------------------------------------------------ measurements
     def y(self, k: int) -> FloatArray | None:
@@ -236,20 +269,31 @@ class SarModel:
         """``[psi_I - psi_true(q), dp_N, dp_E, dp_U]`` (..., 4), or ``[dp_U]`` without a SAR fix."""
         if not self.meas.sar[k]:
             return x[..., 9:10]
-        C_true = np.swapaxes(quat_to_dcm(quat_normalize(x[..., Q_ATT])), -1, -2) @ self.track.C_nb[k]
-        out = np.empty(x.shape[:-1] + (4,))
-        out[..., 0] = wrap_angle(self._psi[k] - heading_of(C_true))
-        out[..., 1:4] = x[..., DP]
+        rows, shape = _rows(x)
+        out = np.empty((rows.shape[0], 4))
+        _mk.rows_heading_residual(rows, self._C_nb[k], float(self._psi[k]), out)
+        return out.reshape(shape[:-1] + (4,))
+
+    def loglik(self, k: int, x: FloatArray) -> FloatArray:
+        """``log p(y_k | x)`` (M,) of states x (M, 16): ``gauss_logpdf(residual(y(k), h(k, x)), R(k))``
+        in one compiled pass (:func:`~._model_kernel.rows_loglik`; the particle filters' weights)."""
+        rows, shape = _rows(x)
+        if len(shape) != 2:
+            raise ValueError(f"SarModel.loglik: expected states (M, {N_STATES}), got {shape}")
+        out = np.empty(rows.shape[0])
+        y = np.ascontiguousarray(self.y(k), dtype=float)
+        _mk.rows_loglik(rows, self._C_nb[k], float(self._psi[k]), y, self._L[k], out)
         return out
 
     def R(self, k: int) -> FloatArray:
         return self._R4[k] if self.meas.sar[k] else self._R4[k][3:4, 3:4]
 
     def residual(self, a: FloatArray, b: FloatArray) -> FloatArray:
-        d = a - b
-        if d.shape[-1] == 4:
-            d = d.copy()
-            d[..., 0] = wrap_angle(d[..., 0])
+        d = np.asarray(a - b, dtype=float)
+        if d.shape[-1] == 4:  # the heading row wrapped (attitude.wrap_angle), in place in the new array
+            rows = np.ascontiguousarray(d).reshape(-1, 4)
+            _mk.rows_wrap_heading(rows)
+            d = rows.reshape(d.shape)
         return d
 
     def feedback(self, k: int, mean: FloatArray) -> FloatArray | None:
