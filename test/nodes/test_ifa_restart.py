@@ -220,3 +220,47 @@ def test_a_restarted_ifa_node_starts_from_the_next_fix_and_its_corrections_are_a
         spinner.stop()
         if ifa_spinner.thread.is_alive():
             ifa_spinner.stop()
+
+
+def test_an_ifa_node_that_gets_no_imu_of_a_published_stream_says_why(ros_context, ros_domain_id) -> None:
+    """/master/imu has a publisher but none of its samples reaches the node (what a late reader with
+    Fast DDS's default resource limits sees, module docstring; here the publisher sends nothing,
+    which the node cannot tell apart), while GNSS fixes come: the node says why it cannot start,
+    once (status ``imu_starved``, level WARN)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import Imu, NavSatFix
+
+    from dpos_ros.contract import conversions as cv
+    from dpos_ros.contract.qos import SENSOR_QOS
+    from ifa_node.node import IMU_STARVED_S, IfaNode
+
+    probe = _live().Probe(ros_context)  # its /ifa/status log
+    pub_imu = probe.node.create_publisher(Imu, T.MASTER_IMU, SENSOR_QOS)
+    pub_fix = probe.node.create_publisher(NavSatFix, T.GNSS_FIX, SENSOR_QOS)
+    spinner = Spinner(ros_context, [probe.node])
+    ctx = Context()  # its own participant, as a restarted process
+    rclpy.init(context=ctx, domain_id=ros_domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    ifa = IfaNode(context=ctx, parameter_overrides=[Parameter("aircraft_config", value="paper_ifa")])
+    ifa_spinner = Spinner(ctx, [ifa])
+    try:
+        probe.wait(lambda: pub_imu.get_subscription_count() >= 1 and pub_fix.get_subscription_count() >= 1, TIMEOUT_S,
+                   "the node's subscriptions")
+        t0_ns, t_start = 1_700_000_000_000_000_000, time.monotonic()
+        k = 0
+        while not ifa.imu_starved and time.monotonic() - t_start < IMU_STARVED_S + 20.0:  # a fix per 0.1 s of wall time
+            k += 1
+            pub_fix.publish(cv.navsatfix_msg(t0_ns + k * 1_000_000_000, cv.GNSS_FRAME, np.array([0.7, 2.0, 1000.0]), np.ones(3)))
+            with probe.changed:  # (a bounded pause on the driver's clock)
+                probe.changed.wait(0.1)
+        assert ifa.imu_starved and ifa.imu_samples == 0, (ifa.imu_starved, ifa.imu_samples, k)
+        assert time.monotonic() - t_start >= IMU_STARVED_S  # not before
+        probe.wait(lambda: any(s.get("imu_starved") == "true" for s in probe.status["/ifa/status"]), TIMEOUT_S, "the status")
+        st = next(s for s in probe.status["/ifa/status"] if s.get("imu_starved") == "true")
+        assert st["message"] == "WAITING" and st["imu_samples"] == "0", st
+        assert not any("imu_starved" in s for s in probe.status["/ifa/status"][:1]), probe.status["/ifa/status"][:1]
+    finally:
+        ifa_spinner.stop()
+        spinner.stop()
+        rclpy.try_shutdown(context=ctx)

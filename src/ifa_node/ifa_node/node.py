@@ -33,7 +33,10 @@ Inputs
     1.0-1.3 m sigma, 0 % inside 3 sigma over 62-70 s; compensated: roll 14.3 deg, sigma 7.5 deg,
     0.4-0.7 m, 100 %). Status keys ``start`` (``/master/nav``, ``gnss_fix``, ``none``),
     ``joined_running_session``, and after a restart ``start_level`` (``compensated``, ``raw``: no
-    fix just before, ``rest``) and ``start_level_sigma_deg``.
+    fix just before, ``rest``) and ``start_level_sigma_deg``. GNSS fixes for ``IMU_STARVED_S`` of wall
+    time while /master/imu has a publisher but no sample of it came: warned once with the likely
+    cause (a late reader refused by Fast DDS's reader resource limit, which :func:`main` lifts; a
+    deployment's own Fast DDS profile must), status ``imu_starved`` (level WARN while WAITING).
     ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
     out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
     ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
@@ -176,6 +179,9 @@ RESTART_MIN_COURSE_SPEED_MPS = 5.0
 RESTART_LEVEL_WINDOW_S = 1.0
 #: no /master/nav this long [s] of wall time after a fix that could start the node: a restart (IfaNode._check_join)
 JOIN_WAIT_S = 3.0
+#: GNSS fixes have come this long [s] of wall time while /master/imu has a publisher but no sample came:
+#: warned once, status ``imu_starved`` (IfaNode._check_imu_starved)
+IMU_STARVED_S = 5.0
 #: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
 #: (nor a deeper KEEP_LAST): measured here, such a reader stopped acknowledging after ~5000
 #: samples although the node had taken every one, and the simulated device's flow control then
@@ -247,6 +253,8 @@ class IfaNode(Node):
         self.start_level_sigma_deg = float("nan")
         self._no_start: set[int] = set()  # fix stamps tried as a restart's start (or unfit)
         self._join_since: float | None = None  # monotonic time a fix that could start the node was here (_check_join)
+        self._first_fix_wall: float | None = None  # monotonic time the first GNSS fix came (_check_imu_starved)
+        self.imu_starved = False  # fixes for IMU_STARVED_S, /master/imu published, none of it here (warned once)
         self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
         self._last_imu_ns: int | None = None
         self._end_ns: int | None = None  # /session/end: the stamp of the session's last sample
@@ -394,6 +402,8 @@ class IfaNode(Node):
             return
         self._fixes[t_ns] = msg
         self._newest_fix_ns = max(self._newest_fix_ns, t_ns)
+        if self._first_fix_wall is None:
+            self._first_fix_wall = time.monotonic()
         self._arrived.setdefault(t_ns, time.monotonic())
         self._process()
 
@@ -688,9 +698,30 @@ class IfaNode(Node):
         middleware are taken (this node may have been busy), then a fix or velocity whose partner did
         not come for ``pair_timeout_s`` is dropped, and the due outage time updates are made."""
         self._take_gnss()
+        self._check_imu_starved()
         self._check_join()
         self._process(wall=True)
         self._outage_predict()
+
+    def _check_imu_starved(self) -> None:
+        """GNSS fixes have come for ``IMU_STARVED_S`` of wall time and /master/imu has a publisher,
+        but no sample of it came: warn once (status ``imu_starved``, level WARN) with the likely
+        cause. The node cannot start without the IMU. Measured (docs/reliability.md, G13): Fast DDS
+        refuses every sample to a VOLATILE reliable reader that matched a writer after it had sent
+        as many messages as the reader's ``max_samples`` (5000 by default); :func:`main` lifts the
+        limit (``use_device_fastdds_profile``), a deployment's own Fast DDS profile must."""
+        if self.imu_starved or self.imu_samples or self._first_fix_wall is None:
+            return
+        if time.monotonic() - self._first_fix_wall < IMU_STARVED_S or self.count_publishers(T.MASTER_IMU) == 0:
+            return
+        self.imu_starved = True
+        self.get_logger().warning(
+            f"{T.MASTER_IMU} has a publisher and GNSS fixes have come for {IMU_STARVED_S:g} s, but no IMU sample: this node"
+            " cannot start. Likely cause: it joined the stream late (a restart) and its reader refuses every sample because"
+            " the writer had sent more messages than the reader's resource limit (Fast DDS max_samples, 5000 by default)."
+            " The ifa_node executable lifts the limit; with your own Fast DDS profile (FASTRTPS_DEFAULT_PROFILES_FILE) set"
+            " max_samples 0 for the readers (docs/reliability.md, G13). Status imu_starved")
+        self._publish_status()
 
     def _process(self, wall: bool = False) -> None:
         """Apply every GNSS epoch whose IMU samples are all here (stamp order; module docstring)."""
@@ -959,6 +990,8 @@ class IfaNode(Node):
             level = DiagnosticStatus.ERROR
         elif level == DiagnosticStatus.OK and (self.gates.total or self.publisher_watch.extra or self.imu_interleave.episodes):
             level = DiagnosticStatus.WARN  # refused inputs, or a second publisher (the message still says the state)
+        elif self.imu_starved and self.al is None:
+            level = DiagnosticStatus.WARN  # it cannot start (the message says WAITING)
         values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected}
         values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
         values.update({"fixes_done_ns": "none" if self.fixes_done_ns is None else str(self.fixes_done_ns),
@@ -979,6 +1012,8 @@ class IfaNode(Node):
         values.update(self.publisher_watch.values())
         if self.imu_interleave.episodes:
             values["imu_interleaved"] = self.imu_interleave.episodes
+        if self.imu_starved:
+            values["imu_starved"] = "true"
         al, rec = self.al, self.last_record
         if al is not None:
             values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs,
