@@ -24,7 +24,19 @@ Inputs
     after it (:func:`dpos_core.ifa.reference.start`: pos_master_node's course start, stamped at the
     fix on the IMU's clock) with its configured prior covariance: UNALIGNED (ALIGNING), its
     corrections wide enough for pos_master_node's gates; the datum is the latched /dpos/datum.
-    Status keys ``start`` (``/master/nav``, ``gnss_fix``, ``none``) and ``joined_running_session``.
+    Pitch and roll are levelled on the IMU with the vehicle's acceleration removed (``level="auto"``,
+    :func:`dpos_core.ifa.standstill.start_level`: from the velocities of the previous waiting fix,
+    at most 1.5 ``RESTART_LEVEL_WINDOW_S`` older), and the prior pitch / roll sigma is widened to
+    what that leaves (never narrowed): in a coordinated turn the specific force stays on the body
+    z axis, so levelling it raw gives a roll of ~0 (measured: a restart at 55 s of paper_ifa, roll
+    12.1 deg, started at 0.13 deg with a 1 deg sigma; /master/nav then 4-5.7 m off against a
+    1.0-1.3 m sigma, 0 % inside 3 sigma over 62-70 s; compensated: roll 14.3 deg, sigma 7.5 deg,
+    0.4-0.7 m, 100 %). Status keys ``start`` (``/master/nav``, ``gnss_fix``, ``none``),
+    ``joined_running_session``, and after a restart ``start_level`` (``compensated``, ``raw``: no
+    fix just before, ``rest``) and ``start_level_sigma_deg``. GNSS fixes for ``IMU_STARVED_S`` of wall
+    time while /master/imu has a publisher but no sample of it came: warned once with the likely
+    cause (a late reader refused by Fast DDS's reader resource limit, which :func:`main` lifts; a
+    deployment's own Fast DDS profile must), status ``imu_starved`` (level WARN while WAITING).
     ``/master/imu`` (sensor QoS, deep reliable): buffered; non-finite samples and duplicate or
     out-of-order stamps are dropped with a warning, gaps warned about and integrated across.
     ``/gnss/fix`` + ``/gnss/vel``: paired by stamp (``pair_tolerance_s``); a fix whose velocity has
@@ -108,6 +120,7 @@ import time
 import warnings
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
+from dataclasses import replace as dc_replace
 from typing import Any
 
 import numpy as np
@@ -125,7 +138,7 @@ from dpos_core.config import ConfigError, load_aircraft, scenario_aircraft
 from dpos_core.earth import geodetic_to_enu
 from dpos_core.errors import NumericalFailure, RejectedInput
 from dpos_core.ifa.mechanization import STAMP_TOL_S, body_rate_eb, stamp_s
-from dpos_core.ifa.model import GnssFix, check_fix
+from dpos_core.ifa.model import GnssFix, IfaFilterConfig, check_fix
 from dpos_core.ifa.pipeline import IMU_DT_SAMPLES, EpochRecord, InFlightAligner, nominal_imu_dt_s
 from dpos_core.ifa.pipeline import advance as advance_imu  # run()'s own loop: live == offline by construction
 from dpos_core.ifa.reference import start as course_start
@@ -166,6 +179,9 @@ RESTART_MIN_COURSE_SPEED_MPS = 5.0
 RESTART_LEVEL_WINDOW_S = 1.0
 #: no /master/nav this long [s] of wall time after a fix that could start the node: a restart (IfaNode._check_join)
 JOIN_WAIT_S = 3.0
+#: GNSS fixes have come this long [s] of wall time while /master/imu has a publisher but no sample came:
+#: warned once, status ``imu_starved`` (IfaNode._check_imu_starved)
+IMU_STARVED_S = 5.0
 #: the inputs: the sensor profile (RELIABLE, KEEP_LAST 5000 = 50 s of a 100 Hz IMU). Not KEEP_ALL
 #: (nor a deeper KEEP_LAST): measured here, such a reader stopped acknowledging after ~5000
 #: samples although the node had taken every one, and the simulated device's flow control then
@@ -231,8 +247,14 @@ class IfaNode(Node):
         #: /master/nav comes first (:meth:`_gnss_start`)
         self.joined_running_graph = False
         self.start_source = "none"  # "/master/nav" or "gnss_fix" once started (status key ``start``)
+        #: a restart's levelling (dpos_core.ifa.standstill.start_level: ``compensated``, ``raw``, ``rest``) and the
+        #: filter's prior pitch / roll sigma it started with [deg] (status ``start_level``, ``start_level_sigma_deg``)
+        self.start_level = "none"
+        self.start_level_sigma_deg = float("nan")
         self._no_start: set[int] = set()  # fix stamps tried as a restart's start (or unfit)
         self._join_since: float | None = None  # monotonic time a fix that could start the node was here (_check_join)
+        self._first_fix_wall: float | None = None  # monotonic time the first GNSS fix came (_check_imu_starved)
+        self.imu_starved = False  # fixes for IMU_STARVED_S, /master/imu published, none of it here (warned once)
         self._imu: list[tuple[int, bytes]] = []  # buffered raw samples, not yet propagated
         self._last_imu_ns: int | None = None
         self._end_ns: int | None = None  # /session/end: the stamp of the session's last sample
@@ -380,6 +402,8 @@ class IfaNode(Node):
             return
         self._fixes[t_ns] = msg
         self._newest_fix_ns = max(self._newest_fix_ns, t_ns)
+        if self._first_fix_wall is None:
+            self._first_fix_wall = time.monotonic()
         self._arrived.setdefault(t_ns, time.monotonic())
         self._process()
 
@@ -513,26 +537,59 @@ class IfaNode(Node):
             if not (np.all(np.isfinite(fix.llh)) and np.all(np.isfinite(fix.vel_n_mps))):
                 continue
             lo, hi = t0_ns - int(round(RESTART_LEVEL_WINDOW_S * 1e9)), bisect.bisect_right(stamps, t0_ns) + IMU_DT_SAMPLES
+            fixes = [fix]
+            prev = self._previous_fix(t_ns, t0_ns)
+            if prev is not None:  # its velocity gives the vehicle's acceleration over the level window
+                fixes.insert(0, prev)
+                lo = max(lo, int(t0_ns + round(prev.t_s * 1e9)))  # (the IMU after it: start() takes the later fix)
             batch = [r for s, r in self._imu[:hi] if s > lo]
             t_imu, vals = cv.decode_raw_batch(batch, "imu", cv.MASTER_FRAME)
             ok = np.all(np.isfinite(vals[:, 13:16]), axis=1) & np.all(np.isfinite(vals[:, 25:28]), axis=1)
             imu = ImuSeries(stamp_s(t_imu[ok], t0_ns), vals[ok, 13:16], vals[ok, 25:28])
-            gnss = GnssSeries(np.array([0.0]), fix.llh[None], fix.pos_sigma_m[None], fix.vel_n_mps[None], fix.vel_sigma_mps[None])
+            gnss = GnssSeries(np.array([f.t_s for f in fixes[:-1]] + [0.0]), np.array([f.llh for f in fixes]),
+                              np.array([f.pos_sigma_m for f in fixes]), np.array([f.vel_n_mps for f in fixes]),
+                              np.array([f.vel_sigma_mps for f in fixes]))
             try:
-                initial, _ = course_start(imu, gnss, RESTART_MIN_COURSE_SPEED_MPS, RESTART_LEVEL_WINDOW_S, lever_arm_m=self.lever_arm_m)
+                initial, lv = course_start(imu, gnss, RESTART_MIN_COURSE_SPEED_MPS, RESTART_LEVEL_WINDOW_S, lever_arm_m=self.lever_arm_m,
+                                           level="auto", imu_model=self.core_config.imu)
             except ValueError as e:  # too slow for a course, nothing to level on
                 self.get_logger().info(f"restart: the fix at stamp {t_ns} ns is no start ({e}); waiting for the next",
                                        throttle_duration_sec=5.0)
                 continue
+            cfg = self.core_config
+            if lv is not None and lv.sigma_rad is not None and lv.sigma_rad / DEG > cfg.level_sigma_deg:
+                cfg = dc_replace(cfg, level_sigma_deg=lv.sigma_rad / DEG)  # what the motion can leave in the level
+            self.start_level = "none" if lv is None else lv.how
+            self.start_level_sigma_deg = cfg.level_sigma_deg
             speed = float(np.hypot(fix.vel_n_mps[0], fix.vel_n_mps[1]))
+            how = {"compensated": "with the vehicle's acceleration (GNSS velocities) removed",
+                   "rest": "at rest"}.get(self.start_level, "without the vehicle's acceleration (no fix just before)")
             self._start(t0_ns, NavState(0.0, initial.q_nb, initial.vel_n_mps, initial.llh), "gnss_fix",
                         f"the GNSS fix at stamp {t_ns} ns (a restart: heading = course over ground at {speed:.1f} m/s,"
-                        f" pitch and roll levelled on the IMU, lever arm removed)")
+                        f" pitch and roll levelled on the IMU {how}, level sigma {cfg.level_sigma_deg:.2f} deg,"
+                        " lever arm removed)", cfg)
             return
 
-    def _start(self, t0_ns: int, initial: NavState, source: str, what: str) -> None:
-        """Start the aligner from ``initial`` (t_s 0) stamped ``t0_ns`` [ns] (the time origin); the
-        buffered IMU samples after it set the IMU interval (at least IMU_DT_SAMPLES, else later)."""
+    def _previous_fix(self, t_ns: int, t0_ns: int) -> GnssFix | None:
+        """The waiting fix (with its velocity) just before the fix stamped ``t_ns``, when it is at most
+        ``1.5 RESTART_LEVEL_WINDOW_S`` older (:func:`dpos_core.ifa.standstill.start_level`'s span for an
+        acceleration), its time relative to ``t0_ns`` on the IMU's clock; else None."""
+        earlier = [k for k in self._fixes if k < t_ns]
+        if not earlier:
+            return None
+        k = max(earlier)
+        kv = self._pair(k)
+        if kv is None or (t_ns - k) * 1e-9 > 1.5 * RESTART_LEVEL_WINDOW_S or self._fixes[k].status.status == NavSatStatus.STATUS_NO_FIX:
+            return None
+        offset_ns = int(round(self.core_config.gnss_time_offset_s * 1e9))
+        prev = self._gnss_fix(k, self._fixes[k], self._vels[kv], origin_ns=t0_ns + offset_ns)
+        ok = np.all(np.isfinite(prev.llh)) and np.all(np.isfinite(prev.vel_n_mps)) and np.all(np.isfinite(prev.vel_sigma_mps))
+        return prev if ok else None
+
+    def _start(self, t0_ns: int, initial: NavState, source: str, what: str, cfg: IfaFilterConfig | None = None) -> None:
+        """Start the aligner from ``initial`` (t_s 0) stamped ``t0_ns`` [ns] (the time origin), with the
+        filter configuration ``cfg`` (default: the node's); the buffered IMU samples after it set the
+        IMU interval (at least IMU_DT_SAMPLES, else later)."""
         self._imu = [s for s in self._imu if s[0] > t0_ns]
         if len(self._imu) < IMU_DT_SAMPLES:
             return
@@ -546,7 +603,8 @@ class IfaNode(Node):
                 f"after it (IMU interval {self._imu_dt_s:.4g} s): the navigation integrates across this gap and is wrong by the "
                 "motion in it until GNSS corrects it; start this node before the data (status imu_start_gap_s)")
         self.origin_ns = t0_ns
-        self.al = InFlightAligner(initial, self.lever_arm_m, self.core_config, self.config.method, self._imu_dt_s)
+        self.al = InFlightAligner(initial, self.lever_arm_m, self.core_config if cfg is None else cfg, self.config.method,
+                                  self._imu_dt_s)
         self._first_nav = None
         self.start_source = source
         hpr = initial.hpr_rad / DEG
@@ -640,9 +698,30 @@ class IfaNode(Node):
         middleware are taken (this node may have been busy), then a fix or velocity whose partner did
         not come for ``pair_timeout_s`` is dropped, and the due outage time updates are made."""
         self._take_gnss()
+        self._check_imu_starved()
         self._check_join()
         self._process(wall=True)
         self._outage_predict()
+
+    def _check_imu_starved(self) -> None:
+        """GNSS fixes have come for ``IMU_STARVED_S`` of wall time and /master/imu has a publisher,
+        but no sample of it came: warn once (status ``imu_starved``, level WARN) with the likely
+        cause. The node cannot start without the IMU. Measured (docs/reliability.md, G13): Fast DDS
+        refuses every sample to a VOLATILE reliable reader that matched a writer after it had sent
+        as many messages as the reader's ``max_samples`` (5000 by default); :func:`main` lifts the
+        limit (``use_device_fastdds_profile``), a deployment's own Fast DDS profile must."""
+        if self.imu_starved or self.imu_samples or self._first_fix_wall is None:
+            return
+        if time.monotonic() - self._first_fix_wall < IMU_STARVED_S or self.count_publishers(T.MASTER_IMU) == 0:
+            return
+        self.imu_starved = True
+        self.get_logger().warning(
+            f"{T.MASTER_IMU} has a publisher and GNSS fixes have come for {IMU_STARVED_S:g} s, but no IMU sample: this node"
+            " cannot start. Likely cause: it joined the stream late (a restart) and its reader refuses every sample because"
+            " the writer had sent more messages than the reader's resource limit (Fast DDS max_samples, 5000 by default)."
+            " The ifa_node executable lifts the limit; with your own Fast DDS profile (FASTRTPS_DEFAULT_PROFILES_FILE) set"
+            " max_samples 0 for the readers (docs/reliability.md, G13). Status imu_starved")
+        self._publish_status()
 
     def _process(self, wall: bool = False) -> None:
         """Apply every GNSS epoch whose IMU samples are all here (stamp order; module docstring)."""
@@ -911,6 +990,8 @@ class IfaNode(Node):
             level = DiagnosticStatus.ERROR
         elif level == DiagnosticStatus.OK and (self.gates.total or self.publisher_watch.extra or self.imu_interleave.episodes):
             level = DiagnosticStatus.WARN  # refused inputs, or a second publisher (the message still says the state)
+        elif self.imu_starved and self.al is None:
+            level = DiagnosticStatus.WARN  # it cannot start (the message says WAITING)
         values: dict[str, Any] = {"method": self.config.method, "epochs": self.epochs, "rejected_fixes": self.rejected}
         values.update({f"rejected/{k}": n for k, n in sorted(self.rejected_by_reason.items())})
         values.update({"fixes_done_ns": "none" if self.fixes_done_ns is None else str(self.fixes_done_ns),
@@ -922,6 +1003,8 @@ class IfaNode(Node):
                        "imu_start_gap_s": f"{self.imu_start_gap_s:.6g}",
                        "numerical_failures": self.numerical_failures, "last_failure": self.last_failure,
                        "start": self.start_source, "joined_running_session": "true" if self.joined_running_graph else "false"})
+        if self.start_source == "gnss_fix":
+            values.update({"start_level": self.start_level, "start_level_sigma_deg": f"{self.start_level_sigma_deg:.3g}"})
         if self.datum_llh is not None:  # the session's frame: a restarted pos_master_node takes it (its sources module)
             d = self.datum_llh
             values["datum_deg"] = f"{d[0] / DEG:.10f} {d[1] / DEG:.10f} {d[2]:.4f}"
@@ -929,6 +1012,8 @@ class IfaNode(Node):
         values.update(self.publisher_watch.values())
         if self.imu_interleave.episodes:
             values["imu_interleaved"] = self.imu_interleave.episodes
+        if self.imu_starved:
+            values["imu_starved"] = "true"
         al, rec = self.al, self.last_record
         if al is not None:
             values.update({"hypotheses_failed": al.hypotheses_failed, "chol_jitter_repairs": al.chol_jitter_repairs,
