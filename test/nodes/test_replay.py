@@ -86,8 +86,18 @@ def test_replay_through_the_graph_equals_dpos_process(tmp_path: Path) -> None:
 
 
 def test_finalize_through_the_service(tmp_path: Path) -> None:
-    """Without /session/end, the finalize service ends the session."""
+    """Without /session/end, the finalize service ends the session: the session up to the last
+    stamp the node has received when it is called, so the test calls it once the node's status
+    counts every message of the bag (dpos-play returns when the readers acknowledged them; the
+    node may still be taking them from its queues on a loaded machine)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from dpos_ros.contract import topics as T
+    from dpos_ros.contract.qos import STATUS_QOS
+    from dpos_ros.io.session import message_counts
+
     b = _sim(tmp_path, 20.0)
+    want = {t: n for t, n in message_counts(b).items() if t in TOPICS and t != "/dpos/datum"}
     env = dict(os.environ)
     out = tmp_path / "svc"
     ta = _start_ta(out, env)
@@ -101,8 +111,19 @@ def test_finalize_through_the_service(tmp_path: Path) -> None:
             from rclpy.executors import SingleThreadedExecutor
 
             node = rclpy.create_node("finalize_client", context=ctx)
+            counts: dict[str, int] = {}
+
+            def on_status(msg: DiagnosticArray) -> None:
+                for st in msg.status:
+                    counts.update({kv.key[:-len("/count")]: int(kv.value) for kv in st.values if kv.key.endswith("/count")})
+
+            node.create_subscription(DiagnosticArray, T.TRANSFER_ALIGN_STATUS, on_status, STATUS_QOS)
             ex = SingleThreadedExecutor(context=ctx)
             ex.add_node(node)
+            end = time.monotonic() + 120
+            while any(counts.get(t, 0) < n for t, n in want.items()) and time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.2)
+            assert all(counts.get(t, 0) == n for t, n in want.items()), (counts, want)
             cli = node.create_client(Trigger, "/transfer_align_node/finalize")
             assert cli.wait_for_service(timeout_sec=30)
             fut = cli.call_async(Trigger.Request())
