@@ -18,6 +18,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .._attitude_kernel import quat_mul
+
 # columns of the per-step table (one row per step k -> k + 1)
 C_DT = 0  # dt [s]
 C_LLH_I = 1  # the SINS's llh at the step's middle (3)
@@ -54,18 +56,6 @@ def _rotvec_quat(x: float, y: float, z: float) -> tuple[float, float, float, flo
         w = math.cos(0.5 * a)
         s = math.sin(0.5 * a) / a
     return w, s * x, s * y, s * z
-
-
-@nb.njit(cache=True, nogil=True, error_model="numpy")
-def _quat_mul(aw: float, ax: float, ay: float, az: float,
-              bw: float, bx: float, by: float, bz: float) -> tuple[float, float, float, float]:
-    """Hamilton product ``a * b`` (:func:`dpos_core.attitude.quat_mul`)."""
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
@@ -144,8 +134,8 @@ def rows_f(x: np.ndarray, c: np.ndarray, ec: np.ndarray, out: np.ndarray) -> Non
         aw, ax, ay, az = _rotvec_quat((dw0 - c[C_W_IN_I]) * dt, (dw1 - c[C_W_IN_I + 1]) * dt,
                                       (dw2 - c[C_W_IN_I + 2]) * dt)
         bw, bx, by, bz = _rotvec_quat((0.0 + wen0) * dt, (wie1 + wen1) * dt, (wie2 + wen2) * dt)
-        pw, px, py, pz = _quat_mul(aw, ax, ay, az, qw, qx, qy, qz)
-        q1w, q1x, q1y, q1z = _quat_mul(pw, px, py, pz, bw, bx, by, bz)
+        pw, px, py, pz = quat_mul(aw, ax, ay, az, qw, qx, qy, qz)
+        q1w, q1x, q1y, q1z = quat_mul(pw, px, py, pz, bw, bx, by, bz)
         # C = C(q) (the step's start attitude error), its transpose applied to f' and to C_nb' nab
         uw, ux, uy, uz = _normalize(qw, qx, qy, qz)
         c00 = 1 - 2 * (uy * uy + uz * uz)
