@@ -34,11 +34,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..attitude import skew
+from ..correlation import correlation_factor
 from ..errors import MountingNotObservable
 from ..series import ImuSeries
 from ..units import FloatArray
 from .clock import interval_means, running_integral
-from .mounting import _corr_factor
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, 
     bias = d.mean(axis=0) - K.mean(axis=0) @ r
     res = d - K @ r - bias
     s2 = float((res * res).sum()) / max(1, 3 * n - 6)
-    factor = _corr_factor(res)
+    factor = correlation_factor(res)
     cov = s2 * factor * np.linalg.inv(info)
     # the bias difference's variance: the mean's noise plus what r's error does to it
     Km = K.mean(axis=0)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..attitude import rotvec_to_dcm, skew
+from ..correlation import correlation_factor
 from ..errors import MountingNotObservable
 from ..units import DEG, FloatArray
 from .clock import attitude_rates, interval_means
@@ -64,21 +65,6 @@ def wahba(v_b: FloatArray, v_s: FloatArray) -> FloatArray:
     return U @ np.diag([1.0, 1.0, d]) @ Vt
 
 
-def _corr_factor(r: FloatArray, max_lag: int = 50) -> float:
-    """``1 + 2 sum rho_j`` of the residual components (the sum up to the first non-positive rho)."""
-    r = r - r.mean(axis=0)
-    den = float((r * r).sum())
-    if den <= 0:
-        return 1.0
-    tot = 0.0
-    for j in range(1, min(max_lag, r.shape[0] - 1)):
-        rho = float((r[j:] * r[:-j]).sum()) / den
-        if rho <= 0:
-            break
-        tot += rho
-    return 1.0 + 2.0 * tot
-
-
 def estimate_mounting(t_main_s: FloatArray, C_nb: FloatArray, t_sub_s: FloatArray, omega_sub: FloatArray,
                       min_rate_dps: float = 1.0, name: str = "sub-IMU") -> MountingEstimate:
     """Mounting of a sub-IMU whose stamps ``t_sub_s`` (M,) share the main solution's clock
@@ -112,7 +98,7 @@ def rotation_from_rates(vb: FloatArray, vs: FloatArray, min_rate_dps: float = 1.
     for vk in v:
         S = skew(vk)
         info += S.T @ S
-    factor = _corr_factor(r)
+    factor = correlation_factor(r)
     cov = s2 * factor * np.linalg.inv(info)
     rpy = rpy_from_dcm(C)
     J = np.zeros((3, 3))

@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 from dpos_core.units import DEG, FloatArray
 
 from ..chi2 import chi2_ppf
+from ..correlation import correlation_factor
 from ..filters.store import PerEpoch, blocks, in_memory
 from . import flags as F
 
@@ -387,24 +388,7 @@ def correlation_factors(qc: EpochQC | None, max_lag: int = CORRELATION_MAX_LAG) 
     ``nz``."""
     if qc is None or qc.nz is None or qc.nz.ndim != 2:
         return np.ones(0)
-    out = np.ones(qc.nz.shape[1])
-    for i in range(qc.nz.shape[1]):
-        z = qc.nz[:, i]
-        z = z[np.isfinite(z)]
-        if z.size < 3:
-            continue
-        z = z - z.mean()
-        den = float(z @ z)
-        if den <= 0.0:
-            continue
-        tot = 0.0
-        for j in range(1, min(max_lag, z.size - 1)):
-            rho = float(z[j:] @ z[:-j]) / den
-            if rho <= 0.0:
-                break
-            tot += rho
-        out[i] = 1.0 + 2.0 * tot
-    return out
+    return np.array([correlation_factor(z[np.isfinite(z)], max_lag) for z in qc.nz.T])
 
 
 def correlation_scale(qc: EpochQC | None, max_lag: int = CORRELATION_MAX_LAG) -> FloatArray:
