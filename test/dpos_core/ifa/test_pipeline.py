@@ -49,7 +49,7 @@ def _final_errors(seed: int, heading_err_deg: float, method: str, cfg: IfaFilter
 @pytest.mark.slow
 @pytest.mark.parametrize("heading_err_deg", [30.0, 90.0])
 def test_add2_aligns_from_a_large_heading_error(heading_err_deg: float) -> None:
-    """seed 1, 400 s: measured final |heading| errors 0.0013 deg (30) and 0.009 deg (90)."""
+    """seed 1, 400 s: measured final |heading| errors 0.005 deg (30) and 0.009 deg (90)."""
     err, res = _final_errors(1, heading_err_deg, "add2")
     assert abs(err[0]) < 0.05, err
     assert np.all(np.abs(err[1:]) < 0.02), err
@@ -97,17 +97,16 @@ def test_hypothesis_bank_prunes_and_reports_one_filter() -> None:
 
 
 @pytest.mark.slow
-def test_add2_vs_aekf_final_attitude_on_paper_ifa() -> None:
-    """Final |heading| error of ADD2 and AEKF from a 30 deg heading error, seeds 1-3 (see the
-    report for the numbers): both align; ADD2 is not worse than AEKF on the mean over seeds."""
-    e_add2, e_aekf = [], []
-    for seed in (1, 2, 3):
-        ea, ra = _final_errors(seed, 30.0, "add2")
-        ek, rk = _final_errors(seed, 30.0, "aekf")
-        e_add2.append(abs(ea[0]))
-        e_aekf.append(abs(ek[0]))
-        assert abs(ea[0]) < 0.05 and abs(ek[0]) < 0.1
-    assert np.mean(e_add2) <= np.mean(e_aekf) + 0.01
+def test_aekf_aligns_from_a_large_heading_error() -> None:
+    """The baseline AEKF from a 30 deg heading error, seed 1, 400 s (ADD2's run of the same:
+    test_add2_aligns_from_a_large_heading_error).  Which of the two ends closer on a seed is decided
+    by the R sequence each one's noise window picks, not by an ordering of the filters
+    (test_add2_vs_aekf.py; docs/ifa.md "ADD2 against AEKF")."""
+    err, res = _final_errors(1, 30.0, "aekf")
+    assert abs(err[0]) < 0.05, err
+    assert np.all(np.abs(err[1:]) < 0.02), err
+    assert res.aligned and res.aligned_t_s is not None and res.aligned_t_s > 20.0
+    assert not res.rejected
 
 
 def _short():

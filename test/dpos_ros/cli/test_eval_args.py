@@ -9,8 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_inprocess import run_main  # test/support/cli_inprocess.py
 
 from dpos_core.evaluation.ifa import RunResult
+from dpos_ros.cli.evaluate import main
 
 EXE = Path(sys.executable).parent / "dpos-eval"
 
@@ -32,12 +34,26 @@ EXE = Path(sys.executable).parent / "dpos-eval"
     ("paper_ifa", ["--initial-heading-error", "nan"], "--initial-heading-error must be a finite"),
 ])
 def test_bad_numbers_are_usage_errors(tmp_path: Path, scenario: str, args: list[str], needle: str) -> None:
+    """Each checked in-process (dpos-eval's main); the console script in
+    :func:`test_the_console_script_gives_the_usage_error`."""
     out = tmp_path / "eval"
-    r = subprocess.run([str(EXE), "--scenario", scenario, "--out", str(out), *args], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2, r.stdout + r.stderr
-    assert "Traceback" not in r.stderr and r.stderr.startswith("usage: dpos-eval"), r.stderr
-    assert r.stderr.strip().splitlines()[-1].startswith("dpos-eval: error: ") and needle in r.stderr, r.stderr
+    r = run_main(main, ["--scenario", scenario, "--out", str(out), *args])
+    _is_usage_error(r.returncode, r.stderr, needle)
     assert not out.exists()
+
+
+def test_the_console_script_gives_the_usage_error(tmp_path: Path) -> None:
+    out = tmp_path / "eval"
+    r = subprocess.run([str(EXE), "--scenario", "paper_su", "--out", str(out), "--duration", "-5"], capture_output=True, text=True, timeout=120)
+    _is_usage_error(r.returncode, r.stderr, "--duration must be > 0")
+    assert not out.exists()
+
+
+def _is_usage_error(returncode: int, stderr: str, needle: str) -> None:
+    """Exit 2, the usage, and one last ``dpos-eval: error:`` line holding ``needle``; no traceback."""
+    assert returncode == 2, stderr
+    assert "Traceback" not in stderr and stderr.startswith("usage: dpos-eval"), stderr
+    assert stderr.strip().splitlines()[-1].startswith("dpos-eval: error: ") and needle in stderr, stderr
 
 
 def test_no_epoch_has_no_convergence_time() -> None:

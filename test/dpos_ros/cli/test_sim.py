@@ -9,12 +9,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_inprocess import run_main  # test/support/cli_inprocess.py
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import NavSatFix
 from std_msgs.msg import Header
 
 from dpos_core.sim.scenario import load_scenario
 from dpos_core.sim.session import SimulatedSession
+from dpos_ros.cli.sim import main as sim_main
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.io import bag
@@ -120,9 +122,9 @@ def test_dpos_sim_rejects_bad_arguments(tmp_path: Path) -> None:
     (["--duration", "nan"], "--duration must be > 0"),
 ])
 def test_dpos_sim_rejects_bad_datum_and_duration(tmp_path: Path, args: list[str], needle: str) -> None:
-    """An impossible datum or duration is a usage error before anything is simulated."""
-    exe = str(Path(sys.executable).parent / "dpos-sim")
+    """An impossible datum or duration is a usage error before anything is simulated (dpos-sim's
+    main in-process; its console script's usage errors in test_dpos_sim_rejects_bad_arguments)."""
     out = tmp_path / "bag"
-    r = subprocess.run([exe, "--scenario", "paper_su", *args, "--out", str(out)], capture_output=True, text=True, timeout=60)
+    r = run_main(sim_main, ["--scenario", "paper_su", *args, "--out", str(out)])
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not out.exists()
