@@ -42,3 +42,28 @@ def test_a_height_that_leaves_the_vertical_speed_widens_both_there() -> None:
     assert 18.0 <= t[k] <= 24.0 and c.sigma_h_m[k] > 0.25
     np.testing.assert_allclose(c.sigma_vu_mps / 0.1, c.sigma_h_m / 0.1)  # both by the same factor
     assert np.all(c.sigma_h_m >= s)
+
+
+def test_a_disagreement_that_accumulates_over_a_span_is_covered_there() -> None:
+    """The height swings +-1 m over 16 to 40 s (8 s period) that the vertical speed does not have
+    (quad_mimu's path 1: 1 m within 2 s, 2 m within 6 s): a 2 s window sees at most about 1.4 m,
+    the span 2 m, which a filter integrating the speed over the span meets.  The widened sigmas
+    make the span's largest difference (between its extremes of h - int v_up dt) 2 sigmas, not
+    the window's, and leave the epochs far from it alone."""
+    t, h, v = _climb()
+    on = (t >= 16.0) & (t <= 40.0)
+    h = h + np.where(on, np.sin(2 * np.pi * (t - 16.0) / 8.0), 0.0)
+    s = np.full(t.size, 0.1)
+    c = vertical_consistency(t, h, v, s, s)
+    assert 1.9 < c.span_disagreement_m < 2.1 and c.span_disagreement_m > c.max_disagreement_m + 0.4, (c.span_disagreement_m, c.max_disagreement_m)
+    assert c.span_sigmas > c.max_sigmas
+    dt = np.diff(t)
+    D = h - np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)])
+    w = np.concatenate([[0.0], 0.5 * dt]) + np.concatenate([0.5 * dt, [0.0]])
+    for a, b in c.spans_s:
+        m = (t >= a) & (t <= b)
+        p, q = sorted((np.flatnonzero(m)[np.argmax(D[m])], np.flatnonzero(m)[np.argmin(D[m])]))
+        # the difference between the extremes within 2 of its widened sigma: both heights' and the speed's between
+        sig = np.sqrt(c.sigma_h_m[p] ** 2 + c.sigma_h_m[q] ** 2 + np.sum((c.sigma_vu_mps[p:q + 1] * w[p:q + 1]) ** 2))
+        assert abs(D[p] - D[q]) <= 2.0 * sig + 1e-9, (a, b, D[p] - D[q], sig)  # (the window's factor alone: 2.8 sigmas)
+    assert not c.widened[(t < 12.0) | (t > 44.0)].any()

@@ -13,17 +13,34 @@ averaged over common intervals of ``interval_s`` (:func:`dpos_core.imports.clock
 the airframe's vibration averaged out), ``omega`` is the mean of the two IMUs' rates, ``alpha``
 the central difference of the interval means over two intervals (a difference smoothed over
 ``2 interval_s``).  (1) stacked over the K intervals is linear in the 6 unknowns ``(r, d)`` and
-solved by least squares.
+solved by generalized least squares (below).
+
+The band: (1) holds for a rigid body; two IMUs strapped to an airframe are rigid with each other
+at the manoeuvres' frequencies, not at the vibration's (their mounts flex, their sensors' filters
+differ).  The default ``interval_s`` of 0.1 s (the triangle smoothing of 0.2 s: about 5 Hz and
+below) keeps (1) to the band where it holds; on quad_mimu a 0.025 s interval moves the estimates
+by up to 5 cm, far beyond their sigmas, while 0.075-0.2 s agree (docs/real.md, "Baselines").
 
 Observability: ``r`` is seen only where the body turns or accelerates angularly; with ``d``
 estimated, the centred design matrix's smallest singular value (rms over the intervals, 1/s^2)
-must reach ``min_excitation``, else :class:`MountingNotObservable` (no guess).
+must reach ``min_excitation``, else :class:`MountingNotObservable` (no guess).  The smoothing
+lowers the rms of ``alpha``: the same motion reads about a third less at 0.1 s than at 0.05 s
+(quad_mimu's path 1: 1.85 against 2.66 1/s^2, its weakest path 4: 0.38 against 0.59), hence the
+default of 0.3 (0.5 at 0.05 s before); a body that does not turn reads its gyro noise, about 0.02.
 
-Sigma: the residuals give the noise variance ``s^2`` (3K - 6 degrees of freedom); the residuals
-of neighbouring intervals are correlated (the smoothed difference shares samples, the vibration
-is coloured), so the covariance ``s^2 (A^T A)^-1`` is inflated by ``1 + 2 sum rho_j`` of the
-residuals' positive autocorrelations (K / that = the effective sample count), as for the
-mountings (:mod:`dpos_core.imports.mounting`).
+Sigma: the residuals' noise is not the same on the three axes, nor independent between them (on
+a multirotor the vibration along the thrust axis is several times that across it, and the two
+horizontal axes' residuals are correlated, -0.4 to -0.8 on quad_mimu); one variance pooled over
+the axes understates the sigma of the arm's horizontal components and overstates the vertical
+one.  So the residuals' 3 x 3 covariance ``S`` (``K - 2`` degrees of freedom per axis) weighs
+(1), ``r = (sum A_k^T S^-1 A_k)^-1 sum A_k^T S^-1 d_k`` (``A_k`` the centred design of interval
+k), iterated from ``S = I`` three times (Aitken's generalized least squares with the covariance
+estimated: feasible GLS), with ``cov(r) = (sum A_k^T S^-1 A_k)^-1`` inflated by ``1 + 2 sum
+rho_j`` of the whitened residuals' positive autocorrelations (K / that = the effective sample
+count), as for the mountings (:mod:`dpos_core.imports.mounting`).  The rotation ``C_ab`` is an
+estimate too: given its covariance (errors in variables), its error ``phi`` (a small rotation in
+a's axes) enters (1) as ``-[C_ab f_b x] phi`` and adds ``J P J^T`` to ``cov(r)``, ``J`` the
+solution's sensitivity to ``phi``.
 """
 
 from __future__ import annotations
@@ -47,11 +64,13 @@ class LeverArmEstimate:
 
     Attributes:
         r_m: (3,) lever arm [m].
-        r_sigma_m: (3,) its 1 sigma [m] (residuals, inflated for their correlation).
+        r_sigma_m: (3,) its 1 sigma [m] (residuals' covariance, inflated for their correlation, plus
+            the rotation's covariance when given).
         cov_m2: (3, 3) covariance of ``r_m`` [m^2].
         bias_diff_mps2: (3,) accelerometer bias difference ``d`` of (1) [m/s^2] and
         bias_diff_sigma_mps2: (3,) its 1 sigma.
         residual_mps2: rms of the residuals per axis, mean over the axes [m/s^2].
+        residual_cov_mps4: (3, 3) the residuals' covariance ``S`` that weighs (1) [(m/s^2)^2].
         excitation: the centred design's singular values (3,), rms [1/s^2] (observability).
         samples: intervals used; corr_factor: the variance inflation for correlated residuals.
     """
@@ -65,6 +84,7 @@ class LeverArmEstimate:
     excitation: FloatArray
     samples: int
     corr_factor: float
+    residual_cov_mps4: FloatArray
 
 
 def _triangle_means(t_s: FloatArray, x: FloatArray, edges: FloatArray, h: float) -> tuple[FloatArray, NDArray[np.bool_]]:
@@ -86,10 +106,13 @@ def _triangle_means(t_s: FloatArray, x: FloatArray, edges: FloatArray, h: float)
     return out, inside
 
 
-def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, interval_s: float = 0.05,
-                                  min_excitation: float = 0.5, name: str = "IMU pair") -> LeverArmEstimate:
+def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, interval_s: float = 0.1,
+                                  min_excitation: float = 0.3, name: str = "IMU pair",
+                                  C_ab_cov_rad2: FloatArray | None = None) -> LeverArmEstimate:
     """Lever arm of IMU b from IMU a by (1) (module docstring).  Both logs on one clock, each in its
-    own axes: ``a`` (N samples), ``b`` (M samples); C_ab (3, 3) b's axes -> a's.
+    own axes: ``a`` (N samples), ``b`` (M samples); C_ab (3, 3) b's axes -> a's, ``C_ab_cov_rad2``
+    (3, 3) its covariance as a small rotation in a's axes (``MountingEstimate.phi_cov_rad2`` of
+    :func:`dpos_core.imports.mounting.relative_rotation`), None = exact.
     ``min_excitation`` [1/s^2]: the smallest rms singular value of the centred design for ``r`` to
     count as observable.  Raises :class:`MountingNotObservable`."""
     t_a_s, f_a, omega_a = a.t_s, a.f_mps2, a.omega_radps
@@ -119,23 +142,33 @@ def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, 
     # centred design: r against the bias difference (the means of (1) over the intervals)
     Kc = K - K.mean(axis=0)
     dc = d - d.mean(axis=0)
-    A = Kc.reshape(3 * n, 3)
-    exc = np.linalg.svd(A, compute_uv=False) / np.sqrt(n)
+    exc = np.linalg.svd(Kc.reshape(3 * n, 3), compute_uv=False) / np.sqrt(n)
     if exc[-1] < min_excitation:
         raise MountingNotObservable(f"{name}: lever arm not observable: the angular motion excites (1) by rms {exc[0]:.3g}, "
                                     f"{exc[1]:.3g}, {exc[2]:.3g} 1/s^2 ({min_excitation:g} needed on all three)")
-    info = A.T @ A
-    r = np.linalg.solve(info, A.T @ dc.reshape(3 * n))
-    bias = d.mean(axis=0) - K.mean(axis=0) @ r
-    res = d - K @ r - bias
-    s2 = float((res * res).sum()) / max(1, 3 * n - 6)
-    factor = correlation_factor(res)
-    cov = s2 * factor * np.linalg.inv(info)
-    # the bias difference's variance: the mean's noise plus what r's error does to it
+    S = np.eye(3)
+    for _ in range(3):  # feasible GLS: the residuals' covariance weighs (1)
+        Si = np.linalg.inv(S)
+        info = np.einsum("kji,jl,klm->im", Kc, Si, Kc)
+        r = np.linalg.solve(info, np.einsum("kji,jl,kl->i", Kc, Si, dc))
+        res = dc - np.einsum("kij,j->ki", Kc, r)
+        S = res.T @ res / max(1, n - 2)
+    Si = np.linalg.inv(S)
+    info = np.einsum("kji,jl,klm->im", Kc, Si, Kc)
+    r = np.linalg.solve(info, np.einsum("kji,jl,kl->i", Kc, Si, dc))
+    res = dc - np.einsum("kij,j->ki", Kc, r)
+    factor = correlation_factor(np.linalg.solve(np.linalg.cholesky(S), res.T).T)  # whitened residuals
+    cov = factor * np.linalg.inv(info)
+    if C_ab_cov_rad2 is not None:  # errors in variables: the rotation's error through -[g x] phi
+        G = -np.asarray(skew(tb[keep, 0:3]), dtype=np.float64)
+        J = np.linalg.solve(info, np.einsum("kji,jl,klm->im", Kc, Si, G - G.mean(axis=0)))
+        cov = cov + J @ np.asarray(C_ab_cov_rad2, dtype=np.float64) @ J.T
     Km = K.mean(axis=0)
-    cov_d = s2 * factor / n * np.eye(3) + Km @ cov @ Km.T
+    bias = d.mean(axis=0) - Km @ r
+    # the bias difference's variance: the mean's noise plus what r's error does to it
+    cov_d = S * factor / n + Km @ cov @ Km.T
     return LeverArmEstimate(r, np.sqrt(np.diag(cov)), cov, bias, np.sqrt(np.diag(cov_d)),
-                            float(np.sqrt((res * res).mean(axis=0)).mean()), exc, n, factor)
+                            float(np.sqrt((res * res).mean(axis=0)).mean()), exc, n, factor, S)
 
 
 __all__ = ["LeverArmEstimate", "lever_arm_from_specific_force"]

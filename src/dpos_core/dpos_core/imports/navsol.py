@@ -263,6 +263,8 @@ class VerticalCheck:
         max_disagreement_m: the largest ``|dh - int v_up dt|`` over a window [m].
         max_sigmas: that disagreement's largest ratio to its sigma.
         spans_s: the widened spans (start, end) [s of ``t_s``].
+        span_disagreement_m: the largest ``|dh - int v_up dt|`` between two epochs of one widened
+            span [m] (0 when none is widened), and span_sigmas its ratio to its sigma.
     """
 
     sigma_h_m: FloatArray
@@ -271,6 +273,8 @@ class VerticalCheck:
     max_disagreement_m: float
     max_sigmas: float
     spans_s: list[tuple[float, float]]
+    span_disagreement_m: float = 0.0
+    span_sigmas: float = 0.0
 
 
 def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray, sigma_h_m: FloatArray, sigma_vu_mps: FloatArray,
@@ -283,7 +287,11 @@ def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray,
     ``|r| > bound_sigmas s`` the solution is inconsistent with itself - its height and its vertical
     speed cannot both be right - and both sigmas over the window's epochs are multiplied by
     ``|r| / (2 s)`` (the largest over the failing windows holding an epoch): the difference is then
-    2 sigmas, which does not say which of the two is wrong.  ``t_s`` (N,) [s], the others (N,)."""
+    2 sigmas, which does not say which of the two is wrong.  Within a widened span the disagreement
+    may accumulate beyond one window (quad_mimu's path 1: 1 m over 2 s, 2 m over 6 s), and a filter
+    or smoother integrates the speed over the whole span: the span's largest difference, between
+    its epochs where ``h - int v_up dt`` is highest and lowest, is made 2 sigmas too (the larger
+    factor wins).  ``t_s`` (N,) [s], the others (N,)."""
     t = np.asarray(t_s, dtype=float)
     h = np.asarray(h_m, dtype=float)
     vu = np.asarray(v_up_mps, dtype=float)
@@ -311,10 +319,22 @@ def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray,
         factor[a:b + 1] = np.maximum(factor[a:b + 1], z[k] / 2.0)
     widened = factor > 1.0
     spans: list[tuple[float, float]] = []
+    span_r, span_z = 0.0, 0.0
     if widened.any():
         edges = np.flatnonzero(np.diff(np.concatenate([[0], widened.astype(int), [0]])))
+        # within a widened span the disagreement accumulates beyond one window (a filter integrates the speed
+        # over the whole span): its largest, between the span's two epochs where D = h - int v_up dt is
+        # highest and lowest, against its sigma, sets the span's factor too
+        D = h - integ
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            p, q = sorted((a + int(np.argmax(D[a:b])), a + int(np.argmin(D[a:b]))))
+            if q > p:
+                r_pq = abs(float(D[q] - D[p]))
+                z_pq = r_pq / float(np.sqrt(sh[p] ** 2 + sh[q] ** 2 + (var_int[q + 1] - var_int[p])))
+                factor[a:b] = np.maximum(factor[a:b], z_pq / 2.0)
+                span_r, span_z = max(span_r, r_pq), max(span_z, z_pq)
         spans = [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    return VerticalCheck(sh * factor, sv * factor, widened, float(np.abs(r).max()), float(z.max()), spans)
+    return VerticalCheck(sh * factor, sv * factor, widened, float(np.abs(r).max()), float(z.max()), spans, span_r, span_z)
 
 
 def _iso(t_ns: int) -> str:

@@ -173,7 +173,8 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
         sources["height and vertical speed"] = (
             f"widened at {int(vc.widened.sum())} of {n} epochs ({spans} s): the height and the integral of the vertical speed "
             f"disagree by up to {vc.max_disagreement_m:.2f} m over {VERTICAL_WINDOW_S:g} s ({vc.max_sigmas:.1f} sigmas; "
-            f"beyond {VERTICAL_BOUND_SIGMAS:g} the solution is inconsistent with itself)")
+            f"beyond {VERTICAL_BOUND_SIGMAS:g} the solution is inconsistent with itself; within a span up to "
+            f"{vc.span_disagreement_m:.2f} m, {vc.span_sigmas:.1f} sigmas)")
     else:
         sources["height and vertical speed"] = (f"consistent (the height against the integral of the vertical speed over "
                                                 f"{VERTICAL_WINDOW_S:g} s: at most {vc.max_sigmas:.1f} sigmas)")
