@@ -76,10 +76,12 @@ def test_graph_is_read() -> None:
 
 
 # The simulator's callers: the evaluation room (Monte Carlo on simulated sessions, every module of
-# dpos_core.evaluation), the simulated devices and the commands that simulate.  Nothing else.
+# dpos_core.evaluation), the simulated devices' sessions and streams and the commands that simulate.
+# Nothing else: not the stream publisher (dpos_ros.devices.sim_device), which transfer_align_node uses
+# for its antenna poses and which would load the simulator (scipy.interpolate, ~0.7 s of CPU) into it.
 EVALUATION = "dpos_core.evaluation"
 SIM_CALLERS = {
-    "dpos_ros.devices.sim_device",
+    "dpos_ros.devices.sim_session",
     "dpos_ros.devices.sim_streams",
     "dpos_ros.products.ifa",
     "dpos_ros.cli.sim",

@@ -27,7 +27,7 @@ from dpos_core.units import DEG
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS
-from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_session import load_sim_session
 
 pytestmark = pytest.mark.ros
 

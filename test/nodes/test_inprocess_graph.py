@@ -28,7 +28,7 @@ from ros_wait import spin_until, stop_and_destroy  # test/support/ros_wait.py
 
 from dpos_ros.contract.qos import NAV_QOS, STATUS_QOS, qos_profile
 from dpos_ros.contract.topics import message_class
-from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.devices.sim_streams import TopicStream, device_streams, session_id
 from dpos_ros.io import spill
 

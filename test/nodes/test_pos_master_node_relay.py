@@ -33,7 +33,7 @@ from dpos_core.units import DEG
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.devices.relay import rotation_from_rpy_deg
-from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.runtime.params import ParameterError
 
 pytestmark = pytest.mark.ros

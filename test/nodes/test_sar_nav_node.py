@@ -40,7 +40,7 @@ from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import NAV_QOS, SENSOR_QOS, STATUS_QOS
 from dpos_ros.contract.topics import message_class
-from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.devices.sim_streams import device_streams
 from dpos_ros.products.sar import run, session_inputs
 from dpos_ros.runtime.params import ParameterError

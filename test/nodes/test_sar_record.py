@@ -11,7 +11,7 @@ from node_process import START_TIMEOUT_S, STOP_TIMEOUT_S  # test/support/node_pr
 
 from dpos_ros.cli.sar import main as dpos_sar
 from dpos_ros.contract import topics as T
-from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.devices.sim_streams import device_streams
 from dpos_ros.io.bag import read_raw
 

@@ -25,7 +25,7 @@ from sensor_msgs.msg import Imu, NavSatFix
 from dpos_ros.contract import cdr
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS, SENSOR_QOS, STATUS_QOS
-from dpos_ros.devices.sim_device import load_sim_session
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.devices.sim_streams import TopicStream, device_streams
 
 TIMEOUT_S = 60.0

@@ -91,7 +91,8 @@ from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.qos import DATUM_QOS, NAV_QOS
 from dpos_ros.devices.relay import DeviceRelay, Route, rotation_from_rpy_deg
-from dpos_ros.devices.sim_device import SimDevice, Tap, load_sim_session
+from dpos_ros.devices.sim_device import SimDevice, Tap
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.devices.sim_streams import device_streams, session_id
 from dpos_ros.io.flow import ArrivalAge
 from dpos_ros.io.streams import TopicStream

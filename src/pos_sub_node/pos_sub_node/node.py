@@ -36,7 +36,8 @@ from dpos_core.config import ConfigError, load_aircraft
 from dpos_ros.contract import topics as T
 from dpos_ros.contract.conversions import sub_imu_frame
 from dpos_ros.devices.relay import DeviceRelay, Route, rotation_from_rpy_deg
-from dpos_ros.devices.sim_device import SimDevice, load_sim_session
+from dpos_ros.devices.sim_device import SimDevice
+from dpos_ros.devices.sim_session import load_sim_session
 from dpos_ros.devices.sim_streams import device_streams, session_id
 from dpos_ros.io.flow import use_device_fastdds_profile
 from dpos_ros.runtime.node_main import run_node

@@ -116,9 +116,6 @@ from numpy.typing import NDArray
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile
 
-from dpos_core.config import ConfigError, load_aircraft
-from dpos_core.sim.scenario import load_scenario
-from dpos_core.sim.session import SimulatedSession
 from dpos_ros.contract.qos import qos_profile
 from dpos_ros.contract.topics import SESSION_END, message_class
 from dpos_ros.io.flow import (
@@ -130,9 +127,8 @@ from dpos_ros.io.flow import (
     writer_qos,
 )
 from dpos_ros.io.streams import TopicStream, merged_order
-from dpos_ros.runtime.params import ParameterError
 
-__all__ = ["SimDevice", "StreamBatches", "StreamInfo", "Tap", "load_sim_session", "use_device_fastdds_profile"]
+__all__ = ["SimDevice", "StreamBatches", "StreamInfo", "Tap", "use_device_fastdds_profile"]
 
 
 @dataclass(frozen=True)
@@ -178,33 +174,6 @@ class StreamBatches:
 
     topics: Sequence[StreamInfo]
     batches: Callable[[], Iterable[Sequence[TopicStream]]]
-
-
-def load_sim_session(scenario: str, aircraft_config: str, seed: int, duration_s: float) -> Any:
-    """The :class:`~dpos_core.sim.session.SimulatedSession` of a device node's parameters.
-
-    ``aircraft_config`` '' = the scenario's own aircraft; ``duration_s`` 0 = the whole scenario.
-    Cheap: samples are generated lazily. Raises :class:`~dpos_ros.runtime.params.ParameterError` naming
-    the parameter (``scenario``, ``aircraft_config``, ``duration`` or ``seed``).
-    """
-    if aircraft_config:
-        try:
-            load_aircraft(aircraft_config)
-        except ConfigError as exc:
-            raise ParameterError("aircraft_config", aircraft_config, str(exc)) from None
-    try:
-        sc = load_scenario(scenario, aircraft=aircraft_config or None)
-    except ConfigError as exc:
-        raise ParameterError("scenario", scenario, str(exc)) from None
-    if duration_s > sc.duration_s:
-        raise ParameterError(
-            "duration", duration_s, f"longer than scenario {sc.name!r} ({sc.duration_s:g} s); 0 = the whole scenario"
-        )
-    try:
-        return SimulatedSession(sc, seed, duration_s if duration_s > 0 else None)
-    except (ConfigError, ValueError) as exc:
-        name = "seed" if "seed" in str(exc) else "duration"
-        raise ParameterError(name, seed if name == "seed" else duration_s, str(exc)) from None
 
 
 class SimDevice:
