@@ -334,6 +334,8 @@ class IfaFilterConfig:
     def axis_states(self) -> bool:
         """``gyro_axis_errors`` resolved."""
         if self.gyro_axis_errors == "auto":
+            if self.imu.gyro_axis_errors != "auto":  # the IMU grade's choice (imu_presets.yaml)
+                return self.imu.gyro_axis_errors == "states"
             return self.imu.gyro_scale_ppm > 100.0 or self.imu.gyro_misalignment_mrad > 0.1
         return self.gyro_axis_errors == "states"
 
