@@ -64,7 +64,6 @@ def test_a_converging_mems_run_aligns_with_its_heading_inside_the_sigma(mems):
     _, ss, *_ = mems
     res = _run(mems)
     assert res.aligned_t_s is not None and 50.0 < res.aligned_t_s < 120.0, res.aligned_t_s
-    assert 65.0 < _run(mems, None, standstill_updates=False).aligned_t_s < 120.0
     k = int(np.searchsorted(res.epochs_s, res.aligned_t_s))
     i = np.searchsorted(res.t_s, res.epochs_s[k:])
     h = hpr_from_C_nb(res.C_nb[i])[:, 0]
