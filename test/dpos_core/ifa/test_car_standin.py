@@ -45,7 +45,7 @@ def car():
                          level="auto", imu_model=cfg.imu)
         if lv is not None and lv.sigma_rad is not None and np.degrees(lv.sigma_rad) > cfg.level_sigma_deg:
             cfg = replace(cfg, level_sigma_deg=float(np.degrees(lv.sigma_rad)))  # as dpos-ifa does
-        res = run(imu, gnss, lever, cfg, "add2", init)
+        res = run(imu, gnss, lever, cfg, "add2", init, record_smoother=True)
     tr = ss.truth("master", np.arange(1.0, float(imu.t_s[-1]) - 1.0, 0.25))
     rep = compare(res, Reference(tr.t_s, tr.llh, tr.vel_n_mps, np.zeros((tr.t_s.size, 3))), OUTAGE_S)
     return cfg, res, rep
@@ -64,6 +64,25 @@ def test_aligns_using_the_standstill(car):
     assert rest.size >= 20 and rest.max() < 32.5, rest
     assert all(c == ("zaru",) for c, r in zip(res.constraints, res.at_rest) if r == 1.0)
     assert rep.aligned_t_s is not None and rep.aligned_t_s < 100.0 and res.restarts == 0 and not res.rejected
+
+
+def test_the_fine_restart_keeps_the_vertical_gyro_bias_from_the_rest(car):
+    """The end of the coarse phase restarts the attitude and bias covariance from the priors, except
+    the gyro bias about Up, which keeps the variance the ZARU at rest gave (plus the bias walk since):
+    with it reset to the preset's 0.2 deg/s the fine phase's heading error leaked into the vertical
+    bias (docs/ifa.md, "ZUPT and ZARU")."""
+    cfg, res, _ = car
+    e = res.engine
+    (step,) = [s for s in e.smoother_steps if s.restart is not None]
+    ie, _ = e.model.bias_index
+    B = step.restart[1][ie, ie]
+    u = res.C_nb[int(np.searchsorted(res.t_s, step.t_s))][2]  # Up in IMU axes at the restart
+    prior_dps = cfg.imu.gyro_bias_deg_h / 3600.0  # the preset's turn-on bias, 0.2 deg/s
+    sig_up = np.degrees(np.sqrt(u @ B @ u))
+    assert sig_up < 0.01 * prior_dps, sig_up  # deg/s: the rest's, not the prior's
+    w, V = np.linalg.eigh(B)
+    assert np.allclose(np.degrees(np.sqrt(w[1:])), prior_dps, rtol=1e-6), np.degrees(np.sqrt(w))  # the other two: the prior
+    assert abs(V[:, 0] @ u) > 1.0 - 1e-9
 
 
 def test_errors_inside_three_sigma(car):
