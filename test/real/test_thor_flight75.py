@@ -3,8 +3,8 @@ Minnesota "Thor", 50 Hz MEMS IMU, 1 Hz GPS, the onboard 15-state EKF as a compar
 truth; MIT licence, data/real/thor_flight75/README.md and LICENSE).
 
 The run as #31 sets it (the peer's settings): the IMU samples with the onboard biases added back, every new GPS fix from the first at 22 s, sigmas
-3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet) and
-``gyro_axis_errors: noise`` - the settings of walk_0827, only the installation differs - the start
+3 / 6 m and 0.5 / 1.0 m/s, no lever arm, the ``automotive_mems`` preset (no datasheet) and the
+defaults - the settings of walk_0827, only the installation differs - the start
 at the first fix on the ground (``start(level="auto")``); attitude scored 271-577 s against the
 onboard EKF; three 30 s outages 200, 350 and 500 s after the first fix, scored against the
 withheld fixes.  Figures (docs/ifa.md, beside the peer's) are printed with ``-s``."""
@@ -56,10 +56,10 @@ def _sel(g: GnssSeries, m: np.ndarray) -> GnssSeries:
 
 
 def _config(**kw) -> IfaFilterConfig:
-    """The filter settings of every real automotive MEMS recording (data/real/walk_0827/ifa_node.yaml:
-    the preset, ``gyro_axis_errors: noise``) with this receiver's sigmas."""
+    """The filter settings of every real automotive MEMS recording (data/real/walk_0827/ifa_node.yaml):
+    the ``automotive_mems`` preset and the defaults, with this receiver's sigmas."""
     return IfaFilterConfig(imu=imu_model({"preset": "automotive_mems"}, "thor_flight75"), gnss_pos_sigma_m=(3.0, 3.0, 6.0),
-                           gnss_vel_sigma_mps=(0.5, 0.5, 1.0), gyro_axis_errors="noise", **kw)
+                           gnss_vel_sigma_mps=(0.5, 0.5, 1.0), **kw)
 
 
 @pytest.fixture(scope="module")
@@ -129,8 +129,9 @@ def test_outages_in_flight_against_the_withheld_fixes(thor):
     figs = _outage_figures(out["outages"], gnss, outages, "forward")
     ends, afters = [f[0] for f in figs], [f[2] for f in figs]
     # the peer (default): 242.9 / 0.67, 90.1 / 3.47, 127.2 / 1.53 m (docs/ifa.md has ours beside);
-    # measured 95.0 / 0.20, 57.9 / 3.53, 33.2 / 0.42 m, every withheld fix inside 3 sigma
-    assert ends[0] < 125.0 and ends[1] < 90.1 and ends[2] < 60.0, ends
+    # measured 89.9 / 0.18, 52.3 / 3.53, 25.2 / 0.50 m, every withheld fix inside 3 sigma; the bounds are
+    # the figures with the standstill updates off (95.0 / 57.9 / 33.2 m): the default must not be worse
+    assert ends[0] < 95.0 and ends[1] < 57.9 and ends[2] < 33.2, ends
     assert max(afters) < 5.0, afters
     assert min(f[3] for f in figs) >= 0.95, figs
 
@@ -143,9 +144,10 @@ def test_started_in_flight_with_a_30_deg_heading_error(thor):
     m = gnss.t_s >= 300.0
     g = _sel(gnss, m)
     j = int(np.searchsorted(t, g.t_s[0]))
-    init, _ = start(imu, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto",
-                    imu_model=imu_model({"preset": "automotive_mems"}, "thor_flight75"))
-    c = _config(level_sigma_deg=5.8)  # a level from flight
+    cfg = _config()
+    init, lv = start(imu, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto", imu_model=cfg.imu)
+    # a level from flight: its sigma is what the motion can leave in it (as dpos-ifa takes it)
+    c = cfg if lv is None or lv.sigma_rad is None else replace(cfg, level_sigma_deg=max(cfg.level_sigma_deg, np.degrees(lv.sigma_rad)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = run(imu, g, np.zeros(3), c, "add2", init)
@@ -248,8 +250,8 @@ def test_standstill_on_the_ground_before_take_off(thor):
 
 
 def test_standstill_updates_on_the_ground(thor):
-    """#31 part 2 with the standstill updates on (``standstill_updates``: ZUPT and ZARU about the
-    vertical at the GNSS epochs found at rest; off by default, docs/ifa.md): run to take-off (211 s).
+    """#31 part 2, the standstill updates as by default (``standstill_updates``: ZARU about the
+    vertical at the GNSS epochs found at rest; docs/ifa.md) and off: run to take-off (211 s).
     The epochs at rest are the ground's stops (the detector at 10x the preset's noise: T 15-300 at
     rest, 3e3-1e5 taxiing); the gyro bias at take-off is the rest's mean rate on every axis, the
     heading axis's too (without ZARU it is 0.05 deg/s off); the level at take-off is the onboard
@@ -275,12 +277,13 @@ def test_standstill_updates_on_the_ground(thor):
     k = int(np.searchsorted(t, res.t_s[-1]))
     lvl = np.degrees(hpr_from_C_nb(res.C_nb[-1]))[1:]
     cn = res.constraint_nis[np.isfinite(res.constraint_nis)]
+    dim = (3 if c.zupt else 0) + (1 if c.zaru else 0)  # rows of the update (c: the last run's, off: the same rows)
     print(f"standstill updates on the ground: {rest.sum()} of {rest.size} epochs at rest, {sum(bool(c) for c in res.constraints)} "
-          f"updated, constraint NIS mean {cn.mean():.2f} (dimension 4); gyro bias at take-off {np.round(b_on, 3)} deg/s (off: "
+          f"updated, constraint NIS mean {cn.mean():.2f} (dimension {dim}); gyro bias at take-off {np.round(b_on, 3)} deg/s (off: "
           f"{np.round(b_off, 3)}), the rest's mean rate {np.round(b_rest, 3)}; level at take-off {np.round(lvl, 2)} deg (off: "
           f"{np.round(np.degrees(hpr_from_C_nb(found[False].C_nb[-1]))[1:], 2)}), onboard {np.round(onboard[k, 1:], 2)}")
     assert rest.sum() >= 60 and not np.any(found[False].constraint_nis == found[False].constraint_nis)  # off: none applied
     assert np.all(np.abs(b_on - b_rest) < 0.01), (b_on, b_rest)
     assert abs(b_off[2] - b_rest[2]) > 0.03, (b_off, b_rest)
     assert np.all(np.abs(lvl - onboard[k, 1:]) < 2.3), (lvl, onboard[k, 1:])  # 2 asin(b / g) of the preset's 20 mg
-    assert 2.0 < cn.mean() < 8.0, cn.mean()
+    assert 0.5 * dim < cn.mean() < 2.0 * dim, (cn.mean(), dim)

@@ -79,7 +79,7 @@ def test_heading_is_steady_against_the_course(walk):
 def test_smoothed_beats_the_peers_post_processed_runs(walk):
     """The forward-backward (RTS) main POS (dpos-ifa --smooth) against the 4 Hz RTK, the peer's
     protocol (docs/ifa.md, "The smoothed main POS"): measured before rms / max 0.026 / 0.09 m,
-    during mean / max 0.090 / 0.17 m, after rms / max 0.019 / 0.07 m, every error inside 3 sigma.
+    during mean / max 0.091 / 0.16 m, after rms / max 0.019 / 0.07 m, every error inside 3 sigma.
     The peer (rtklibexplorer/GNSS_IMU on this recording), forward + velocity matching: 0.140 / 0.82,
     0.147 / 0.25, 0.024 / 0.08 m; forward + backward combined: 0.384 / 0.61, 0.43 / 0.79, 0.371 / 0.53 m."""
     res, rep, imu, ref = walk
@@ -88,16 +88,15 @@ def test_smoothed_beats_the_peers_post_processed_runs(walk):
     assert e["before"]["rms"] < 0.140 and e["before"]["max"] < 0.61
     assert e["during"]["mean"] < 0.147 and e["during"]["max"] < 0.25
     assert e["after"]["rms"] < 0.024 and e["after"]["max"] < 0.08
-    assert e["during"]["max"] < 0.2 * f["during"]["max"]  # bridged from both ends (forward: 2.00 m)
+    assert e["during"]["max"] < 0.2 * f["during"]["max"]  # bridged from both ends (forward: 1.45 m)
     assert min(srep.inside_3sigma.values()) >= 0.95
 
 
 def test_honest_covariance_before_during_after_the_outage(walk):
     """#31 part 6: at least 0.95 of the errors inside 3 sigma (E, N, U together, with the reference's
     own sigma) before, during and after the outage, forward and smoothed, with the preset alone (the
-    parameter file sets the installation, the receiver's sigmas and ``gyro_axis_errors: noise``, the
-    setting of every real automotive MEMS recording).  Measured: forward 0.97 / 1.00 / 1.00,
-    smoothed 1.00 / 1.00 / 1.00."""
+    parameter file sets the installation and the receiver's sigmas; the rest is the
+    ``automotive_mems`` preset's).  Measured: forward 0.97 / 1.00 / 0.996, smoothed 1.00 / 1.00 / 1.00."""
     res, rep, imu, ref = walk
     for label, r in (("forward", res), ("smoothed", as_result(res, smooth(res, imu).nav))):
         full = compare(r, ref, OUTAGE_S)
@@ -110,22 +109,24 @@ def test_honest_covariance_before_during_after_the_outage(walk):
 
 
 def test_standstill_updates_at_the_start_and_the_end(walk):
-    """#31 part 2 with the standstill updates on (``standstill_updates``, off by default; docs/ifa.md):
-    the walker stands for ~10 s at the start and ~17 s at the end; those epochs (and only those) are
-    at rest and get ZUPT and ZARU.  Forward, the error before the outage falls (measured max 0.20 m
-    against 0.85 m without: the level and velocity are pinned before the walk starts) and it aligns
-    earlier (32 s against 51 s); the covariance stays honest."""
-    res_off, rep_off, imu, ref = walk
+    """#31 part 2, the standstill updates as by default (``standstill_updates``: ZARU about the
+    vertical; docs/ifa.md) against off: the walker stands for ~10 s at the start and ~17 s at the
+    end; those epochs (and only those) are at rest and get the ZARU.  With the vertical gyro bias
+    from the rest it aligns earlier (measured 32 s against 51 s) and the outage's error falls
+    (max 1.45 m against 2.00 m); before and after the outage as off; the covariance stays honest."""
+    res, rep, imu, ref = walk
     node_cfg = IfaConfig.from_params_file(DATA / "ifa_node.yaml")
     vehicle = load_aircraft(Path(__file__).resolve().parents[2] / node_cfg.aircraft_config)
     pos = read_pos(DATA / "gnss_1730_sf.pos")
     origin = int(read_imu_csv(DATA / "imu_1730.csv", tag=read_tag(DATA / "imu_1730.csv.tag")).t_ns[0])
     g = pos.series(origin, decimate_mask(pos.t_ns, 1.0) & outage_mask(pos.t_ns, [OUTAGE_S], origin))
-    cfg = replace(node_cfg.core_config(vehicle.master_imu), standstill_updates=True)
+    cfg = node_cfg.core_config(vehicle.master_imu)
+    assert cfg.standstill_updates and cfg.zaru and not cfg.zupt  # the defaults
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        res = run(imu, g, vehicle.gnss_lever_arm_m, cfg, "add2", initial_state(imu, g, min_course_speed_mps=0.0))
-    rep = compare(res, ref, OUTAGE_S)
+        res_off = run(imu, g, vehicle.gnss_lever_arm_m, replace(cfg, standstill_updates=False), "add2",
+                      initial_state(imu, g, min_course_speed_mps=0.0))
+    rep_off = compare(res_off, ref, OUTAGE_S)
     t_rest = res.epochs_s[res.at_rest == 1.0]
     e, e0 = rep.horizontal_error_m, rep_off.horizontal_error_m
     print(f"standstill updates: {t_rest.size} epochs at rest ({t_rest.min():.0f}-{t_rest[t_rest < 60].max():.0f} s, "
@@ -134,7 +135,9 @@ def test_standstill_updates_at_the_start_and_the_end(walk):
           f"{e0['before']['max']:.2f}), during mean / max {e['during']['mean']:.2f} / {e['during']['max']:.2f} (off "
           f"{e0['during']['mean']:.2f} / {e0['during']['max']:.2f}), after rms {e['after']['rms']:.3f} (off {e0['after']['rms']:.3f})")
     assert 15 <= t_rest.size and np.all((t_rest < 11.0) | (t_rest > 114.0)), t_rest
-    assert all(c == ("zupt", "zaru") for c, r in zip(res.constraints, res.at_rest) if r == 1.0)
-    assert e["before"]["max"] < 0.5 * e0["before"]["max"] and e["before"]["rms"] < e0["before"]["rms"]
-    assert e["during"]["max"] < 5.0 and e["after"]["rms"] < 0.15
+    assert all(c == ("zaru",) for c, r in zip(res.constraints, res.at_rest) if r == 1.0)
+    assert not any(res_off.constraints)
+    assert rep.aligned_t_s < rep_off.aligned_t_s - 10.0
+    assert e["during"]["max"] < 0.8 * e0["during"]["max"] and e["during"]["mean"] < e0["during"]["mean"]
+    assert e["before"]["rms"] < 1.1 * e0["before"]["rms"] and e["after"]["rms"] < 1.1 * e0["after"]["rms"]
     assert min(rep.inside_3sigma.values()) >= 0.95, rep.inside_3sigma

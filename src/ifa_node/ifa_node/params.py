@@ -92,9 +92,9 @@ class IfaConfig:
     predict_interval_s: float = param(1.5, "time update alone after this long [s] without a fix (outages)", minimum=0.0, exclusive_minimum=True)
     restart_on_divergence: bool = param(True, "restart the alignment when the innovations diverge")
     bias_feedback: str = param("auto", "when bias estimates are fed back: auto (by the IMU grade), aligned, always", choices=BIAS_FEEDBACK)
-    gyro_axis_errors: str = param("auto", "gyro scale factor / misalignment as states or noise: auto (states for MEMS), states, noise",
-                                  choices=GYRO_AXIS_ERRORS)
-    standstill_updates: bool = param(False, "zero-velocity and zero-angular-rate updates at the GNSS epochs detected at rest (docs/ifa.md)")
+    gyro_axis_errors: str = param("auto", "gyro scale factor / misalignment as states or noise: auto (the IMU preset's choice, "
+                                          "else states for an uncalibrated MEMS unit), states, noise", choices=GYRO_AXIS_ERRORS)
+    standstill_updates: bool = param(True, "zero-angular-rate update about the vertical (ZARU) at the GNSS epochs detected at rest (docs/ifa.md)")
     nhc: bool = param(False, "non-holonomic constraint (a wheeled ground vehicle: no sideways or vertical body velocity)")
     outage_wait_s: float = param(0.25, "outage: make a due time update alone once IMU data this much [s] newer is here, and this long [s] in wall time",
                                  minimum=0.0, exclusive_minimum=True)

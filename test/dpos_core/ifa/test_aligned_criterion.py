@@ -56,11 +56,14 @@ def _run(mems, t_end: float | None = None, **kw):
 
 
 def test_a_converging_mems_run_aligns_with_its_heading_inside_the_sigma(mems):
-    """Aligned after the first turn (65-80 s; the acceleration at 30-45 s alone does not hold the
-    heading), the heading error at that epoch within 3 sigma and small from then on."""
+    """With the standstill updates (the default): the vertical gyro bias from the 30 s at rest (ZARU)
+    holds the heading the acceleration at 30-45 s gives, and it aligns before the first turn
+    (measured 54 s, heading error -1.75 deg, sigma 1.16 deg); without them only after the first
+    turn (65-80 s; measured 77 s).  The heading error at that epoch within 3 sigma and small from
+    then on."""
     _, ss, *_ = mems
     res = _run(mems)
-    assert res.aligned_t_s is not None and 65.0 < res.aligned_t_s < 120.0, res.aligned_t_s
+    assert res.aligned_t_s is not None and 50.0 < res.aligned_t_s < 120.0, res.aligned_t_s
     k = int(np.searchsorted(res.epochs_s, res.aligned_t_s))
     i = np.searchsorted(res.t_s, res.epochs_s[k:])
     h = hpr_from_C_nb(res.C_nb[i])[:, 0]
@@ -70,11 +73,14 @@ def test_a_converging_mems_run_aligns_with_its_heading_inside_the_sigma(mems):
 
 
 def test_a_run_that_does_not_converge_does_not_align(mems):
-    """Standing, then accelerating and driving straight (no turn, 0-62 s): the heading sigma dips
-    under the grade's reach during the acceleration and rises again - not ALIGNED; the same run with
-    the filter's GNSS noise 10x too small (NIS inconsistent, the fixed-noise DD2) is not ALIGNED either."""
-    assert _run(mems, 62.0).aligned_t_s is None
+    """Standing, then accelerating and driving straight (no turn, 0-62 s), without the standstill
+    updates (no vertical gyro bias from the rest, so the heading the acceleration gives drifts): the
+    heading sigma dips under the grade's reach during the acceleration and rises again - not
+    ALIGNED; the same run with the filter's GNSS noise 10x too small (NIS inconsistent, the
+    fixed-noise DD2) is not ALIGNED either."""
+    assert _run(mems, 62.0, standstill_updates=False).aligned_t_s is None
     sc, ss, imu, g, cfg, init = mems
+    cfg = replace(cfg, standstill_updates=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         tight = replace(cfg, gnss_pos_sigma_m=(0.05, 0.05, 0.1), gnss_vel_sigma_mps=(0.005, 0.005, 0.01))

@@ -53,7 +53,7 @@ def runs():
     for on in (True, False):
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            out[on] = run(imu, gnss, np.zeros(3), replace(cfg, standstill_updates=on), "add2", init, record_smoother=True)
+            out[on] = run(imu, gnss, np.zeros(3), replace(cfg, standstill_updates=on, zupt=True), "add2", init, record_smoother=True)
     return out
 
 

@@ -39,6 +39,8 @@ class ImuErrorModel:
     * ``*_scale_ppm``: scale-factor error (1 % = 10000 ppm), constant per session.
     * ``*_misalignment_mrad``: non-orthogonality / cross-axis sensitivity (1 % = 10 mrad), each of
       the six off-diagonal terms constant per session.
+    * ``gyro_axis_errors``: not a datasheet figure but the grade's model choice for the filters
+      (``noise`` in the MEMS presets: factory-calibrated units, docs/sensors.md).
 
     The mount rotation and the lever arms belong to the installation, not to the sensor: see
     :class:`~dpos_core.config.aircraft.SubImuConfig` and ``gnss_lever_arm_m``.  ``preset`` names
@@ -59,9 +61,17 @@ class ImuErrorModel:
     accel_bias_tau_s: float = 3600.0
     accel_scale_ppm: float = 0.0
     accel_misalignment_mrad: float = 0.0
+    #: how a filter carries this unit's gyro scale factors and misalignments (the grade's model
+    #: choice, :attr:`dpos_core.ifa.model.IfaFilterConfig.gyro_axis_errors`): ``states``, ``noise``
+    #: or ``auto`` (by the scale factor / misalignment; docs/sensors.md)
+    gyro_axis_errors: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.gyro_axis_errors not in ("auto", "states", "noise"):
+            raise ValueError(f"IMU error model: gyro_axis_errors must be auto, states or noise, got {self.gyro_axis_errors!r}")
         for k, v in self.__dict__.items():
+            if k == "gyro_axis_errors":
+                continue
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"IMU error model: {k} must be finite and >= 0, got {v}")
         for k in ("gyro_bias_tau_s", "accel_bias_tau_s"):
@@ -89,14 +99,14 @@ class ImuErrorModel:
         return self.gyro_bias_instability_deg_h > 0 or self.accel_bias_instability_ug > 0
 
 
-def _presets() -> dict[str, dict[str, float]]:
+def _presets() -> dict[str, dict[str, float | str]]:
     text = resources.files(__package__).joinpath("imu_presets.yaml").read_text(encoding="utf-8")
     data = yaml.safe_load(text)
     return {str(k): dict(v) for k, v in data.items()}
 
 
 #: grade presets (``imu_presets.yaml`` of this package): name -> ImuErrorModel fields
-IMU_PRESETS: dict[str, dict[str, float]] = _presets()
+IMU_PRESETS: dict[str, dict[str, float | str]] = _presets()
 
 
 def imu_model(data: dict | None, where: str) -> ImuErrorModel:

@@ -189,22 +189,24 @@ class IfaFilterConfig:
         gyro_axis_errors: how the gyro scale factors and misalignments enter: ``states`` (9 more
             states, 24 in all; estimated through the turns, not fed back), ``noise`` (attitude
             process noise proportional to each interval's rotation only, :meth:`IfaModel.Q`) or
-            ``auto`` (the default: ``states`` when the IMU's ``gyro_scale_ppm`` or
-            ``gyro_misalignment_mrad`` is above 100 ppm / 0.1 mrad, a MEMS unit: 5000 ppm is 0.9 deg
-            of heading per half turn, which white process noise cannot represent: it is coherent).
-            The rotation-proportional noise is there in both cases (with states: what they do not
-            explain).
+            ``auto`` (the default: the IMU model's own ``gyro_axis_errors``, the grade's choice in
+            its preset - ``noise`` for the MEMS presets, factory-calibrated real units, docs/sensors.md;
+            with none, ``states`` when its ``gyro_scale_ppm`` or ``gyro_misalignment_mrad`` is above
+            100 ppm / 0.1 mrad: 5000 ppm is 0.9 deg of heading per half turn, which white process
+            noise cannot represent: it is coherent).  The rotation-proportional noise is there in
+            both cases (with states: what they do not explain).
         restart_on_divergence: restart the alignment after a divergence (the bank of heading
             hypotheses again, from the latest fix's position and velocity and the current attitude).
         standstill_updates: at every GNSS epoch whose ``standstill_window_s`` of IMU samples before
             it pass the standstill test (:func:`~dpos_core.ifa.standstill.detect_standstill` with
             the IMU model's noise, ``standstill_noise_factor`` and the fix's speed), apply a
-            zero-velocity (ZUPT, ``zupt_sigma_mps``, if ``zupt``) and a zero-angular-rate (ZARU
-            about the vertical: the heading axis's gyro bias, if ``zaru``) update after the fix's
-            (:mod:`dpos_core.ifa.constraints`), gated by their NIS.  Off by default: on the three
-            recordings with a standstill no setting was better everywhere (docs/ifa.md, "ZUPT and
-            ZARU"): ZUPT + ZARU doubled mems_vehicle's outage error against its truth, ZUPT alone
-            made thor_flight75's first outage worse, ZARU alone is neutral on mems_vehicle.
+            zero-angular-rate update (ZARU about the vertical: the heading axis's gyro bias, if
+            ``zaru``) and a zero-velocity one (ZUPT, ``zupt_sigma_mps``, if ``zupt``) after the fix's
+            (:mod:`dpos_core.ifa.constraints`), gated by their NIS; the fine phase's restart keeps
+            the vertical gyro bias the rest gave.  On by default with ZARU alone: on thor_flight75,
+            walk_0827 and mems_vehicle it is no worse than off anywhere and better on the real
+            recordings; ZUPT (off by default) made thor_flight75's first outage 18 % worse
+            (docs/ifa.md, "ZUPT and ZARU").
         nhc: the non-holonomic constraint of a ground vehicle (lateral and vertical body velocity
             zero within ``nhc_sigma_mps``) at every GNSS epoch in motion, in the fine phase; off by
             default (aircraft, handheld): the IMU's axes must be the vehicle's.
@@ -246,8 +248,8 @@ class IfaFilterConfig:
     restart_on_divergence: bool = True
     bias_feedback: str = "auto"
     gyro_axis_errors: str = "auto"
-    standstill_updates: bool = False
-    zupt: bool = True
+    standstill_updates: bool = True
+    zupt: bool = False
     zaru: bool = True
     zupt_sigma_mps: float = 0.005
     standstill_window_s: float = 1.0
@@ -334,6 +336,8 @@ class IfaFilterConfig:
     def axis_states(self) -> bool:
         """``gyro_axis_errors`` resolved."""
         if self.gyro_axis_errors == "auto":
+            if self.imu.gyro_axis_errors != "auto":  # the IMU grade's choice (imu_presets.yaml)
+                return self.imu.gyro_axis_errors == "states"
             return self.imu.gyro_scale_ppm > 100.0 or self.imu.gyro_misalignment_mrad > 0.1
         return self.gyro_axis_errors == "states"
 

@@ -188,6 +188,9 @@ class _Engine:
         self.may_align = True  #: False while other heading hypotheses are alive
         self.fine = False  #: coarse (False) / fine (True) phase
         self.fine_t_s: float | None = None
+        #: (t_s, gyro-bias covariance block (3, 3)) after the last applied standstill update: what the
+        #: rest told about the vertical gyro bias, which the fine-phase restart keeps (:meth:`_epoch`)
+        self.rest_gyro: tuple[float, FloatArray] | None = None
         self.records: list[EpochRecord] = []
         self._nis_limit = chi2_quantile(cfg.nis_quantile, cfg.window * cfg.p) / cfg.window
         #: the smoother's record of every filter step (:class:`SmootherStep`), None unless ``record_smoother``
@@ -385,6 +388,10 @@ class _Engine:
             fac = divided_differences(x, S, shift)
             x = fac.y
             S = householder_tria(np.concatenate([fac.S1, fac.S2], axis=-1))
+        ie, _ = m.bias_index
+        if "zaru" in applied:
+            P_now = P if self.method == "aekf" else symmetrize(S @ S.T)
+            self.rest_gyro = (fix.t_s, P_now[ie, ie].copy())
         step = None
         if self.smoother_steps is not None:
             step = self._smoother_step(fix.t_s, m.t_s, pred, C_pred, shift, x, P if self.method == "aekf" else symmetrize(S @ S.T), c)
@@ -398,6 +405,18 @@ class _Engine:
                 P_cur = P if self.method == "aekf" else symmetrize(S @ S.T)
                 x_fine[gi] = x[gi]
                 P_fine[np.ix_(gi, gi)] = P_cur[np.ix_(gi, gi)]
+            if self.rest_gyro is not None:
+                # the gyro bias about the vertical seen at rest (ZARU) is not the coarse transient's: keep
+                # its estimate and the rest's variance along Up, grown by the bias walk since; the other
+                # directions restart from the prior (docs/ifa.md, "ZUPT and ZARU": without this the fine
+                # phase's heading error leaked into the vertical bias, with all three axes kept the level
+                # axes, tied at rest to the level and the accelerometer biases, made the attitude overconfident)
+                t_rest, B = self.rest_gyro
+                q_g, _ = cfg.imu.bias_walk_variance(max(fix.t_s - t_rest, 0.0))
+                u = m.strapdown.state.C_nb[2]  # Up in IMU axes
+                U = np.outer(u, u)
+                x_fine[ie] = U @ x[ie]
+                P_fine[ie, ie] = (np.eye(3) - U) @ P_fine[ie, ie] @ (np.eye(3) - U) + (float(u @ B @ u) + q_g) * U
             x, P = x_fine, P_fine
             S = chol(P)
             if step is not None:

@@ -83,8 +83,8 @@ def parser() -> argparse.ArgumentParser:
                          "auto (default): as raw at rest (standstill test), in motion with the GNSS acceleration removed and the level "
                          "sigma widened to what is left (dpos_core.ifa.standstill)")
     ap.add_argument("--standstill-updates", choices=("on", "off"),
-                    help="zero-velocity / zero-angular-rate updates at the epochs detected at rest (ifa_node's standstill_updates; "
-                         "default: as the parameter file, off unless it says otherwise; docs/ifa.md)")
+                    help="the zero-angular-rate update about the vertical (ZARU) at the epochs detected at rest (ifa_node's "
+                         "standstill_updates; default: as the parameter file, on unless it says otherwise; docs/ifa.md)")
     ap.add_argument("--nhc", action="store_true",
                     help="the non-holonomic constraint of a wheeled ground vehicle (ifa_node's nhc true): no sideways or vertical "
                          "body velocity; only with the IMU's axes the vehicle's (--input-rotation-rpy-deg)")
@@ -282,7 +282,8 @@ def main(argv: list[str] | None, load_config: ConfigLoader) -> int:
                 f" (standstill T {lv.standstill.statistic:.3g}, threshold {lv.standstill.threshold:.3g})")
                 + ("" if lv.sigma_rad is None else f", level sigma {lv.sigma_rad / DEG:.2f} deg")),
              f"- standstill: {int(np.nansum(res.at_rest))} of {res.at_rest.size} epochs at rest; constraint updates "
-             f"{'ZUPT + ZARU at rest' if cfg.standstill_updates else 'off'}{', NHC in motion' if cfg.nhc else ''}",
+             f"{' + '.join(n for n, on in (('ZUPT', cfg.zupt), ('ZARU', cfg.zaru)) if on) + ' at rest' if cfg.standstill_updates else 'off'}"
+             f"{', NHC in motion' if cfg.nhc else ''}",
              f"- rejected fixes: {len(res.rejected)}; warnings: {len(caught)}; processing {res.runtime_s:.2f} s for {data_s:.1f} s "
              f"of data (ratio {res.runtime_s / max(data_s, 1e-9):.4f})",
              f"- reference: {args.reference or 'the bag fixes'}; gnss_time_offset_s {offset_s * 1e3:+.1f} ms (GNSS stamps minus "
