@@ -18,7 +18,8 @@ VPY := $(VENV)/bin/python
 # core (half of a fresh install's time), but afterwards on every core, without the packages' own
 # test suites, which nothing imports (requirements.txt into a new venv: 60 s -> 32 + 8 s).
 PIP_INSTALL := $(VPY) -m pip install --no-compile
-COMPILE_VENV := $(VPY) -m compileall -q -j 0 -x '[/\\]tests?[/\\]' $(VENV)/lib
+VENV_NOT_COMPILED := [/\\]tests?[/\\]
+COMPILE_VENV := $(VPY) -m compileall -q -j 0 -x '$(VENV_NOT_COMPILED)' $(VENV)/lib
 # The same for the workspace's own modules (installed editable, so pip compiles none of them): every
 # node, command and worker process of a test run or the demo would compile them again from source
 # (about 0.3 s of CPU per process, hundreds of processes per test run). Up-to-date files are skipped.
@@ -92,8 +93,12 @@ $(STAMP): requirements.txt $(PACKAGE_META)
 	@test -x $(VPY) || { echo "creating $(VENV)"; $(PYTHON) -m venv $(VENV); }
 	@echo "installing requirements.txt into $(VENV) (about a minute on a fresh venv)"
 	$(PIP_INSTALL) -qq -r requirements.txt
-	$(PIP_INSTALL) -q --no-deps --no-build-isolation --use-pep517 $(foreach p,$(PACKAGES),-e src/$(p))
-	@$(COMPILE_VENV)
+	@# the workspace's packages (pip and setuptools on one core) while the libraries are compiled (on
+	@# the others; the editable finders pip writes meanwhile are left out of that pass)
+	@$(VPY) -m compileall -q -j 0 -x '$(VENV_NOT_COMPILED)|__editable__' $(VENV)/lib & compile=$$!; \
+	$(PIP_INSTALL) -q --no-deps --no-build-isolation --use-pep517 $(foreach p,$(PACKAGES),-e src/$(p)); rc=$$?; \
+	wait $$compile || rc=1; exit $$rc
+	@$(VPY) -m compileall -q $(VENV)/lib/python*/site-packages/__editable__*.py
 	@touch $@
 
 $(DEV_STAMP): $(STAMP) requirements-dev.txt
