@@ -125,7 +125,8 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         imu = imu_model(s.pop("imu", None), f"{where}.imu")
         if s.get("mount_rpy_deg") == MOUNT_ESTIMATE:
             raise ConfigError(f"{where}.mount_rpy_deg: {MOUNT_ESTIMATE!r} is resolved by dpos-import --nav --aircraft (it estimates the "
-                              "mounting from the data and writes it into the recording's copy of this file); give roll, pitch, yaw [deg] here")
+                              "mounting from the data and writes it into the recording's copy of this file); give roll, pitch, yaw [deg] here "
+                              "(and its mount_sigma_deg, which the import's report prints)")
         if "mount_sigma_deg" in s and s["mount_sigma_deg"] is None:
             del s["mount_sigma_deg"]  # (null: not stated)
         for k in ("lever_arm_m", "mount_rpy_deg", "rho_deg"):
