@@ -15,9 +15,11 @@ import yaml
 
 from dpos_core.attitude import dcm_to_rotvec, quat_to_dcm
 from dpos_core.frames import hpr_from_C_nb
+from dpos_core.imports.mounting import MountingEstimate
 from dpos_core.imports.timescales import utc_to_gpst_ns
 from dpos_core.units import DEG
 from dpos_ros.cli import import_
+from dpos_ros.cli import import_install as install
 from dpos_ros.contract import conversions as cv
 from dpos_ros.contract import topics as T
 from dpos_ros.io.session import read_session
@@ -96,12 +98,17 @@ def test_installation_recording(installation: tuple[Path, Path, Path], tmp_path:
     err = np.asarray(m["rpy_deg"]) - MOUNT
     assert np.all(np.abs(err) < 3 * np.asarray(m["rpy_sigma_deg"]) + 0.02), m
     assert rep["aircraft"]["mountings_from_estimate"] == ["left"]
+    # its sigma beside it: the estimate's and the solution's attitude sigma (--nav-att-sigma-deg 0.1) root sum square
+    ms = rep["aircraft"]["mount_sigma_deg"]["left"]
+    assert np.hypot(max(m["rpy_sigma_deg"]), 0.1) - 2e-3 < ms < np.hypot(2 * max(m["rpy_sigma_deg"]), 0.1) + 2e-3, (ms, m)
+    assert f"left (mount_sigma_deg {ms:g})" in text
     # the recording, as dpos-process reads it
     sess = read_session(out)
     assert sess.custom["dpos.master_source"] == "solution"  # dpos-process: "an imported navigation solution"
     ac = yaml.safe_load(sess.custom["dpos.aircraft_yaml"])
     np.testing.assert_allclose(ac["sub_imus"][0]["mount_rpy_deg"], m["rpy_deg"], atol=1e-3)
     assert ac["sub_imus"][0]["lever_arm_m"] == [0.0, 3.0, 0.0]
+    assert ac["sub_imus"][0]["mount_sigma_deg"] == ms
     assert set(sess.sub_imus) == {"left"}
     # the sub-IMU on GPS time: its first sample OFFSET_S after the first solution (to the clock's sigma)
     first_sub_s = sess.sub_imus["left"].t_s[0] - sess.master.t_s[0]
@@ -212,3 +219,35 @@ def test_progress_on_a_terminal_only(installation: tuple[Path, Path, Path], tmp_
     assert "%|" in term and "wrote " in out and "sub-IMU left: " not in out
     rc, out, term = on_pty([exe, *_argv(nav, sub, tmp_path / "b", "--aircraft", str(aircraft), "--quiet")])
     assert rc == 0 and term.strip() == "" and "wrote " in out
+
+
+def _mounting(sigma_deg: tuple[float, float, float]) -> MountingEstimate:
+    """An estimate of the identity mounting whose rotation error has these 1 sigmas about x, y, z."""
+    cov = np.diag(np.square(np.asarray(sigma_deg) * DEG))
+    return MountingEstimate(np.zeros(3), np.asarray(sigma_deg), np.eye(3), cov, np.zeros(3), 0.1, 100, 1.0)
+
+
+def test_mount_sigma_is_the_estimates_largest_with_the_solutions_attitude() -> None:
+    """mount_sigma_deg: the estimate's largest 1 sigma (rotation covariance) and the main
+    solution's attitude sigma (a constant attitude error the rates do not see) root sum square."""
+    assert install.mount_prior_sigma_deg(_mounting((0.3, 0.2, 0.1)), 0.1) == pytest.approx(np.hypot(0.3, 0.1), abs=1e-3)
+    assert install.mount_prior_sigma_deg(_mounting((0.01, 0.02, 0.03)), 0.1) == pytest.approx(np.hypot(0.03, 0.1), abs=1e-3)
+    assert install.mount_prior_sigma_deg(_mounting((1e-4, 1e-4, 1e-4)), 0.0) == install.MOUNT_SIGMA_MIN_DEG
+
+
+def test_aircraft_text_writes_the_sigma_beside_the_estimate(tmp_path: Path) -> None:
+    """Beside every estimated mounting (a generated file and 'estimate' in --aircraft); a sigma the
+    --aircraft file states is kept; a given mounting gets none."""
+    mounts = {"a": _mounting((0.3, 0.2, 0.1)), "b": _mounting((0.3, 0.2, 0.1))}
+    text, replaced = install.aircraft_text(None, ["a", "b"], mounts, mount_sigmas={"a": 0.316, "b": 0.5})
+    assert replaced == ["a", "b"]
+    assert [s["mount_sigma_deg"] for s in yaml.safe_load(text)["sub_imus"]] == [0.316, 0.5]
+    p = tmp_path / "ac.yaml"
+    p.write_text(yaml.safe_dump({"name": "t", "flexure": {"tau_s": [5, 2, 2], "variance_deg2": [0.01, 0.01, 0.01]}, "sub_imus": [
+        {"name": "a", "span_m": 0.0, "lever_arm_m": [0, 0, 0], "mount_rpy_deg": "estimate"},
+        {"name": "b", "span_m": 0.0, "lever_arm_m": [0, 0, 0], "mount_rpy_deg": "estimate", "mount_sigma_deg": 2.0},
+        {"name": "c", "span_m": 0.0, "lever_arm_m": [0, 0, 0], "mount_rpy_deg": [0, 0, 90]}]}))
+    text, replaced = install.aircraft_text(p, ["a", "b"], mounts, mount_sigmas={"a": 0.316, "b": 0.5, "c": 0.4})
+    subs = {s["name"]: s for s in yaml.safe_load(text)["sub_imus"]}
+    assert replaced == ["a", "b"]
+    assert subs["a"]["mount_sigma_deg"] == 0.316 and subs["b"]["mount_sigma_deg"] == 2.0 and "mount_sigma_deg" not in subs["c"]

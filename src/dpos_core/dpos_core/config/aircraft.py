@@ -29,6 +29,10 @@ class SubImuConfig:
         span_m: signed span position (+ right wing, - left wing), scales the flexure.
         lever_arm_m: (3,) from the master IMU, master FLU axes.
         mount_rpy_deg: nominal mount rotation of the sub-IMU axes w.r.t. the master's.
+        mount_sigma_deg: 1 sigma [deg] per axis of ``mount_rpy_deg`` (the same on each axis): the
+            prior of the rigid misalignment rho the transfer alignment estimates
+            (``Installation.rho_sigma_deg``); None: not stated, the alignment's default
+            (``TAConfig.rho_sigma_deg``, 1 deg).  dpos-import writes it beside an estimated mounting.
         rho_deg: (3,) rigid misalignment (rotation vector, sub-IMU axes) the transfer alignment estimates.
         imu: sensor error model.
         lever_arm_sigma_m: 1 sigma per axis of the lever arm's survey; > 0: the transfer alignment
@@ -45,6 +49,7 @@ class SubImuConfig:
     span_m: float
     lever_arm_m: tuple[float, float, float]
     mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mount_sigma_deg: float | None = None
     rho_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     imu: ImuErrorModel = field(default_factory=ImuErrorModel)
     lever_arm_sigma_m: float = 0.0
@@ -56,6 +61,9 @@ class SubImuConfig:
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v):
                 raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
+        v = self.mount_sigma_deg
+        if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0.0):
+            raise ValueError(f"mount_sigma_deg must be a finite number > 0 [deg] (or absent: 1 deg), got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -117,7 +125,10 @@ def load_aircraft(name_or_path: str | Path, *, text: str | None = None) -> Aircr
         imu = imu_model(s.pop("imu", None), f"{where}.imu")
         if s.get("mount_rpy_deg") == MOUNT_ESTIMATE:
             raise ConfigError(f"{where}.mount_rpy_deg: {MOUNT_ESTIMATE!r} is resolved by dpos-import --nav --aircraft (it estimates the "
-                              "mounting from the data and writes it into the recording's copy of this file); give roll, pitch, yaw [deg] here")
+                              "mounting from the data and writes it into the recording's copy of this file); give roll, pitch, yaw [deg] here "
+                              "(and its mount_sigma_deg, which the import's report prints)")
+        if "mount_sigma_deg" in s and s["mount_sigma_deg"] is None:
+            del s["mount_sigma_deg"]  # (null: not stated)
         for k in ("lever_arm_m", "mount_rpy_deg", "rho_deg"):
             if k in s:
                 s[k] = vec3(s[k], f"{where}.{k}")

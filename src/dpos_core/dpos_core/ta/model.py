@@ -212,18 +212,23 @@ class Installation:
     time_offset_sigma_s: float = 0.0
     #: estimate the sub-IMU's scale factors and misalignments that its datasheet (``imu``) states
     axis_error_states: bool = False
+    #: prior 1 sigma [deg] per axis of the rigid misalignment rho: what the nominal mount
+    #: (``C_b_s0``) is worth (the aircraft file's ``mount_sigma_deg``); None: ``TAConfig.rho_sigma_deg``
+    rho_sigma_deg: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("lever_arm_sigma_m", "time_offset_sigma_s"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"Installation.{name} must be finite and >= 0, got {v}")
+        if self.rho_sigma_deg is not None and not (np.isfinite(self.rho_sigma_deg) and self.rho_sigma_deg > 0.0):
+            raise ValueError(f"Installation.rho_sigma_deg must be finite and > 0 (or None), got {self.rho_sigma_deg}")
 
     @classmethod
     def from_aircraft(cls, aircraft, name: str) -> Installation:
         """Sub-IMU ``name`` as the aircraft configuration describes it: the flexure scaled to its
         span; the rigid misalignment rho is what the filter estimates, so only the nominal mount
-        enters."""
+        enters, and its ``mount_sigma_deg`` (when stated) as rho's prior 1 sigma."""
 
         s = aircraft.sub_imu(name)
         scale = aircraft.flexure.span_scale(s.span_m)
@@ -231,7 +236,7 @@ class Installation:
                        reference_span_m=1.0, span_exponent=0.0)
         return cls(np.asarray(s.lever_arm_m, dtype=float), mount_dcm(s.mount_rpy_deg, (0.0, 0.0, 0.0)), flex, s.imu,
                    lever_arm_sigma_m=s.lever_arm_sigma_m, time_offset_sigma_s=s.time_offset_sigma_ms * 1e-3,
-                   axis_error_states=s.axis_error_states)
+                   axis_error_states=s.axis_error_states, rho_sigma_deg=s.mount_sigma_deg)
 
 
 @dataclass(frozen=True)
@@ -242,7 +247,7 @@ class TAConfig:
     attitude_sigma_deg: float = 40.0  #: prior 1 sigma of each attitude-error axis
     velocity_sigma_mps: float = 0.1
     position_sigma_m: float = 0.1
-    rho_sigma_deg: float = 1.0
+    rho_sigma_deg: float = 1.0  #: prior 1 sigma of rho per axis where the installation states none (``Installation.rho_sigma_deg``)
     bias_sigma_scale: float = 1.0  #: prior bias sigma = scale x the IMU's configured constant bias
     att_noise_floor_deg: float = 1e-4
     vel_noise_floor_mps: float = 1e-4
@@ -792,7 +797,7 @@ class TransferAlignmentModel:
         d[DP] = cfg.position_sigma_m**2
         d[EPS] = (max(ins.imu.gyro_bias_deg_h, 1e-6) * cfg.bias_sigma_scale * DEG_PER_H) ** 2
         d[NAB] = (max(ins.imu.accel_bias_ug, 1e-3) * cfg.bias_sigma_scale * UG_MPS2) ** 2
-        d[RHO] = (cfg.rho_sigma_deg * DEG) ** 2
+        d[RHO] = ((cfg.rho_sigma_deg if ins.rho_sigma_deg is None else ins.rho_sigma_deg) * DEG) ** 2
         if "lever_arm" in self.extra:
             d[self.extra["lever_arm"]] = ins.lever_arm_sigma_m**2
         if "time_offset" in self.extra:

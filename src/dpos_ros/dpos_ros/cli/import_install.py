@@ -12,7 +12,9 @@ for one log with the same option names).  A sub-IMU clock: ``--time-col`` (GPS o
 offset (and drift) against the main solution is estimated from the angular rates
 (dpos_core.imports.clock); not observable -> exit 2, one line naming the log.  Every sub-IMU's
 mounting is estimated from the rates (dpos_core.imports.mounting) and reported; an aircraft file
-whose sub-IMU says ``mount_rpy_deg: estimate`` gets the estimate in the recording's embedded copy.
+whose sub-IMU says ``mount_rpy_deg: estimate`` gets the estimate in the recording's embedded copy,
+with its ``mount_sigma_deg`` (:func:`mount_prior_sigma_deg`: the transfer alignment's prior of the
+misalignment).
 
 Output topics (design.md): /master/nav (nav_msgs/Odometry, as pos_master_node publishes it),
 /dpos/datum (latched; the first solution point), /sub_imu/<name>/imu (sensor_msgs/Imu, frame
@@ -238,11 +240,34 @@ def _mount_dict(m: MountingEstimate) -> dict[str, Any]:
             "residual_correlation_factor": m.corr_factor}
 
 
-def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, MountingEstimate], preset: str = "consumer_mems") -> tuple[str, list[str]]:
+def mount_prior_sigma_deg(m: MountingEstimate, att_sigma_deg: float) -> float:
+    """``mount_sigma_deg`` [deg] written beside an estimated mounting ``m``: the prior 1 sigma per axis
+    of the misalignment rho the transfer alignment estimates against the main solution's attitude.
+    Rho is the mounting's error plus the main solution's attitude error that is constant over the
+    flight: the rates the mounting is estimated from do not see a constant attitude error (their
+    differences drop it), the alignment's attitude match does, and only rho can take it (the
+    filter's main-POS noise is white, averaged over the epochs).  So: the root sum square of the
+    estimate's largest 1 sigma (the square root of the largest eigenvalue of its rotation covariance:
+    any axis, no Euler singularity) and ``att_sigma_deg``, the main solution's attitude 1 sigma (its
+    file's or ``--nav-att-sigma-deg``, 0.1 deg by default: one step of a 0.1 deg rounding).  Never
+    below the solution's sigma, never below 0.01 deg (a solution claiming a perfect attitude)."""
+    rot_deg = float(np.sqrt(max(float(np.linalg.eigvalsh(m.phi_cov_rad2).max()), 0.0))) / DEG
+    return round(max(float(np.hypot(rot_deg, att_sigma_deg)), MOUNT_SIGMA_MIN_DEG), 3)
+
+
+#: the smallest ``mount_sigma_deg`` dpos-import writes [deg] (:func:`mount_prior_sigma_deg`)
+MOUNT_SIGMA_MIN_DEG = 0.01
+
+
+def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, MountingEstimate], preset: str = "consumer_mems",
+                  mount_sigmas: dict[str, float] | None = None) -> tuple[str, list[str]]:
     """The aircraft YAML to embed: --aircraft with ``mount_rpy_deg: estimate`` replaced by the estimates
     (ImportFailure when one is not estimated), or, without --aircraft, a starting point: each sub-IMU
-    at the master IMU (lever arm 0, to be surveyed) with its estimated mounting and an antenna at it."""
+    at the master IMU (lever arm 0, to be surveyed) with its estimated mounting and an antenna at it.
+    An estimated mounting gets ``mount_sigma_deg`` from ``mount_sigmas`` (per sub-IMU,
+    :func:`mount_prior_sigma_deg`) unless the --aircraft file states one."""
     replaced: list[str] = []
+    sig = mount_sigmas or {}
     if path is None:
         d: dict[str, Any] = {"name": "imported", "description": "written by dpos-import: lever arms unknown (0), mountings estimated",
                              "gnss_lever_arm_m": [0.0, 0.0, 0.0],
@@ -251,7 +276,10 @@ def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, Mountin
                              "sub_imus": [], "antennas": []}
         for n in names:
             rpy = [round(float(x), 3) for x in mounts[n].rpy_deg] if n in mounts else [0.0, 0.0, 0.0]
-            d["sub_imus"].append({"name": n, "span_m": 0.0, "lever_arm_m": [0.0, 0.0, 0.0], "mount_rpy_deg": rpy, "imu": {"preset": preset}})
+            entry: dict[str, Any] = {"name": n, "span_m": 0.0, "lever_arm_m": [0.0, 0.0, 0.0], "mount_rpy_deg": rpy}
+            if n in mounts and n in sig:
+                entry["mount_sigma_deg"] = sig[n]
+            d["sub_imus"].append({**entry, "imu": {"preset": preset}})
             d["antennas"].append({"name": n, "span_m": 0.0, "sub_imu": n, "lever_arm_m": [0.0, 0.0, 0.0]})
             if n in mounts:
                 replaced.append(n)
@@ -267,6 +295,8 @@ def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, Mountin
                     raise ImportFailure(f"--aircraft {path}: sub-IMU {n!r} says 'mount_rpy_deg: estimate' but "
                                         + ("no --sub gives its log" if n not in names else "its mounting is not observable (see above)"))
                 s["mount_rpy_deg"] = [round(float(x), 3) for x in mounts[n].rpy_deg]
+                if n in sig and s.get("mount_sigma_deg") is None:
+                    s["mount_sigma_deg"] = sig[n]
                 replaced.append(n)
     text = yaml.safe_dump(d, sort_keys=False)
     try:
@@ -384,7 +414,13 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
                 mounts[name] = sub.mounting
             if bar is not None:
                 bar.done(name, _sub_line(rep_subs[name]))
-    text, replaced = aircraft_text(args.aircraft, list(subs), mounts, args.sub_imu_preset)
+    att_sigma_deg = float(args.nav_att_sigma_deg)  # the main solution's attitude 1 sigma: its columns' median (largest axis) or the option
+    rows = None if nav.hpr_sigma_rad is None else nav.hpr_sigma_rad[np.isfinite(nav.hpr_sigma_rad).all(axis=1)]
+    if rows is not None and rows.size:
+        att_sigma_deg = float(np.median(rows.max(axis=1))) / DEG
+    mount_sigmas = {n: mount_prior_sigma_deg(m, att_sigma_deg) for n, m in mounts.items()}
+    text, replaced = aircraft_text(args.aircraft, list(subs), mounts, args.sub_imu_preset, mount_sigmas)
+    written = {s.name: s.mount_sigma_deg for s in load_aircraft("recording", text=text).sub_imus if s.name in replaced}
     report: dict[str, Any] = {
         "out": str(args.out),
         "nav": {"file": str(args.nav), "lines_read": len(nav), "lines_skipped": len(nav.skipped),
@@ -393,7 +429,7 @@ def run_installation(args: argparse.Namespace) -> tuple[list[TopicStream], dict[
                 "datum_deg_m": [float(np.rad2deg(nav.llh[0, 0])), float(np.rad2deg(nav.llh[0, 1])), float(nav.llh[0, 2])]},
         "subs": rep_subs,
         "aircraft": {"source": str(args.aircraft) if args.aircraft else "generated (lever arms 0: survey them)",
-                     "mountings_from_estimate": replaced},
+                     "mountings_from_estimate": replaced, "mount_sigma_deg": written},
         "topics": {s.topic: {"type": s.msgtype, "messages": len(s)} for s in streams},
     }
     custom = {"dpos.session_id": args.out.name, "dpos.start_time_s": repr(t0 * 1e-9), "dpos.aircraft_yaml": text,
@@ -429,5 +465,7 @@ def summary_lines(rep: dict[str, Any], prog: str) -> list[str]:
         else:
             out.append(f"      mounting: {m['not_observable']}")
     ac = rep["aircraft"]
-    out.append(f"AIRCRAFT {ac['source']}; mountings from the estimate: {', '.join(ac['mountings_from_estimate']) or 'none'}")
+    sig = ac.get("mount_sigma_deg") or {}
+    est = [f"{n} (mount_sigma_deg {sig[n]:g})" if sig.get(n) is not None else n for n in ac["mountings_from_estimate"]]
+    out.append(f"AIRCRAFT {ac['source']}; mountings from the estimate: {', '.join(est) or 'none'}")
     return out
