@@ -136,37 +136,122 @@ def test_outages_in_flight_against_the_withheld_fixes(thor):
     assert min(f[3] for f in figs) >= 0.95, figs
 
 
-def test_started_in_flight_with_a_30_deg_heading_error(thor):
-    """Started at the first fix after 300 s (flying, 20-26 m/s) with the onboard heading + 30 deg:
-    the heading comes within 2 deg of the onboard EKF's and stays there (the peer: after 4 s,
-    staying from 9 s; [12 s with its fixed-wing configuration])."""
-    imu, gnss, t, onboard, _, _, _ = thor
-    m = gnss.t_s >= 300.0
-    g = _sel(gnss, m)
+def test_the_outage_drift_is_the_level_not_the_heading(thor):
+    """Outage 372-402 s (ours 52.3 m, the peer's fixed-wing configuration 35.0 m; docs/ifa.md): the
+    velocity error against the withheld fixes, over 296 deg of turns, is a constant acceleration
+    error in the navigation frame (a tilt: ``g phi``), not a heading error (``a_h psi``, which turns
+    with the specific force) nor body-fixed accelerometer biases.  Measured: +0.093 m/s^2 north
+    (0.55 deg of tilt; the filter's level sigma there 0.36 / 0.39 deg), residual 0.17 m/s rms of a
+    1.33 m/s change with all five terms, 0.24 m/s with the two constants alone, 1.14 m/s with the
+    heading alone, 0.38 m/s with the body biases alone."""
+    imu, gnss, _, _, outages, out, _ = thor
+    res = out["outages"]
+    a, b = outages[1]
+    w = (gnss.t_s >= a) & (gnss.t_s < b)
+    tt = gnss.t_s[w]
+    t_last = float(res.epochs_s[res.epochs_s < a][-1])  # the last update before the outage
+    q = np.searchsorted(res.t_s, np.r_[t_last, tt])
+    fix_last = int(np.searchsorted(gnss.t_s, t_last))
+    dv = res.vel_n_mps[q, :2] - np.vstack([gnss.vel_n_mps[fix_last, :2], gnss.vel_n_mps[w, :2]])
+    y = (dv[1:] - dv[0]).T.ravel()  # (E..., N...)
+    k = (res.t_s > t_last) & (res.t_s <= tt[-1] + 1e-6)
+    C = res.C_nb[k]
+    fn = np.einsum("kij,kj->ki", C, imu.f_mps2[np.searchsorted(imu.t_s, res.t_s[k])] - res.accel_bias_mps2)
+    dt = np.diff(np.r_[t_last, res.t_s[k]])[:, None]
+    one = np.ones(dt.shape[0])
+    terms = {"E": np.c_[one, 0 * one], "N": np.c_[0 * one, one], "heading": np.c_[fn[:, 1], -fn[:, 0]],
+             "bias x": C[:, :2, 0], "bias y": C[:, :2, 1]}
+    j = np.searchsorted(res.t_s[k], tt - 1e-6)
+    A = {n: np.cumsum(v * dt, axis=0)[j].T.ravel() for n, v in terms.items()}
+
+    def fit(names: list[str]) -> tuple[np.ndarray, float]:
+        M = np.column_stack([A[n] for n in names])
+        x = np.linalg.lstsq(M, y, rcond=None)[0]
+        return x, float(np.sqrt(np.mean((M @ x - y) ** 2)))
+
+    x_all, r_all = fit(list(terms))
+    _, r_const = fit(["E", "N"])
+    _, r_head = fit(["heading"])
+    _, r_bias = fit(["bias x", "bias y"])
+    print(f"outage {a:.0f}-{b:.0f} s: velocity error change rms {np.sqrt(np.mean(y ** 2)):.2f} m/s; constant acceleration "
+          f"E / N {x_all[0]:+.3f} / {x_all[1]:+.3f} m/s^2, heading {np.degrees(x_all[2]):+.2f} deg, body biases {np.round(x_all[3:], 3)} "
+          f"m/s^2; residual rms: all {r_all:.2f}, constants alone {r_const:.2f}, heading alone {r_head:.2f}, biases alone {r_bias:.2f} m/s")
+    assert r_const < 0.3 < 1.0 < r_head and r_const < 0.8 * r_bias
+    assert abs(np.degrees(x_all[2])) < 1.0 and abs(x_all[1]) > 0.06
+
+
+def _started_in_flight(thor, t_start_s: float):
+    """The run started at the first fix after ``t_start_s`` (flying) with the onboard heading + 30 deg,
+    the IMU cut at 577 s (landing; the scored span).  Returns the result, the start's level, the time
+    after the start [s] of each navigation sample and its heading minus the onboard EKF's and minus
+    the all-GPS run started on the ground (``thor``'s ``all``: this filter's own steady state) [deg]."""
+    imu, gnss, t, onboard, _, out, _ = thor
+    g = _sel(gnss, (gnss.t_s >= t_start_s) & (gnss.t_s <= 577.0))
+    k = imu.t_s <= 577.0
+    I = ImuSeries(imu.t_s[k], imu.omega_radps[k], imu.f_mps2[k])
     j = int(np.searchsorted(t, g.t_s[0]))
     cfg = _config()
-    init, lv = start(imu, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto", imu_model=cfg.imu)
+    init, lv = start(I, g, 1e9, heading_rad=float(np.radians(onboard[j, 0] + 30.0)), level="auto", imu_model=cfg.imu)
     # a level from flight: its sigma is what the motion can leave in it (as dpos-ifa takes it)
     c = cfg if lv is None or lv.sigma_rad is None else replace(cfg, level_sigma_deg=max(cfg.level_sigma_deg, np.degrees(lv.sigma_rad)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = run(imu, g, np.zeros(3), c, "add2", init)
-    k = res.t_s <= 577.0
-    d = np.degrees(hpr_from_C_nb(res.C_nb[k]))[:, 0] - onboard[np.searchsorted(t, res.t_s[k]), 0]
-    d = (d + 180.0) % 360.0 - 180.0
-    tt = res.t_s[k] - init.t_s
+        res = run(I, g, np.zeros(3), c, "add2", init)
+    h = np.degrees(hpr_from_C_nb(res.C_nb))[:, 0]
+    ground = out["all"]
+    wrap = lambda x: (x + 180.0) % 360.0 - 180.0  # noqa: E731
+    d_on = wrap(h - onboard[np.searchsorted(t, res.t_s), 0])
+    d_gr = wrap(h - np.degrees(hpr_from_C_nb(ground.C_nb[np.searchsorted(ground.t_s, res.t_s)]))[:, 0])
+    return res, init, lv, res.t_s - init.t_s, d_on, d_gr
+
+
+def _stays(tt: np.ndarray, d: np.ndarray, lim: float) -> float:
+    """The time from which ``|d|`` stays below ``lim`` (to the end)."""
+    out_of = np.flatnonzero(np.abs(d) >= lim)
+    return float(tt[out_of[-1] + 1]) if out_of.size and out_of[-1] + 1 < tt.size else float(tt[0])
+
+
+def test_started_in_flight_with_a_30_deg_heading_error(thor):
+    """Started at the first fix after 300 s (flying, 20-26 m/s) with the onboard heading + 30 deg:
+    the heading comes within 2 deg of the onboard EKF's and stays there (the peer: after 4 s,
+    staying from 9 s; [12 s with its fixed-wing configuration]).  Beside, the heading minus this
+    filter's own all-GPS run started on the ground (docs/ifa.md: the in-flight start's transient of
+    -1.5 to -2 deg at 20-60 s is the accelerometer biases, 37 / 48 mg on this unit, learned in flight;
+    with them known it stays within 0.9 deg of the ground run from 20 s)."""
+    res, init, _, tt, d, d_gr = _started_in_flight(thor, 300.0)
     first = float(tt[np.flatnonzero(np.abs(d) < 2.0)[0]])
-
-    def stays(lim: float) -> float:
-        out_of = np.flatnonzero(np.abs(d) >= lim)
-        return float(tt[out_of[-1] + 1]) if out_of.size and out_of[-1] + 1 < tt.size else float(tt[0])
-
+    win = [float(np.abs(d_gr[(tt >= a) & (tt < a + 10.0)]).max()) for a in (10.0, 20.0, 30.0, 40.0, 50.0, 60.0)]
     print(f"30 deg start at {init.t_s:.1f} s: within 2 deg of onboard after {first:.1f} s, stays within 2 deg from "
-          f"{stays(2.0):.1f} s, within 5 deg from {stays(5.0):.1f} s; aligned "
-          f"{None if res.aligned_t_s is None else round(res.aligned_t_s - init.t_s, 1)} s after the start")
+          f"{_stays(tt, d, 2.0):.1f} s, within 5 deg from {_stays(tt, d, 5.0):.1f} s; aligned "
+          f"{None if res.aligned_t_s is None else round(res.aligned_t_s - init.t_s, 1)} s after the start; minus the "
+          f"ground-started run: stays within 2 deg from {_stays(tt, d_gr, 2.0):.1f} s, max |.| per 10 s from 10 s "
+          f"{np.round(win, 2).tolist()} deg")
     # measured: 7.0 s, staying within 5 deg from 7.0 s and within 2 deg of a comparison that is itself
-    # no truth from 48.2 s; aligned 27.0 s after the start
-    assert res.aligned_t_s is not None and first < 15.0 and stays(5.0) < 60.0 and stays(2.0) < 120.0
+    # no truth from 48.2 s; aligned 27.0 s after the start; within 2 deg of the ground run from 48.0 s
+    assert res.aligned_t_s is not None and first < 15.0 and _stays(tt, d, 5.0) < 60.0 and _stays(tt, d, 2.0) < 120.0
+    assert max(win[1:]) < 3.0, win
+
+
+def test_started_in_flight_in_a_banked_turn(thor):
+    """Started at the first fix after 450 s, in a 41 deg bank (the onboard EKF's roll; a coordinated
+    turn at 16 m/s), with the onboard heading + 30 deg.  The specific force of a coordinated turn is
+    along the body's vertical: the raw level is wings-level; its sigma covers the bank through the
+    centripetal bound ``|w| |v| / g`` (dpos_core.ifa.standstill.start_level; the former 5.8 deg sigma
+    left the filter's heading 20-40 deg off for 20 s and ALIGNED 6 deg off at 2.2 deg sigma, 3.8
+    sigma later).  Measured: level sigma 40.3 deg; within 2 deg of the ground-started run from 17 s,
+    ALIGNED 34 s after the start 0.1 deg from it, within 2 deg of the onboard EKF from 52 s."""
+    res, init, lv, tt, d, d_gr = _started_in_flight(thor, 450.0)
+    _, _, t, onboard, _, _, _ = thor
+    roll_onboard = float(onboard[np.searchsorted(t, init.t_s), 2])
+    print(f"30 deg start at {init.t_s:.1f} s in a {roll_onboard:.1f} deg bank: level ({lv.how}) roll {np.degrees(lv.roll_rad):.1f} deg, "
+          f"sigma {np.degrees(lv.sigma_rad):.1f} deg; minus the ground-started run: stays within 2 deg from {_stays(tt, d_gr, 2.0):.1f} s; "
+          f"minus onboard: from {_stays(tt, d, 2.0):.1f} s; aligned "
+          f"{None if res.aligned_t_s is None else round(res.aligned_t_s - init.t_s, 1)} s after the start")
+    assert lv.how == "raw" and abs(np.degrees(lv.roll_rad) - roll_onboard) < 2.0 * np.degrees(lv.sigma_rad)  # the former sigma: 7 sigma
+    assert res.aligned_t_s is not None and res.restarts == 0
+    assert _stays(tt, d_gr, 2.0) < 30.0 and _stays(tt, d, 2.0) < 70.0
+    at = int(np.searchsorted(res.t_s, res.aligned_t_s))
+    assert abs(d_gr[at]) < 2.0
 
 
 def test_smoothed_bridges_the_outages_and_follows_the_onboard_attitude(thor):

@@ -109,3 +109,28 @@ def test_the_prior_level_sigma_is_at_least_the_accelerometer_bias_tilt():
     att = np.sqrt(np.diag(P)[6:9]) / DEG
     assert att[0] == pytest.approx(2.292, abs=1e-3) and att[1] == pytest.approx(2.292, abs=1e-3)
     assert att[2] == pytest.approx(mems.heading_sigma_deg)
+
+
+def test_raw_level_in_a_coordinated_turn_has_a_sigma_that_covers_the_bank():
+    """Without a previous fix the level is the raw one; in a coordinated turn (an aircraft banked at
+    30 deg at 20 m/s, turning at g tan(30 deg) / 20 m/s = 16 deg/s) the specific force is along the
+    body's vertical, without spread: the raw level is wings-level, 30 deg off, which the former sigma
+    (max(1 m/s^2, spread of f) / g: 5.8 deg) did not cover (thor_flight75 started in a 41 deg bank,
+    docs/ifa.md).  The centripetal bound |w| |v| / g is the bank itself here."""
+    bank, speed, g0 = 30.0 * DEG, 20.0, 9.80665
+    turn = g0 * np.tan(bank) / speed
+    n = 100
+    t = np.arange(1, n + 1) * 0.01
+    om = np.tile([0.0, turn * np.sin(bank), turn * np.cos(bank)], (n, 1))  # FLU body rates of a level turn, rolled by the bank
+    f = np.tile([0.0, 0.0, g0 / np.cos(bank)], (n, 1))
+    f = f + 0.01 * np.random.default_rng(1).standard_normal(f.shape)
+    from dpos_core.series import ImuSeries
+
+    imu = ImuSeries(t, om, f)
+    gnss = GnssSeries(np.array([1.0]), np.array([[0.7, 0.2, 300.0]]), np.full((1, 3), 3.0), np.array([[speed, 0.0, 0.0]]),
+                      np.full((1, 3), 0.5))
+    lv = start_level(imu, gnss, 0, 1.0, 0.0, 1.0, imu_model({"preset": "automotive_mems"}, "test"))
+    assert lv.how == "raw" and abs(lv.roll_rad) < 1.0 * DEG  # wings-level: 30 deg off
+    spread = float(np.sqrt(np.mean(np.sum((f - f.mean(axis=0)) ** 2, axis=1))))
+    assert np.arctan(max(spread, 1.0) / g0) < bank / 5.0  # the former sigma: 5 sigma off
+    assert lv.sigma_rad == pytest.approx(bank, rel=1e-3)  # |w| |v| / g = tan(bank)

@@ -29,7 +29,12 @@ the previous fix's over their interval, at most 1.5 windows) and removed to firs
 the heading frame subtracted); the level 1 sigma then says what is left: half the horizontal
 acceleration (its change within the window) plus the velocity noise's ``sqrt(2) sigma_v / dt``,
 over g.  Without a previous fix the acceleration is unknown: the level is the raw one with a 1 sigma
-of ``max(1 m/s^2, rms spread of f over the window) / g`` (5.8 deg at least).
+of ``atan(max(1 m/s^2, rms spread of f over the window, |mean(w)| |v|) / g)`` (5.8 deg at least).
+The last term is the centripetal acceleration ``w x v`` of a turn, at most ``|w| |v|`` whatever the
+heading: a coordinated turn (an aircraft banked at ``phi``) has no spread of ``f`` and no lateral
+specific force, so the raw level is wings-level while the roll is ``phi = atan(|w| |v| / g)``
+(thor_flight75 started at 450.7 s in a 41 deg bank: the raw level's roll -0.7 deg with the former
+5.8 deg sigma; docs/ifa.md, "thor_flight75").
 """
 
 from __future__ import annotations
@@ -136,8 +141,11 @@ def start_level(imu: ImuSeries, gnss: GnssSeries, j: int, t_fix_s: float, headin
             sv = np.asarray(gnss.vel_sigma_mps[j], dtype=float)
             sig = (0.5 * float(np.hypot(a_n[0], a_n[1])) + np.sqrt(2.0) * float(np.hypot(sv[0], sv[1])) / dt_g) / G0_MPS2
             return StartLevel(pitch - p_a, roll - r_a, float(np.arctan(sig)), "compensated", test)
-    # raw: the acceleration is unknown; at least 1 m/s^2 of doubt, or the window's own spread of f
-    sig = max(float(np.sqrt(np.mean(np.sum((fb - f_mean) ** 2, axis=1)))), 1.0) / G0_MPS2
+    # raw: the acceleration is unknown; at least 1 m/s^2 of doubt, the window's own spread of f, or the
+    # centripetal acceleration |w x v| <= |w| |v| of a turn (a coordinated turn leaves no trace in f)
+    spread = float(np.sqrt(np.mean(np.sum((fb - f_mean) ** 2, axis=1))))
+    centripetal = float(np.linalg.norm(om.mean(axis=0))) * float(np.linalg.norm(v))
+    sig = max(spread, centripetal, 1.0) / G0_MPS2
     return StartLevel(pitch, roll, float(np.arctan(sig)), "raw", test)
 
 
