@@ -304,9 +304,10 @@ def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray,
     may accumulate beyond one window (quad_mimu's path 1: 1 m over 2 s, 2 m over 6 s), and a filter
     or smoother integrates the speed over the whole span: the span's largest difference, between
     its epochs where ``h - int v_up dt`` is highest and lowest, is made 2 sigmas too (the larger
-    factor wins).  And the windows that pass are no evidence that the stated sigmas hold between
+    factor wins).  And the windows that pass are no evidence that the stated sigmas hold near
     failing ones: the solution's vertical errors are correlated over seconds (path 1's spans: 4-6 s,
-    1-2 s apart, and its last 3 s, which pass, pull the alignment as much as a span does).  So
+    1-2 s apart; its last 3 s pass and still pulled the transfer alignment's misalignment by about
+    0.3 deg, docs/real.md "Path 1's DOT2").  So
     every epoch's sigmas are also multiplied by its neighbourhood's variance factor, the rms of
     ``r / s`` over the windows starting within ``neighbourhood_s`` of it, where above 1 (a
     consistent solution's windows have an rms of 0.2-0.5 sigmas: quad_mimu's paths 2-4 and raw log;
