@@ -186,9 +186,10 @@ def test_lever_arms_consistent_across_paths(paths: dict[tuple[int, int], PathRes
 def test_path1_reference_inconsistent_with_itself() -> None:
     """The reference of path 1 is inconsistent with itself: its height and the integral of its
     vertical speed disagree by up to 1 m over 2 s, 6-7 sigmas of the import's 0.1 m and 0.1 m/s, and
-    by 2 m (12 sigmas) within one of the spans that check widens;
-    those of paths 2-4 and the raw flight log agree within 3 sigmas.  ``dpos-import`` widens both
-    sigmas where they disagree (navsol.vertical_consistency) - docs/real.md."""
+    by 2 m (12 sigmas) within one of the spans that check widens, and its 2 s windows within 10 s
+    of any epoch by 2.9-3.9 sigmas rms; those of paths 2-4 and the raw flight log agree within 3
+    sigmas and by less than 1 rms.  ``dpos-import`` widens both sigmas where they disagree and
+    by the neighbourhood's rms (navsol.vertical_consistency) - docs/real.md."""
     from dpos_core.imports.navsol import vertical_consistency
 
     for name, f, cols in [*((p, DATA / f"straight_path_{p}" / "GTExtended.csv", GT_COLUMNS) for p in PATHS), ("raw", FLIGHT_LOG, FLIGHT_COLUMNS)]:
@@ -198,8 +199,11 @@ def test_path1_reference_inconsistent_with_itself() -> None:
         if name == 1:
             assert c.max_disagreement_m > 0.8 and c.max_sigmas > 5.0 and c.widened.mean() > 0.5, (name, c.max_disagreement_m, c.max_sigmas)
             assert c.span_disagreement_m > 1.5 and c.span_sigmas > 10.0, (c.span_disagreement_m, c.span_sigmas)  # 2 m within a span
+            # every epoch's windows within 10 s disagree by 2.9-3.9 sigmas rms: widened everywhere, its last 3 s (which pass) too
+            assert c.rms_factor is not None and c.rms_factor.min() > 2.5 and np.all(c.sigma_h_m > 0.25), c.rms_factor.min()
         else:
             assert not c.widened.any() and c.max_disagreement_m < 0.5, (name, c.max_disagreement_m, c.max_sigmas)
+            assert c.max_rms_factor == 1.0 and np.array_equal(c.sigma_h_m, s), (name, c.max_rms_factor)
 
 
 @pytest.fixture(scope="module")

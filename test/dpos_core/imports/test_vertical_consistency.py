@@ -67,3 +67,36 @@ def test_a_disagreement_that_accumulates_over_a_span_is_covered_there() -> None:
         sig = np.sqrt(c.sigma_h_m[p] ** 2 + c.sigma_h_m[q] ** 2 + np.sum((c.sigma_vu_mps[p:q + 1] * w[p:q + 1]) ** 2))
         assert abs(D[p] - D[q]) <= 2.0 * sig + 1e-9, (a, b, D[p] - D[q], sig)  # (the window's factor alone: 2.8 sigmas)
     assert not c.widened[(t < 12.0) | (t > 44.0)].any()
+
+
+def test_epochs_near_repeated_failures_are_widened_by_their_neighbourhood_rms() -> None:
+    """The height swings +-0.6 m over 10 to 30 s (6 s period) that the vertical speed does not
+    have: the failing windows widen 8.8-32 s.  The solution's errors are correlated, so the windows
+    that pass just after it are no evidence that its sigmas hold there: every epoch whose windows
+    within VERTICAL_NEIGHBOURHOOD_S disagree by more than 1 sigma rms has both sigmas multiplied by
+    at least that rms (33 s: x2.9, which no failing window covers), and epochs whose neighbourhood
+    is consistent (beyond 10 s of the swing) keep their sigmas exactly (quad_mimu's path 1: x2.9-3.9
+    at every epoch, its last 3 s included, which pass)."""
+    from dpos_core.imports.navsol import VERTICAL_NEIGHBOURHOOD_S, VERTICAL_WINDOW_S
+
+    t, h, v = _climb()
+    on = (t >= 10.0) & (t <= 30.0)
+    h = h + np.where(on, 0.6 * np.sin(2 * np.pi * (t - 10.0) / 6.0), 0.0)
+    s = np.full(t.size, 0.1)
+    c = vertical_consistency(t, h, v, s, s)
+    assert c.rms_factor is not None and c.widened.any()
+    # the factor is the rms of the windows' differences in sigmas within the neighbourhood (recomputed here)
+    integ = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    k = int(np.searchsorted(t, 33.0))  # after the swing: no failing window holds this epoch
+    i = np.flatnonzero((t >= t[k] - VERTICAL_NEIGHBOURHOOD_S - 1e-9) & (t <= t[k] + VERTICAL_NEIGHBOURHOOD_S + 1e-9)
+                       & (t + VERTICAL_WINDOW_S <= t[-1] + 1e-9))
+    j = np.searchsorted(t, t[i] + VERTICAL_WINDOW_S - 1e-9)
+    z = ((h[j] - h[i]) - (integ[j] - integ[i])) / np.sqrt(0.02 + (j - i + 1) * (0.1 * 0.1) ** 2)
+    assert not c.widened[k] and c.rms_factor[k] > 1.5
+    np.testing.assert_allclose(c.rms_factor[k], np.sqrt(np.mean(z**2)), rtol=0.02)
+    np.testing.assert_allclose(c.sigma_h_m[k], 0.1 * c.rms_factor[k])
+    assert np.all(c.sigma_h_m >= 0.1 * c.rms_factor - 1e-12) and np.all(c.sigma_vu_mps >= 0.1 * c.rms_factor - 1e-12)
+    far = (t < 10.0 - VERTICAL_NEIGHBOURHOOD_S - VERTICAL_WINDOW_S) | (t > 30.0 + VERTICAL_NEIGHBOURHOOD_S + 1.0)
+    assert far.sum() > 100 and not c.widened[far].any()
+    np.testing.assert_array_equal(c.sigma_h_m[far], s[far])
+    np.testing.assert_array_equal(c.sigma_vu_mps[far], s[far])

@@ -250,6 +250,9 @@ def read_nav_csv(path: str | Path, c: NavColumns) -> NavSolution:
 #: of the vertical speed, and the bound in sigmas of the difference beyond which the two disagree
 VERTICAL_WINDOW_S = 2.0
 VERTICAL_BOUND_SIGMAS = 3.0
+#: :func:`vertical_consistency`: the half-width [s] of the neighbourhood over which the windows'
+#: differences give an epoch's variance factor (their rms in sigmas)
+VERTICAL_NEIGHBOURHOOD_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -265,6 +268,9 @@ class VerticalCheck:
         spans_s: the widened spans (start, end) [s of ``t_s``].
         span_disagreement_m: the largest ``|dh - int v_up dt|`` between two epochs of one widened
             span [m] (0 when none is widened), and span_sigmas its ratio to its sigma.
+        rms_factor: (N,) the variance factor of each epoch's neighbourhood (the windows' rms in
+            sigmas within ``VERTICAL_NEIGHBOURHOOD_S``; at least 1), the least each epoch's sigmas
+            were multiplied by (``None``: 1 everywhere).
     """
 
     sigma_h_m: FloatArray
@@ -275,10 +281,17 @@ class VerticalCheck:
     spans_s: list[tuple[float, float]]
     span_disagreement_m: float = 0.0
     span_sigmas: float = 0.0
+    rms_factor: FloatArray | None = None
+
+    @property
+    def max_rms_factor(self) -> float:
+        """The largest neighbourhood variance factor (1: no epoch widened by it)."""
+        return 1.0 if self.rms_factor is None or self.rms_factor.size == 0 else float(self.rms_factor.max())
 
 
 def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray, sigma_h_m: FloatArray, sigma_vu_mps: FloatArray,
-                         window_s: float = VERTICAL_WINDOW_S, bound_sigmas: float = VERTICAL_BOUND_SIGMAS) -> VerticalCheck:
+                         window_s: float = VERTICAL_WINDOW_S, bound_sigmas: float = VERTICAL_BOUND_SIGMAS,
+                         neighbourhood_s: float = VERTICAL_NEIGHBOURHOOD_S) -> VerticalCheck:
     """A navigation solution checked against itself: over every window of ``window_s`` (from each
     epoch to the first one ``window_s`` later) the height change against the trapezoid integral of
     the vertical speed, ``r = h_j - h_i - int_i^j v_up dt``, whose 1 sigma from the solution's own
@@ -291,7 +304,14 @@ def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray,
     may accumulate beyond one window (quad_mimu's path 1: 1 m over 2 s, 2 m over 6 s), and a filter
     or smoother integrates the speed over the whole span: the span's largest difference, between
     its epochs where ``h - int v_up dt`` is highest and lowest, is made 2 sigmas too (the larger
-    factor wins).  ``t_s`` (N,) [s], the others (N,)."""
+    factor wins).  And the windows that pass are no evidence that the stated sigmas hold near
+    failing ones: the solution's vertical errors are correlated over seconds (path 1's spans: 4-6 s,
+    1-2 s apart; its last 3 s pass and still pulled the transfer alignment's misalignment by about
+    0.3 deg, docs/real.md "Path 1's DOT2").  So
+    every epoch's sigmas are also multiplied by its neighbourhood's variance factor, the rms of
+    ``r / s`` over the windows starting within ``neighbourhood_s`` of it, where above 1 (a
+    consistent solution's windows have an rms of 0.2-0.5 sigmas: quad_mimu's paths 2-4 and raw log;
+    path 1: 3.4); the largest factor wins.  ``t_s`` (N,) [s], the others (N,)."""
     t = np.asarray(t_s, dtype=float)
     h = np.asarray(h_m, dtype=float)
     vu = np.asarray(v_up_mps, dtype=float)
@@ -313,6 +333,12 @@ def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray,
     r = (h[j] - h[i]) - (integ[j] - integ[i])
     s = np.sqrt(sh[i] ** 2 + sh[j] ** 2 + (var_int[j + 1] - var_int[i]))
     z = np.abs(r) / s
+    # each epoch's neighbourhood variance factor: the rms of z over the windows starting within neighbourhood_s of it
+    cz2 = np.concatenate([[0.0], np.cumsum(z**2)])
+    lo = np.searchsorted(t[i], t - neighbourhood_s - 1e-9)
+    hi = np.searchsorted(t[i], t + neighbourhood_s + 1e-9)
+    rms = np.sqrt((cz2[hi] - cz2[lo]) / np.maximum(hi - lo, 1))
+    rms_factor = np.where(hi > lo, np.maximum(rms, 1.0), 1.0)
     factor = np.ones(n)
     for k in np.flatnonzero(z > bound_sigmas):
         a, b = i[k], j[k]
@@ -334,7 +360,8 @@ def vertical_consistency(t_s: FloatArray, h_m: FloatArray, v_up_mps: FloatArray,
                 factor[a:b] = np.maximum(factor[a:b], z_pq / 2.0)
                 span_r, span_z = max(span_r, r_pq), max(span_z, z_pq)
         spans = [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    return VerticalCheck(sh * factor, sv * factor, widened, float(np.abs(r).max()), float(z.max()), spans, span_r, span_z)
+    factor = np.maximum(factor, rms_factor)
+    return VerticalCheck(sh * factor, sv * factor, widened, float(np.abs(r).max()), float(z.max()), spans, span_r, span_z, rms_factor)
 
 
 def _iso(t_ns: int) -> str:
@@ -342,5 +369,5 @@ def _iso(t_ns: int) -> str:
     return f"{dt.datetime.fromtimestamp(sec, tz=dt.UTC):%Y-%m-%d %H:%M:%S}.{ns // 1_000_000:03d}"
 
 
-__all__ = ["ANGLE_UNITS", "HEADINGS", "NavColumns", "NavSolution", "TIME_FORMS", "VEL_FRAMES", "VerticalCheck", "read_nav_csv",
-           "vertical_consistency"]
+__all__ = ["ANGLE_UNITS", "HEADINGS", "NavColumns", "NavSolution", "TIME_FORMS", "VEL_FRAMES", "VERTICAL_BOUND_SIGMAS",
+           "VERTICAL_NEIGHBOURHOOD_S", "VERTICAL_WINDOW_S", "VerticalCheck", "read_nav_csv", "vertical_consistency"]

@@ -42,7 +42,15 @@ from dpos_core.frames import hpr_sigma_to_rotation_cov
 from dpos_core.imports.clock import ClockEstimate, ClockNotObservable, ClockSettings, attitude_rates, estimate_clock
 from dpos_core.imports.logs import ImuColumns, ImuLog, read_imu_csv, read_tag
 from dpos_core.imports.mounting import MountingEstimate, MountingNotObservable, estimate_mounting
-from dpos_core.imports.navsol import VERTICAL_BOUND_SIGMAS, VERTICAL_WINDOW_S, NavColumns, NavSolution, read_nav_csv, vertical_consistency
+from dpos_core.imports.navsol import (
+    VERTICAL_BOUND_SIGMAS,
+    VERTICAL_NEIGHBOURHOOD_S,
+    VERTICAL_WINDOW_S,
+    NavColumns,
+    NavSolution,
+    read_nav_csv,
+    vertical_consistency,
+)
 from dpos_core.imports.timescales import to_gpst_ns
 from dpos_core.units import DEG
 from dpos_ros.contract import conversions as cv
@@ -170,16 +178,23 @@ def master_nav_streams(nav: NavSolution, args: argparse.Namespace) -> tuple[list
     vc = vertical_consistency(np.asarray(t_s, dtype=np.float64), nav.llh[:, 2], nav.vel_n_mps[:, 2], pos_sig[:, 2], vel_sig[:, 2])
     pos_sig, vel_sig = pos_sig.copy(), vel_sig.copy()
     pos_sig[:, 2], vel_sig[:, 2] = vc.sigma_h_m, vc.sigma_vu_mps
+    said = []
     if vc.widened.any():
         spans = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in vc.spans_s[:5]) + (" ..." if len(vc.spans_s) > 5 else "")
-        sources["height and vertical speed"] = (
+        said.append(
             f"widened at {int(vc.widened.sum())} of {n} epochs ({spans} s): the height and the integral of the vertical speed "
             f"disagree by up to {vc.max_disagreement_m:.2f} m over {VERTICAL_WINDOW_S:g} s ({vc.max_sigmas:.1f} sigmas; "
             f"beyond {VERTICAL_BOUND_SIGMAS:g} the solution is inconsistent with itself; within a span up to "
             f"{vc.span_disagreement_m:.2f} m, {vc.span_sigmas:.1f} sigmas)")
-    else:
-        sources["height and vertical speed"] = (f"consistent (the height against the integral of the vertical speed over "
-                                                f"{VERTICAL_WINDOW_S:g} s: at most {vc.max_sigmas:.1f} sigmas)")
+    rms_factor = vc.rms_factor if vc.rms_factor is not None else np.ones(n)
+    if np.any(rms_factor > 1.0):
+        wide = rms_factor[rms_factor > 1.0]
+        said.append(
+            f"widened x{float(wide.min()):.1f}-{float(wide.max()):.1f} at {wide.size} of {n} epochs whose {VERTICAL_WINDOW_S:g} s "
+            f"windows within {VERTICAL_NEIGHBOURHOOD_S:g} s disagree by more than 1 sigma rms (its errors are correlated: a "
+            f"window that passes near failing ones is no evidence that the sigmas hold there)")
+    sources["height and vertical speed"] = "; ".join(said) if said else (
+        f"consistent (the height against the integral of the vertical speed over {VERTICAL_WINDOW_S:g} s: at most {vc.max_sigmas:.1f} sigmas)")
     datum = nav.llh[0].copy()
     vals = cv.odometry_values_cov(nav.llh, nav.vel_n_mps, dcm_to_quat(nav.C_nb), datum, _rates_at(t_s, nav.C_nb),
                                   pos_sig[:, :, None] ** 2 * np.eye(3), att_cov, vel_sig[:, :, None] ** 2 * np.eye(3))
