@@ -163,34 +163,11 @@ def test_imu_gap_longer_than_the_time_update_interval_is_crossed():
     assert t[k_after] < 154.1 and np.hypot(*s9[k_after, :2]) > np.hypot(*s9[k_before, :2])
 
 
-def test_time_offset_is_estimated_where_observable():
-    """A receiver stamping 50 ms late, unknown to the filter: the estimate over candidates 50 ms apart
-    is within 2.5 sigma of it with a sigma under 10 ms (the aircraft flies 80 m/s); a span of 2 ms,
-    where the innovations cannot tell the candidates apart, is reported as not observable."""
-    from dpos_core.ifa.time_offset import estimate_time_offset
-
-    ss, imu, gnss, init = _data()
-    imu, gnss = _cut(imu, 150.0), _upto(gnss, 150.0)
-    late = _shift(gnss, 0.05)
-    cfg = IfaFilterConfig(use_reported_sigma=True)
-    lever = ss.scenario.aircraft.gnss_lever_arm_m
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        est = estimate_time_offset(imu, late, lever, cfg, init, np.arange(-0.1, 0.2001, 0.05))
-        flat = estimate_time_offset(imu, late, lever, cfg, init, np.array([0.049, 0.050, 0.051]))
-    assert est.observable and est.sigma_s < 0.01
-    assert abs(est.offset_s - 0.05) < 2.5 * est.sigma_s, est.lines()
-    assert 0.5 < est.reduced_chi2 < 2.0  # R from the reported sigmas fits the data
-    assert not flat.observable and np.isnan(flat.sigma_s) and "not observable" in flat.lines()[0]
-
-
-def test_time_offset_estimate_set_in_the_parameter_restores_the_accuracy():
-    """One sign convention end to end (docs/ifa.md): a receiver stamping 50 ms late (stamp = instant +
-    0.05 s, as ``GnssModel.stamp_offset_s``) is estimated as about +50 ms, and that value, set as
-    ``gnss_time_offset_s``, gives the on-time accuracy against the truth; 0 and minus the estimate
-    do not (at 80 m/s, 50 ms is 4 m along the track)."""
-    from dpos_core import earth
-    from dpos_core.ifa.reference import Reference, compare
+@pytest.fixture(scope="module")
+def late_receiver() -> tuple:
+    """paper_ifa's first 150 s with a receiver stamping 50 ms late, and the offset estimated from it
+    over candidates 50 ms apart (reported sigmas): shared by the two tests below (a module fixture:
+    they run on one xdist worker, which estimates it once)."""
     from dpos_core.ifa.time_offset import estimate_time_offset
 
     ss, imu, gnss, init = _data()
@@ -200,6 +177,37 @@ def test_time_offset_estimate_set_in_the_parameter_restores_the_accuracy():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         est = estimate_time_offset(imu, late, lever, IfaFilterConfig(use_reported_sigma=True), init, np.arange(-0.1, 0.2001, 0.05))
+    return ss, imu, gnss, init, late, est
+
+
+def test_time_offset_is_estimated_where_observable(late_receiver: tuple) -> None:
+    """A receiver stamping 50 ms late, unknown to the filter: the estimate over candidates 50 ms apart
+    is within 2.5 sigma of it with a sigma under 10 ms (the aircraft flies 80 m/s); a span of 2 ms,
+    where the innovations cannot tell the candidates apart, is reported as not observable."""
+    from dpos_core.ifa.time_offset import estimate_time_offset
+
+    ss, imu, _, init, late, est = late_receiver
+    lever = ss.scenario.aircraft.gnss_lever_arm_m
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        flat = estimate_time_offset(imu, late, lever, IfaFilterConfig(use_reported_sigma=True), init, np.array([0.049, 0.050, 0.051]))
+    assert est.observable and est.sigma_s < 0.01
+    assert abs(est.offset_s - 0.05) < 2.5 * est.sigma_s, est.lines()
+    assert 0.5 < est.reduced_chi2 < 2.0  # R from the reported sigmas fits the data
+    assert not flat.observable and np.isnan(flat.sigma_s) and "not observable" in flat.lines()[0]
+
+
+def test_time_offset_estimate_set_in_the_parameter_restores_the_accuracy(late_receiver: tuple) -> None:
+    """One sign convention end to end (docs/ifa.md): a receiver stamping 50 ms late (stamp = instant +
+    0.05 s, as ``GnssModel.stamp_offset_s``) is estimated as about +50 ms, and that value, set as
+    ``gnss_time_offset_s``, gives the on-time accuracy against the truth; 0 and minus the estimate
+    do not (at 80 m/s, 50 ms is 4 m along the track)."""
+    from dpos_core import earth
+    from dpos_core.ifa.reference import Reference, compare
+    ss, imu, gnss, init, late, est = late_receiver
+    lever = ss.scenario.aircraft.gnss_lever_arm_m
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
         assert est.observable and 0.03 < est.offset_s < 0.07, est.lines()
         runs = {k: run(imu, late, lever, IfaFilterConfig(gnss_time_offset_s=v), "add2", init)
                 for k, v in (("zero", 0.0), ("plus", est.offset_s), ("minus", -est.offset_s))}
