@@ -18,6 +18,10 @@ import yaml
 from ..units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 from .files import ConfigError, build
 
+#: how a filter carries the gyro axis errors (ImuErrorModel and IfaFilterConfig.gyro_axis_errors; not YAML
+#: booleans such as on / off)
+GYRO_AXIS_ERRORS = ("auto", "states", "noise")
+
 
 @dataclass(frozen=True)
 class ImuErrorModel:
@@ -67,7 +71,7 @@ class ImuErrorModel:
     gyro_axis_errors: str = "auto"
 
     def __post_init__(self) -> None:
-        if self.gyro_axis_errors not in ("auto", "states", "noise"):
+        if self.gyro_axis_errors not in GYRO_AXIS_ERRORS:
             raise ValueError(f"IMU error model: gyro_axis_errors must be auto, states or noise, got {self.gyro_axis_errors!r}")
         for k, v in self.__dict__.items():
             if k == "gyro_axis_errors":

@@ -71,7 +71,7 @@ from dpos_core.units import DEG, DEG_PER_H, UG_MPS2, FloatArray
 
 from .. import earth
 from ..attitude import compose_rotvec, rotvec_to_dcm
-from ..config.sensors import ImuErrorModel
+from ..config.sensors import GYRO_AXIS_ERRORS, ImuErrorModel
 from ..errors import RejectedInput
 from ..ins_errors import Interval, IntervalIntegrals, nav_process_noise, propagate_nav_errors
 from ..series import NavSeries
@@ -103,8 +103,6 @@ def gyro_axis_matrix(omega_radps: FloatArray) -> FloatArray:
 _NAV_ORDER = np.r_[PHI, DV, DP]
 
 
-#: how the gyro axis errors enter the filter (IfaFilterConfig.gyro_axis_errors; not YAML booleans such as on / off)
-GYRO_AXIS_ERRORS = ("auto", "states", "noise")
 #: when the bias estimates are fed back (IfaFilterConfig.bias_feedback)
 BIAS_FEEDBACK = ("auto", "aligned", "always")
 

@@ -49,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from ..attitude import skew
 from ..correlation import correlation_factor
@@ -106,6 +107,23 @@ def _triangle_means(t_s: FloatArray, x: FloatArray, edges: FloatArray, h: float)
     return out, inside
 
 
+def _whiten(L: FloatArray, M: FloatArray) -> FloatArray:
+    """``L^-1 M_k`` for each of the K matrices (K, 3, m) or vectors (K, 3), ``L`` (3, 3) lower triangular."""
+    return solve_triangular(L, np.moveaxis(M, 0, 1).reshape(3, -1), lower=True).reshape((3, M.shape[0], *M.shape[2:])).swapaxes(0, 1)
+
+
+def _gls(Kc: FloatArray, dc: FloatArray, S: FloatArray) -> tuple[FloatArray, tuple[FloatArray, bool], FloatArray, FloatArray]:
+    """(1) by generalized least squares with the residuals' covariance ``S`` (3, 3): ``Kc`` (K, 3, 3)
+    and ``dc`` (K, 3) whitened by the Cholesky factor ``L`` of ``S``.  Returns ``L``, the Cholesky
+    factor of the information ``sum K_k^T S^-1 K_k`` (:func:`scipy.linalg.cho_factor`), ``r`` (3,)
+    and the residuals (K, 3) (not whitened)."""
+    L = np.asarray(np.linalg.cholesky(S), dtype=np.float64)
+    Kw, dw = _whiten(L, Kc), _whiten(L, dc)
+    info_f = cho_factor(np.einsum("kji,kjm->im", Kw, Kw))
+    r = cho_solve(info_f, np.einsum("kji,kj->i", Kw, dw))
+    return L, info_f, r, dc - np.einsum("kij,j->ki", Kc, r)
+
+
 def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, interval_s: float = 0.1,
                                   min_excitation: float = 0.3, name: str = "IMU pair",
                                   C_ab_cov_rad2: FloatArray | None = None) -> LeverArmEstimate:
@@ -148,20 +166,14 @@ def lever_arm_from_specific_force(a: ImuSeries, b: ImuSeries, C_ab: FloatArray, 
                                     f"{exc[1]:.3g}, {exc[2]:.3g} 1/s^2 ({min_excitation:g} needed on all three)")
     S = np.eye(3)
     for _ in range(3):  # feasible GLS: the residuals' covariance weighs (1)
-        Si = np.linalg.inv(S)
-        info = np.einsum("kji,jl,klm->im", Kc, Si, Kc)
-        r = np.linalg.solve(info, np.einsum("kji,jl,kl->i", Kc, Si, dc))
-        res = dc - np.einsum("kij,j->ki", Kc, r)
+        _, _, _, res = _gls(Kc, dc, S)
         S = res.T @ res / max(1, n - 2)
-    Si = np.linalg.inv(S)
-    info = np.einsum("kji,jl,klm->im", Kc, Si, Kc)
-    r = np.linalg.solve(info, np.einsum("kji,jl,kl->i", Kc, Si, dc))
-    res = dc - np.einsum("kij,j->ki", Kc, r)
-    factor = correlation_factor(np.linalg.solve(np.linalg.cholesky(S), res.T).T)  # whitened residuals
-    cov = factor * np.linalg.inv(info)
+    L, info_f, r, res = _gls(Kc, dc, S)
+    factor = correlation_factor(solve_triangular(L, res.T, lower=True).T)  # whitened residuals
+    cov = factor * cho_solve(info_f, np.eye(3))
     if C_ab_cov_rad2 is not None:  # errors in variables: the rotation's error through -[g x] phi
         G = -np.asarray(skew(tb[keep, 0:3]), dtype=np.float64)
-        J = np.linalg.solve(info, np.einsum("kji,jl,klm->im", Kc, Si, G - G.mean(axis=0)))
+        J = cho_solve(info_f, np.einsum("kji,kjm->im", _whiten(L, Kc), _whiten(L, G - G.mean(axis=0))))
         cov = cov + J @ np.asarray(C_ab_cov_rad2, dtype=np.float64) @ J.T
     Km = K.mean(axis=0)
     bias = d.mean(axis=0) - Km @ r

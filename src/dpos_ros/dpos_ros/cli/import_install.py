@@ -255,6 +255,10 @@ def _mount_dict(m: MountingEstimate) -> dict[str, Any]:
             "residual_correlation_factor": m.corr_factor}
 
 
+#: the smallest ``mount_sigma_deg`` dpos-import writes [deg] (:func:`mount_prior_sigma_deg`)
+MOUNT_SIGMA_MIN_DEG = 0.01
+
+
 def mount_prior_sigma_deg(m: MountingEstimate, att_sigma_deg: float) -> float:
     """``mount_sigma_deg`` [deg] written beside an estimated mounting ``m``: the prior 1 sigma per axis
     of the misalignment rho the transfer alignment estimates against the main solution's attitude.
@@ -268,10 +272,6 @@ def mount_prior_sigma_deg(m: MountingEstimate, att_sigma_deg: float) -> float:
     below the solution's sigma, never below 0.01 deg (a solution claiming a perfect attitude)."""
     rot_deg = float(np.sqrt(max(float(np.linalg.eigvalsh(m.phi_cov_rad2).max()), 0.0))) / DEG
     return round(max(float(np.hypot(rot_deg, att_sigma_deg)), MOUNT_SIGMA_MIN_DEG), 3)
-
-
-#: the smallest ``mount_sigma_deg`` dpos-import writes [deg] (:func:`mount_prior_sigma_deg`)
-MOUNT_SIGMA_MIN_DEG = 0.01
 
 
 def aircraft_text(path: Path | None, names: list[str], mounts: dict[str, MountingEstimate], preset: str = "consumer_mems",
